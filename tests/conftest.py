@@ -1,0 +1,64 @@
+"""Shared fixtures: each test gets its own fleet and host connection; none leaks out."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+
+import pytest
+
+from ucom_tools.protocol.bootloader import BootloaderClient
+from ucom_tools.protocol.link import Link
+from ucom_tools.virtual import fleet as fleet_mod
+from ucom_tools.virtual.canbus import VirtualUcomBus
+from ucom_tools.virtual.fleet import Fleet
+from ucom_tools.virtual.topology import parse
+
+
+@pytest.fixture(autouse=True)
+def _no_leaked_fleets() -> Iterator[None]:
+    yield
+    leaked = list(fleet_mod._SHARED)
+    fleet_mod.forget_shared()
+    assert not leaked, f"test left shared fleets behind: {leaked}"
+
+
+class Host:
+    """A host connection to one bus of a fleet, with the protocol clients on it."""
+
+    def __init__(self, fleet: Fleet, bus: str) -> None:
+        self.fleet = fleet
+        self.can = VirtualUcomBus(bus, fleet=fleet)
+        self.sim = self.can.sim
+        self.link = Link(self.can, bus)
+        self.client = BootloaderClient(self.link)
+
+    @property
+    def boards(self) -> list:
+        return self.fleet.boards[self.sim.name]
+
+    def close(self) -> None:
+        self.can.shutdown()
+
+
+@pytest.fixture
+def host() -> Iterator[Callable[..., Host]]:
+    opened: list[Host] = []
+
+    def make(topology: str | Fleet = "armar3", bus: str = "CAN0") -> Host:
+        fleet = topology if isinstance(topology, Fleet) else Fleet.load(topology)
+        h = Host(fleet, bus)
+        opened.append(h)
+        return h
+
+    yield make
+    for h in opened:
+        h.close()
+
+
+def chain_topology(n: int, *, extra: dict[int, str] | None = None, timing: str = "") -> Fleet:
+    """A one-bus fleet of ``n`` three-motor boards; ``extra[i]`` adds TOML lines to board i."""
+    extra = extra or {}
+    text = f'name = "chain{n}"\n{timing}\n[[bus]]\nname = "CAN0"\nbitrate = 1000000\n'
+    for i in range(n):
+        text += f'\n[[bus.board]]\nplacement = "slot {i + 1}"\nboard = "3M"\n{extra.get(i, "")}\n'
+    return Fleet(parse(text, f"<chain{n}>"))

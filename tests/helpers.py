@@ -1,0 +1,38 @@
+"""Small builders shared by the tests (images and transfers)."""
+
+from __future__ import annotations
+
+import random
+from datetime import UTC, datetime
+
+from ucom_tools.protocol.programmer import Programmer, TransferResult
+from ucom_tools.wire.codes import Space, StatusOp, Target
+from ucom_tools.wire.ids import ALL, Address
+from ucom_tools.wire.transfer import TransferPlan
+
+WHEN = datetime(2026, 11, 22, 12, 0, tzinfo=UTC)
+
+
+def image_words(p_words: int, x_words: int = 0, seed: int = 1) -> dict[tuple[Space, int], int]:
+    rnd = random.Random(seed)
+    words = {(Space.P, a): rnd.getrandbits(16) for a in range(0x0004, 0x0004 + p_words)}
+    words.update({(Space.X, a): rnd.getrandbits(16) for a in range(0x1000, 0x1000 + x_words)})
+    return words
+
+
+def plan_of(words: dict[tuple[Space, int], int], *, name: str = "test.S",
+            target: Target = Target.FLASH) -> TransferPlan:
+    return TransferPlan.build(words, entry=4, name=name, when=WHEN, target=target)
+
+
+def program(host, plan: TransferPlan, boards: list[Address] | None = None) -> TransferResult:
+    """Init, ProgEnable and transfer over the host connection (the real code path)."""
+    init = host.client.init_chain()
+    targets = boards or [Address(0, n) for n in init.numbers]
+    for a in targets:
+        host.client.set_status(a, StatusOp.PROG_ENABLE, 1)
+    return Programmer(host.link).transfer(plan, targets)
+
+
+def enable_all(host) -> None:
+    host.client.set_status(ALL, StatusOp.PROG_ENABLE, 1)

@@ -1,0 +1,80 @@
+"""``ucom fleet serve`` in a second process, reached with python-can's socketcand client."""
+
+from __future__ import annotations
+
+import os
+import selectors
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import can
+import pytest
+
+from tests.helpers import image_words, plan_of, program
+from ucom_tools.protocol.bootloader import BootloaderClient
+from ucom_tools.protocol.link import Link
+from ucom_tools.wire.ids import seq
+
+
+@contextmanager
+def served(*args: str) -> Iterator[int]:
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "ucom_tools", "fleet", "serve", *args,
+                             "--host", "127.0.0.1", "--port", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        sel = selectors.DefaultSelector()
+        assert proc.stdout is not None
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        if not sel.select(timeout=30):
+            pytest.fail("server did not start: " + (proc.stderr.read() if proc.stderr else ""))
+        line = proc.stdout.readline()
+        assert line.startswith("listening on 127.0.0.1:"), line
+        yield int(line.rsplit(":", 1)[1])
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+class RemoteHost:
+    def __init__(self, port: int, channel: str) -> None:
+        self.can = can.Bus(interface="socketcand", host="127.0.0.1", port=port, channel=channel)
+        self.link = Link(self.can, channel)
+        self.client = BootloaderClient(self.link)
+
+
+def test_python_can_socketcand_client_talks_to_the_served_fleet(tmp_path: Path) -> None:
+    with served("armar3", "--state", str(tmp_path)) as port:
+        h = RemoteHost(port, "CAN1")
+        try:
+            result = h.client.init_chain()
+            assert [a.seq_id for a in result.acks] == [1, 2, 3]
+            plan = plan_of(image_words(700), name="remote.S")
+            outcome = program(h, plan)
+            assert outcome.all_verified
+            assert h.client.info(seq(2)).progid == plan.progid
+        finally:
+            h.can.shutdown()
+    # the state directory keeps the flash across a restart, like a power cycle
+    with served("armar3", "--state", str(tmp_path)) as port:
+        h = RemoteHost(port, "CAN1")
+        try:
+            h.client.init_chain()
+            info = h.client.info(seq(2))
+            assert (info.flash_valid, info.progid, info.name) == (True, plan.progid, "remote.S")
+            h0 = RemoteHost(port, "CAN0")
+            try:
+                h0.client.init_chain()
+                assert not h0.client.info(seq(1)).flash_valid  # other bus untouched
+            finally:
+                h0.can.shutdown()
+        finally:
+            h.can.shutdown()
+
+
+def test_unknown_bus_is_refused(tmp_path: Path) -> None:
+    with served("rosi") as port, pytest.raises(can.CanError):
+        can.Bus(interface="socketcand", host="127.0.0.1", port=port, channel="CAN9")

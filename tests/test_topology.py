@@ -1,0 +1,94 @@
+"""Bundled topologies and the errors a malformed topology file gets."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from ucom_tools.errors import TopologyError
+from ucom_tools.virtual import topology
+
+
+@pytest.mark.parametrize("name, buses", [
+    ("armar3", {"CAN0": 3, "CAN1": 3, "CAN2": 3, "CAN3": 2}),
+    ("lauron4", {"CAN0": 7}),
+    ("kairo2", {"CAN0": 11}),
+    ("odete", {"CAN0": 3}),
+    ("puma200", {"CAN0": 3}),
+    ("rosi", {"CAN0": 1}),
+])
+def test_bundled_topologies(name: str, buses: dict[str, int]) -> None:
+    topo = topology.load(name)
+    assert {b.name: len(b.boards) for b in topo.buses} == buses
+    serials = [x.serial for b in topo.buses for x in b.boards]
+    assert len(set(serials)) == len(serials)
+
+
+def test_armar3_placements_follow_table_5_2() -> None:
+    topo = topology.load("armar3")
+    assert [x.placement for x in topo.bus("CAN0").boards] == ["neck", "head left", "head right"]
+    assert [x.placement for x in topo.bus("CAN3").boards] == ["platform", "torso base joint"]
+    assert all(x.board == "3M" for b in topo.buses for x in b.boards)
+
+
+GOOD = '''name = "t"
+
+[[bus]]
+name = "CAN0"
+
+[[bus.board]]
+placement = "a"
+board = "3M"
+'''
+
+
+@pytest.mark.parametrize("text, line, key, reason", [
+    (GOOD.replace('board = "3M"', 'board = "9M"'), 8, "bus[1].board[1].board",
+     "unknown plug-on board"),
+    (GOOD.replace('name = "CAN0"', 'name = "CAN0"\nbitrate = 333'), 5, "bus[1].bitrate",
+     "expected one of"),
+    (GOOD + 'fixed_id = 40\n', 9, "bus[1].board[1].fixed_id", "must be 1..31"),
+    (GOOD + 'colour = "red"\n', 9, "bus[1].board[1].colour", "unknown key"),
+    (GOOD.replace('placement = "a"\n', ''), 6, "bus[1].board[1].placement", "missing"),
+    (GOOD + 'powered = "yes"\n', 9, "bus[1].board[1].powered", "true or false"),
+    (GOOD + 'init_link = "cut"\n', 9, "bus[1].board[1].init_link", "\"ok\" or \"broken\""),
+    (GOOD + 'program = "nowhere.S"\n', 9, "bus[1].board[1].program", "no such S-record"),
+    ('name = "t"\n', None, "bus", "missing"),
+    (GOOD + '\n[[bus]]\nname = "CAN0"\n', 11, "bus[2].name", "defined twice"),
+    (GOOD.replace('name = "t"', 'name = "t"\n[timing]\nlow_water = 500'), 3,
+     "timing.low_water", "low_water < high_water"),
+])
+def test_malformed_topology_names_file_line_and_key(tmp_path: Path, text: str,
+                                                    line: int | None, key: str,
+                                                    reason: str) -> None:
+    path = tmp_path / "robot.toml"
+    path.write_text(text)
+    with pytest.raises(TopologyError) as info:
+        topology.load(str(path))
+    err = info.value
+    assert (err.file, err.line, err.key) == (str(path), line, key)
+    assert reason in err.reason
+    assert str(err).startswith(f"{path}:{line}: {key}: " if line else f"{path}: {key}: ")
+
+
+def test_toml_syntax_error_names_the_line(tmp_path: Path) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text('name = "x"\n[[bus]\n')
+    with pytest.raises(TopologyError) as info:
+        topology.load(str(path))
+    assert info.value.line == 2
+
+
+def test_missing_file_names_the_bundled_ones() -> None:
+    with pytest.raises(TopologyError, match="bundled ones: armar3"):
+        topology.load("armar4")
+
+
+def test_board_limit_per_bus(tmp_path: Path) -> None:
+    board = '[[bus.board]]\nplacement = "x"\nboard = "3M"\n'
+    text = 'name = "t"\n[[bus]]\nname = "CAN0"\n' + board * 32
+    path = tmp_path / "big.toml"
+    path.write_text(text)
+    with pytest.raises(TopologyError, match="at most 31 boards"):
+        topology.load(str(path))

@@ -1,0 +1,1 @@
+"""Command-line interface and console: the only code that imports click or rich."""

@@ -1,0 +1,93 @@
+"""``ucom fleet show`` and ``ucom fleet serve``: the bundled virtual UCoM fleets."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+from rich.table import Table
+
+from ucom_tools.cli.output import emit_json, err, leds, out
+from ucom_tools.virtual.fleet import Fleet
+from ucom_tools.virtual.socketcand import DEFAULT_PORT, FleetServer, wait_forever
+from ucom_tools.virtual.topology import BUNDLED
+
+TOPOLOGY_HELP = f"a bundled topology ({', '.join(BUNDLED)}) or a topology file (TOML)"
+
+
+@click.group()
+def fleet() -> None:
+    """The virtual UCoM fleets: boards that behave like the hardware, on simulated buses."""
+
+
+@fleet.command("show")
+@click.argument("topology", metavar="TOPOLOGY")
+@click.option("--state", "state_dir", type=click.Path(file_okay=False, path_type=Path),
+              help="Directory with the boards' non-volatile memory (see 'fleet serve').")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of tables.")
+def show(topology: str, state_dir: Path | None, as_json: bool) -> None:
+    """Show the buses and boards of TOPOLOGY at power-on.
+
+    TOPOLOGY is """ + TOPOLOGY_HELP + """.  Shows per board its chain position, plug-on
+    board, seq ID, firmware state, stored program and the three LEDs (red, yellow,
+    green) as they light right after power-on (dissertation B.2.3)."""
+    snap = Fleet.load(topology, state_dir=state_dir).snapshot()
+    if as_json:
+        emit_json(snap)
+        return
+    total = sum(len(b["boards"]) for b in snap["buses"])
+    out.print(f"[bold]{snap['topology']}[/] - {snap['description']}")
+    out.print(f"{total} boards on {len(snap['buses'])} buses\n")
+    for bus in snap["buses"]:
+        t = Table(title=f"{bus['name']} ({bus['bitrate'] // 1000} kbit/s)", title_justify="left")
+        for col in ("pos", "placement", "board", "seq ID", "fixed ID", "state", "program",
+                    "LEDs r y g"):
+            t.add_column(col, no_wrap=True)
+        for b in bus["boards"]:
+            prog = b["program"]
+            t.add_row(
+                str(b["position"]), b["placement"], b["board"], str(b["seq_id"] or "-"),
+                str(b["fixed_id"] or "-"), b["state"],
+                f"{prog['name']} {prog['progid']}" if prog else "[dim]none[/]",
+                leds(b["leds"]))
+        out.print(t)
+        if bus["broken_init_links"]:
+            out.print(f"  [yellow]init line cut before position(s) "
+                      f"{', '.join(map(str, bus['broken_init_links']))}[/]")
+    out.print("[dim]LEDs at power-on: first board yellow only, every later board yellow+green"
+              " (B.2.3); 'ucom init' numbers the boards.[/]")
+
+
+@fleet.command("serve")
+@click.argument("topology", metavar="TOPOLOGY")
+@click.option("--state", "state_dir", type=click.Path(file_okay=False, path_type=Path),
+              help="Keep each board's flash and AutoStart flag in DIR across restarts.")
+@click.option("--host", default="127.0.0.1", show_default=True, help="Address to bind.")
+@click.option("--port", default=DEFAULT_PORT, show_default=True, type=click.IntRange(0, 65535),
+              help="TCP port (0 = any free port; the chosen one is printed).")
+def serve(topology: str, state_dir: Path | None, host: str, port: int) -> None:
+    """Serve TOPOLOGY's buses with the socketcand protocol, in real time.
+
+    Other processes reach the boards through python-can's socketcand interface, e.g.
+    can.Bus(interface="socketcand", host="127.0.0.1", port=29536, channel="CAN0").
+    Runs until interrupted (Ctrl-C)."""
+    f = Fleet.load(topology, state_dir=state_dir, realtime=True)
+    try:
+        server = FleetServer(f, host, port)
+    except OSError as e:
+        f.close()
+        from ucom_tools.errors import BusError
+        raise BusError(f"cannot listen on {host}:{port}: {e.strerror}") from None
+    h, p = server.address
+    print(f"listening on {h}:{p}", flush=True)
+    err.print(f"serving {f.name} ({', '.join(f.buses)}) with socketcand on {h}:{p}; "
+              f"state: {state_dir or 'not kept'}; Ctrl-C stops")
+    import threading
+    t = threading.Thread(target=server.serve_forever, daemon=True)
+    t.start()
+    try:
+        wait_forever(server)
+    finally:
+        f.close()
+        sys.stdout.flush()

@@ -1,0 +1,77 @@
+"""``ucom``: the root command and its error boundary (exit codes, one red line)."""
+
+from __future__ import annotations
+
+import sys
+import traceback
+from typing import Any
+
+import click
+
+from ucom_tools import __version__
+from ucom_tools.cli.output import err
+from ucom_tools.errors import BusError, InputError, UcomError
+
+EXIT_OK = 0
+EXIT_FAILED = 1
+"""The operation failed on some boards (they are named in the output)."""
+EXIT_USAGE = 2
+EXIT_BAD_INPUT = 3
+"""A file or argument is wrong; nothing was sent or written."""
+EXIT_BUS = 4
+"""A bus could not be opened or failed."""
+EXIT_INTERRUPTED = 130
+
+
+class UcomGroup(click.Group):
+    """Root group: maps ucom-tools errors to exit codes, one line on stderr."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except InputError as e:
+            self._fail(ctx, e, EXIT_BAD_INPUT, "bad input")
+        except BusError as e:
+            self._fail(ctx, e, EXIT_BUS, "bus error")
+        except UcomError as e:
+            self._fail(ctx, e, EXIT_FAILED, "error")
+        except KeyboardInterrupt:
+            err.print("[yellow]interrupted[/]")
+            ctx.exit(EXIT_INTERRUPTED)
+
+    @staticmethod
+    def _fail(ctx: click.Context, e: Exception, code: int, label: str) -> None:
+        if (ctx.obj or {}).get("verbose", 0) >= 2:
+            traceback.print_exc(file=sys.stderr)
+        err.print(f"[bold red]ucom: {label}:[/] {e}", markup=True, highlight=False,
+                  soft_wrap=True)
+        ctx.exit(code)
+
+
+@click.group(cls=UcomGroup, context_settings={"help_option_names": ["-h", "--help"],
+                                              "auto_envvar_prefix": "UCOM"})
+@click.version_option(__version__, prog_name="ucom")
+@click.option("-v", "--verbose", count=True, help="More detail; -vv shows tracebacks.")
+@click.pass_context
+def cli(ctx: click.Context, verbose: int) -> None:
+    """Toolchain and bus console for UCoM controller boards (ARMAR-III and others).
+
+    Exit codes: 0 success, 1 some boards failed, 2 usage error, 3 bad input
+    (file, topology, argument), 4 bus or connection failure, 130 interrupted.
+    See ucom(1) and ucom-protocol(7).
+    """
+    ctx.ensure_object(dict)
+    ctx.obj["verbose"] = verbose
+
+
+def _register() -> None:
+    from ucom_tools.cli import fleet
+
+    cli.add_command(fleet.fleet)
+
+
+_register()
+
+
+def main() -> None:
+    cli(prog_name="ucom")

@@ -1,0 +1,59 @@
+"""The one exception tree of ucom-tools.
+
+Every error a user can cause or meet derives from :class:`UcomError`; the CLI maps the
+branches to exit codes (see ``man/ucom.1``).  Library code raises these and never prints.
+"""
+
+from __future__ import annotations
+
+
+class UcomError(Exception):
+    """Root of every ucom-tools error."""
+
+
+class FrameError(UcomError):
+    """A CAN frame that does not fit the protocol; ``field`` names what is wrong."""
+
+    def __init__(self, field: str, message: str) -> None:
+        super().__init__(f"{field}: {message}")
+        self.field = field
+        self.message = message
+
+
+class InputError(UcomError):
+    """Bad user input (a file, an argument); nothing was sent or written."""
+
+    def __init__(
+        self, message: str, *, file: str | None = None, line: int | None = None,
+        key: str | None = None,
+    ) -> None:
+        where = ""
+        if file is not None:
+            where = file + (f":{line}" if line is not None else "") + ": "
+        if key is not None:
+            where += f"{key}: "
+        super().__init__(where + message)
+        self.file = file
+        self.line = line
+        self.key = key
+        self.reason = message
+
+
+class TopologyError(InputError):
+    """A topology file that cannot be used (file, line and key are named)."""
+
+
+class ImageError(InputError):
+    """A firmware image (S-record file) that cannot be programmed."""
+
+
+class BusError(UcomError):
+    """A CAN bus could not be opened or failed while in use."""
+
+
+class UcomTimeoutError(UcomError, TimeoutError):
+    """A board did not answer in time."""
+
+
+class BoardError(UcomError):
+    """A board answered with an Error message or refused an operation."""

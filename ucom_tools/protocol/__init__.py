@@ -1,0 +1,1 @@
+"""Host-side protocol clients: talk to UCoM boards over any python-can ``BusABC``."""

@@ -1,0 +1,1 @@
+"""The bundled virtual UCoM fleet: boards that speak the real protocol on simulated buses."""

@@ -1,0 +1,592 @@
+"""A virtual UCoM: the bootloader state machine of ``man/ucom-protocol.7`` as a bus node.
+
+The board reacts to frames on its :class:`~ucom_tools.virtual.simbus.SimBus` and answers
+with real frames; it never shares state with the host.  Init pins, LEDs, flash timing,
+AutoStart in non-volatile memory and volatile ExtRAM behave as in the dissertation
+(B.2.2, B.2.3, B.3.1).
+"""
+
+from __future__ import annotations
+
+import sys
+from array import array
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from ucom_tools.errors import FrameError
+from ucom_tools.virtual.nvmem import NonVolatile
+from ucom_tools.virtual.receiver import Reception, RejectedBlock, Timing
+from ucom_tools.virtual.simbus import SimBus
+from ucom_tools.wire import messages as m
+from ucom_tools.wire.codes import (
+    BoardState,
+    ErrorCode,
+    InitAckKind,
+    InitOp,
+    MetaField,
+    ReadyReason,
+    ReportChannel,
+    ResultStatus,
+    Space,
+    StatusOp,
+    Target,
+)
+from ucom_tools.wire.ids import Address, Direction, Function, IdType, encode_id
+from ucom_tools.wire.info import BoardInfo
+from ucom_tools.wire.transfer import decode_date
+
+BOOTLOADER_VERSION = (1, 0)
+_FROM_BOARD = frozenset(f.value for f in Function if f.direction is Direction.BOARD_TO_HOST)
+_MCA_FROM_HOST = frozenset({13, 15, 21, 22, 24, 25, 26})
+_PROGRAM = int(Function.PROGRAM)
+
+
+@dataclass(frozen=True)
+class Identity:
+    """What a board is, as the topology describes it."""
+
+    position: int
+    placement: str
+    board: str
+    serial: int
+    fixed_id: int = 0
+
+
+class Application:
+    """A program started from flash or ExtRAM.  This stand-in only announces itself;
+    real application behaviour (MCA run-time messages) plugs in here."""
+
+    def __init__(self, board: VirtualBoard, target: Target, name: str, progid: int) -> None:
+        self.board = board
+        self.target = target
+        self.name = name
+        self.progid = progid
+
+    def start(self, t: float) -> None:
+        self.board.report_text(t, f"program '{self.name}' running (ProgID 0x{self.progid:08X})")
+
+    def on_frame(self, function: int, address: Address, data: bytes, t: float) -> None:
+        """MCA frames reach the running program here; the stand-in ignores them."""
+
+
+class VirtualBoard:
+    """One UCoM with its bootloader, on one bus, at one position of the init chain."""
+
+    def __init__(self, bus: SimBus, identity: Identity, *, timing: Timing | None = None,
+                 powered: bool = True, state_file: Path | None = None) -> None:
+        self.bus = bus
+        self.identity = identity
+        self.timing = timing or Timing()
+        self.nv = NonVolatile()
+        self.state_file = state_file
+        if state_file is not None:
+            self.nv.load(state_file)
+        self.powered = False
+        self.in_drive = False
+        self.out_drive = False
+        self.state = BoardState.BOOTLOADER
+        self.seq_id = 0
+        self.prog_enable = False
+        self.chain_active = False
+        self.reception: Reception | None = None
+        self.extram: dict[Space, array] | None = None
+        # progid, size, name, entry, date of the program held in ExtRAM
+        self.extram_meta: tuple[int, int, str, int, int] | None = None
+        self.application: Application | None = None
+        self.overruns = 0
+        self.ignored = 0
+        self.stagger_us = (identity.serial & 0x3F) * bus.us_per_bit
+        self.application_factory: Callable[[VirtualBoard, Target, str, int], Application] = \
+            Application
+        if powered:
+            self.power_on(bus.now)
+
+    # ================================================================= power & reset
+    def power_on(self, t: float) -> None:
+        """Power-on: volatile state cleared, init outputs set (B.2.2 (b))."""
+        self.powered = True
+        self.seq_id = 0
+        self._boot(t)
+
+    def power_off(self) -> None:
+        """Power loss: flash keeps what was written; everything else is gone."""
+        self.powered = False
+        self.in_drive = self.out_drive = False
+        self.reception = None
+        self.application = None
+        self.extram = None
+        self.extram_meta = None
+        self.state = BoardState.BOOTLOADER
+
+    def _boot(self, t: float) -> None:
+        self.prog_enable = False
+        self.reception = None
+        self.extram = None
+        self.extram_meta = None
+        self.application = None
+        self.chain_active = False
+        self.in_drive = False
+        self.out_drive = True
+        self.state = BoardState.BOOTLOADER
+        rec = self.nv.record
+        if rec.autostart and rec.flash_valid:
+            self._start_program(Target.FLASH, t, announce=False)
+
+    def _reset(self, t: float, clear_autostart: bool) -> None:
+        if clear_autostart and self.nv.record.autostart:
+            self.nv.record.autostart = False
+            self._persist(record_only=True)
+        self.state = BoardState.BOOTLOADER
+        self.application = None
+        self.bus.at(t + self.timing.reset_us, self._after_reset)
+
+    def _after_reset(self, t: float) -> None:
+        if not self.powered:
+            return
+        self._boot(t)
+        if self.reply_address() is not None:
+            self.send(t, m.Ready(ReadyReason.BOOT, self.state, 0, self.identity.serial))
+
+    # ================================================================= sending
+    def reply_address(self, via_fixed: bool = False) -> Address | None:
+        """The identifier this board answers with; None if it has no number yet."""
+        fid = self.identity.fixed_id
+        if via_fixed and fid:
+            return Address(IdType.FIXED, fid)
+        if self.seq_id:
+            return Address(IdType.SEQUENTIAL, self.seq_id)
+        if fid:
+            return Address(IdType.FIXED, fid)
+        return None
+
+    def send(self, t: float, msg: m.BootMessage, *, via_fixed: bool = False,
+             address: Address | None = None) -> None:
+        addr = address or self.reply_address(via_fixed)
+        if addr is None:
+            return
+        self.bus.send(self, t, encode_id(msg.FUNCTION, addr), msg.encode())
+
+    def send_raw(self, t: float, function: int, data: bytes) -> None:
+        addr = self.reply_address()
+        if addr is not None:
+            self.bus.send(self, t, encode_id(function, addr), data)
+
+    def report_text(self, t: float, text: str) -> None:
+        for frame in m.text_reports(text):
+            self.send(t, frame)
+
+    def _error(self, t: float, code: ErrorCode, function: int, detail: int = 0,
+               via_fixed: bool = False) -> None:
+        self.send(t + self.timing.reply_us, m.Error(code, function, detail), via_fixed=via_fixed)
+
+    # ================================================================= receiving
+    def on_frame(self, arbitration_id: int, data: bytes, t: float) -> None:
+        if not self.powered:
+            return
+        function = arbitration_id >> 6
+        if function == _PROGRAM and len(data) == 8 and self.reception is not None:
+            self._data(data, t)  # hot path of a transfer: raw data frame, always broadcast
+            return
+        if function in _FROM_BOARD:
+            return  # another board's traffic
+        id_type, number = (arbitration_id >> 5) & 1, arbitration_id & 0x1F
+        if id_type == 0:
+            broadcast = number == 0
+            if not broadcast and number != self.seq_id:
+                return
+            via_fixed = False
+        else:
+            if not self.identity.fixed_id or number != self.identity.fixed_id:
+                return
+            broadcast, via_fixed = False, True
+        if function > 27:
+            if not broadcast:
+                self._error(t, ErrorCode.UNKNOWN_FUNCTION, function, via_fixed=via_fixed)
+            else:
+                self.ignored += 1
+            return
+        if function in _MCA_FROM_HOST:
+            if self.application is not None:
+                self.application.on_frame(function, Address(IdType(id_type), number), data, t)
+            elif not broadcast:
+                self._error(t, ErrorCode.NOT_RUNNING, function, via_fixed=via_fixed)
+            return
+        try:
+            _, msg = m.decode(arbitration_id, data, sender=Direction.HOST_TO_BOARD)
+        except FrameError as err:
+            if function == _PROGRAM and not self.prog_enable:
+                return
+            code = ErrorCode.BAD_LENGTH if "length" in err.field else ErrorCode.BAD_VALUE
+            self._error(t, code, function, via_fixed=via_fixed)
+            return
+        self._dispatch(msg, t, broadcast, via_fixed)
+
+    def _dispatch(self, msg: m.BootMessage, t: float, broadcast: bool, via_fixed: bool) -> None:
+        reply_t = t + self.timing.reply_us
+        running = self.application is not None
+        match msg:
+            case m.Reset():
+                self._reset(t, clear_autostart=False)
+            case m.XReset():
+                self._reset(t, clear_autostart=True)
+            case m.InitRequest():
+                self._init(msg, t)
+            case m.InfoRequest():
+                for frame in self.info().to_frames():
+                    self.send(reply_t, frame, via_fixed=via_fixed)
+            case m.ReportRequest():
+                self._report(msg, reply_t, via_fixed)
+            case m.SetStatus():
+                self._set_status(msg, t, via_fixed)
+            case m.Start():
+                self._start_cmd(msg.target, t, via_fixed)
+            case _ if msg.FUNCTION is Function.PROGRAM:
+                if running:
+                    if not broadcast:
+                        self._error(t, ErrorCode.RUNNING, _PROGRAM, via_fixed=via_fixed)
+                elif not self.prog_enable:
+                    if not broadcast:
+                        self._error(t, ErrorCode.NOT_ENABLED, _PROGRAM, via_fixed=via_fixed)
+                else:
+                    self._program(msg, t)
+
+    # ================================================================= init chain
+    def _init(self, msg: m.InitRequest, t: float) -> None:
+        settle = t + self.timing.settle_us
+        if msg.op is InitOp.BEGIN:
+            self.seq_id = 0
+            self.chain_active = True
+            self.in_drive = False
+            self.out_drive = True
+            self.bus.at(settle, self._claim_if_first(1))
+        elif msg.op is InitOp.NEXT:
+            if self.seq_id == msg.number - 1 and self.chain_active:
+                self.out_drive = False
+            if self.chain_active and not self.seq_id:
+                self.bus.at(settle, self._claim_if_first(msg.number))
+        elif msg.op is InitOp.END:
+            self.chain_active = False
+            self.in_drive = self.out_drive = False
+        elif msg.op is InitOp.PROBE_FIRST:
+            saved = (self.in_drive, self.out_drive)
+            self.in_drive, self.out_drive = False, True
+            self.bus.at(settle, self._probe(InitAckKind.FIRST))
+            self.bus.at(settle + 1.0, self._restore_pins(saved))
+        elif msg.op is InitOp.PROBE_LAST:
+            saved = (self.in_drive, self.out_drive)
+            self.in_drive, self.out_drive = True, False
+            self.bus.at(settle, self._probe(InitAckKind.LAST))
+            self.bus.at(settle + 1.0, self._restore_pins(saved))
+
+    def _claim_if_first(self, number: int) -> Callable[[float], None]:
+        def sample(t: float) -> None:
+            if not self.powered or not self.chain_active or self.seq_id:
+                return
+            if self.bus.init_in_set(self.identity.position):
+                return
+            self.seq_id = number
+            self._init_ack(InitAckKind.ASSIGNED, t)
+        return sample
+
+    def _probe(self, kind: InitAckKind) -> Callable[[float], None]:
+        def sample(t: float) -> None:
+            if not self.powered:
+                return
+            pos = self.identity.position
+            free = (not self.bus.init_in_set(pos) if kind is InitAckKind.FIRST
+                    else not self.bus.init_out_set(pos))
+            if free:
+                self._init_ack(kind, t)
+        return sample
+
+    def _restore_pins(self, saved: tuple[bool, bool]) -> Callable[[float], None]:
+        def restore(t: float) -> None:
+            self.in_drive, self.out_drive = saved
+        return restore
+
+    def _init_ack(self, kind: InitAckKind, t: float) -> None:
+        ack = m.InitAck(kind, self.seq_id, self.identity.fixed_id, BOOTLOADER_VERSION[0] << 4
+                        | BOOTLOADER_VERSION[1], self.identity.serial)
+        addr = self.reply_address() or Address(IdType.SEQUENTIAL, 0)
+        self.send(t + self.stagger_us, ack, address=addr)
+
+    # ================================================================= status & reports
+    def _set_status(self, msg: m.SetStatus, t: float, via_fixed: bool) -> None:
+        op, value = msg.op, msg.value
+        if op is StatusOp.PROG_ENABLE:
+            if self.application is not None:
+                self._error(t, ErrorCode.RUNNING, Function.SET_STATUS, op, via_fixed)
+                return
+            self.prog_enable = bool(value)
+        elif op is StatusOp.AUTOSTART:
+            if value and not self.nv.record.flash_valid:
+                self._error(t, ErrorCode.NO_PROGRAM, Function.SET_STATUS, op, via_fixed)
+                return
+            self.nv.record.autostart = bool(value)
+            self._persist(record_only=True)
+        elif op is StatusOp.INIT_IN:
+            self.in_drive = bool(value)
+        elif op is StatusOp.INIT_OUT:
+            self.out_drive = bool(value)
+        elif op is StatusOp.SEQ_ID:
+            self.seq_id = value
+        self.send(t + self.timing.reply_us, m.Ready(ReadyReason.STATUS, self.state,
+                                                    (op << 8) | value), via_fixed=via_fixed)
+
+    def _report(self, msg: m.ReportRequest, t: float, via_fixed: bool) -> None:
+        if msg.channel is ReportChannel.STATUS:
+            self.send(t, self.status_report(), via_fixed=via_fixed)
+        elif msg.channel is ReportChannel.MEMORY:
+            words = self.read_memory(msg.space, msg.address, msg.count)
+            if words is None:
+                self._error(t, ErrorCode.UNMAPPED_ADDRESS, Function.REPORT_REQUEST,
+                            (msg.space << 16) | msg.address, via_fixed)
+                return
+            for i in range(0, len(words), 3):
+                self.send(t, m.MemoryReport(msg.address + i, tuple(words[i:i + 3])),
+                          via_fixed=via_fixed)
+        else:
+            self._error(t, ErrorCode.BAD_VALUE, Function.REPORT_REQUEST, msg.channel, via_fixed)
+
+    def read_memory(self, space: Space, address: int, count: int) -> list[int] | None:
+        """Words of flash (or of the ExtRAM program) for a memory report; None if unmapped."""
+        if count == 0 or count > 0x100:
+            return None
+        mem = self.nv.space(space)
+        if address < mem.base or address + count > mem.base + len(mem.words):
+            return None
+        return list(mem.read(address, count))
+
+    def pins(self) -> dict[str, bool]:
+        pos = self.identity.position
+        return {
+            "in_driven": self.powered and self.in_drive,
+            "in_set": self.powered and self.bus.init_in_set(pos),
+            "out_driven": self.powered and self.out_drive,
+            "out_set": self.powered and self.bus.init_out_set(pos),
+        }
+
+    def leds(self) -> dict[str, str]:
+        """LEDs as B.2.3 describes: init pins in the bootloader, program status when running."""
+        if not self.powered:
+            return {"red": "off", "yellow": "off", "green": "off"}
+        if self.application is not None:
+            return {"red": "off", "yellow": "off", "green": "blink"}
+        pins = self.pins()
+        on = {True: "on", False: "off"}
+        return {"red": on[pins["in_driven"]], "yellow": on[pins["out_driven"]],
+                "green": on[pins["in_set"]]}
+
+    def status_report(self) -> m.StatusReport:
+        pins = self.pins()
+        leds = self.leds()
+        pin_bits = (pins["in_driven"] | pins["in_set"] << 1 | pins["out_driven"] << 2
+                    | pins["out_set"] << 3)
+        led_bits = ((leds["red"] == "on") | (leds["yellow"] == "on") << 1
+                    | (leds["green"] != "off") << 2 | (leds["green"] == "blink") << 3)
+        return m.StatusReport(self.state, pin_bits, led_bits, 0, 0, self.seq_id,
+                              min(self.overruns, 0xFFFF))
+
+    def info(self) -> BoardInfo:
+        rec = self.nv.record
+        ext = self.extram_meta
+        show_ext = ext is not None and (self.state is BoardState.RUNNING_EXTRAM
+                                        or self.state is not BoardState.RUNNING_FLASH)
+        if show_ext and ext is not None:
+            progid, size, name, entry, date = ext
+            target = Target.EXTRAM
+        else:
+            progid, size, name, entry, date = (rec.progid, rec.size_words, rec.name, rec.entry,
+                                               rec.date)
+            target = Target.FLASH
+        return BoardInfo(self.state, rec.autostart, self.prog_enable, rec.flash_valid,
+                         self.extram is not None, self.seq_id, self.identity.fixed_id,
+                         BOOTLOADER_VERSION, progid, size, decode_date(date) if date else None,
+                         self.identity.serial, entry, target, name)
+
+    # ================================================================= start
+    def _start_cmd(self, target: Target, t: float, via_fixed: bool) -> None:
+        if self.application is not None and self.application.target is target:
+            self.send(t + self.timing.reply_us, m.Ready(ReadyReason.STARTED, self.state, target),
+                      via_fixed=via_fixed)
+            return
+        if self.application is not None or self.reception is not None:
+            self._error(t, ErrorCode.RUNNING if self.application else ErrorCode.BUSY,
+                        Function.START, target, via_fixed)
+            return
+        valid = self.nv.record.flash_valid if target is Target.FLASH else self.extram is not None
+        if not valid:
+            self._error(t, ErrorCode.NO_PROGRAM, Function.START, target, via_fixed)
+            return
+        self._start_program(target, t + self.timing.reply_us, announce=True, via_fixed=via_fixed)
+
+    def _start_program(self, target: Target, t: float, *, announce: bool,
+                       via_fixed: bool = False) -> None:
+        self.chain_active = False
+        self.in_drive = self.out_drive = False
+        self.prog_enable = False
+        if target is Target.FLASH:
+            rec = self.nv.record
+            name, progid = rec.name, rec.progid
+            self.state = BoardState.RUNNING_FLASH
+        else:
+            assert self.extram_meta is not None
+            progid, _, name, _, _ = self.extram_meta
+            self.state = BoardState.RUNNING_EXTRAM
+        self.application = self.application_factory(self, target, name, progid)
+        if announce:
+            self.send(t, m.Ready(ReadyReason.STARTED, self.state, target), via_fixed=via_fixed)
+        self.application.start(t)
+
+    # ================================================================= programming
+    def _program(self, msg: m.BootMessage, t: float) -> None:
+        rx = self.reception
+        if isinstance(msg, m.ProgramBegin):
+            self.reception = Reception(msg.target, msg.blocks, msg.entry, self.timing)
+            self.state = BoardState.BOOTLOADER
+            if msg.target is Target.FLASH and self.nv.record.flash_valid:
+                # From here on a power loss must leave no startable program behind.
+                self.nv.record.flash_valid = False
+                self.nv.record.autostart = False
+                self._persist(record_only=True)
+            return
+        if isinstance(msg, m.ProgramAbort):
+            self.reception = None
+            self.state = BoardState.BOOTLOADER
+            return
+        if rx is None:
+            self._error(t, ErrorCode.SEQUENCE, _PROGRAM)
+            return
+        if isinstance(msg, m.ProgramMeta):
+            rx.meta[msg.field] = msg.value
+        elif isinstance(msg, m.ProgramErase):
+            if rx.target is Target.FLASH:
+                try:
+                    rx.add_erase(msg)
+                except RejectedBlock as err:
+                    self._error(t, err.code, _PROGRAM, err.detail)
+        elif isinstance(msg, m.ProgramPrepare):
+            self.state = BoardState.ERASING
+            if rx.target is Target.EXTRAM:
+                rx.extram = {Space.P: array("H", [0xFFFF]) * len(self.nv.p.words),
+                             Space.X: array("H", [0xFFFF]) * len(self.nv.x.words)}
+            else:
+                for space, page in rx.erase_pages:
+                    self.nv.erase_page(space, page)
+            rx.erased = False
+            done = t + rx.erase_time()
+            self.bus.at(done, self._erased)
+        elif isinstance(msg, m.ProgramBlock):
+            if not rx.erased:
+                self._error(t, ErrorCode.BUSY, _PROGRAM, msg.index)
+                return
+            try:
+                rx.open_block(msg)
+            except RejectedBlock as err:
+                self._error(t, err.code, _PROGRAM, err.detail)
+        elif isinstance(msg, m.ProgramEnd):
+            self.bus.at(max(t, rx.free_at) + rx.size_hint() * self.timing.verify_word_us,
+                        self._finish)
+
+    def _erased(self, t: float) -> None:
+        rx = self.reception
+        if rx is None or not self.powered:
+            return
+        rx.erased = True
+        rx.free_at = t
+        self.state = BoardState.RECEIVING
+        self.send(t, m.Ready(ReadyReason.ERASED, self.state, self.timing.rx_capacity,
+                             int(rx.frame_cost + 0.999)))
+
+    def _data(self, data: bytes, t: float) -> None:
+        rx = self.reception
+        assert rx is not None
+        if not rx.erased:
+            rx.overruns += 1
+            return
+        accepted, payload = rx.take_data(data, t)
+        if not accepted:
+            self.overruns += 1
+        elif payload is not None and rx.current is not None:
+            block = rx.current
+            rx.current = None
+            if not rx.skip_current:
+                words = array("H")
+                words.frombytes(payload)
+                if sys.byteorder == "big":
+                    words.byteswap()
+                if rx.target is Target.FLASH:
+                    if not self.nv.space(block.space).program(block.address, words):
+                        rx.failed_words += 1
+                else:
+                    base = self.nv.space(block.space).base
+                    ext = rx.extram[block.space]
+                    ext[block.address - base:block.address - base + len(words)] = words
+                rx.received[block.index] = (block.space, block.address, len(words))
+        backlog = rx.backlog(t)
+        if not rx.paused and backlog >= self.timing.high_water:
+            rx.paused = True
+            self.send(t + self.timing.reply_us, m.Ready(ReadyReason.PAUSE, self.state,
+                                                        int(backlog)))
+            self.bus.at(rx.free_at - self.timing.low_water * rx.frame_cost, self._maybe_resume)
+
+    def _maybe_resume(self, t: float) -> None:
+        rx = self.reception
+        if rx is None or not rx.paused or not self.powered:
+            return
+        if rx.backlog(t) > self.timing.low_water + 1e-6:
+            self.bus.at(rx.free_at - self.timing.low_water * rx.frame_cost, self._maybe_resume)
+            return
+        rx.paused = False
+        self.send(t, m.Ready(ReadyReason.RESUME, self.state, int(rx.backlog(t))))
+
+    def _finish(self, t: float) -> None:
+        rx = self.reception
+        if rx is None or not self.powered:
+            return
+        read = {}
+        for index, (space, address, nwords) in rx.received.items():
+            if rx.target is Target.FLASH:
+                read[index] = self.nv.space(space).read(address, nwords)
+            else:
+                base = self.nv.space(space).base
+                read[index] = rx.extram[space][address - base:address - base + nwords]
+        result, missing = rx.result(read)
+        self.overruns += rx.overruns
+        rx.overruns = 0
+        if result.status is ResultStatus.VERIFIED:
+            self._commit(rx)
+        self.send(t, result)
+        for run in missing:
+            self.send(t, run)
+
+    def _commit(self, rx: Reception) -> None:
+        meta = rx.meta
+        size = int.from_bytes(meta.get(MetaField.SIZE, bytes(4)), "big")
+        date = int.from_bytes(meta.get(MetaField.DATE, bytes(4)), "big")
+        name = b"".join(meta.get(MetaField.NAME_0 + i, b"") for i in range(7))
+        name_s = name.rstrip(b"\0").decode("latin-1")
+        progid = rx.expected_progid()
+        if rx.target is Target.FLASH:
+            rec = self.nv.record
+            rec.flash_valid = True
+            rec.progid, rec.size_words, rec.date, rec.name, rec.entry = (progid, size, date,
+                                                                         name_s, rx.entry)
+            self._persist()
+        else:
+            self.extram = rx.extram
+            self.extram_meta = (progid, size, name_s, rx.entry, date)
+        self.reception = None
+        self.prog_enable = False
+        self.state = BoardState.BOOTLOADER
+
+    # ================================================================= persistence
+    def _persist(self, record_only: bool = False) -> None:
+        """Write non-volatile state to the fleet's state directory (if it has one)."""
+        if self.state_file is None:
+            return
+        if record_only:
+            self.nv.save_record(self.state_file)
+        else:
+            self.nv.save(self.state_file)

@@ -1,0 +1,150 @@
+"""The virtual fleet as a python-can interface: ``can.Bus(interface="ucom_virtual", ...)``.
+
+Registered through the ``can.interface`` entry point, so every python-can tool and every
+``ucom`` command reaches the virtual boards like real hardware.  Channel ``"CAN0"`` with
+``topology="armar3"``, or ``"armar3/CAN0"`` for short.
+
+In virtual time (the default) the host drives the simulation: ``send`` runs the bus until
+the frame is on the wire, ``recv`` until a frame arrives or the timeout has passed in
+virtual time - a timeout costs no wall time.  With ``realtime=True`` a clock thread paces
+the bus at its bitrate and ``recv`` waits for real.
+"""
+
+from __future__ import annotations
+
+import queue
+from collections import deque
+from pathlib import Path
+from typing import Any
+
+import can
+
+from ucom_tools.errors import UcomError
+from ucom_tools.virtual.fleet import Fleet, shared_fleet
+from ucom_tools.virtual.simbus import SimBus
+
+INF = float("inf")
+
+
+class HostPort:
+    """The host's attachment to a simulated bus; collects the frames it receives."""
+
+    def __init__(self, sim: SimBus, epoch: float, realtime: bool, channel: str) -> None:
+        self.sim = sim
+        self.epoch = epoch
+        self.channel = channel
+        self.host_time = sim.now
+        self.realtime = realtime
+        self.inbox: deque[tuple[can.Message, float]] = deque()
+        self.rt_inbox: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
+
+    def on_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None:
+        msg = can.Message(timestamp=self.epoch + t_end / 1e6, arbitration_id=arbitration_id,
+                          data=data, is_extended_id=False, channel=self.channel, is_rx=True)
+        if self.realtime:
+            self.rt_inbox.put(msg)
+        else:
+            self.inbox.append((msg, t_end))
+
+
+class VirtualUcomBus(can.BusABC):
+    """A python-can bus whose peers are the virtual UCoMs of a fleet."""
+
+    def __init__(self, channel: Any = None, *, topology: str | None = None,
+                 state_dir: str | Path | None = None, fleet: Fleet | None = None,
+                 realtime: bool = False, receive_own_messages: bool = False,
+                 **kwargs: Any) -> None:
+        name = str(channel or "")
+        if fleet is None:
+            if topology is None:
+                if "/" not in name:
+                    raise can.CanInitializationError(
+                        "virtual UCoM bus: give channel 'TOPOLOGY/BUS' (e.g. 'armar3/CAN0') "
+                        "or topology=...")
+                topology, name = name.rsplit("/", 1)
+            try:
+                fleet = shared_fleet(topology, Path(state_dir) if state_dir else None,
+                                     realtime)
+            except UcomError as err:
+                raise can.CanInitializationError(str(err)) from err
+        elif "/" in name:
+            name = name.rsplit("/", 1)[1]
+        if not name:
+            name = next(iter(fleet.buses))
+        try:
+            self.sim = fleet.bus(name)
+        except UcomError as err:
+            raise can.CanInitializationError(str(err)) from err
+        self.fleet = fleet
+        self.realtime = fleet.realtime
+        self.receive_own_messages = receive_own_messages
+        self.port = HostPort(self.sim, fleet.epoch, self.realtime, name)
+        self.sim.attach(self.port)
+        self.channel_info = f"virtual UCoM bus {fleet.name}/{name}"
+        super().__init__(channel=name, **kwargs)
+
+    # ------------------------------------------------------------------ send
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        if msg.is_extended_id or msg.is_fd or msg.is_remote_frame or msg.is_error_frame:
+            raise can.CanOperationError("the virtual UCoM bus carries CAN 2.0A data frames "
+                                        "with 11-bit identifiers only")
+        if not 0 <= msg.arbitration_id <= 0x7FF or msg.dlc > 8:
+            raise can.CanOperationError("identifier must be 11 bit and DLC at most 8")
+        data = bytes(msg.data[:msg.dlc])
+        sim, port = self.sim, self.port
+        with sim.lock:
+            if self.realtime:
+                sim.send(port, self.fleet.now_us(sim), msg.arbitration_id, data)
+                sim.changed.notify_all()
+            else:
+                token = sim.send(port, port.host_time, msg.arbitration_id, data, track=True)
+                marks = sim.sent_marks
+                sim.run_until(INF, stop=lambda: token in marks)
+                port.host_time = sim.sent_at(token) or sim.now
+        if self.receive_own_messages:
+            port.on_frame(msg.arbitration_id, data, port.host_time)
+
+    # ------------------------------------------------------------------ receive
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        """Next frame that passes the filters; in virtual time ``timeout`` is virtual."""
+        if self.realtime:
+            return super().recv(timeout)
+        port, sim = self.port, self.sim
+        with sim.lock:
+            deadline = INF if timeout is None else port.host_time + timeout * 1e6
+            while True:
+                got = self._next_virtual(deadline)
+                if got is None:
+                    return None
+                msg, t_end = got
+                port.host_time = max(port.host_time, t_end)
+                if self._matches_filters(msg):
+                    return msg
+
+    def _next_virtual(self, deadline: float) -> tuple[can.Message, float] | None:
+        port, sim = self.port, self.sim
+        inbox = port.inbox
+        if not inbox:
+            if deadline == INF and sim.next_event_time() is None:
+                return None  # nothing can ever arrive in virtual time
+            sim.run_until(deadline, stop=lambda: bool(inbox))
+        if inbox:
+            return inbox.popleft()
+        if deadline != INF:
+            port.host_time = max(port.host_time, deadline)
+        return None
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        if self.realtime:
+            try:
+                return self.port.rt_inbox.get(timeout=timeout), False
+            except queue.Empty:
+                return None, False
+        with self.sim.lock:
+            deadline = INF if timeout is None else self.port.host_time + timeout * 1e6
+            got = self._next_virtual(deadline)
+        return (got[0], False) if got else (None, False)
+
+    def shutdown(self) -> None:
+        self.sim.detach(self.port)
+        super().shutdown()

@@ -1,0 +1,168 @@
+"""A fleet: every bus and board of one topology, built and (optionally) persisted.
+
+``state_dir`` keeps each board's non-volatile memory (flash, bootloader record with the
+AutoStart flag) across restarts, like power cycles of the real robot.
+"""
+
+from __future__ import annotations
+
+import re
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from ucom_tools.errors import TopologyError, UcomError
+from ucom_tools.virtual import topology as topo
+from ucom_tools.virtual.board import Identity, VirtualBoard
+from ucom_tools.virtual.clock import RealtimeDriver
+from ucom_tools.virtual.simbus import SimBus
+from ucom_tools.virtual.topology import BoardSpec, Topology
+
+
+class Fleet:
+    """The virtual boards and buses of one topology."""
+
+    def __init__(self, topology: Topology, *, state_dir: Path | None = None,
+                 realtime: bool = False) -> None:
+        self.topology = topology
+        self.state_dir = state_dir
+        self.realtime = realtime
+        self.epoch = time.time()
+        self.buses: dict[str, SimBus] = {}
+        self.boards: dict[str, list[VirtualBoard]] = {}
+        self._drivers: list[RealtimeDriver] = []
+        if state_dir is not None:
+            state_dir.mkdir(parents=True, exist_ok=True)
+        for spec in topology.buses:
+            sim = SimBus(spec.name, spec.bitrate)
+            boards = []
+            for b in spec.boards:
+                board = VirtualBoard(sim, Identity(b.position, b.placement, b.board, b.serial,
+                                                   b.fixed_id),
+                                     timing=topology.timing, powered=False,
+                                     state_file=self._state_file(spec.name, b))
+                if b.program is not None and not board.nv.record.flash_valid:
+                    install_program(board, b)
+                sim.attach(board)
+                sim.chain.append(board)
+                if b.init_link_broken:
+                    sim.broken_before.add(b.position)
+                boards.append(board)
+            for board, b in zip(boards, spec.boards, strict=True):
+                if b.powered:
+                    board.power_on(0.0)
+            self.buses[spec.name] = sim
+            self.boards[spec.name] = boards
+        if realtime:
+            t0 = time.monotonic()
+            self._drivers = [RealtimeDriver(sim, t0) for sim in self.buses.values()]
+            for d in self._drivers:
+                d.start()
+
+    @classmethod
+    def load(cls, name_or_path: str, *, state_dir: Path | None = None,
+             realtime: bool = False) -> Fleet:
+        return cls(topo.load(name_or_path), state_dir=state_dir, realtime=realtime)
+
+    def _state_file(self, bus: str, spec: BoardSpec) -> Path | None:
+        if self.state_dir is None:
+            return None
+        safe = re.sub(r"[^A-Za-z0-9_-]+", "_", f"{bus}-{spec.position + 1}-{spec.placement}")
+        return self.state_dir / safe
+
+    @property
+    def name(self) -> str:
+        return self.topology.name
+
+    def bus(self, name: str) -> SimBus:
+        try:
+            return self.buses[name]
+        except KeyError:
+            raise UcomError(f"fleet {self.name!r} has no bus {name!r}; buses: "
+                            + ", ".join(self.buses)) from None
+
+    def now_us(self, sim: SimBus) -> float:
+        for d in self._drivers:
+            if d.sim is sim:
+                return d.now_us()
+        return sim.now
+
+    def close(self) -> None:
+        for d in self._drivers:
+            d.stop()
+        self._drivers = []
+
+    def snapshot(self) -> dict[str, Any]:
+        """The fleet as plain data (``ucom fleet show --json``)."""
+        buses = []
+        for name, sim in self.buses.items():
+            with sim.lock:
+                elapsed = max(sim.now, 1e-9)
+                boards = [{
+                    "position": b.identity.position + 1,
+                    "placement": b.identity.placement,
+                    "board": b.identity.board,
+                    "serial": f"0x{b.identity.serial:08X}",
+                    "fixed_id": b.identity.fixed_id or None,
+                    "seq_id": b.seq_id or None,
+                    "powered": b.powered,
+                    "state": b.state.text if b.powered else "off",
+                    "program": _program(b),
+                    "autostart": b.nv.record.autostart,
+                    "leds": b.leds(),
+                    "init_pins": b.pins(),
+                } for b in self.boards[name]]
+                buses.append({
+                    "name": name, "bitrate": sim.bitrate, "boards": boards,
+                    "broken_init_links": sorted(p + 1 for p in sim.broken_before),
+                    "stats": {"frames": sim.stats.frames, "bits": sim.stats.bits,
+                              "busy_us": round(sim.stats.busy_us, 1),
+                              "load": round(sim.stats.load(elapsed), 4)},
+                })
+        return {"topology": self.topology.name, "description": self.topology.description,
+                "buses": buses}
+
+
+def _program(board: VirtualBoard) -> dict[str, Any] | None:
+    rec = board.nv.record
+    if not rec.flash_valid:
+        return None
+    return {"name": rec.name, "progid": f"0x{rec.progid:08X}", "size_words": rec.size_words}
+
+
+def install_program(board: VirtualBoard, spec: BoardSpec) -> None:
+    """Put a topology's initial program into a board's flash, as if flashed earlier."""
+    from ucom_tools.image import load_image  # the image layer is only needed here
+
+    assert spec.program is not None
+    try:
+        image = load_image(spec.program)
+    except UcomError as err:
+        raise TopologyError(f"program: {err}", file=str(spec.program), line=spec.line) from None
+    board.nv.install(image.plan(when_epoch=spec.program.stat().st_mtime))
+    board.nv.record.autostart = spec.autostart
+
+
+_SHARED: dict[tuple[str, str, bool], Fleet] = {}
+_SHARED_LOCK = threading.Lock()
+
+
+def shared_fleet(name_or_path: str, state_dir: Path | None = None,
+                 realtime: bool = False) -> Fleet:
+    """The process-wide fleet for a topology, so several bus objects share its boards."""
+    key = (name_or_path, str(state_dir or ""), realtime)
+    with _SHARED_LOCK:
+        fleet = _SHARED.get(key)
+        if fleet is None:
+            fleet = _SHARED[key] = Fleet.load(name_or_path, state_dir=state_dir,
+                                              realtime=realtime)
+        return fleet
+
+
+def forget_shared() -> None:
+    """Drop every shared fleet (tests, console restarts)."""
+    with _SHARED_LOCK:
+        for f in _SHARED.values():
+            f.close()
+        _SHARED.clear()

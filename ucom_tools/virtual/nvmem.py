@@ -1,0 +1,128 @@
+"""Non-volatile memory of a virtual UCoM: program flash, data flash and the bootloader
+record (AutoStart flag, program validity, ProgID, name, date), persistable to a directory
+so that a fleet keeps its boards' flash across restarts like power cycles.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from array import array
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from ucom_tools.memory import P_FLASH_END, PAGE_WORDS, X_FLASH_END, X_FLASH_START
+from ucom_tools.wire.codes import Space
+from ucom_tools.wire.transfer import TransferPlan, encode_date
+
+BOOT_VECTORS = (0xE984, 0x8000, 0xE984, 0x8000)
+"""P:0000-0003 as the bootloader keeps them: JMP 0x8000 (reset) and JMP 0x8000 (COP)."""
+P_WORDS = P_FLASH_END + 1
+X_WORDS = X_FLASH_END - X_FLASH_START + 1
+
+
+@dataclass
+class BootRecord:
+    """The bootloader's record in the last data-flash page (X:1F00-1FFF)."""
+
+    autostart: bool = False
+    flash_valid: bool = False
+    progid: int = 0
+    size_words: int = 0
+    date: int = 0  # seconds since 2000-01-01 UTC; 0 = never programmed
+    name: str = ""
+    entry: int = 0
+
+
+class Memory:
+    """Word-addressed P: or X: memory with flash semantics (program can only clear bits)."""
+
+    def __init__(self, base: int, words: int) -> None:
+        self.base = base
+        self.words = array("H", [0xFFFF]) * words
+
+    def erase_page(self, page: int) -> None:
+        start = page * PAGE_WORDS - self.base
+        self.words[start:start + PAGE_WORDS] = array("H", [0xFFFF]) * PAGE_WORDS
+
+    def program(self, address: int, values: array) -> bool:
+        """Program words; False if a word did not take (it was not erased)."""
+        start = address - self.base
+        old = self.words[start:start + len(values)]
+        ok = True
+        if old.count(0xFFFF) != len(old):
+            merged = array("H", (o & v for o, v in zip(old, values, strict=True)))
+            ok = merged == values
+            values = merged
+        self.words[start:start + len(values)] = values
+        return ok
+
+    def read(self, address: int, count: int) -> array:
+        start = address - self.base
+        return self.words[start:start + count]
+
+
+class NonVolatile:
+    """Flash and bootloader record of one board."""
+
+    def __init__(self) -> None:
+        self.p = Memory(0, P_WORDS)
+        self.x = Memory(X_FLASH_START, X_WORDS)
+        self.p.words[0:4] = array("H", BOOT_VECTORS)
+        self.record = BootRecord()
+
+    def space(self, space: Space) -> Memory:
+        return self.p if space is Space.P else self.x
+
+    def erase_page(self, space: Space, page: int) -> None:
+        self.space(space).erase_page(page)
+        if space is Space.P and page == 0:
+            self.p.words[0:4] = array("H", BOOT_VECTORS)
+
+    def install(self, plan: TransferPlan) -> None:
+        """Store a whole image at once, as a completed, verified transfer would."""
+        for space, page in sorted({(b.space, b.page) for b in plan.blocks}):
+            self.erase_page(space, page)
+        for b in plan.blocks:
+            self.space(b.space).program(b.address, array("H", b.words))
+        rec = self.record
+        rec.flash_valid = True
+        rec.progid, rec.size_words, rec.date = plan.progid, plan.size_words, encode_date(plan.when)
+        rec.name, rec.entry = plan.name, plan.entry
+
+    # ------------------------------------------------------------------ persistence
+    def save(self, path: Path) -> None:
+        """Write ``path.flash`` and ``path.json`` atomically."""
+        flash = path.with_suffix(".flash")
+        rec = path.with_suffix(".json")
+        tmp = flash.with_suffix(".flash.tmp")
+        tmp.write_bytes(self.p.words.tobytes() + self.x.words.tobytes())
+        os.replace(tmp, flash)
+        tmp = rec.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(asdict(self.record), indent=1))
+        os.replace(tmp, rec)
+
+    def save_record(self, path: Path) -> None:
+        rec = path.with_suffix(".json")
+        tmp = rec.with_suffix(".json.tmp")
+        tmp.write_text(json.dumps(asdict(self.record), indent=1))
+        os.replace(tmp, rec)
+
+    def load(self, path: Path) -> bool:
+        """Read what :meth:`save` wrote; False if nothing was stored yet."""
+        flash = path.with_suffix(".flash")
+        rec = path.with_suffix(".json")
+        found = False
+        if flash.exists():
+            raw = flash.read_bytes()
+            if len(raw) == 2 * (P_WORDS + X_WORDS):
+                self.p.words = array("H")
+                self.p.words.frombytes(raw[:2 * P_WORDS])
+                self.x.words = array("H")
+                self.x.words.frombytes(raw[2 * P_WORDS:])
+                found = True
+        if rec.exists():
+            data = json.loads(rec.read_text())
+            self.record = BootRecord(**{k: data[k] for k in asdict(BootRecord()) if k in data})
+            found = True
+        return found

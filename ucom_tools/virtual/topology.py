@@ -1,0 +1,274 @@
+"""Topology files: the buses of a robot and the boards on each, in init-chain order.
+
+TOML, bundled ones are package data (``armar3``, ``lauron4``, ``kairo2``, ``odete``,
+``puma200``, ``rosi``).  Every mistake is reported with file, line and key.  A topology
+can describe wiring faults: ``init_link = "broken"`` (the init line into this board is
+cut), ``powered = false``, and two boards with the same ``fixed_id``.
+"""
+
+from __future__ import annotations
+
+import re
+import tomllib
+import zlib
+from dataclasses import dataclass, fields
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from ucom_tools.boards import PLUG_ON_BOARDS
+from ucom_tools.errors import TopologyError
+from ucom_tools.virtual.receiver import Timing
+
+BUNDLED = ("armar3", "lauron4", "kairo2", "odete", "puma200", "rosi")
+BITRATES = (10_000, 20_000, 50_000, 100_000, 125_000, 250_000, 500_000, 800_000, 1_000_000)
+
+
+@dataclass(frozen=True)
+class BoardSpec:
+    position: int
+    placement: str
+    board: str
+    fixed_id: int
+    serial: int
+    program: Path | None
+    autostart: bool
+    powered: bool
+    init_link_broken: bool
+    joints: tuple[str, ...]
+    line: int
+
+
+@dataclass(frozen=True)
+class BusSpec:
+    name: str
+    bitrate: int
+    boards: tuple[BoardSpec, ...]
+
+
+@dataclass(frozen=True)
+class Topology:
+    name: str
+    description: str
+    source: str
+    buses: tuple[BusSpec, ...]
+    timing: Timing
+
+    def bus(self, name: str) -> BusSpec:
+        for b in self.buses:
+            if b.name == name:
+                return b
+        raise KeyError(name)
+
+    @property
+    def board_count(self) -> int:
+        return sum(len(b.boards) for b in self.buses)
+
+
+class _Lines:
+    """Finds the line of a key in a TOML file with ``[[bus]]``/``[[bus.board]]`` tables."""
+
+    _HEADER = re.compile(r"^\s*\[\[?\s*([A-Za-z0-9_.]+)\s*\]\]?")
+    _KEY = re.compile(r"^\s*([A-Za-z0-9_]+)\s*=")
+
+    def __init__(self, text: str) -> None:
+        self.lines: dict[tuple[Any, ...], int] = {}
+        path: tuple[Any, ...] = ()
+        bus = board = -1
+        for no, line in enumerate(text.splitlines(), 1):
+            if h := self._HEADER.match(line):
+                name = h.group(1)
+                if name == "bus":
+                    bus, board = bus + 1, -1
+                    path = ("bus", bus)
+                elif name == "bus.board":
+                    board += 1
+                    path = ("bus", bus, "board", board)
+                else:
+                    path = (name,)
+                self.lines.setdefault(path, no)
+            elif k := self._KEY.match(line):
+                self.lines.setdefault((*path, k.group(1)), no)
+
+    def of(self, *path: Any) -> int | None:
+        while path:
+            if path in self.lines:
+                return self.lines[path]
+            path = path[:-1]
+        return None
+
+
+class _Checker:
+    def __init__(self, source: str, text: str) -> None:
+        self.source = source
+        self.lines = _Lines(text)
+
+    def fail(self, path: tuple[Any, ...], key: str, message: str) -> TopologyError:
+        return TopologyError(message, file=self.source, line=self.lines.of(*path, key),
+                             key=_key_name(path, key))
+
+    def take(self, table: dict[str, Any], path: tuple[Any, ...], key: str, kind: type | tuple,
+             default: Any = ..., what: str = "") -> Any:
+        if key not in table:
+            if default is ...:
+                raise self.fail(path, key, "missing; " + (what or f"expected {_kind(kind)}"))
+            return default
+        value = table[key]
+        if isinstance(value, bool) and kind is not bool and bool not in _tuple(kind):
+            raise self.fail(path, key, f"expected {_kind(kind)}, got {value!r}")
+        if not isinstance(value, kind):
+            raise self.fail(path, key, f"expected {_kind(kind)}, got {value!r}")
+        return value
+
+    def no_extra(self, table: dict[str, Any], path: tuple[Any, ...], allowed: set[str]) -> None:
+        for key in table:
+            if key not in allowed:
+                raise self.fail(path, key, "unknown key; allowed: " + ", ".join(sorted(allowed)))
+
+
+def _tuple(kind: type | tuple) -> tuple:
+    return kind if isinstance(kind, tuple) else (kind,)
+
+
+def _kind(kind: type | tuple) -> str:
+    names = {str: "a string", int: "an integer", bool: "true or false", list: "a list",
+             dict: "a table", float: "a number"}
+    return " or ".join(names.get(k, k.__name__) for k in _tuple(kind))
+
+
+def _key_name(path: tuple[Any, ...], key: str) -> str:
+    parts = []
+    i = 0
+    while i < len(path):
+        if i + 1 < len(path) and isinstance(path[i + 1], int):
+            parts.append(f"{path[i]}[{path[i + 1] + 1}]")
+            i += 2
+        else:
+            parts.append(str(path[i]))
+            i += 1
+    return ".".join([*parts, key])
+
+
+def resolve(name_or_path: str) -> tuple[str, str]:
+    """(source name, text) of a bundled topology name or a topology file path."""
+    if name_or_path in BUNDLED:
+        res = resources.files("ucom_tools.virtual") / "topologies" / f"{name_or_path}.toml"
+        return name_or_path, res.read_text(encoding="utf-8")
+    path = Path(name_or_path)
+    try:
+        return str(path), path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise TopologyError(f"no such topology file (bundled ones: {', '.join(BUNDLED)})",
+                            file=name_or_path) from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise TopologyError(f"cannot read: {err}", file=name_or_path) from None
+
+
+def load(name_or_path: str) -> Topology:
+    source, text = resolve(name_or_path)
+    base = None if name_or_path in BUNDLED else Path(name_or_path).parent
+    return parse(text, source, base)
+
+
+def parse(text: str, source: str, base: Path | None = None) -> Topology:
+    """Parse and check topology text; raises :class:`TopologyError` naming line and key."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        m = re.search(r"line (\d+)", str(err))
+        raise TopologyError(f"not valid TOML: {err}", file=source,
+                            line=int(m.group(1)) if m else None) from None
+    c = _Checker(source, text)
+    c.no_extra(data, (), {"name", "description", "timing", "bus"})
+    name = c.take(data, (), "name", str)
+    description = c.take(data, (), "description", str, "")
+    timing = _timing(c, c.take(data, (), "timing", dict, {}))
+    buses_raw = c.take(data, (), "bus", list, what="at least one [[bus]] table")
+    if not buses_raw:
+        raise c.fail((), "bus", "at least one [[bus]] table is needed")
+    buses = []
+    serials: set[int] = set()
+    names: set[str] = set()
+    for i, braw in enumerate(buses_raw):
+        path = ("bus", i)
+        if not isinstance(braw, dict):
+            raise c.fail((), "bus", "must be [[bus]] tables")
+        c.no_extra(braw, path, {"name", "bitrate", "board"})
+        bname = c.take(braw, path, "name", str)
+        if bname in names:
+            raise c.fail(path, "name", f"bus {bname!r} is defined twice")
+        names.add(bname)
+        bitrate = c.take(braw, path, "bitrate", int, 1_000_000)
+        if bitrate not in BITRATES:
+            raise c.fail(path, "bitrate", "expected one of " + ", ".join(map(str, BITRATES)))
+        boards_raw = c.take(braw, path, "board", list, [])
+        if len(boards_raw) > 31:
+            raise c.fail(path, "board", f"at most 31 boards per bus, got {len(boards_raw)}")
+        boards = tuple(_board(c, name, bname, i, j, b, base, serials)
+                       for j, b in enumerate(boards_raw))
+        buses.append(BusSpec(bname, bitrate, boards))
+    return Topology(name, description, source, tuple(buses), timing)
+
+
+def _timing(c: _Checker, raw: dict[str, Any]) -> Timing:
+    allowed = {f.name: f for f in fields(Timing)}
+    c.no_extra(raw, ("timing",), set(allowed))
+    values: dict[str, Any] = {}
+    for key in raw:
+        want = int if allowed[key].type in ("int", int) else (int, float)
+        v = c.take(raw, ("timing",), key, want)
+        if v < 0:
+            raise c.fail(("timing",), key, "must not be negative")
+        values[key] = v
+    t = Timing(**values)
+    if not 0 < t.low_water < t.high_water <= t.rx_capacity:
+        key = next((k for k in ("high_water", "low_water", "rx_capacity") if k in raw),
+                   "high_water")
+        raise c.fail(("timing",), key, "need 0 < low_water < high_water <= rx_capacity "
+                     f"(now {t.low_water}, {t.high_water}, {t.rx_capacity})")
+    return t
+
+
+def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Path | None,
+           serials: set[int]) -> BoardSpec:
+    path = ("bus", i, "board", j)
+    if not isinstance(raw, dict):
+        raise c.fail(path[:2], "board", "must be [[bus.board]] tables")
+    c.no_extra(raw, path, {"placement", "board", "fixed_id", "serial", "program", "autostart",
+                           "powered", "init_link", "joints"})
+    placement = c.take(raw, path, "placement", str)
+    board = c.take(raw, path, "board", str)
+    if board not in PLUG_ON_BOARDS:
+        raise c.fail(path, "board", f"unknown plug-on board {board!r}; known: "
+                     + ", ".join(PLUG_ON_BOARDS))
+    fixed_id = c.take(raw, path, "fixed_id", int, 0)
+    if not 0 <= fixed_id <= 31:
+        raise c.fail(path, "fixed_id", f"must be 1..31 (0 = sequential ID), got {fixed_id}")
+    default_serial = zlib.crc32(f"{topo}/{bus}/{j}".encode())
+    while default_serial in serials:
+        default_serial = (default_serial * 1103515245 + 12345) & 0xFFFFFFFF
+    serial = c.take(raw, path, "serial", int, default_serial)
+    if not 0 <= serial <= 0xFFFFFFFF:
+        raise c.fail(path, "serial", "must be a 32-bit unsigned number")
+    if serial in serials:
+        raise c.fail(path, "serial", f"0x{serial:08X} is used by another board")
+    serials.add(serial)
+    program_raw = c.take(raw, path, "program", str, "")
+    program = None
+    if program_raw:
+        program = Path(program_raw)
+        if not program.is_absolute() and base is not None:
+            program = base / program
+        if not program.is_file():
+            raise c.fail(path, "program", f"no such S-record file: {program}")
+    link = c.take(raw, path, "init_link", str, "ok")
+    if link not in ("ok", "broken"):
+        raise c.fail(path, "init_link", f"expected \"ok\" or \"broken\", got {link!r}")
+    joints = c.take(raw, path, "joints", list, [])
+    if not all(isinstance(x, str) for x in joints):
+        raise c.fail(path, "joints", "expected a list of strings")
+    return BoardSpec(
+        position=j, placement=placement, board=board, fixed_id=fixed_id, serial=serial,
+        program=program, autostart=c.take(raw, path, "autostart", bool, False),
+        powered=c.take(raw, path, "powered", bool, True), init_link_broken=link == "broken",
+        joints=tuple(joints), line=c.lines.of(*path) or 0)

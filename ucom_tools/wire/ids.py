@@ -1,0 +1,158 @@
+"""CAN identifiers of the UCoM protocol (dissertation B.2.2, Tab. B.3 and B.4).
+
+An 11-bit identifier is ``function (5 bit) | type (1 bit) | board number (5 bit)``.
+Function 0 (Reset) has the lowest identifier and so the highest bus priority.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum, IntEnum
+
+from ucom_tools.errors import FrameError
+
+BROADCAST = 0
+"""Board number 0 with type SEQUENTIAL addresses every board of the bus (PC -> board)."""
+
+MAX_BOARD_NUMBER = 31
+
+
+class Direction(Enum):
+    """Who initiates a function (Tab. B.4: "Initiator")."""
+
+    HOST_TO_BOARD = "PC"
+    BOARD_TO_HOST = "DSP"
+    UNASSIGNED = "-"
+
+
+class Function(IntEnum):
+    """Function codes of Tab. B.4 (bits 10-6 of the identifier)."""
+
+    RESET = 0
+    XRESET = 1
+    ERROR = 2
+    INIT_ACK = 3
+    PROGRAM_FINISHED = 4
+    INFO = 5
+    READY = 6
+    SET_STATUS = 7
+    INFO_REQUEST = 8
+    REPORT_REQUEST = 9
+    INIT_REQUEST = 10
+    PROGRAM = 11
+    START = 12
+    MCA_CONTROLLER_INPUT = 13
+    MCA_SENSOR_OUTPUT = 14
+    MCA_PARAMETER = 15
+    REPORT_0 = 16
+    REPORT_1 = 17
+    REPORT_2 = 18
+    REPORT_3 = 19
+    MCA_READY = 20
+    MCA_START = 21
+    MCA_DUMPIO_DESCR_REQUEST = 22
+    MCA_DUMPIO_DESCR = 23
+    MCA_DUMP_CI = 24
+    MCA_ADMIN_DATA = 25
+    MCA_ALIVE = 26
+    MCA_DSP_CI = 27
+
+    @property
+    def direction(self) -> Direction:
+        return Direction.BOARD_TO_HOST if self in _FROM_BOARD else Direction.HOST_TO_BOARD
+
+    @property
+    def label(self) -> str:
+        """The name as printed in Tab. B.4."""
+        return _LABELS.get(self, self.name.replace("_", " ").title())
+
+    @classmethod
+    def report(cls, channel: int) -> Function:
+        """The Report function (100XX) of report channel 0-3."""
+        if not 0 <= channel <= 3:
+            raise FrameError("report channel", f"must be 0..3, got {channel}")
+        return cls(cls.REPORT_0 + channel)
+
+
+_FROM_BOARD = frozenset({
+    Function.ERROR, Function.INIT_ACK, Function.PROGRAM_FINISHED, Function.INFO,
+    Function.READY, Function.MCA_SENSOR_OUTPUT, Function.REPORT_0, Function.REPORT_1,
+    Function.REPORT_2, Function.REPORT_3, Function.MCA_READY, Function.MCA_DUMPIO_DESCR,
+    Function.MCA_DSP_CI,
+})
+
+_LABELS = {
+    Function.XRESET: "XReset",
+    Function.INIT_ACK: "Init Ack",
+    Function.SET_STATUS: "SetStatus",
+    Function.MCA_DUMPIO_DESCR_REQUEST: "MCA DumpIO Descr Request",
+    Function.MCA_DUMPIO_DESCR: "MCA DumpIO Descr",
+    Function.MCA_DUMP_CI: "MCA Dump CI",
+    Function.MCA_DSP_CI: "MCA DSP CI",
+    Function.MCA_CONTROLLER_INPUT: "MCA Controller Input",
+    Function.MCA_SENSOR_OUTPUT: "MCA Sensor Output",
+}
+
+
+def function_direction(code: int) -> Direction:
+    """Direction of any 5-bit function code; 28-31 are unassigned."""
+    if not 0 <= code <= 31:
+        raise FrameError("function", f"must be 0..31, got {code}")
+    return Function(code).direction if code <= 27 else Direction.UNASSIGNED
+
+
+class IdType(IntEnum):
+    """Bit 5 of the identifier."""
+
+    SEQUENTIAL = 0
+    """Board number assigned by position in the init chain (seq ID)."""
+    FIXED = 1
+    """Board number fixed in the firmware."""
+
+
+@dataclass(frozen=True, slots=True)
+class Address:
+    """Which board a frame is to or from: the identifier's type bit and board number."""
+
+    id_type: IdType
+    number: int
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.number <= MAX_BOARD_NUMBER:
+            raise FrameError("board number", f"must be 0..31, got {self.number}")
+
+    @property
+    def is_broadcast(self) -> bool:
+        return self.id_type is IdType.SEQUENTIAL and self.number == BROADCAST
+
+    def __str__(self) -> str:
+        if self.is_broadcast:
+            return "all"
+        return f"{self.number}" if self.id_type is IdType.SEQUENTIAL else f"F{self.number}"
+
+
+ALL = Address(IdType.SEQUENTIAL, BROADCAST)
+
+
+def seq(number: int) -> Address:
+    """Address of the board with sequential ID ``number``."""
+    return Address(IdType.SEQUENTIAL, number)
+
+
+def fixed(number: int) -> Address:
+    """Address of the board with fixed ID ``number``."""
+    return Address(IdType.FIXED, number)
+
+
+def encode_id(function: int, address: Address) -> int:
+    """The 11-bit identifier of ``function`` sent to or from ``address``."""
+    if not 0 <= function <= 31:
+        raise FrameError("function", f"must be 0..31, got {function}")
+    return (function << 6) | (int(address.id_type) << 5) | address.number
+
+
+def decode_id(arbitration_id: int) -> tuple[int, Address]:
+    """Split an 11-bit identifier into (function code, address)."""
+    if not 0 <= arbitration_id <= 0x7FF:
+        raise FrameError("identifier", f"must be an 11-bit value, got 0x{arbitration_id:X}")
+    return arbitration_id >> 6, Address(IdType((arbitration_id >> 5) & 1), arbitration_id & 0x1F)
