@@ -9,17 +9,24 @@ VERIFIED with the host's ProgID.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import can
 
+from ucom_tools.errors import UcomError
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import ReadyReason, ResultStatus, Target
 from ucom_tools.wire.ids import ALL, Address, Function, encode_id
 from ucom_tools.wire.transfer import TransferPlan
+
+
+class Cancelled(UcomError):
+    """The user cancelled a transfer (Ctrl-C); ABORT was sent."""
+
 
 POLL_EVERY = 8
 """Frames between two looks at the receive queue while streaming (PAUSE, Error)."""
@@ -66,8 +73,10 @@ class Programmer:
     """Programs one image into the ProgEnabled boards of one bus."""
 
     def __init__(self, link: Link, timeouts: Timeouts = DEFAULT, *, max_rounds: int = 4,
-                 progress: Progress | None = None) -> None:
+                 progress: Progress | None = None,
+                 cancel: threading.Event | None = None) -> None:
         self.link = link
+        self.cancel = cancel
         self.timeouts = timeouts
         self.max_rounds = max_rounds
         self.progress = progress
@@ -99,6 +108,10 @@ class Programmer:
         while todo and rounds < self.max_rounds and any(b.alive for b in state.values()):
             rounds += 1
             for i in todo:
+                if self.cancel is not None and self.cancel.is_set():
+                    self._send(m.ProgramAbort())
+                    raise Cancelled("programming cancelled; the boards dropped the transfer "
+                                    "and keep no startable program")
                 block = plan.blocks[i]
                 self._send(block.header())
                 raw = block.payload()

@@ -37,6 +37,8 @@ class BoardSpec:
     init_link_broken: bool
     joints: tuple[str, ...]
     line: int
+    serial_explicit: bool = False
+    """True when the file gave the serial (so a real robot's boards can be recognised)."""
 
 
 @dataclass(frozen=True)
@@ -271,4 +273,4 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
         position=j, placement=placement, board=board, fixed_id=fixed_id, serial=serial,
         program=program, autostart=c.take(raw, path, "autostart", bool, False),
         powered=c.take(raw, path, "powered", bool, True), init_link_broken=link == "broken",
-        joints=tuple(joints), line=c.lines.of(*path) or 0)
+        joints=tuple(joints), line=c.lines.of(*path) or 0, serial_explicit="serial" in raw)

@@ -1,0 +1,74 @@
+#!/usr/bin/env python3
+"""Write the sample images of firmware_images/ deterministically.
+
+Each image follows the Metrowerks CodeWarrior 56800 S-record convention: an S0 header
+"PROGRAM&DATA", S3 data records whose addresses are WORD addresses (X: data at
+0x00200000 + word address), every 16-bit word stored low byte first, and an S7 entry.
+The reset vector P:0000-0001 is a JMP to the entry, as CodeWarrior writes it (the
+bootloader keeps its own vectors; see man/ucom-protocol.7).
+
+The contents are pseudo-random but fixed by the image name: the same file comes out
+every time.  Usage: tools/make_firmware_images.py [OUTDIR]
+"""
+
+from __future__ import annotations
+
+import hashlib
+import random
+import sys
+from pathlib import Path
+
+import bincopy
+
+X_OFFSET = 0x0020_0000
+WORDS_PER_RECORD = 16
+
+# name: (entry, program words, data-flash words, description)
+IMAGES = {
+    "armar3.fl.S": (0x0080, 11_520, 768,
+                    "ARMAR-III generic program: 3 cascaded velocity/position PID axes"),
+    "lauron4.fl.S": (0x0080, 9_216, 512, "LAURON-IV leg controller"),
+    "kairo2_alpha.fl.S": (0x0080, 7_680, 256, "KAIRO-II Alpha module drive"),
+    "kairo2_gamma.fl.S": (0x0080, 8_704, 384, "KAIRO-II Gamma module joint"),
+    "rosi.fl.S": (0x0080, 4_096, 128, "RoSi scanner rotation"),
+    "bench64k.fl.S": (0x0080, 32_768 - 3_840, 3_840,
+                      "64 KiB benchmark image (program and data flash nearly full)"),
+}
+
+
+def words_for(name: str, count: int, salt: str) -> list[int]:
+    seed = int.from_bytes(hashlib.sha256(f"{name}/{salt}".encode()).digest()[:8], "big")
+    rnd = random.Random(seed)
+    return [rnd.getrandbits(16) for _ in range(count)]
+
+
+def records(space_base: int, start: int, words: list[int]) -> list[str]:
+    out = []
+    for i in range(0, len(words), WORDS_PER_RECORD):
+        chunk = words[i:i + WORDS_PER_RECORD]
+        data = b"".join(w.to_bytes(2, "little") for w in chunk)
+        out.append(bincopy.pack_srec("3", space_base + start + i, len(data), data))
+    return out
+
+
+def image_text(name: str, entry: int, p_words: int, x_words: int) -> str:
+    lines = [bincopy.pack_srec("0", 0, 12, b"PROGRAM&DATA")]
+    lines += records(0, 0, [0xE984, entry])  # reset vector: JMP entry
+    lines += records(0, entry, words_for(name, min(p_words, 0x7E00 - entry), "P"))
+    if x_words:
+        lines += records(X_OFFSET, 0x1000, words_for(name, x_words, "X"))
+    lines.append(bincopy.pack_srec("7", entry, 0, None))
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str]) -> int:
+    out = Path(argv[1]) if len(argv) > 1 else Path(__file__).resolve().parent.parent / \
+        "firmware_images"
+    out.mkdir(parents=True, exist_ok=True)
+    for name, (entry, p, x, _) in IMAGES.items():
+        (out / name).write_text(image_text(name, entry, p, x), encoding="ascii")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))

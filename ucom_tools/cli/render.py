@@ -1,0 +1,262 @@
+"""Tables and JSON for operation results (shared by the commands and the console)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rich.console import Console
+from rich.table import Table
+
+from ucom_tools.image import Image
+from ucom_tools.ops.boards import ProbeResult, Row
+from ucom_tools.ops.enumerate import BusEnumeration
+from ucom_tools.ops.flash import FlashResult
+from ucom_tools.wire.ids import Address, IdType
+from ucom_tools.wire.info import BoardInfo
+from ucom_tools.wire.transfer import TransferPlan
+
+
+def hex32(v: int | None) -> str:
+    return f"0x{v:08X}" if v is not None else "-"
+
+
+def addr_json(a: Address) -> dict[str, Any]:
+    return {"seq_id": a.number if a.id_type is IdType.SEQUENTIAL else None,
+            "fixed_id": a.number if a.id_type is IdType.FIXED else None}
+
+
+def info_json(inf: BoardInfo) -> dict[str, Any]:
+    return {
+        "state": inf.state.text, "seq_id": inf.seq_id or None, "fixed_id": inf.fixed_id or None,
+        "serial": hex32(inf.serial), "program": inf.name or None, "progid": hex32(inf.progid)
+        if inf.flash_valid or inf.extram_valid else None, "size_words": inf.size_words,
+        "programmed": inf.programmed.isoformat() if inf.programmed else None,
+        "target": inf.target.name.lower(), "entry": f"P:{inf.entry:04X}",
+        "autostart": inf.autostart, "prog_enable": inf.prog_enable,
+        "flash_valid": inf.flash_valid, "extram_valid": inf.extram_valid,
+        "bootloader": "{}.{}".format(*inf.bootloader_version),
+    }
+
+
+# ----------------------------------------------------------------------------- init
+def enumeration_json(e: BusEnumeration) -> dict[str, Any]:
+    return {
+        "name": e.bus, "expected": e.expected, "found": e.found,
+        "first_answers": e.first_answers,
+        "boards": [{
+            "seq_id": b.seq_id, "serial": hex32(b.serial), "fixed_id": b.fixed_id or None,
+            "position": b.position, "placement": b.placement, "board": b.board,
+            "duplicate_seq_id": b.duplicate,
+            "state": b.info.state.text if b.info else None,
+            "program": (b.info.name or None) if b.info else None,
+            "progid": hex32(b.info.progid) if b.info and b.info.flash_valid else None,
+        } for b in e.boards],
+        "diagnosis": [{"kind": d.kind, "message": d.message, "leds": d.leds}
+                      for d in e.diagnosis],
+    }
+
+
+def print_enumeration(c: Console, e: BusEnumeration) -> None:
+    t = Table(title=f"{e.bus}: init chain", title_justify="left")
+    for col in ("seq ID", "pos", "placement", "board", "serial", "fixed ID", "state",
+                "program", "ProgID"):
+        t.add_column(col, no_wrap=True)
+    for b in e.boards:
+        inf = b.info
+        t.add_row(
+            f"[red]{b.seq_id}![/]" if b.duplicate else str(b.seq_id),
+            str(b.position or "-"), b.placement or "-", b.board or "-", hex32(b.serial),
+            str(b.fixed_id or "-"), inf.state.text if inf else "?",
+            (inf.name or "[dim]none[/]") if inf else "?",
+            hex32(inf.progid) if inf and inf.flash_valid else "-")
+    c.print(t)
+    exp = f" of {e.expected} expected" if e.expected is not None else ""
+    colour = "green" if e.ok else "yellow"
+    c.print(f"[{colour}]{e.bus}: {e.found} board(s) found{exp}[/]")
+    for d in e.diagnosis:
+        c.print(f"  [bold yellow]![/] {d.message}")
+        if d.leds:
+            c.print(f"    [dim]LEDs:[/] {d.leds}")
+
+
+# ----------------------------------------------------------------------------- rows
+def rows_json(rows: list[Row]) -> dict[str, Any]:
+    out = []
+    for r in rows:
+        d: dict[str, Any] = {"bus": r.bus, **addr_json(r.address), "ok": r.ok,
+                             "detail": r.detail,
+                             "state": r.state.text if r.state is not None else None}
+        if r.serial is not None:
+            d["serial"] = hex32(r.serial)
+        if r.info is not None:
+            d["info"] = info_json(r.info)
+        if r.reports:
+            d["messages"] = list(r.reports)
+        out.append(d)
+    return {"results": out}
+
+
+def print_rows(c: Console, rows: list[Row], title: str) -> None:
+    if not rows:
+        c.print(f"[yellow]{title}: no board answered[/]")
+        return
+    t = Table(title=title, title_justify="left")
+    for col in ("bus", "board", "result", "state", "messages"):
+        t.add_column(col)
+    for r in rows:
+        t.add_row(r.bus, str(r.address), "[green]ok[/]" if r.ok and r.detail == "ok" else
+                  (f"[green]{r.detail}[/]" if r.ok else f"[red]{r.detail}[/]"),
+                  r.state.text if r.state is not None else "-", "\n".join(r.reports))
+    c.print(t)
+
+
+def print_reset(c: Console, rows: list[Row], title: str) -> None:
+    if not rows:
+        c.print(f"[yellow]{title}: no board answered.[/] Boards answer a reset only once they "
+                "have a number (seq ID from the init chain, or a fixed ID): run 'init'.")
+        return
+    t = Table(title=f"{title}: boards that answered (alive)", title_justify="left")
+    for col in ("bus", "board", "serial", "state after reset"):
+        t.add_column(col)
+    for r in rows:
+        t.add_row(r.bus, str(r.address), hex32(r.serial),
+                  r.state.text if r.state is not None else "-")
+    c.print(t)
+
+
+def print_infos(c: Console, rows: list[Row], title: str) -> None:
+    infos = [r for r in rows if r.info is not None]
+    if len(infos) == 1 and len(rows) == 1:
+        r = rows[0]
+        assert r.info is not None
+        t = Table(title=f"{title}: {r.bus} board {r.address}", title_justify="left",
+                  show_header=False)
+        t.add_column("field", style="bold")
+        t.add_column("value")
+        for k, v in info_json(r.info).items():
+            t.add_row(k, "-" if v is None else str(v))
+        c.print(t)
+        return
+    t = Table(title=title, title_justify="left")
+    for col in ("bus", "seq ID", "fixed", "serial", "state", "program", "ProgID", "size",
+                "programmed", "flags"):
+        t.add_column(col, no_wrap=True)
+    for r in rows:
+        inf = r.info
+        if inf is None:
+            t.add_row(r.bus, str(r.address), "", "", f"[red]{r.detail}[/]", "", "", "", "", "")
+            continue
+        flags = " ".join(f for f, on in (("AutoStart", inf.autostart),
+                                         ("ProgEnable", inf.prog_enable),
+                                         ("ExtRAM", inf.extram_valid)) if on)
+        valid = inf.flash_valid or inf.extram_valid
+        t.add_row(r.bus, str(inf.seq_id or "-"), str(inf.fixed_id or "-"), hex32(inf.serial),
+                  inf.state.text, inf.name if valid else "[dim]none[/]",
+                  hex32(inf.progid) if valid else "-",
+                  f"{inf.size_words} w" if valid else "-",
+                  inf.programmed.strftime("%Y-%m-%d %H:%M") if inf.programmed else "-", flags)
+    c.print(t)
+
+
+# ----------------------------------------------------------------------------- probes
+def probe_json(results: list[ProbeResult]) -> dict[str, Any]:
+    return {"buses": [{
+        "name": p.bus, "broken": p.broken,
+        "answers": [{"seq_id": a.seq_id or None, "fixed_id": a.fixed_id or None,
+                     "serial": hex32(a.serial)} for a in p.answers],
+        "info": info_json(p.info) if p.info else None} for p in results]}
+
+
+def print_probe(c: Console, results: list[ProbeResult]) -> None:
+    for p in results:
+        which = "last" if p.last else "first"
+        if not p.answers:
+            c.print(f"[yellow]{p.bus}: no board answered as {which} board[/]")
+            continue
+        for a in p.answers:
+            c.print(f"{p.bus}: {which} board: seq ID {a.seq_id or '-'}, serial "
+                    f"{hex32(a.serial)}" + (f", fixed ID {a.fixed_id}" if a.fixed_id else ""))
+        if p.info is not None:
+            c.print(f"  program {p.info.name or 'none'}, state {p.info.state.text}")
+        if p.broken:
+            c.print(f"[bold yellow]  ! {len(p.answers)} boards answer as {which}: the init "
+                    "line is broken.[/] A board right after a break lights yellow only at "
+                    "power-on.")
+
+
+# ----------------------------------------------------------------------------- images
+def image_json(img: Image, plan: TransferPlan) -> dict[str, Any]:
+    from ucom_tools.wire.codes import Space
+    return {
+        "file": img.path, "header": img.header, "entry": f"P:{img.entry:04X}",
+        "addressing": img.addressing, "records": img.records,
+        "progid": hex32(plan.progid), "size_words": img.size(),
+        "words": {"P": img.size(Space.P), "X": img.size(Space.X)},
+        "blocks": len(plan.blocks),
+        "segments": [{"space": s.space.name, "start": f"{s.start:04X}", "end": f"{s.end:04X}",
+                      "words": s.length} for s in img.segments()],
+        "vector_words": {f"P:{a:04X}": f"{v:04X}" for a, v in sorted(img.vector_words.items())},
+    }
+
+
+def print_image(c: Console, img: Image, plan: TransferPlan) -> None:
+    d = image_json(img, plan)
+    c.print(f"[bold]{img.path}[/]")
+    c.print(f"  header     {d['header']!r}   ({d['records']} records, {img.addressing} "
+            "addresses)")
+    c.print(f"  entry      {d['entry']}")
+    c.print(f"  size       {d['size_words']} words ({d['words']['P']} P:, {d['words']['X']} X:)"
+            f" = {d['size_words'] * 2} bytes in {d['blocks']} blocks")
+    c.print(f"  ProgID     [bold]{d['progid']}[/]")
+    t = Table(show_header=True, box=None, padding=(0, 2))
+    for col in ("space", "words", "from", "to"):
+        t.add_column(col)
+    for s in d["segments"]:
+        t.add_row(s["space"], str(s["words"]), f"{s['space']}:{s['start']}",
+                  f"{s['space']}:{s['end']}")
+    c.print(t)
+    if img.vector_words:
+        c.print("  [dim]reset-vector words P:0000-0003 in the file are not programmed: the "
+                "bootloader keeps its own vectors[/]")
+
+
+# ----------------------------------------------------------------------------- flash
+def flash_json(r: FlashResult) -> dict[str, Any]:
+    return {
+        "image": r.image, "progid": hex32(r.progid), "size_words": r.size_words,
+        "target": r.target.name.lower(), "all_verified": r.all_verified,
+        "boards": [{
+            "bus": b.bus, "seq_id": b.seq_id, "serial": hex32(b.serial), "placement": b.placement,
+            "outcome": b.outcome, "verified_progid": hex32(b.progid) if b.verified else None,
+            "detail": b.detail, "resent_blocks": b.resent_blocks, "autostart": b.autostart,
+            "started": b.started, "messages": list(b.messages)} for b in r.boards],
+        "buses": [{"name": bus.bus, "frames": bus.frames, "rounds": bus.rounds,
+                   "note": bus.note or None,
+                   "diagnosis": [d.message for d in bus.enumeration.diagnosis]
+                   if bus.enumeration else []} for bus in r.buses],
+    }
+
+
+def print_flash(c: Console, r: FlashResult) -> None:
+    t = Table(title=f"{r.image} (ProgID {hex32(r.progid)}, {r.size_words} words) -> "
+                    f"{r.target.name.lower()}", title_justify="left")
+    for col in ("bus", "seq ID", "placement", "serial", "result", "ProgID", "resent",
+                "AutoStart", "started"):
+        t.add_column(col, no_wrap=col != "result")
+    for b in r.boards:
+        t.add_row(b.bus, str(b.seq_id), b.placement or "-", hex32(b.serial),
+                  "[green]verified[/]" if b.verified else f"[red]{b.detail}[/]",
+                  hex32(b.progid) if b.verified else "-", str(b.resent_blocks or ""),
+                  "yes" if b.autostart else "", {None: "", True: "[green]yes[/]",
+                                                 False: "[red]no[/]"}[b.started])
+    c.print(t)
+    for b in r.boards:
+        for msg in b.messages:
+            c.print(f"  [dim]{b.bus} board {b.seq_id}:[/] {msg}")
+    for bus in r.buses:
+        if bus.enumeration is not None:
+            for d in bus.enumeration.diagnosis:
+                c.print(f"  [bold yellow]! {bus.bus}:[/] {d.message}")
+    ok = sum(1 for b in r.boards if b.verified)
+    colour = "green" if r.all_verified else "red"
+    c.print(f"[{colour}]{ok} of {len(r.boards)} board(s) verified[/]")

@@ -1,0 +1,214 @@
+"""The console's per-board operations (options 1, 3, 4, 7-17, 21) on an open robot.
+
+Every function returns rows of plain result dataclasses, one per (bus, board); commands
+that need a completed init chain explain how to get one when the boards have no seq ID.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+
+from ucom_tools.errors import InputError, UcomError, UcomTimeoutError
+from ucom_tools.ops.robot import BusHandle, Robot
+from ucom_tools.protocol.bootloader import Reply
+from ucom_tools.wire import messages as m
+from ucom_tools.wire.codes import BoardState, StatusOp, Target
+from ucom_tools.wire.ids import ALL, Address, IdType
+from ucom_tools.wire.info import BoardInfo
+
+OPTION_NAMES = {3: "info", 4: "prog-enable", 5: "program", 10: "set-init-in",
+                11: "set-init-out", 12: "set-seqid", 21: "reset-one"}
+
+
+class NotInitialised(UcomError):
+    """The addressed boards have no seq ID: the init chain has not run since power-on."""
+
+
+@dataclass(frozen=True)
+class BoardRef:
+    """Which boards a command is for: ``all``, ``N`` (seq ID), ``FN`` (fixed ID), with an
+    optional ``BUS:`` prefix."""
+
+    bus: str | None
+    address: Address
+
+    @property
+    def is_all(self) -> bool:
+        return self.address.is_broadcast
+
+    def __str__(self) -> str:
+        return (f"{self.bus}:" if self.bus else "") + str(self.address)
+
+
+_REF = re.compile(r"^(?:(?P<bus>[^:\s]+):)?(?P<id>all|[fF]?\d{1,2})$")
+
+
+def parse_ref(text: str, *, allow_all: bool = True, what: str = "BOARD") -> BoardRef:
+    m_ = _REF.match(text.strip())
+    if not m_:
+        raise InputError(f"{text!r} is not a board: expected a seq ID 1-31, F1-F31 for a fixed"
+                         " ID" + (", or all" if allow_all else "") + ", optionally BUS:..",
+                         key=what)
+    ident = m_.group("id").lower()
+    if ident == "all":
+        if not allow_all:
+            raise InputError("this command takes one board, not all", key=what)
+        return BoardRef(m_.group("bus"), ALL)
+    fixed = ident.startswith("f")
+    number = int(ident[1:] if fixed else ident)
+    if not 1 <= number <= 31:
+        raise InputError(f"board number {number} is out of range 1-31", key=what)
+    return BoardRef(m_.group("bus"), Address(IdType.FIXED if fixed else IdType.SEQUENTIAL,
+                                             number))
+
+
+@dataclass(frozen=True)
+class Row:
+    """One board's answer to a command."""
+
+    bus: str
+    address: Address
+    ok: bool
+    detail: str
+    state: BoardState | None = None
+    info: BoardInfo | None = None
+    serial: int | None = None
+    reports: tuple[str, ...] = field(default=())
+
+
+def _buses(robot: Robot, ref: BoardRef | None, bus: str | None) -> list[BusHandle]:
+    name = (ref.bus if ref is not None else None) or bus
+    return robot.select(name)
+
+
+def _require_init(h: BusHandle, ref: BoardRef, option: int) -> None:
+    """Raise :class:`NotInitialised` when no board of the bus has a seq ID."""
+    if ref.address.id_type is IdType.FIXED:
+        return
+    if h.client.info_many(ALL):
+        return
+    name = OPTION_NAMES.get(option, "")
+    raise NotInitialised(
+        f"{h.name}: no board has a seq ID yet. Option {option} ({name}) works only after a "
+        "successful init chain (option 2): run 'ucom init' first (the boards keep their seq "
+        "IDs until power-off), or add --init to this command.")
+
+
+def _missing(h: BusHandle, ref: BoardRef, option: int) -> Row:
+    _require_init(h, ref, option)
+    return Row(h.name, ref.address, False, f"no board with {_label(ref.address)} on {h.name}")
+
+
+def _label(a: Address) -> str:
+    return f"fixed ID {a.number}" if a.id_type is IdType.FIXED else f"seq ID {a.number}"
+
+
+def _reply_row(h: BusHandle, r: Reply) -> Row:
+    msg = r.message
+    if isinstance(msg, m.Ready):
+        return Row(h.name, r.address, True, "ok", msg.state, reports=r.reports)
+    return Row(h.name, r.address, False, msg.describe(), reports=r.reports)
+
+
+# ----------------------------------------------------------------------------- options
+def reset(robot: Robot, ref: BoardRef | None = None, *, bus: str | None = None,
+          clear_autostart: bool = False) -> list[Row]:
+    """Options 1, 9 and 21: reset, and list who answered (= who is alive)."""
+    rows = []
+    target = ref or BoardRef(None, ALL)
+    for h in _buses(robot, ref, bus):
+        replies = h.client.reset(target.address, clear_autostart=clear_autostart)
+        if not replies and not target.is_all:
+            rows.append(_missing(h, target, 21))
+            continue
+        for r in replies:
+            assert isinstance(r.message, m.Ready)
+            rows.append(Row(h.name, r.address, True, "reset", r.message.state,
+                            serial=r.message.value32))
+    return rows
+
+
+def info(robot: Robot, ref: BoardRef, *, bus: str | None = None) -> list[Row]:
+    """Option 3 (one board) and 13 (Count: every board, ``ref`` = all)."""
+    rows = []
+    for h in _buses(robot, ref, bus):
+        infos = h.client.info_many(ref.address)
+        if not infos and not ref.is_all:
+            rows.append(_missing(h, ref, 3))
+        for address, inf in sorted(infos.items(), key=lambda kv: kv[0].number):
+            rows.append(Row(h.name, address, True, "ok", inf.state, inf, inf.serial))
+    return rows
+
+
+def set_status(robot: Robot, ref: BoardRef, op: StatusOp, value: int, *, option: int,
+               bus: str | None = None) -> list[Row]:
+    """Options 4 (ProgEnable), 8 (AutoStart), 10/11 (init pins), 12 (seq ID)."""
+    rows = []
+    for h in _buses(robot, ref, bus):
+        replies = h.client.set_status(ref.address, op, value)
+        if not replies:
+            if ref.is_all:
+                _require_init(h, ref, option)
+            else:
+                rows.append(_missing(h, ref, option))
+            continue
+        rows += [_reply_row(h, r) for r in replies]
+    return rows
+
+
+def start(robot: Robot, ref: BoardRef, target: Target = Target.FLASH, *,
+          bus: str | None = None) -> list[Row]:
+    """Option 7: start the program in flash (or ExtRAM)."""
+    rows = []
+    for h in _buses(robot, ref, bus):
+        replies = h.client.start(ref.address, target)
+        if not replies:
+            if ref.is_all:
+                _require_init(h, ref, 7)
+            else:
+                rows.append(_missing(h, ref, 7))
+            continue
+        rows += [_reply_row(h, r) for r in replies]
+    return rows
+
+
+@dataclass(frozen=True)
+class ProbeResult:
+    """Options 14/15 on one bus: who answered as first (last) board."""
+
+    bus: str
+    last: bool
+    answers: tuple[m.InitAck, ...]
+    info: BoardInfo | None
+
+    @property
+    def broken(self) -> bool:
+        return len(self.answers) > 1
+
+
+def probe(robot: Robot, *, last: bool = False, bus: str | None = None) -> list[ProbeResult]:
+    out = []
+    for h in robot.select(bus):
+        answers = h.client.probe(last=last)
+        inf = None
+        if len(answers) == 1 and answers[0].seq_id:
+            try:
+                inf = h.client.info(Address(IdType.SEQUENTIAL, answers[0].seq_id))
+            except UcomTimeoutError:
+                inf = None
+        out.append(ProbeResult(h.name, last, tuple(answers), inf))
+    return out
+
+
+def dsp_list(robot: Robot, *, bus: str | None = None) -> list[Row]:
+    """Options 16 + 17: build and print the list of active boards (Info broadcast)."""
+    return info(robot, BoardRef(None, ALL), bus=bus)
+
+
+def board_status(robot: Robot, ref: BoardRef, *, bus: str | None = None) -> list[
+        tuple[str, m.StatusReport]]:
+    out = []
+    for h in _buses(robot, ref, bus):
+        out.append((h.name, h.client.status(ref.address)))
+    return out

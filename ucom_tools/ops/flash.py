@@ -1,0 +1,265 @@
+"""Programming images into boards: ``ucom flash`` (and console options 5, 6, 20).
+
+Per bus, all buses in parallel: init chain with diagnostics, pre-flight checks, boards
+running a program back to the bootloader (XReset), ProgEnable, one broadcast transfer,
+ProgID verification of every board (and a read-back of its Info), resending only what a
+board missed, then AutoStart and Start when asked.  A board is reported programmed only
+when it verified.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+from ucom_tools.errors import UcomTimeoutError
+from ucom_tools.image import Image
+from ucom_tools.ops.boards import NotInitialised
+from ucom_tools.ops.enumerate import BusEnumeration, enumerate_bus
+from ucom_tools.ops.robot import BusHandle, Robot
+from ucom_tools.protocol.programmer import Programmer
+from ucom_tools.wire import messages as m
+from ucom_tools.wire.codes import BoardState, StatusOp, Target
+from ucom_tools.wire.ids import ALL, Address, IdType, seq
+from ucom_tools.wire.info import BoardInfo
+from ucom_tools.wire.transfer import TransferPlan
+
+ProgressFn = Callable[[str, int, int, int], None]
+"""progress(bus, bytes sent, bytes total, boards)"""
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Which boards to program: every board found, the ProgEnabled ones, or seq IDs."""
+
+    kind: str  # "all" | "enabled" | "list"
+    numbers: tuple[int, ...] = ()
+
+    @classmethod
+    def parse(cls, text: str) -> Selection:
+        from ucom_tools.errors import InputError
+        if text.strip().lower() == "all":
+            return cls("all")
+        try:
+            nums = tuple(sorted({int(x) for x in text.split(",") if x.strip()}))
+        except ValueError:
+            raise InputError(f"{text!r}: expected 'all' or seq IDs like 1,3,5",
+                             key="--boards") from None
+        if not nums or not all(1 <= n <= 31 for n in nums):
+            raise InputError(f"{text!r}: seq IDs are 1-31", key="--boards")
+        return cls("list", nums)
+
+
+@dataclass(frozen=True)
+class BoardResult:
+    bus: str
+    seq_id: int
+    serial: int | None
+    placement: str | None
+    outcome: str  # "verified" | "failed"
+    progid: int | None
+    detail: str
+    resent_blocks: int = 0
+    autostart: bool = False
+    started: bool | None = None
+    messages: tuple[str, ...] = ()
+
+    @property
+    def verified(self) -> bool:
+        return self.outcome == "verified"
+
+
+@dataclass(frozen=True)
+class BusFlash:
+    bus: str
+    boards: tuple[BoardResult, ...]
+    enumeration: BusEnumeration | None
+    frames: int
+    rounds: int
+    note: str = ""
+
+
+@dataclass(frozen=True)
+class FlashResult:
+    image: str
+    progid: int
+    size_words: int
+    target: Target
+    buses: tuple[BusFlash, ...] = field(default=())
+
+    @property
+    def boards(self) -> list[BoardResult]:
+        return [b for bus in self.buses for b in bus.boards]
+
+    @property
+    def all_verified(self) -> bool:
+        return bool(self.boards) and all(b.verified for b in self.boards)
+
+    @property
+    def failed(self) -> list[BoardResult]:
+        return [b for b in self.boards if not b.verified]
+
+
+def flash(robot: Robot, image: Image, *, selection: Selection = Selection("all"),
+          bus: str | None = None, target: Target = Target.FLASH, init: bool = True,
+          autostart: bool = False, start: bool = False, verify: bool = True,
+          progress: ProgressFn | None = None, cancel: threading.Event | None = None,
+          plan: TransferPlan | None = None) -> FlashResult:
+    """Program ``image`` into the selected boards of every selected bus, in parallel."""
+    plan = plan or image.plan(target=target)
+    handles = robot.select(bus)
+    job = _Job(plan, selection, init, autostart, start, verify, progress, cancel)
+    if len(handles) == 1:
+        results = [job.run(handles[0])]
+    else:
+        with ThreadPoolExecutor(max_workers=len(handles)) as pool:
+            results = list(pool.map(job.run, handles))
+    return FlashResult(image.name, plan.progid, plan.size_words, target, tuple(results))
+
+
+@dataclass
+class _Job:
+    plan: TransferPlan
+    selection: Selection
+    init: bool
+    autostart: bool
+    start: bool
+    verify: bool
+    progress: ProgressFn | None
+    cancel: threading.Event | None
+
+    def run(self, h: BusHandle) -> BusFlash:
+        enum = None
+        placements: dict[int, tuple[int, str | None]] = {}
+        if self.init:
+            enum = enumerate_bus(h)
+            if any(b.duplicate for b in enum.boards) or any(
+                    d.kind == "fixed-id-clash" for d in enum.diagnosis):
+                why = "; ".join(d.message for d in enum.diagnosis)
+                rows = tuple(_fail(h.name, b.seq_id, b.serial, b.placement,
+                                   f"not programmed: the init chain is faulty ({why})")
+                             for b in enum.boards)
+                return BusFlash(h.name, rows, enum, 0, 0, "init chain faulty")
+            infos = {seq(b.seq_id): b.info for b in enum.boards if b.info is not None}
+            placements = {b.seq_id: (b.serial, b.placement) for b in enum.boards}
+        else:
+            infos = h.client.info_many(ALL)
+            if not infos:
+                raise NotInitialised(
+                    f"{h.name}: no board has a seq ID yet. Programming (option 5) works only "
+                    "after a successful init chain (option 2): run 'ucom init' first, or use "
+                    "'ucom flash', which runs it.")
+        present = {a.number: inf for a, inf in infos.items()
+                   if a.id_type is IdType.SEQUENTIAL}
+        if self.selection.kind == "all":
+            wanted = sorted(present)
+        elif self.selection.kind == "enabled":
+            wanted = sorted(n for n, inf in present.items() if inf.prog_enable)
+        else:
+            wanted = list(self.selection.numbers)
+        results: dict[int, BoardResult] = {}
+        for n in wanted:
+            if n not in present:
+                results[n] = _fail(h.name, n, None, None, f"no board with seq ID {n} on {h.name}")
+        targets = [n for n in wanted if n in present]
+        if not targets:
+            return BusFlash(h.name, tuple(results[n] for n in sorted(results)), enum, 0, 0,
+                            "no board to program")
+        self._to_bootloader(h, targets, present)
+        enabled = self._enable(h, targets, present, results, placements)
+        frames = rounds = 0
+        if enabled:
+            total = self.plan.size_words * 2
+
+            def report(sent: int, _total: int) -> None:
+                if self.progress is not None:
+                    self.progress(h.name, sent, total, len(enabled))
+
+            programmer = Programmer(h.link, h.client.timeouts, progress=report,
+                                    cancel=self.cancel)
+            transfer = programmer.transfer(self.plan, [seq(n) for n in enabled])
+            frames, rounds = transfer.frames_sent, transfer.rounds
+            for n in enabled:
+                o = transfer.outcomes[seq(n)]
+                serial, placement = placements.get(n, (present[n].serial, None))
+                detail = o.status + ("; " + "; ".join(o.errors) if o.errors and not o.verified
+                                     else "")
+                results[n] = BoardResult(h.name, n, serial, placement,
+                                         "verified" if o.verified else "failed", o.progid,
+                                         detail, o.resent_blocks)
+        verified = [n for n in enabled if results[n].verified]
+        if self.verify and verified:
+            self._read_back(h, verified, results)
+            verified = [n for n in verified if results[n].verified]
+        if self.autostart and verified and self.plan.target is Target.FLASH:
+            for n in verified:
+                ok = h.client.set_status(seq(n), StatusOp.AUTOSTART, 1)
+                r = results[n]
+                results[n] = _replace(r, autostart=bool(ok and ok[0].ok))
+        if self.start and verified:
+            for n in verified:
+                replies = h.client.start(seq(n), self.plan.target)
+                r = results[n]
+                started = bool(replies) and replies[0].ok
+                texts = tuple(t for rep in replies for t in rep.reports)
+                if replies and not replies[0].ok:
+                    texts = (replies[0].message.describe(), *texts)  # type: ignore[union-attr]
+                results[n] = _replace(r, started=started, messages=texts)
+        return BusFlash(h.name, tuple(results[n] for n in sorted(results)), enum, frames,
+                        rounds)
+
+    def _to_bootloader(self, h: BusHandle, targets: list[int],
+                       present: dict[int, BoardInfo]) -> None:
+        for n in targets:
+            if present[n].state in (BoardState.RUNNING_FLASH, BoardState.RUNNING_EXTRAM):
+                h.client.reset(seq(n), clear_autostart=True)
+
+    def _enable(self, h: BusHandle, targets: list[int], present: dict[int, BoardInfo],
+                results: dict[int, BoardResult],
+                placements: dict[int, tuple[int, str | None]]) -> list[int]:
+        others = [n for n, inf in present.items() if inf.prog_enable and n not in targets]
+        for n in others:  # never program a board that was not asked for
+            h.client.set_status(seq(n), StatusOp.PROG_ENABLE, 0)
+        if set(targets) == set(present):
+            replies = h.client.set_status(ALL, StatusOp.PROG_ENABLE, 1)
+        else:
+            replies = [r for n in targets
+                       for r in h.client.set_status(seq(n), StatusOp.PROG_ENABLE, 1)]
+        ok = {r.address.number for r in replies if r.ok}
+        for r in replies:
+            if not r.ok and isinstance(r.message, m.Error):
+                serial, placement = placements.get(r.address.number, (None, None))
+                results[r.address.number] = _fail(h.name, r.address.number, serial, placement,
+                                                  "refused ProgEnable: " + r.message.describe())
+        for n in targets:
+            if n not in ok and n not in results:
+                serial, placement = placements.get(n, (present[n].serial, None))
+                results[n] = _fail(h.name, n, serial, placement, "did not acknowledge ProgEnable")
+        return [n for n in targets if n in ok]
+
+    def _read_back(self, h: BusHandle, verified: list[int],
+                   results: dict[int, BoardResult]) -> None:
+        for n in verified:
+            r = results[n]
+            try:
+                inf = h.client.info(Address(IdType.SEQUENTIAL, n))
+            except UcomTimeoutError:
+                results[n] = _replace(r, outcome="failed",
+                                      detail="verified, but the Info read-back timed out")
+                continue
+            valid = inf.flash_valid if self.plan.target is Target.FLASH else inf.extram_valid
+            if not valid or inf.progid != self.plan.progid:
+                results[n] = _replace(r, outcome="failed", detail=(
+                    f"Info read-back shows ProgID 0x{inf.progid:08X}, valid={valid}"))
+
+
+def _fail(bus: str, n: int, serial: int | None, placement: str | None,
+          detail: str) -> BoardResult:
+    return BoardResult(bus, n, serial, placement, "failed", None, detail)
+
+
+def _replace(r: BoardResult, **changes: object) -> BoardResult:
+    from dataclasses import replace
+    return replace(r, **changes)  # type: ignore[arg-type]

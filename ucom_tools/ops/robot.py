@@ -1,0 +1,148 @@
+"""Opening a robot: one python-can bus per CAN channel, real or virtual, with the boards
+its topology expects on each."""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import can
+
+from ucom_tools.errors import BusError, InputError
+from ucom_tools.protocol.bootloader import BootloaderClient
+from ucom_tools.protocol.link import Link
+from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
+from ucom_tools.virtual import topology as topo_mod
+from ucom_tools.virtual.topology import BusSpec, Topology
+
+
+@dataclass(frozen=True)
+class ConnectSpec:
+    """How to reach the boards: a python-can interface and channels, or a virtual fleet."""
+
+    interface: str | None = None
+    channels: tuple[str, ...] = ()
+    bitrate: int | None = None
+    host: str | None = None
+    port: int | None = None
+    virtual: str | None = None
+    topology: str | None = None
+    state_dir: Path | None = None
+    pace: bool = False
+
+    def describe(self) -> str:
+        if self.virtual:
+            return f"virtual {self.virtual}"
+        where = f"{self.host}:{self.port} " if self.host else ""
+        return f"{self.interface} {where}{','.join(self.channels)}".strip()
+
+
+@dataclass
+class BusHandle:
+    """One open bus with its protocol clients and the boards expected on it."""
+
+    name: str
+    bus: can.BusABC
+    link: Link
+    client: BootloaderClient
+    expected: BusSpec | None
+    virtual: bool
+
+
+@dataclass
+class Robot:
+    """Every open bus of one robot."""
+
+    spec: ConnectSpec
+    buses: dict[str, BusHandle]
+    topology: Topology | None
+    fleet: Any = None
+    timeouts: Timeouts = field(default=DEFAULT)
+
+    def select(self, name: str | None) -> list[BusHandle]:
+        if name is None:
+            return list(self.buses.values())
+        if name not in self.buses:
+            raise InputError(f"no bus {name!r}; buses: {', '.join(self.buses)}", key="--bus")
+        return [self.buses[name]]
+
+    def close(self) -> None:
+        for h in self.buses.values():
+            with contextlib.suppress(Exception):
+                h.bus.shutdown()
+        if self.fleet is not None:
+            self.fleet.close()
+
+
+def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:
+    """Open every bus of ``spec``; raises :class:`BusError` with one clear line."""
+    if spec.virtual:
+        return _open_virtual(spec, timeouts)
+    topology = topo_mod.load(spec.topology) if spec.topology else None
+    if not spec.interface:
+        raise InputError("no CAN interface given: use --virtual NAME for the virtual fleet, or "
+                         "-i/--interface (e.g. socketcan, pcan, socketcand) with -c/--channel",
+                         key="--interface")
+    channels = list(spec.channels)
+    expected: list[BusSpec | None]
+    if topology is not None:
+        if not channels:
+            channels = [b.name for b in topology.buses]
+        if len(channels) > len(topology.buses):
+            raise InputError(f"{len(channels)} channels given, topology {topology.name!r} has "
+                             f"{len(topology.buses)} buses", key="--channel")
+        expected = list(topology.buses[:len(channels)])
+    else:
+        if not channels:
+            raise InputError("no channel given: use -c/--channel (repeat it for several buses) "
+                             "or --topology FILE", key="--channel")
+        expected = [None] * len(channels)
+    kwargs: dict[str, Any] = {}
+    if spec.bitrate:
+        kwargs["bitrate"] = spec.bitrate
+    if spec.host:
+        kwargs["host"] = spec.host
+    if spec.port:
+        kwargs["port"] = spec.port
+    buses: dict[str, BusHandle] = {}
+    try:
+        for channel, exp in zip(channels, expected, strict=True):
+            try:
+                bus = can.Bus(interface=spec.interface, channel=channel, **kwargs)
+            except (can.CanError, OSError, ValueError, ImportError, TypeError,
+                    NotImplementedError) as err:
+                raise BusError(f"cannot open {spec.interface} channel {channel!r}: "
+                               f"{_one_line(err)}") from err
+            name = exp.name if exp is not None else channel
+            link = Link(bus, name)
+            buses[name] = BusHandle(name, bus, link, BootloaderClient(link, timeouts), exp,
+                                    virtual=False)
+    except BaseException:
+        for h in buses.values():
+            with contextlib.suppress(Exception):
+                h.bus.shutdown()
+        raise
+    return Robot(spec, buses, topology, timeouts=timeouts)
+
+
+def _open_virtual(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
+    from ucom_tools.virtual.canbus import VirtualUcomBus
+    from ucom_tools.virtual.fleet import Fleet
+
+    assert spec.virtual is not None
+    topology = topo_mod.load(spec.virtual)
+    fleet = Fleet(topology, state_dir=spec.state_dir, realtime=spec.pace)
+    buses = {}
+    for b in topology.buses:
+        bus = VirtualUcomBus(b.name, fleet=fleet)
+        link = Link(bus, b.name)
+        buses[b.name] = BusHandle(b.name, bus, link, BootloaderClient(link, timeouts), b,
+                                  virtual=True)
+    return Robot(spec, buses, topology, fleet=fleet, timeouts=timeouts)
+
+
+def _one_line(err: BaseException) -> str:
+    text = str(err).strip().splitlines()
+    return text[0] if text else type(err).__name__
