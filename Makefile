@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/ucom fleet show armar3
+	$(BIN)/ucom flash firmware_images/armar3.fl.S --virtual armar3 --start
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

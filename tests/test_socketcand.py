@@ -78,3 +78,37 @@ def test_python_can_socketcand_client_talks_to_the_served_fleet(tmp_path: Path) 
 def test_unknown_bus_is_refused(tmp_path: Path) -> None:
     with served("rosi") as port, pytest.raises(can.CanError):
         can.Bus(interface="socketcand", host="127.0.0.1", port=port, channel="CAN9")
+
+
+def _ucom(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "ucom_tools", *args], capture_output=True,
+                          text=True, timeout=120)
+
+
+def test_ucom_cli_flashes_a_served_fleet_over_socketcand() -> None:
+    image = "firmware_images/rosi.fl.S"
+    with served("armar3") as port:
+        remote = ["-i", "socketcand", "--host", "127.0.0.1", "--port", str(port),
+                  "-c", "CAN0", "-c", "CAN3"]
+        r = _ucom("flash", image, *remote, "--start", "--json")
+        assert r.returncode == 0, r.stderr
+        import json
+        data = json.loads(r.stdout)
+        assert [(b["bus"], b["seq_id"], b["outcome"]) for b in data["boards"]] == [
+            ("CAN0", 1, "verified"), ("CAN0", 2, "verified"), ("CAN0", 3, "verified"),
+            ("CAN3", 1, "verified"), ("CAN3", 2, "verified")]
+        assert all(b["started"] for b in data["boards"])
+        # the served boards keep their seq IDs between two ucom runs
+        r = _ucom("info", "2", *remote, "--json")
+        assert r.returncode == 0, r.stderr
+        infos = json.loads(r.stdout)["boards"]
+        assert [(i["bus"], i["state"], i["progid"]) for i in infos] == [
+            ("CAN0", "running (flash)", data["progid"]), ("CAN3", "running (flash)",
+                                                           data["progid"])]
+        r = _ucom("init", "-i", "socketcand", "--host", "127.0.0.1", "--port", str(port),
+                  "--topology", "tests/data/arm_ok.toml", "--json")
+        # a real-robot topology expecting 5 boards on CAN1, where armar3 has 3
+        assert r.returncode == 1, r.stderr
+        (bus,) = json.loads(r.stdout)["buses"]
+        assert (bus["name"], bus["expected"], bus["found"]) == ("CAN1", 5, 3)
+        assert "found 3 of 5 expected boards" in bus["diagnosis"][0]["message"]

@@ -65,10 +65,11 @@ def cli(ctx: click.Context, verbose: int) -> None:
 
 
 def _register() -> None:
-    from ucom_tools.cli import commands, fleet, srec
+    from ucom_tools.cli import commands, console, fleet, srec
 
     for command in commands.COMMANDS:
         cli.add_command(command)
+    cli.add_command(console.console)
     cli.add_command(srec.srec)
     cli.add_command(fleet.fleet)
 

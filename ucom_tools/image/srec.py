@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import re
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -147,8 +148,10 @@ def _records(text: str, source: str) -> list[_Record]:
 
 
 def _bincopy_reason(msg: str) -> str:
-    if "checksum" in msg:
-        return "checksum mismatch: " + msg
+    crc = re.search(r"expected crc '([0-9A-Fa-f]+)'.*but got '([0-9A-Fa-f]+)'", msg)
+    if crc:
+        return (f"checksum mismatch: the record ends in {crc.group(2).upper()}, its bytes "
+                f"give {crc.group(1).upper()}")
     return "malformed record: " + msg
 
 

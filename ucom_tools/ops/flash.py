@@ -151,6 +151,19 @@ class _Job:
                     f"{h.name}: no board has a seq ID yet. Programming (option 5) works only "
                     "after a successful init chain (option 2): run 'ucom init' first, or use "
                     "'ucom flash', which runs it.")
+            firsts = h.client.probe()
+            if len(firsts) > 1:
+                serials = ", ".join(f"0x{a.serial:08X}" for a in firsts)
+                rows = tuple(_fail(h.name, a.number, inf.serial, None,
+                                   "not programmed: the init chain is faulty (Get First: "
+                                   f"{len(firsts)} boards answer, serials {serials}); two "
+                                   "boards may share this seq ID")
+                             for a, inf in sorted(infos.items(), key=lambda kv: kv[0].number))
+                return BusFlash(h.name, rows, None, 0, 0, "init chain faulty")
+            known = {b.serial: b.placement for b in (h.expected.boards if h.expected else ())
+                     if h.virtual or b.serial_explicit}
+            placements = {a.number: (inf.serial, known.get(inf.serial))
+                          for a, inf in infos.items() if a.id_type is IdType.SEQUENTIAL}
         present = {a.number: inf for a, inf in infos.items()
                    if a.id_type is IdType.SEQUENTIAL}
         if self.selection.kind == "all":

@@ -524,8 +524,10 @@ class VirtualBoard:
                     ext = rx.extram[block.space]
                     ext[block.address - base:block.address - base + len(words)] = words
                 rx.received[block.index] = (block.space, block.address, len(words))
+        if rx.paused or rx.free_at - t < self.timing.high_water * rx.frame_cost:
+            return
         backlog = rx.backlog(t)
-        if not rx.paused and backlog >= self.timing.high_water:
+        if backlog >= self.timing.high_water:
             rx.paused = True
             self.send(t + self.timing.reply_us, m.Ready(ReadyReason.PAUSE, self.state,
                                                         int(backlog)))

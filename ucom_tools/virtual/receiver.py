@@ -77,6 +77,7 @@ class Reception:
     overruns: int = 0
     failed_words: int = 0
     extram: dict[Space, array] = field(default_factory=dict)
+    frame_cost: float = field(init=False, default=0.0)
 
     # ---------------------------------------------------------------- erase list
     def add_erase(self, frame: ProgramErase) -> None:
@@ -91,12 +92,11 @@ class Reception:
             return 0.0
         return len(self.erase_pages) * self.timing.page_erase_us
 
-    @property
-    def frame_cost(self) -> float:
+    def __post_init__(self) -> None:
         t = self.timing
-        if self.target is Target.EXTRAM:
-            return t.extram_frame_us
-        return WORDS_PER_FRAME * t.word_program_us + t.frame_overhead_us
+        self.frame_cost = (t.extram_frame_us if self.target is Target.EXTRAM
+                           else WORDS_PER_FRAME * t.word_program_us + t.frame_overhead_us)
+        """Microseconds the board needs to store one data frame."""
 
     # ---------------------------------------------------------------- blocks
     def open_block(self, block: ProgramBlock) -> None:
@@ -146,7 +146,8 @@ class Reception:
         return sum(n for _, _, n in self.received.values())
 
     def backlog(self, t: float) -> float:
-        return max(0.0, (self.free_at - t) / self.frame_cost)
+        """Data frames waiting in the receive ring at time ``t``."""
+        return (self.free_at - t) / self.frame_cost if self.free_at > t else 0.0
 
     # ---------------------------------------------------------------- end
     def missing_runs(self) -> list[ProgramMissing]:

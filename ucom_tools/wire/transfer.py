@@ -10,7 +10,10 @@ followed by its words, low byte first.  See ``man/ucom-protocol.7``.
 
 from __future__ import annotations
 
+import itertools
+import sys
 import zlib
+from array import array
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
@@ -51,7 +54,11 @@ class Block:
         return len(self.words) // WORDS_PER_FRAME
 
     def payload(self) -> bytes:
-        return b"".join(w.to_bytes(2, "little") for w in self.words)
+        """The block's words as CAN data bytes, low byte first."""
+        raw = array("H", self.words)
+        if sys.byteorder == "big":
+            raw.byteswap()
+        return raw.tobytes()
 
     def header(self) -> ProgramBlock:
         return ProgramBlock(self.space, self.address, self.frames, self.index)
@@ -63,17 +70,17 @@ class Block:
 
 def make_blocks(words: Mapping[tuple[Space, int], int]) -> list[Block]:
     """Cut image words into blocks; the reset-vector words P:0000-0003 are left out."""
-    pages: dict[tuple[Space, int], dict[int, int]] = {}
-    for (space, addr), value in words.items():
-        if space is Space.P and addr in VECTOR_WORDS:
-            continue
-        pages.setdefault((space, addr // PAGE_WORDS), {})[addr] = value
+    keys = sorted(k for k in words if not (k[0] is Space.P and k[1] in VECTOR_WORDS))
     blocks: list[Block] = []
-    for (space, _page), used in sorted(pages.items()):
-        lo = min(used) // WORDS_PER_FRAME * WORDS_PER_FRAME
-        hi = (max(used) // WORDS_PER_FRAME + 1) * WORDS_PER_FRAME
-        blocks.append(Block(len(blocks), space, lo,
-                            tuple(used.get(a, ERASED) for a in range(lo, hi))))
+    for (space, _page), group in itertools.groupby(keys, lambda k: (k[0], k[1] // PAGE_WORDS)):
+        addrs = [a for _, a in group]
+        lo = addrs[0] // WORDS_PER_FRAME * WORDS_PER_FRAME
+        hi = (addrs[-1] // WORDS_PER_FRAME + 1) * WORDS_PER_FRAME
+        if hi - lo == len(addrs):
+            values = tuple(words[(space, a)] for a in addrs)
+        else:
+            values = tuple(words.get((space, a), ERASED) for a in range(lo, hi))
+        blocks.append(Block(len(blocks), space, lo, values))
     return blocks
 
 
