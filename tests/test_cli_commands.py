@@ -192,9 +192,17 @@ def test_options_from_environment() -> None:
 def test_bus_that_cannot_be_opened_gives_one_line_and_exit_4() -> None:
     r = ucom("init", "-i", "socketcand", "--host", "127.0.0.1", "--port", "1", "-c", "CAN0")
     assert r.exit_code == 4
-    assert "cannot open socketcand channel 'CAN0'" in r.stderr
+    assert "cannot open socketcand on 127.0.0.1:1: Connection refused" in r.stderr
     assert "Traceback" not in r.stderr
     r = ucom("init", "-i", "no-such-interface", "-c", "x")
     assert r.exit_code == 4
     r = ucom("init")
     assert r.exit_code == 3 and "--virtual" in r.stderr
+
+
+def test_flash_on_real_time_buses_waits_for_the_bus() -> None:
+    """With --pace the host cannot queue frames faster than 1 Mbit/s carries them."""
+    r = ucom("flash", "firmware_images/bench64k.fl.S", "--virtual", "armar3", "--pace",
+             "--bus", "CAN3", "--json")
+    assert r.exit_code == 0, r.stdout + r.stderr
+    assert [b["outcome"] for b in js(r)["boards"]] == ["verified", "verified"]

@@ -4,6 +4,7 @@ its topology expects on each."""
 from __future__ import annotations
 
 import contextlib
+import socket
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -106,6 +107,8 @@ def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:
         kwargs["host"] = spec.host
     if spec.port:
         kwargs["port"] = spec.port
+    if spec.interface == "socketcand":
+        _reach_socketcand(spec.host, spec.port)
     buses: dict[str, BusHandle] = {}
     try:
         for channel, exp in zip(channels, expected, strict=True):
@@ -141,6 +144,18 @@ def _open_virtual(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
         buses[b.name] = BusHandle(b.name, bus, link, BootloaderClient(link, timeouts), b,
                                   virtual=True)
     return Robot(spec, buses, topology, fleet=fleet, timeouts=timeouts)
+
+
+def _reach_socketcand(host: str | None, port: int | None) -> None:
+    """Fail at once on a server that is not there (python-can retries for 10 s)."""
+    if not host or not port:
+        raise InputError("the socketcand interface needs --host and --port", key="--host")
+    try:
+        with socket.create_connection((host, port), timeout=3):
+            pass
+    except OSError as err:
+        raise BusError(f"cannot open socketcand on {host}:{port}: "
+                       f"{err.strerror or err}") from err
 
 
 def _one_line(err: BaseException) -> str:

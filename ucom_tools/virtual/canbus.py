@@ -13,6 +13,7 @@ the bus at its bitrate and ``recv`` waits for real.
 from __future__ import annotations
 
 import queue
+import time
 from collections import deque
 from pathlib import Path
 from typing import Any
@@ -24,6 +25,9 @@ from ucom_tools.virtual.fleet import Fleet, shared_fleet
 from ucom_tools.virtual.simbus import SimBus
 
 INF = float("inf")
+TX_QUEUE = 32
+"""Frames a host may have waiting for the bus before ``send`` blocks (real time only),
+like the transmit queue of a CAN adapter."""
 
 
 class HostPort:
@@ -45,6 +49,16 @@ class HostPort:
             self.rt_inbox.put(msg)
         else:
             self.inbox.append((msg, t_end))
+
+
+def wait_for_room(sim: SimBus, sender: object, timeout: float | None) -> None:
+    """Block while ``sender`` has :data:`TX_QUEUE` frames waiting (hold ``sim.lock``)."""
+    deadline = None if timeout is None else time.monotonic() + timeout
+    while sim.queued[sender] >= TX_QUEUE:
+        remaining = None if deadline is None else deadline - time.monotonic()
+        if remaining is not None and remaining <= 0:
+            raise can.CanOperationError("transmit buffer full")
+        sim.changed.wait(remaining if remaining is not None else 0.5)
 
 
 class VirtualUcomBus(can.BusABC):
@@ -94,6 +108,7 @@ class VirtualUcomBus(can.BusABC):
         sim, port = self.sim, self.port
         with sim.lock:
             if self.realtime:
+                wait_for_room(sim, port, timeout)
                 sim.send(port, self.fleet.now_us(sim), msg.arbitration_id, data)
                 sim.changed.notify_all()
             else:

@@ -39,7 +39,10 @@ class RealtimeDriver:
         with sim.changed:
             while not self._stop:
                 now = self.now_us()
+                sent = sim.stats.frames
                 sim.run_until(now)
+                if sim.stats.frames != sent:
+                    sim.changed.notify_all()  # senders waiting for room in their TX queue
                 nxt = sim.next_event_time()
                 wait = 0.5 if nxt is None else min(0.5, max(0.0, (nxt - now) / 1e6))
                 if wait > 0:

@@ -77,6 +77,8 @@ class SimBus:
         """Chain positions p (0-based) whose init input is cut off from board p-1's output."""
         self.sent_marks: dict[int, float] = {}
         self._tracked: set[int] = set()
+        self.queued: Counter[object] = Counter()
+        """Frames each sender has queued that are not on the wire yet (its TX queue)."""
         self.drop: Callable[[object, int, bytes], bool] | None = None
         """Fault injection: ``drop(node, id, data)`` true = ``node`` misses that frame."""
 
@@ -96,6 +98,7 @@ class SimBus:
         """Queue a frame that may start at ``t_ready``; with ``track`` its end time can be
         asked with :meth:`sent_at` (the token is returned)."""
         token = next(self._seq)
+        self.queued[sender] += 1
         if track:
             self._tracked.add(token)
         heapq.heappush(self._events, (t_ready, token, None, (arbitration_id, bytes(data), sender)))
@@ -148,6 +151,7 @@ class SimBus:
         stats.busy_us += duration
         stats.by_function[arbitration_id >> 6] += 1
         self.now = t_end
+        self.queued[sender] -= 1
         if seq in self._tracked:
             self._tracked.discard(seq)
             self.sent_marks[seq] = t_end

@@ -15,6 +15,7 @@ import threading
 import time
 from typing import Any
 
+from ucom_tools.virtual.canbus import wait_for_room
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.virtual.simbus import SimBus
 
@@ -109,6 +110,9 @@ class _Handler(socketserver.BaseRequestHandler):
                 return port
             sim = port.sim
             with sim.changed:
+                # Back-pressure: the next command is read only when there is room, so TCP
+                # throttles a client that sends faster than the bus carries frames.
+                wait_for_room(sim, port, None)
                 sim.send(port, fleet.now_us(sim), arb, data)
                 sim.changed.notify_all()
             return port
