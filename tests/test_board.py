@@ -61,17 +61,19 @@ def test_flash_program_verify_info_and_start(host) -> None:
         True, plan.progid, "armar3.fl.S", plan.size_words, WHEN)
     assert h.boards[0].nv.p.read(0x0004, 3).tolist() == list(plan.blocks[0].words[:3])
     assert h.boards[0].nv.p.read(0, 4).tolist() == [0xE984, 0x8000, 0xE984, 0x8000]
-    replies = h.client.start(seq(1))
-    assert replies[0].ok and replies[0].message.state is BoardState.RUNNING_FLASH
-    assert any("running" in t for t in replies[0].reports)
+    (started,) = h.client.start(seq(1))
+    assert started.ok and started.state is BoardState.RUNNING_FLASH
+    assert any("running (ProgID" in t for t in started.reports)
+    assert any("without an image descriptor" in t for t in started.reports)
     assert h.boards[0].leds()["green"] == "blink"
 
 
 def test_start_without_a_program_is_refused(host) -> None:
     h = host("armar3", "CAN0")
     h.client.init_chain()
-    replies = h.client.start(seq(2))
-    assert [r.message.code for r in replies] == [ErrorCode.NO_PROGRAM]
+    (result,) = h.client.start(seq(2))
+    assert not result.started
+    assert [e.code for e in result.errors] == [ErrorCode.NO_PROGRAM]
     assert h.boards[1].state is BoardState.BOOTLOADER
 
 
@@ -108,10 +110,10 @@ def test_extram_program_is_volatile(host) -> None:
     info = h.client.info(seq(1))
     assert info.extram_valid and info.target is Target.EXTRAM and not info.flash_valid
     assert h.boards[0].nv.p.read(4, 1).tolist() == [0xFFFF]  # flash untouched
-    assert h.client.start(seq(1), Target.EXTRAM)[0].message.state is BoardState.RUNNING_EXTRAM
+    assert h.client.start(seq(1), Target.EXTRAM)[0].state is BoardState.RUNNING_EXTRAM
     h.client.reset()
     assert not h.client.info(seq(1)).extram_valid
-    assert h.client.start(seq(1), Target.EXTRAM)[0].message.code is ErrorCode.NO_PROGRAM
+    assert h.client.start(seq(1), Target.EXTRAM)[0].errors[0].code is ErrorCode.NO_PROGRAM
 
 
 def test_malformed_and_unknown_frames_get_errors_and_never_stop_a_board(host) -> None:
@@ -244,7 +246,7 @@ def test_power_loss_mid_transfer_leaves_the_board_in_its_bootloader(host) -> Non
     h.client.init_chain()
     info = h.client.info(seq(1))
     assert not info.flash_valid and not info.autostart
-    assert h.client.start(seq(1))[0].message.code is ErrorCode.NO_PROGRAM
+    assert h.client.start(seq(1))[0].errors[0].code is ErrorCode.NO_PROGRAM
 
 
 def test_fixed_id_boards_answer_on_their_fixed_identifier(host) -> None:

@@ -32,7 +32,7 @@ def test_cancel_aborts_the_transfer_and_boards_stay_in_their_bootloader() -> Non
         for n in (1, 2, 3):
             info = h.client.info(seq(n))
             assert not info.flash_valid and info.state is BoardState.BOOTLOADER
-        assert h.client.start(seq(1))[0].message.code.name == "NO_PROGRAM"
+        assert h.client.start(seq(1))[0].errors[0].code.name == "NO_PROGRAM"
         # and the bus is usable right away: a new flash succeeds
         assert flash(robot, image, bus="CAN0").all_verified
     finally:

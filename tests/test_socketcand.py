@@ -86,7 +86,7 @@ def _ucom(*args: str) -> subprocess.CompletedProcess[str]:
 
 
 def test_ucom_cli_flashes_a_served_fleet_over_socketcand() -> None:
-    image = "firmware_images/lauron4.fl.S"  # 9.7 k words: far more than a TX queue holds
+    image = "firmware_images/armar3.fl.S"  # 12 k words: far more than a TX queue holds
     with served("armar3") as port:
         remote = ["-i", "socketcand", "--host", "127.0.0.1", "--port", str(port),
                   "-c", "CAN0", "-c", "CAN3"]

@@ -160,7 +160,15 @@ def test_srec_info_and_progid_commands() -> None:
     assert data["progid"] == f"0x{img.progid:08X}"
     assert data["entry"] == "P:0080"
     assert data["words"] == {"P": img.size(Space.P), "X": img.size(Space.X)}
-    assert [s["space"] for s in data["segments"]] == ["P", "X"]
+    assert [s["space"] for s in data["segments"]] == ["P", "P", "X"]  # code, descriptor, data
+    assert data["descriptor"] == {"board_id": 1, "board": "3M", "app_id": 1,
+                                  "application": "ARMAR-III cascaded velocity/position PID, "
+                                                 "3 axes", "fpga_version": "1.0",
+                                  "program_version": "3.2", "name": "armar3 cascaded PID"}
+    assert data["flags"] == []
+    r = CliRunner().invoke(cli, ["srec", "info", "firmware_images/legacy_nodesc.fl.S", "--json"])
+    assert json.loads(r.stdout)["descriptor"] is None
+    assert "no image descriptor" in json.loads(r.stdout)["flags"][0]
     r = CliRunner().invoke(cli, ["srec", "progid", "firmware_images/armar3.fl.S"])
     assert r.stdout.strip() == f"0x{img.progid:08X}"
     r = CliRunner().invoke(cli, ["srec", "info", "firmware_images/armar3.fl.S"])

@@ -22,6 +22,7 @@ from ucom_tools.wire.codes import (
     StatusOp,
     Target,
 )
+from ucom_tools.wire.descriptor import ImageDescriptor
 from ucom_tools.wire.ids import ALL, Address, Direction, Function, IdType, encode_id, seq
 from ucom_tools.wire.info import BoardInfo
 
@@ -58,7 +59,7 @@ MESSAGES = st.one_of(
     st.builds(m.InitAck, st.sampled_from(InitAckKind), numbers, numbers, u8, u32),
     st.builds(m.ProgramResult, st.sampled_from(ResultStatus), u16, u32),
     st.builds(m.ProgramMissing, u16, st.integers(1, 0xFFFF)),
-    st.builds(m.InfoFrame, st.integers(0, 7), st.binary(min_size=7, max_size=7)),
+    st.builds(m.InfoFrame, st.integers(0, 9), st.binary(min_size=7, max_size=7)),
     st.builds(m.Ready, st.sampled_from(ReadyReason), st.sampled_from(BoardState), u16, u32),
     st.builds(m.StatusReport, st.sampled_from(BoardState), st.integers(0, 15),
               st.integers(0, 15), u8, u8, numbers, u16),
@@ -117,7 +118,7 @@ def test_byte_layouts(msg: m.BootMessage, address: Address, ident: int, payload:
     (Function.PROGRAM, b"\x05\x00\x00\x00\x41\x00\x00", "Program Block frames"),
     (Function.READY, b"\x09\x00\x00\x00\x00\x00\x00\x00", "Ready reason"),
     (Function.ERROR, b"\x01", "Error payload length"),
-    (Function.INFO, b"\x08" + bytes(7), "Info index"),
+    (Function.INFO, b"\x0a" + bytes(7), "Info index"),
 ])
 def test_bad_frames_name_the_field(function: Function, data: bytes, field: str) -> None:
     with pytest.raises(FrameError) as info:
@@ -144,10 +145,16 @@ def test_text_reports_split_and_join() -> None:
     st.one_of(st.none(), st.datetimes(min_value=datetime(2000, 1, 1), max_value=datetime(
         2099, 12, 31)).map(lambda d: d.replace(microsecond=0, tzinfo=UTC))),
     u32, u16, st.sampled_from(Target),
-    st.text(alphabet=st.characters(min_codepoint=32, max_codepoint=126), max_size=28)))
+    st.text(alphabet=st.characters(min_codepoint=32, max_codepoint=126), max_size=28),
+    u16.filter(lambda r: not r & 0x10), u16.map(lambda r: r & 0xFFF0), st.integers(0, 15),
+    st.booleans(),
+    st.one_of(st.none(), st.builds(ImageDescriptor, st.integers(0, 15), st.integers(0, 127),
+                                   st.integers(0, 63), st.integers(0, 63),
+                                   st.tuples(u8, u8), st.just(""))),
+    st.booleans()))
 def test_info_record_round_trips(info: BoardInfo) -> None:
     frames = info.to_frames()
-    assert len(frames) == 8
+    assert len(frames) == 10
     assert BoardInfo.from_frames({f.index: f.body for f in frames}) == info
 
 

@@ -20,19 +20,31 @@ from pathlib import Path
 
 import bincopy
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+from ucom_tools.wire.descriptor import DESCRIPTOR_ADDRESS, ImageDescriptor
+
 X_OFFSET = 0x0020_0000
 WORDS_PER_RECORD = 16
 
-# name: (entry, program words, data-flash words, description)
+DESCRIPTOR_WORDS = 32
+
+# name: (entry, program words, data-flash words, descriptor or None)
+#   descriptor: (Board-ID, App-ID, FPGA major, FPGA minor, version, program name)
 IMAGES = {
-    "armar3.fl.S": (0x0080, 11_520, 768,
-                    "ARMAR-III generic program: 3 cascaded velocity/position PID axes"),
-    "lauron4.fl.S": (0x0080, 9_216, 512, "LAURON-IV leg controller"),
-    "kairo2_alpha.fl.S": (0x0080, 7_680, 256, "KAIRO-II Alpha module drive"),
-    "kairo2_gamma.fl.S": (0x0080, 8_704, 384, "KAIRO-II Gamma module joint"),
-    "rosi.fl.S": (0x0080, 4_096, 128, "RoSi scanner rotation"),
-    "bench64k.fl.S": (0x0080, 32_768 - 3_840, 3_840,
-                      "64 KiB benchmark image (program and data flash nearly full)"),
+    "armar3.fl.S": (0x0080, 11_520, 768, (1, 1, 1, 0, (3, 2), "armar3 cascaded PID")),
+    "lauron4.fl.S": (0x0080, 9_216, 512, (1, 2, 1, 0, (2, 0), "lauron4 leg")),
+    "kairo2_alpha.fl.S": (0x0080, 7_680, 256, (7, 1, 1, 0, (1, 4), "kairo2 alpha drive")),
+    "kairo2_gamma.fl.S": (0x0080, 8_704, 384, (8, 1, 1, 0, (1, 4), "kairo2 gamma joint")),
+    "rosi.fl.S": (0x0080, 4_096, 128, (1, 3, 1, 0, (1, 0), "rosi rotation")),
+    # built for a newer FPGA minor version: runs with a warning
+    "armar3_fpga1.1.fl.S": (0x0080, 11_520, 768, (1, 1, 1, 1, (3, 3), "armar3 cascaded PID")),
+    # built for FPGA 2.x: refused before programming, aborted at start
+    "armar3_fpga2.fl.S": (0x0080, 11_520, 768, (1, 1, 2, 0, (4, 0), "armar3 cascaded PID")),
+    # an old image from before descriptors: programmable, flagged
+    "legacy_nodesc.fl.S": (0x0080, 2_048, 0, None),
+    # 64 KiB in all (descriptor included) for the benchmarks
+    "bench64k.fl.S": (0x0080, 32_768 - 3_840 - DESCRIPTOR_WORDS, 3_840,
+                      (1, 1, 1, 0, (0, 1), "64 KiB benchmark")),
 }
 
 
@@ -51,10 +63,15 @@ def records(space_base: int, start: int, words: list[int]) -> list[str]:
     return out
 
 
-def image_text(name: str, entry: int, p_words: int, x_words: int) -> str:
+def image_text(name: str, entry: int, p_words: int, x_words: int,
+               descriptor: tuple | None) -> str:
     lines = [bincopy.pack_srec("0", 0, 12, b"PROGRAM&DATA")]
     lines += records(0, 0, [0xE984, entry])  # reset vector: JMP entry
-    lines += records(0, entry, words_for(name, min(p_words, 0x7E00 - entry), "P"))
+    lines += records(0, entry, words_for(name, min(p_words, DESCRIPTOR_ADDRESS - entry), "P"))
+    if descriptor is not None:
+        board_id, app_id, major, minor, version, program = descriptor
+        desc = ImageDescriptor(board_id, app_id, major, minor, version, program)
+        lines += records(0, DESCRIPTOR_ADDRESS, desc.to_words())
     if x_words:
         lines += records(X_OFFSET, 0x1000, words_for(name, x_words, "X"))
     lines.append(bincopy.pack_srec("7", entry, 0, None))
@@ -65,8 +82,8 @@ def main(argv: list[str]) -> int:
     out = Path(argv[1]) if len(argv) > 1 else Path(__file__).resolve().parent.parent / \
         "firmware_images"
     out.mkdir(parents=True, exist_ok=True)
-    for name, (entry, p, x, _) in IMAGES.items():
-        (out / name).write_text(image_text(name, entry, p, x), encoding="ascii")
+    for name, (entry, p, x, desc) in IMAGES.items():
+        (out / name).write_text(image_text(name, entry, p, x, desc), encoding="ascii")
     return 0
 
 

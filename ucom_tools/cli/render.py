@@ -7,10 +7,12 @@ from typing import Any
 from rich.console import Console
 from rich.table import Table
 
+from ucom_tools.boards import app_name, board_name
 from ucom_tools.image import Image
 from ucom_tools.ops.boards import ProbeResult, Row
 from ucom_tools.ops.enumerate import BusEnumeration
 from ucom_tools.ops.flash import FlashResult
+from ucom_tools.wire.descriptor import ImageDescriptor
 from ucom_tools.wire.ids import Address, IdType
 from ucom_tools.wire.info import BoardInfo
 from ucom_tools.wire.transfer import TransferPlan
@@ -196,7 +198,24 @@ def image_json(img: Image, plan: TransferPlan) -> dict[str, Any]:
         "segments": [{"space": s.space.name, "start": f"{s.start:04X}", "end": f"{s.end:04X}",
                       "words": s.length} for s in img.segments()],
         "vector_words": {f"P:{a:04X}": f"{v:04X}" for a, v in sorted(img.vector_words.items())},
+        "descriptor": descriptor_json(img.descriptor),
+        "flags": [] if img.descriptor else [
+            "no image descriptor at P:7DE0: programmable, but compatibility with board and "
+            "FPGA cannot be checked"],
     }
+
+
+def descriptor_json(d: ImageDescriptor | None) -> dict[str, Any] | None:
+    if d is None:
+        return None
+    out: dict[str, Any] = {
+        "board_id": d.board_id, "board": board_name(d.board_id), "app_id": d.app_id,
+        "application": app_name(d.board_id, d.app_id),
+        "fpga_version": f"{d.fpga_major}.{d.fpga_minor}",
+        "program_version": "{}.{}".format(*d.version)}
+    if d.name:
+        out["name"] = d.name
+    return out
 
 
 def print_image(c: Console, img: Image, plan: TransferPlan) -> None:
@@ -218,6 +237,14 @@ def print_image(c: Console, img: Image, plan: TransferPlan) -> None:
     if img.vector_words:
         c.print("  [dim]reset-vector words P:0000-0003 in the file are not programmed: the "
                 "bootloader keeps its own vectors[/]")
+    desc = d["descriptor"]
+    if desc:
+        c.print(f"  built for  Board-ID {desc['board_id']} ({desc['board']}), App-ID "
+                f"{desc['app_id']} ({desc['application']}), FPGA {desc['fpga_version']}")
+        c.print(f"  program    {desc.get('name', '')!r} version {desc['program_version']}")
+    else:
+        c.print("  [yellow]no image descriptor (P:7DE0): programmable, but compatibility with "
+                "board and FPGA cannot be checked[/]")
 
 
 # ----------------------------------------------------------------------------- flash

@@ -22,9 +22,10 @@ from pathlib import Path
 
 import bincopy
 
-from ucom_tools.errors import ImageError
+from ucom_tools.errors import FrameError, ImageError
 from ucom_tools.memory import Kind, kind_of
 from ucom_tools.wire.codes import Space, Target
+from ucom_tools.wire.descriptor import DESCRIPTOR_ADDRESS, ImageDescriptor
 from ucom_tools.wire.transfer import VECTOR_WORDS, TransferPlan
 
 X_OFFSET = 0x0020_0000
@@ -58,6 +59,8 @@ class Image:
     vector_words: dict[int, int]
     records: int
     addressing: str
+    descriptor: ImageDescriptor | None = None
+    """What the program was built for (P:7DE0); None = no descriptor (flagged)."""
 
     @property
     def name(self) -> str:
@@ -212,7 +215,12 @@ def parse_image(text: str, source: str = "<image>", *, addressing: str = "auto")
     elif not (0x0004 <= entry <= 0x7DFF):
         raise ImageError(f"entry address P:{entry:04X} is not in program flash "
                          "(P:0004-7DFF)", file=source, line=end_line)
-    return Image(source, header, entry, words, vectors, len(records), mode)
+    try:
+        descriptor = ImageDescriptor.from_image(words)
+    except FrameError as err:
+        raise ImageError(f"image descriptor at P:{DESCRIPTOR_ADDRESS:04X}: {err.message}",
+                         file=source, line=lines.get((Space.P, DESCRIPTOR_ADDRESS))) from None
+    return Image(source, header, entry, words, vectors, len(records), mode, descriptor)
 
 
 def _add_words(r: _Record, mode: str, source: str, words: dict[tuple[Space, int], int],

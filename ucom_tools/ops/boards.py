@@ -162,14 +162,17 @@ def start(robot: Robot, ref: BoardRef, target: Target = Target.FLASH, *,
     """Option 7: start the program in flash (or ExtRAM)."""
     rows = []
     for h in _buses(robot, ref, bus):
-        replies = h.client.start(ref.address, target)
-        if not replies:
+        results = h.client.start(ref.address, target)
+        if not results:
             if ref.is_all:
                 _require_init(h, ref, 7)
             else:
                 rows.append(_missing(h, ref, 7))
             continue
-        rows += [_reply_row(h, r) for r in replies]
+        for r in results:
+            detail = "; ".join(e.describe() for e in r.errors) if r.errors else (
+                "started" if r.started else "did not start")
+            rows.append(Row(h.name, r.address, r.ok, detail, r.state, reports=r.reports))
     return rows
 
 

@@ -213,13 +213,12 @@ class _Job:
                 results[n] = _replace(r, autostart=bool(ok and ok[0].ok))
         if self.start and verified:
             for n in verified:
-                replies = h.client.start(seq(n), self.plan.target)
+                answers = h.client.start(seq(n), self.plan.target)
                 r = results[n]
-                started = bool(replies) and replies[0].ok
-                texts = tuple(t for rep in replies for t in rep.reports)
-                if replies and not replies[0].ok:
-                    texts = (replies[0].message.describe(), *texts)  # type: ignore[union-attr]
-                results[n] = _replace(r, started=started, messages=texts)
+                started = bool(answers) and answers[0].ok
+                texts = tuple(e.describe() for a in answers for e in a.errors) + tuple(
+                    t for a in answers for t in a.reports)
+                results[n] = _replace(r, started=started, messages=r.messages + texts)
         return BusFlash(h.name, tuple(results[n] for n in sorted(results)), enum, frames,
                         rounds)
 

@@ -11,6 +11,7 @@ from ucom_tools.protocol.link import Link, Received
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import (
+    BoardState,
     InitAckKind,
     InitOp,
     ReadyReason,
@@ -70,6 +71,21 @@ class Reply:
     @property
     def ok(self) -> bool:
         return isinstance(self.message, m.Ready)
+
+
+@dataclass(frozen=True)
+class StartResult:
+    """What a board answered to Start."""
+
+    address: Address
+    started: bool
+    errors: tuple[m.Error, ...]
+    reports: tuple[str, ...]
+    state: BoardState | None
+
+    @property
+    def ok(self) -> bool:
+        return self.started and not self.errors
 
 
 class BootloaderClient:
@@ -198,12 +214,38 @@ class BootloaderClient:
         return self._replies(expect, self.timeouts.reply, ReadyReason.STATUS,
                              expect_one=not address.is_broadcast)
 
-    def start(self, address: Address, target: Target = Target.FLASH) -> list[Reply]:
+    def start(self, address: Address, target: Target = Target.FLASH) -> list[StartResult]:
+        """Start a program and gather what each board says: Ready(STARTED), the program's
+        compatibility verdict (Error, text reports) and a reset that may follow."""
         self.link.send(m.Start(target), address)
-        replies = self._replies(address, self.timeouts.reply, ReadyReason.STARTED,
-                                expect_one=False)
+        seen: dict[Address, dict[str, object]] = {}
+        for got in self.link.messages(self.timeouts.reply):
+            self._absorb(got)
+            msg = got.message
+            if not (address.is_broadcast or got.address == address):
+                continue
+            if isinstance(msg, m.Ready) and msg.reason in (ReadyReason.STARTED,
+                                                           ReadyReason.BOOT):
+                e = seen.setdefault(got.address, {"started": False, "errors": [], "state": None})
+                e["started"] = bool(e["started"]) or msg.reason is ReadyReason.STARTED
+                e["state"] = msg.state
+            elif isinstance(msg, m.Error):
+                e = seen.setdefault(got.address, {"started": False, "errors": [], "state": None})
+                errors = e["errors"]
+                assert isinstance(errors, list)
+                errors.append(msg)
+                if e["started"]:
+                    e["state"] = BoardState.BOOTLOADER  # the program ended or aborted
         texts = self.take_texts()
-        return [Reply(r.address, r.message, tuple(texts.get(r.address, ()))) for r in replies]
+        out = []
+        for a, e in sorted(seen.items(), key=lambda kv: (kv[0].id_type, kv[0].number)):
+            errors = e["errors"]
+            state = e["state"]
+            assert isinstance(errors, list)
+            assert state is None or isinstance(state, BoardState)
+            out.append(StartResult(a, bool(e["started"]), tuple(errors),
+                                   tuple(texts.get(a, ())), state))
+        return out
 
     def status(self, address: Address) -> m.StatusReport:
         self.link.send(m.ReportRequest(ReportChannel.STATUS), address)

@@ -14,7 +14,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.errors import FrameError
+from ucom_tools.virtual.application import DspProgram
+from ucom_tools.virtual.fpga import ExternalMemory, VirtualFpga
 from ucom_tools.virtual.nvmem import NonVolatile
 from ucom_tools.virtual.receiver import Reception, RejectedBlock, Timing
 from ucom_tools.virtual.simbus import SimBus
@@ -32,6 +35,8 @@ from ucom_tools.wire.codes import (
     StatusOp,
     Target,
 )
+from ucom_tools.wire.descriptor import DESCRIPTOR_ADDRESS, DESCRIPTOR_WORDS, ImageDescriptor
+from ucom_tools.wire.fpga import FpgaVersion, Reg
 from ucom_tools.wire.ids import Address, Direction, Function, IdType, encode_id
 from ucom_tools.wire.info import BoardInfo
 from ucom_tools.wire.transfer import decode_date
@@ -51,23 +56,8 @@ class Identity:
     board: str
     serial: int
     fixed_id: int = 0
-
-
-class Application:
-    """A program started from flash or ExtRAM.  This stand-in only announces itself;
-    real application behaviour (MCA run-time messages) plugs in here."""
-
-    def __init__(self, board: VirtualBoard, target: Target, name: str, progid: int) -> None:
-        self.board = board
-        self.target = target
-        self.name = name
-        self.progid = progid
-
-    def start(self, t: float) -> None:
-        self.board.report_text(t, f"program '{self.name}' running (ProgID 0x{self.progid:08X})")
-
-    def on_frame(self, function: int, address: Address, data: bytes, t: float) -> None:
-        """MCA frames reach the running program here; the stand-in ignores them."""
+    fpga: FpgaVersion | None = None
+    """The FPGA configuration; None = the one made for the plug-on board."""
 
 
 class VirtualBoard:
@@ -93,12 +83,14 @@ class VirtualBoard:
         self.extram: dict[Space, array] | None = None
         # progid, size, name, entry, date of the program held in ExtRAM
         self.extram_meta: tuple[int, int, str, int, int] | None = None
-        self.application: Application | None = None
+        self.application: DspProgram | None = None
         self.overruns = 0
         self.ignored = 0
         self.stagger_us = (identity.serial & 0x3F) * bus.us_per_bit
-        self.application_factory: Callable[[VirtualBoard, Target, str, int], Application] = \
-            Application
+        plug = PLUG_ON_BOARDS[identity.board].board_id
+        self.fpga = VirtualFpga(identity.fpga or FpgaVersion(plug, 1, 1, 0), plug)
+        self.xmem = ExternalMemory(self.fpga)
+        self._suppress_autostart = False
         if powered:
             self.power_on(bus.now)
 
@@ -112,6 +104,9 @@ class VirtualBoard:
     def power_off(self) -> None:
         """Power loss: flash keeps what was written; everything else is gone."""
         self.powered = False
+        self.xmem.clear_ram()
+        self.fpga = VirtualFpga(self.fpga.config, self.fpga.plug_board_id)
+        self.xmem = ExternalMemory(self.fpga)
         self.in_drive = self.out_drive = False
         self.reception = None
         self.application = None
@@ -130,8 +125,9 @@ class VirtualBoard:
         self.out_drive = True
         self.state = BoardState.BOOTLOADER
         rec = self.nv.record
-        if rec.autostart and rec.flash_valid:
+        if rec.autostart and rec.flash_valid and not self._suppress_autostart:
             self._start_program(Target.FLASH, t, announce=False)
+        self._suppress_autostart = False
 
     def _reset(self, t: float, clear_autostart: bool) -> None:
         if clear_autostart and self.nv.record.autostart:
@@ -140,6 +136,14 @@ class VirtualBoard:
         self.state = BoardState.BOOTLOADER
         self.application = None
         self.bus.at(t + self.timing.reset_us, self._after_reset)
+
+    def abort_program(self, t: float, *, reset: bool) -> None:
+        """The program ended (incompatible) or aborted with a reset (FPGA major)."""
+        self.application = None
+        self.state = BoardState.BOOTLOADER
+        if reset:
+            self._suppress_autostart = True
+            self.bus.at(t + self.timing.reset_us, self._after_reset)
 
     def _after_reset(self, t: float) -> None:
         if not self.powered:
@@ -350,13 +354,29 @@ class VirtualBoard:
             self._error(t, ErrorCode.BAD_VALUE, Function.REPORT_REQUEST, msg.channel, via_fixed)
 
     def read_memory(self, space: Space, address: int, count: int) -> list[int] | None:
-        """Words of flash (or of the ExtRAM program) for a memory report; None if unmapped."""
+        """Words for a memory report: program or data flash, or X: external memory (with
+        the FPGA registers at X:4000-403F); None if not readable."""
         if count == 0 or count > 0x100:
             return None
+        if space is Space.X and address >= 0x2000 and address + count <= 0xFF80:
+            return [self.xmem.read(a) for a in range(address, address + count)]
         mem = self.nv.space(space)
         if address < mem.base or address + count > mem.base + len(mem.words):
             return None
         return list(mem.read(address, count))
+
+    def descriptor(self, target: Target) -> ImageDescriptor | None:
+        """The image descriptor of the program in ``target`` (raises FrameError if corrupt)."""
+        if target is Target.EXTRAM:
+            if self.extram is None:
+                return None
+            start = DESCRIPTOR_ADDRESS - self.nv.p.base
+            words = list(self.extram[Space.P][start:start + DESCRIPTOR_WORDS])
+        else:
+            if not self.nv.record.flash_valid:
+                return None
+            words = list(self.nv.p.read(DESCRIPTOR_ADDRESS, DESCRIPTOR_WORDS))
+        return ImageDescriptor.from_words(words)
 
     def pins(self) -> dict[str, bool]:
         pos = self.identity.position
@@ -400,10 +420,20 @@ class VirtualBoard:
             progid, size, name, entry, date = (rec.progid, rec.size_words, rec.name, rec.entry,
                                                rec.date)
             target = Target.FLASH
+        try:
+            desc, corrupt = self.descriptor(target), False
+        except FrameError:
+            desc, corrupt = None, True
+        if desc is not None:
+            desc = ImageDescriptor(desc.board_id, desc.app_id, desc.fpga_major, desc.fpga_minor,
+                                   desc.version, "")
+        fpga = self.fpga
         return BoardInfo(self.state, rec.autostart, self.prog_enable, rec.flash_valid,
                          self.extram is not None, self.seq_id, self.identity.fixed_id,
                          BOOTLOADER_VERSION, progid, size, decode_date(date) if date else None,
-                         self.identity.serial, entry, target, name)
+                         self.identity.serial, entry, target, name,
+                         fpga.read(Reg.VERSION1), fpga.read(Reg.VERSION2),
+                         fpga.read(Reg.BOARD_ID), fpga.neutral, desc, corrupt)
 
     # ================================================================= start
     def _start_cmd(self, target: Target, t: float, via_fixed: bool) -> None:
@@ -434,7 +464,7 @@ class VirtualBoard:
             assert self.extram_meta is not None
             progid, _, name, _, _ = self.extram_meta
             self.state = BoardState.RUNNING_EXTRAM
-        self.application = self.application_factory(self, target, name, progid)
+        self.application = DspProgram(self, target, name, progid)
         if announce:
             self.send(t, m.Ready(ReadyReason.STARTED, self.state, target), via_fixed=via_fixed)
         self.application.start(t)

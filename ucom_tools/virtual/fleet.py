@@ -39,7 +39,7 @@ class Fleet:
             boards = []
             for b in spec.boards:
                 board = VirtualBoard(sim, Identity(b.position, b.placement, b.board, b.serial,
-                                                   b.fixed_id),
+                                                   b.fixed_id, b.fpga),
                                      timing=topology.timing, powered=False,
                                      state_file=self._state_file(spec.name, b))
                 if b.program is not None and not board.nv.record.flash_valid:
@@ -111,6 +111,12 @@ class Fleet:
                     "program": _program(b),
                     "autostart": b.nv.record.autostart,
                     "leds": b.leds(),
+                    "plug_on_board_id": b.fpga.plug_board_id,
+                    "fpga": {"board_id": b.fpga.config.board_id,
+                             "app_id": b.fpga.config.app_id,
+                             "version": b.fpga.config.version,
+                             "ikl": b.fpga.config.ikl, "ikh": b.fpga.config.ikh,
+                             "neutral": b.fpga.neutral},
                     "init_pins": b.pins(),
                 } for b in self.boards[name]]
                 buses.append({

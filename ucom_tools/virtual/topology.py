@@ -19,6 +19,7 @@ from typing import Any
 from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.errors import TopologyError
 from ucom_tools.virtual.receiver import Timing
+from ucom_tools.wire.fpga import FpgaVersion
 
 BUNDLED = ("armar3", "lauron4", "kairo2", "odete", "puma200", "rosi")
 BITRATES = (10_000, 20_000, 50_000, 100_000, 125_000, 250_000, 500_000, 800_000, 1_000_000)
@@ -37,6 +38,8 @@ class BoardSpec:
     init_link_broken: bool
     joints: tuple[str, ...]
     line: int
+    fpga: FpgaVersion = FpgaVersion(1, 1, 1, 0)
+    """The FPGA configuration; defaults to one made for the plug-on board."""
     serial_explicit: bool = False
     """True when the file gave the serial (so a real robot's boards can be recognised)."""
 
@@ -231,13 +234,32 @@ def _timing(c: _Checker, raw: dict[str, Any]) -> Timing:
     return t
 
 
+FPGA_KEYS = {"board_id": 4, "app_id": 7, "major": 6, "minor": 6, "ikl": 2, "ikh": 2}
+
+
+def _fpga(c: _Checker, path: tuple[Any, ...], raw: dict[str, Any], board_id: int
+          ) -> FpgaVersion:
+    fpath = (*path, "fpga")
+    values = {"board_id": board_id, "app_id": 1, "major": 1, "minor": 0, "ikl": 0, "ikh": 0}
+    for key in raw:
+        if key not in FPGA_KEYS:
+            raise c.fail(path, "fpga", f"unknown key {key!r} in the fpga table; allowed: "
+                         + ", ".join(FPGA_KEYS))
+        value = c.take(raw, fpath, key, int)
+        bits = FPGA_KEYS[key]
+        if not 0 <= value < (1 << bits):
+            raise c.fail(path, "fpga", f"{key} must be 0..{(1 << bits) - 1}, got {value}")
+        values[key] = value
+    return FpgaVersion(**values)
+
+
 def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Path | None,
            serials: set[int]) -> BoardSpec:
     path = ("bus", i, "board", j)
     if not isinstance(raw, dict):
         raise c.fail(path[:2], "board", "must be [[bus.board]] tables")
     c.no_extra(raw, path, {"placement", "board", "fixed_id", "serial", "program", "autostart",
-                           "powered", "init_link", "joints"})
+                           "powered", "init_link", "joints", "fpga"})
     placement = c.take(raw, path, "placement", str)
     board = c.take(raw, path, "board", str)
     if board not in PLUG_ON_BOARDS:
@@ -269,8 +291,9 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
     joints = c.take(raw, path, "joints", list, [])
     if not all(isinstance(x, str) for x in joints):
         raise c.fail(path, "joints", "expected a list of strings")
+    fpga = _fpga(c, path, c.take(raw, path, "fpga", dict, {}), PLUG_ON_BOARDS[board].board_id)
     return BoardSpec(
-        position=j, placement=placement, board=board, fixed_id=fixed_id, serial=serial,
+        position=j, fpga=fpga, placement=placement, board=board, fixed_id=fixed_id, serial=serial,
         program=program, autostart=c.take(raw, path, "autostart", bool, False),
         powered=c.take(raw, path, "powered", bool, True), init_link_broken=link == "broken",
         joints=tuple(joints), line=c.lines.of(*path) or 0, serial_explicit="serial" in raw)

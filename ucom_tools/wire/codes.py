@@ -21,6 +21,8 @@ class ErrorCode(IntEnum):
     OVERRUN = 0x0B
     NOT_RUNNING = 0x0C
     RUNNING = 0x0D
+    INCOMPATIBLE = 0x0E
+    VERSION_MISMATCH = 0x0F
 
     @property
     def text(self) -> str:
@@ -42,6 +44,10 @@ ERROR_TEXT = {
     ErrorCode.OVERRUN: "receive buffer overrun: frames were lost",
     ErrorCode.NOT_RUNNING: "no application runs on this board",
     ErrorCode.RUNNING: "a program runs: reset the board into its bootloader first",
+    ErrorCode.INCOMPATIBLE: "the DSP program does not fit this board (Board-ID or App-ID); "
+                            "the program ended",
+    ErrorCode.VERSION_MISMATCH: "the DSP program was built for another FPGA major version; "
+                                "the program aborted and the board reset",
 }
 
 
@@ -168,6 +174,26 @@ class FinishedKind(IntEnum):
 
     RESULT = 0x00
     MISSING = 0x01
+
+
+class CheckField(IntEnum):
+    """What an INCOMPATIBLE / VERSION_MISMATCH error is about (its detail's top byte)."""
+
+    FPGA_BOARD_ID = 1
+    PLUG_BOARD_ID = 2
+    APP_ID = 3
+    FPGA_MAJOR = 4
+    FPGA_MINOR = 5
+
+    @property
+    def text(self) -> str:
+        return {
+            CheckField.FPGA_BOARD_ID: "FPGA Board-ID",
+            CheckField.PLUG_BOARD_ID: "plug-on Board-ID",
+            CheckField.APP_ID: "App-ID",
+            CheckField.FPGA_MAJOR: "FPGA major version",
+            CheckField.FPGA_MINOR: "FPGA minor version",
+        }[self]
 
 
 class ReportChannel(IntEnum):

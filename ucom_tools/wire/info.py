@@ -11,20 +11,27 @@ from datetime import UTC, datetime
 
 from ucom_tools.errors import FrameError
 from ucom_tools.wire.codes import NAME_LENGTH, BoardState, Target
+from ucom_tools.wire.descriptor import ImageDescriptor
+from ucom_tools.wire.fpga import FpgaVersion
 from ucom_tools.wire.messages import InfoFrame
 
-INFO_FRAMES = 8
+INFO_FRAMES = 10
 
 _F0 = struct.Struct(">BBBBBBx")
 _F1 = struct.Struct(">I3s")
 _F2 = struct.Struct(">HBBBBB")
 _F3 = struct.Struct(">IHB")
+_F8 = struct.Struct(">HHBBx")
+_F9 = struct.Struct(">BBBBBBB")
 
 FLAG_AUTOSTART = 0x01
 FLAG_PROG_ENABLE = 0x02
 FLAG_FLASH_VALID = 0x04
 FLAG_EXTRAM_VALID = 0x08
 FLAG_INIT_DONE = 0x10
+FPGA_NEUTRAL = 0x01
+DESC_PRESENT = 0x01
+DESC_CORRUPT = 0x02
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,6 +53,21 @@ class BoardInfo:
     entry: int
     target: Target
     name: str
+    fpga_register1: int = 0
+    fpga_register2: int = 0
+    measured_board_id: int = 15
+    fpga_neutral: bool = False
+    descriptor: ImageDescriptor | None = None
+    """What the program was built for (name not transferred: empty)."""
+    descriptor_corrupt: bool = False
+
+    @property
+    def fpga(self) -> FpgaVersion | None:
+        """The FPGA's identity, None when the registers do not decode (bit 4 set)."""
+        try:
+            return FpgaVersion.decode(self.fpga_register1, self.fpga_register2)
+        except FrameError:
+            return None
 
     @property
     def init_done(self) -> bool:
@@ -66,6 +88,13 @@ class BoardInfo:
             _F2.pack(*date),
             _F3.pack(self.serial, self.entry, self.target),
         ] + [name[i:i + 7] for i in range(0, NAME_LENGTH, 7)]
+        d = self.descriptor
+        bodies.append(_F8.pack(self.fpga_register1, self.fpga_register2,
+                               self.measured_board_id, FPGA_NEUTRAL if self.fpga_neutral else 0))
+        bodies.append(_F9.pack(
+            (DESC_PRESENT if d else 0) | (DESC_CORRUPT if self.descriptor_corrupt else 0),
+            *((d.board_id, d.app_id, d.fpga_major, d.fpga_minor, *d.version) if d
+              else (0,) * 6)))
         return [InfoFrame(i, b) for i, b in enumerate(bodies)]
 
     @classmethod
@@ -79,6 +108,15 @@ class BoardInfo:
         year, mon, day, hour, minute, sec = _F2.unpack(frames[2])
         serial, entry, target = _F3.unpack(frames[3])
         name = b"".join(frames[i] for i in range(4, 8)).rstrip(b"\0").decode("latin-1")
+        reg1, reg2, measured, fpga_flags = _F8.unpack(frames[8])
+        dflags, *dvalues = _F9.unpack(frames[9])
+        descriptor = None
+        if dflags & DESC_PRESENT:
+            b, a, fmaj, fmin, vmaj, vmin = dvalues
+            try:
+                descriptor = ImageDescriptor(b, a, fmaj, fmin, (vmaj, vmin), "")
+            except FrameError as err:
+                raise FrameError("Info descriptor", str(err)) from err
         try:
             programmed = (datetime(year, mon, day, hour, minute, sec, tzinfo=UTC)
                           if year else None)
@@ -91,4 +129,5 @@ class BoardInfo:
         return cls(st, bool(flags & FLAG_AUTOSTART), bool(flags & FLAG_PROG_ENABLE),
                    bool(flags & FLAG_FLASH_VALID), bool(flags & FLAG_EXTRAM_VALID), sid, fid,
                    (blmaj, blmin), progid, int.from_bytes(size, "big"), programmed, serial,
-                   entry, tgt, name)
+                   entry, tgt, name, reg1, reg2, measured, bool(fpga_flags & FPGA_NEUTRAL),
+                   descriptor, bool(dflags & DESC_CORRUPT))

@@ -16,6 +16,7 @@ from typing import ClassVar, Protocol, TypeVar
 from ucom_tools.errors import FrameError
 from ucom_tools.wire.codes import (
     BoardState,
+    CheckField,
     ErrorCode,
     FinishedKind,
     InitAckKind,
@@ -376,6 +377,15 @@ class Error:
         return cls(_enum(ErrorCode, "Error code", code), fn, detail)
 
     def describe(self) -> str:
+        if self.code in (ErrorCode.INCOMPATIBLE, ErrorCode.VERSION_MISMATCH):
+            field, expected, found = self.detail >> 16, (self.detail >> 8) & 0xFF, \
+                self.detail & 0xFF
+            try:
+                name = CheckField(field).text
+            except ValueError:
+                return self.code.text
+            return (f"{self.code.text}: {name}: program built for {expected}, "
+                    f"board has {found}")
         what = self.code.text
         if self.function <= 31:
             what += f" (in reply to function {self.function})"
@@ -468,14 +478,14 @@ def decode_finished(data: bytes) -> ProgramResult | ProgramMissing:
 
 @dataclass(frozen=True, slots=True)
 class InfoFrame:
-    """Function 5: one of the 8 frames of an Info record (see :mod:`ucom_tools.wire.info`)."""
+    """Function 5: one of the 10 frames of an Info record (see :mod:`ucom_tools.wire.info`)."""
 
     FUNCTION: ClassVar[Function] = Function.INFO
     index: int
     body: bytes
 
     def __post_init__(self) -> None:
-        _range("Info index", self.index, 0, 7)
+        _range("Info index", self.index, 0, 9)
         if len(self.body) != 7:
             raise FrameError("Info body", f"must be 7 bytes, got {len(self.body)}")
 

@@ -1,0 +1,118 @@
+"""The virtual FPGA of a UCoM (dissertation B.1, B.3.2).
+
+64 registers at X:4000-403F, decoded like the real address decoder: every X: access whose
+upper 10 address bits are ``0100 0000 00`` goes to the FPGA, every other external
+address to RAM.  The FPGA compares the plug-on board's Board-ID (its resistor network)
+with its own; on a mismatch it enters the neutral state: inputs from the plug-on board
+are ignored, its outputs are high impedance, and DSP<->FPGA access keeps working.
+Six 16-bit quadrature decoders with prescalers count encoder edges and can be read and
+set by the DSP program.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from ucom_tools.memory import is_fpga_address
+from ucom_tools.wire.fpga import QUAD_CHANNELS, FpgaVersion, Reg
+
+
+@dataclass
+class QuadratureDecoder:
+    """A 16-bit up/down counter of encoder edges with a prescaler."""
+
+    count: int = 0
+    prescale: int = 1
+    _residue: int = 0
+
+    def feed(self, edges: int) -> None:
+        """Count ``edges`` encoder edges (negative = backwards), every ``prescale``-th."""
+        step = max(1, self.prescale)
+        total = self._residue + edges
+        counted = int(total / step)  # toward zero, so the residue keeps the sign
+        self._residue = total - counted * step
+        self.count = (self.count + counted) & 0xFFFF
+
+    def set(self, value: int) -> None:
+        self.count = value & 0xFFFF
+        self._residue = 0
+
+
+@dataclass
+class VirtualFpga:
+    """FPGA registers of one board; ``plug_board_id`` is what its resistor network reads."""
+
+    config: FpgaVersion
+    plug_board_id: int
+    registers: list[int] = field(default_factory=lambda: [0] * 64)
+    quad: list[QuadratureDecoder] = field(
+        default_factory=lambda: [QuadratureDecoder() for _ in range(QUAD_CHANNELS)])
+    inputs: int = 0
+    """Digital inputs the plug-on board presents (what a test or simulation drives)."""
+
+    @property
+    def neutral(self) -> bool:
+        return self.plug_board_id != self.config.board_id
+
+    # ------------------------------------------------------------------ DSP side
+    def read(self, offset: int) -> int:
+        offset &= 0x3F
+        if offset == Reg.VERSION1:
+            return self.config.register1()
+        if offset == Reg.VERSION2:
+            return self.config.register2()
+        if offset == Reg.BOARD_ID:
+            return self.plug_board_id & 0x0F
+        if offset == Reg.STATUS:
+            return 1 if self.neutral else 0
+        if Reg.QUAD_COUNT0 <= offset < Reg.QUAD_COUNT0 + QUAD_CHANNELS:
+            return self.quad[offset - Reg.QUAD_COUNT0].count
+        if Reg.QUAD_PRESCALE0 <= offset < Reg.QUAD_PRESCALE0 + QUAD_CHANNELS:
+            return self.quad[offset - Reg.QUAD_PRESCALE0].prescale
+        if offset == Reg.DIGITAL_IN:
+            return 0 if self.neutral else self.inputs & 0xFFFF
+        return self.registers[offset]
+
+    def write(self, offset: int, value: int) -> None:
+        offset &= 0x3F
+        value &= 0xFFFF
+        if offset in (Reg.VERSION1, Reg.VERSION2, Reg.BOARD_ID, Reg.STATUS, Reg.DIGITAL_IN):
+            return  # read-only
+        if Reg.QUAD_COUNT0 <= offset < Reg.QUAD_COUNT0 + QUAD_CHANNELS:
+            self.quad[offset - Reg.QUAD_COUNT0].set(value)
+        elif Reg.QUAD_PRESCALE0 <= offset < Reg.QUAD_PRESCALE0 + QUAD_CHANNELS:
+            self.quad[offset - Reg.QUAD_PRESCALE0].prescale = max(1, value)
+        else:
+            self.registers[offset] = value
+
+    # ------------------------------------------------------------------ plug-on side
+    def encoder_edges(self, channel: int, edges: int) -> None:
+        """Edges arriving from encoder ``channel``; ignored in the neutral state."""
+        if not self.neutral:
+            self.quad[channel].feed(edges)
+
+    def outputs_enabled(self) -> int:
+        """Which output stages drive the plug-on board (none in the neutral state)."""
+        return 0 if self.neutral else self.registers[Reg.OUTPUT_ENABLE]
+
+
+class ExternalMemory:
+    """X:2000-FF7F as the DSP sees it: the FPGA's window and RAM everywhere else."""
+
+    def __init__(self, fpga: VirtualFpga) -> None:
+        self.fpga = fpga
+        self.ram: dict[int, int] = {}
+
+    def read(self, address: int) -> int:
+        if is_fpga_address(address):
+            return self.fpga.read(address)
+        return self.ram.get(address, 0)
+
+    def write(self, address: int, value: int) -> None:
+        if is_fpga_address(address):
+            self.fpga.write(address, value)
+        else:
+            self.ram[address] = value & 0xFFFF
+
+    def clear_ram(self) -> None:
+        self.ram.clear()
