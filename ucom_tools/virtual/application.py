@@ -76,7 +76,8 @@ class DspProgram:
                 board.abort_program(t, reset=True)
             else:
                 board.send(t, m.Error(ErrorCode.INCOMPATIBLE, Function.START, detail))
-                board.report_text(t, f"program '{self.name}' ended: {_explain(field, expected, found)}")
+                why = _explain(field, expected, found)
+                board.report_text(t, f"program '{self.name}' ended: {why}")
                 board.abort_program(t, reset=False)
             return
         if desc.fpga_minor != fpga.minor:

@@ -38,8 +38,8 @@ class BoardSpec:
     init_link_broken: bool
     joints: tuple[str, ...]
     line: int
-    fpga: FpgaVersion = FpgaVersion(1, 1, 1, 0)
-    """The FPGA configuration; defaults to one made for the plug-on board."""
+    fpga: FpgaVersion
+    """The FPGA configuration (the topology's, or one made for the plug-on board)."""
     serial_explicit: bool = False
     """True when the file gave the serial (so a real robot's boards can be recognised)."""
 

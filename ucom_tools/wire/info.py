@@ -88,13 +88,13 @@ class BoardInfo:
             _F2.pack(*date),
             _F3.pack(self.serial, self.entry, self.target),
         ] + [name[i:i + 7] for i in range(0, NAME_LENGTH, 7)]
-        d = self.descriptor
+        desc = self.descriptor
         bodies.append(_F8.pack(self.fpga_register1, self.fpga_register2,
                                self.measured_board_id, FPGA_NEUTRAL if self.fpga_neutral else 0))
         bodies.append(_F9.pack(
-            (DESC_PRESENT if d else 0) | (DESC_CORRUPT if self.descriptor_corrupt else 0),
-            *((d.board_id, d.app_id, d.fpga_major, d.fpga_minor, *d.version) if d
-              else (0,) * 6)))
+            (DESC_PRESENT if desc else 0) | (DESC_CORRUPT if self.descriptor_corrupt else 0),
+            *((desc.board_id, desc.app_id, desc.fpga_major, desc.fpga_minor, *desc.version)
+              if desc else (0,) * 6)))
         return [InfoFrame(i, b) for i, b in enumerate(bodies)]
 
     @classmethod
