@@ -159,7 +159,7 @@ def test_state_dir_carries_flash_across_invocations(tmp_path: Path) -> None:
 
 def test_program_prog_enable_extram_and_start_in_one_session_via_state(tmp_path: Path) -> None:
     common = ["--virtual", "rosi", "--state", str(tmp_path)]
-    r = ucom("program", "1", IMAGE, *common, "--init", "--json")
+    r = ucom("program", "1", "firmware_images/rosi.fl.S", *common, "--init", "--json")
     assert r.exit_code == 0 and js(r)["boards"][0]["outcome"] == "verified"
     r = ucom("extram-load", "1", "firmware_images/rosi.fl.S", *common, "--init", "--json")
     assert r.exit_code == 0 and js(r)["target"] == "extram"

@@ -63,7 +63,7 @@ def test_a_new_users_session() -> None:
 
 
 def test_program_asks_for_an_image_when_none_is_loaded() -> None:
-    out = console(f"2\n20\n{IMAGE}\nq\n", "--virtual", "rosi")
+    out = console("2\n20\nfirmware_images/rosi.fl.S\nq\n", "--virtual", "rosi")
     assert "no S-record file loaded" in out
     assert "1 of 1 board(s) verified" in out
 

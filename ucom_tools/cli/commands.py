@@ -353,9 +353,11 @@ def _flash_out(ctx: click.Context, result: FlashResult, as_json: bool) -> None:
         emit_json(render.flash_json(result))
     else:
         render.print_flash(out, result)
-    if not result.all_verified:
-        names = ", ".join(f"{b.bus}:{b.seq_id}" for b in result.failed) or "no board found"
-        err.print(f"[red]not verified: {names}[/]")
+    if not result.all_verified or result.failed:
+        names = ", ".join(f"{b.bus}:{b.seq_id}" + ("" if b.verified else " (not verified)")
+                          + (" (did not start)" if b.verified and b.started is False else "")
+                          for b in result.failed) or "no board found"
+        err.print(f"[red]failed: {names}[/]")
         ctx.exit(EXIT_FAILED)
 
 
@@ -367,19 +369,24 @@ def _flash_out(ctx: click.Context, result: FlashResult, as_json: bool) -> None:
 @click.option("--start", "start_after", is_flag=True, help="Start the verified boards.")
 @click.option("--no-verify", is_flag=True,
               help="Skip reading back each board's Info after its verified transfer.")
+@click.option("--force", is_flag=True,
+              help="Program boards whose Board-ID, App-ID or FPGA major version do not fit "
+                   "the image (with a warning).")
 @connection_options
 @json_option
 @click.pass_context
 def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
-              start_after: bool, no_verify: bool, spec: ConnectSpec, bus_name: str | None,
-              as_json: bool) -> None:
+              start_after: bool, no_verify: bool, force: bool, spec: ConnectSpec,
+              bus_name: str | None, as_json: bool) -> None:
     """Program IMAGE (S-record) into the boards of every bus, verified.
 
     Resets, runs the init chain with wiring checks, brings boards that run a program back
     to their bootloader, enables programming, sends the image once per bus (all buses in
     parallel), checks every board's ProgID, resends only what a board missed, then sets
     AutoStart and starts the boards when asked.  Option 20 (ProgAll) is
-    'flash --boards all'.  Exit code 0 only when every selected board verified."""
+    'flash --boards all'.  Boards the image does not fit (plug-on board, FPGA Board-ID,
+    App-ID, FPGA major version) are refused unless --force.  Exit code 0 only when every
+    selected board verified."""
     img = _image(image)
     selection = Selection.parse(boards)
     with robot(spec) as r:
@@ -387,7 +394,7 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
             h.client.reset()
         try:
             result = run_flash(r, img, selection=selection, bus=bus_name, autostart=autostart,
-                               start=start_after, verify=not no_verify)
+                               start=start_after, verify=not no_verify, force=force)
         except (KeyboardInterrupt, Cancelled):
             err.print("[yellow]flash cancelled: the boards dropped the transfer and keep no "
                       "startable program[/]")
@@ -399,11 +406,13 @@ def _program_command(name: str, target: Target, doc: str) -> click.Command:
     @click.command(name, help=doc)
     @click.argument("board")
     @click.argument("image", type=click.Path(dir_okay=False))
+    @click.option("--force", is_flag=True,
+                  help="Program even when the image does not fit the board (with a warning).")
     @connection_options
     @init_option
     @json_option
     @click.pass_context
-    def cmd(ctx: click.Context, board: str, image: str, spec: ConnectSpec,
+    def cmd(ctx: click.Context, board: str, image: str, force: bool, spec: ConnectSpec,
             bus_name: str | None, run_init: bool, as_json: bool) -> None:
         ref = ops.parse_ref(board)
         img = _image(image)
@@ -417,7 +426,7 @@ def _program_command(name: str, target: Target, doc: str) -> click.Command:
         with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
             try:
                 result = run_flash(r, img, selection=selection, bus=ref.bus or bus_name,
-                                   target=target, init=False)
+                                   target=target, init=False, force=force)
             except (KeyboardInterrupt, Cancelled):
                 err.print("[yellow]cancelled[/]")
                 ctx.exit(EXIT_INTERRUPTED)
@@ -435,7 +444,29 @@ extram_cmd = _program_command(
     "after reset; start it with 'start --extram').")
 
 
-COMMANDS = [reset_cmd, init_cmd, info_cmd, prog_enable_cmd, program_cmd, extram_cmd,
+@click.command("check")
+@connection_options
+@json_option
+@click.pass_context
+def check_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, as_json: bool) -> None:
+    """Compatibility matrix: plug-on board, FPGA and stored DSP program of every board.
+
+    Runs the init chain, reads every board's Info (FPGA version registers, measured
+    Board-ID, the stored program's descriptor) and judges each board: ok, warning (FPGA
+    minor version, program without descriptor), mismatch (plug-on board vs FPGA, Board-ID,
+    App-ID, FPGA major version) or no program.  Exit code 1 when a board mismatches."""
+    from ucom_tools.ops.compat import check
+
+    with robot(spec) as r:
+        rows = check(r, bus=bus_name)
+    if as_json:
+        emit_json(render.check_json(rows))
+    else:
+        render.print_check(out, rows)
+    _finish(ctx, bool(rows) and not any(x.failed for x in rows))
+
+
+COMMANDS = [check_cmd, reset_cmd, init_cmd, info_cmd, prog_enable_cmd, program_cmd, extram_cmd,
             start_cmd, autostart_cmd, xreset_cmd, set_init_in_cmd, set_init_out_cmd,
             set_seqid_cmd, count_cmd, first_cmd, last_cmd, list_cmd, reset_one_cmd, flash_cmd]
 

@@ -54,6 +54,7 @@ class Option:
 BOARD = Param("board", "board (seq ID, F<n> for a fixed ID, or all)")
 ONE_BOARD = Param("board", "board (seq ID or F<n>)")
 LEVEL = Param("level", "level (set = drive low, release)")
+FORCE = Param("force", "'force' to program a board the image does not fit", True)
 
 
 class Session:
@@ -82,8 +83,8 @@ class Session:
             Option("3", "info", "GetInfo", (BOARD,), self.do_info, True, ("getinfo",)),
             Option("4", "prog-enable", "SetProgEnable", (BOARD, Param("on", "on/off", True)),
                    self.do_prog_enable, True, ("progenable",)),
-            Option("5", "program", "Program", (BOARD,), self.do_program, True),
-            Option("6", "extram-load", "ExtRAMLoad", (ONE_BOARD,), self.do_extram, False,
+            Option("5", "program", "Program", (BOARD, FORCE), self.do_program, True),
+            Option("6", "extram-load", "ExtRAMLoad", (ONE_BOARD, FORCE), self.do_extram, False,
                    ("extramload",)),
             Option("7", "start", "Start", (BOARD,), self.do_start),
             Option("8", "autostart", "SetAutoStart", (BOARD, Param("on", "on/off", True)),
@@ -106,7 +107,7 @@ class Session:
             Option("18", "load", "Load S-Record File", (Param("file", "S-record file"),),
                    self.do_load),
             Option("19", "progid", "Calc ProgID", (), self.do_progid, False, ("calcprogid",)),
-            Option("20", "progall", "ProgAll", (), self.do_progall),
+            Option("20", "progall", "ProgAll", (FORCE,), self.do_progall),
             Option("21", "reset-one", "Reset Specific", (ONE_BOARD,), self.do_reset_one, True,
                    ("resetspecific",)),
         ]
@@ -240,26 +241,31 @@ class Session:
             self.do_load(path)
         return self.image
 
-    def _program(self, selection: Selection, target: Target, bus: str | None) -> None:
+    def _program(self, selection: Selection, target: Target, bus: str | None,
+                 force: str | None) -> None:
+        if force is not None and force.lower() != "force":
+            raise InputError(f"{force!r}: the only word allowed here is 'force'")
         image = self._need_image()
         if image is None:
             return
         result = run_flash(self.robot, image, selection=selection, bus=bus, target=target,
-                           init=False)
+                           init=False, force=force is not None)
         render.print_flash(self.out, result)
+        if any(b.outcome == "refused" for b in result.boards):
+            self.out.print("[dim]add 'force' to program them anyway, e.g. '5 all force'[/]")
 
-    def do_program(self, board: str) -> None:
+    def do_program(self, board: str, force: str | None = None) -> None:
         ref = ops.parse_ref(board)
         sel = Selection("enabled") if ref.is_all else Selection("list", (ref.address.number,))
-        self._program(sel, Target.FLASH, ref.bus or self.bus)
+        self._program(sel, Target.FLASH, ref.bus or self.bus, force)
 
-    def do_extram(self, board: str) -> None:
+    def do_extram(self, board: str, force: str | None = None) -> None:
         ref = ops.parse_ref(board)
         sel = Selection("enabled") if ref.is_all else Selection("list", (ref.address.number,))
-        self._program(sel, Target.EXTRAM, ref.bus or self.bus)
+        self._program(sel, Target.EXTRAM, ref.bus or self.bus, force)
 
-    def do_progall(self) -> None:
-        self._program(Selection("all"), Target.FLASH, self.bus)
+    def do_progall(self, force: str | None = None) -> None:
+        self._program(Selection("all"), Target.FLASH, self.bus, force)
 
     def do_start(self, board: str) -> None:
         rows = ops.start(self.robot, ops.parse_ref(board), bus=self.bus)

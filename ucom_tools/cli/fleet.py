@@ -8,6 +8,7 @@ from pathlib import Path
 import click
 from rich.table import Table
 
+from ucom_tools.boards import board_name
 from ucom_tools.cli.output import emit_json, err, leds, out
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.virtual.socketcand import DEFAULT_PORT, FleetServer, wait_forever
@@ -41,13 +42,16 @@ def show(topology: str, state_dir: Path | None, as_json: bool) -> None:
     out.print(f"{total} boards on {len(snap['buses'])} buses\n")
     for bus in snap["buses"]:
         t = Table(title=f"{bus['name']} ({bus['bitrate'] // 1000} kbit/s)", title_justify="left")
-        for col in ("pos", "placement", "board", "seq ID", "fixed ID", "state", "program",
-                    "LEDs r y g"):
+        for col in ("pos", "placement", "board", "FPGA", "seq ID", "fixed ID", "state",
+                    "program", "LEDs r y g"):
             t.add_column(col, no_wrap=True)
         for b in bus["boards"]:
             prog = b["program"]
+            f = b["fpga"]
+            fpga = f"{board_name(f['board_id'])} app {f['app_id']} v{f['version']}" + (
+                " [red]NEUTRAL[/]" if f["neutral"] else "")
             t.add_row(
-                str(b["position"]), b["placement"], b["board"], str(b["seq_id"] or "-"),
+                str(b["position"]), b["placement"], b["board"], fpga, str(b["seq_id"] or "-"),
                 str(b["fixed_id"] or "-"), b["state"],
                 f"{prog['name']} {prog['progid']}" if prog else "[dim]none[/]",
                 leds(b["leds"]))
@@ -57,6 +61,9 @@ def show(topology: str, state_dir: Path | None, as_json: bool) -> None:
                       f"{', '.join(map(str, bus['broken_init_links']))}[/]")
     out.print("[dim]LEDs at power-on: first board yellow only, every later board yellow+green"
               " (B.2.3); 'ucom init' numbers the boards.[/]")
+    if any(b["fpga"]["neutral"] for bus in snap["buses"] for b in bus["boards"]):
+        out.print("[red]NEUTRAL[/]: the FPGA is made for another plug-on board than the one "
+                  "plugged on; it ignores its inputs and keeps its outputs high impedance.")
 
 
 @fleet.command("serve")

@@ -10,9 +10,11 @@ from rich.table import Table
 from ucom_tools.boards import app_name, board_name
 from ucom_tools.image import Image
 from ucom_tools.ops.boards import ProbeResult, Row
+from ucom_tools.ops.compat import CheckRow
 from ucom_tools.ops.enumerate import BusEnumeration
 from ucom_tools.ops.flash import FlashResult
 from ucom_tools.wire.descriptor import ImageDescriptor
+from ucom_tools.wire.fpga import FpgaVersion
 from ucom_tools.wire.ids import Address, IdType
 from ucom_tools.wire.info import BoardInfo
 from ucom_tools.wire.transfer import TransferPlan
@@ -256,7 +258,8 @@ def flash_json(r: FlashResult) -> dict[str, Any]:
             "bus": b.bus, "seq_id": b.seq_id, "serial": hex32(b.serial), "placement": b.placement,
             "outcome": b.outcome, "verified_progid": hex32(b.progid) if b.verified else None,
             "detail": b.detail, "resent_blocks": b.resent_blocks, "autostart": b.autostart,
-            "started": b.started, "messages": list(b.messages)} for b in r.boards],
+            "started": b.started, "messages": list(b.messages),
+            "warnings": list(b.warnings)} for b in r.boards],
         "buses": [{"name": bus.bus, "frames": bus.frames, "rounds": bus.rounds,
                    "note": bus.note or None,
                    "diagnosis": [d.message for d in bus.enumeration.diagnosis]
@@ -272,18 +275,76 @@ def print_flash(c: Console, r: FlashResult) -> None:
         t.add_column(col, no_wrap=col != "result")
     for b in r.boards:
         t.add_row(b.bus, str(b.seq_id), b.placement or "-", hex32(b.serial),
-                  "[green]verified[/]" if b.verified else f"[red]{b.detail}[/]",
+                  "[green]verified[/]" if b.verified else f"[red]{b.outcome}[/]",
                   hex32(b.progid) if b.verified else "-", str(b.resent_blocks or ""),
                   "yes" if b.autostart else "", {None: "", True: "[green]yes[/]",
                                                  False: "[red]no[/]"}[b.started])
     c.print(t)
     for b in r.boards:
+        for w in b.warnings:
+            c.print(f"  [yellow]{b.bus} board {b.seq_id}: {w}[/]")
         for msg in b.messages:
             c.print(f"  [dim]{b.bus} board {b.seq_id}:[/] {msg}")
     for bus in r.buses:
         if bus.enumeration is not None:
             for d in bus.enumeration.diagnosis:
                 c.print(f"  [bold yellow]! {bus.bus}:[/] {d.message}")
+    for b in r.boards:
+        if not b.verified:
+            c.print(f"  [red]{b.bus} board {b.seq_id}:[/] {b.detail}")
     ok = sum(1 for b in r.boards if b.verified)
     colour = "green" if r.all_verified else "red"
     c.print(f"[{colour}]{ok} of {len(r.boards)} board(s) verified[/]")
+    not_started = [b for b in r.boards if b.verified and b.started is False]
+    if not_started:
+        c.print(f"[red]{len(not_started)} verified board(s) did not start: "
+                + ", ".join(f"{b.bus}:{b.seq_id}" for b in not_started) + "[/]")
+
+
+# ----------------------------------------------------------------------------- check
+def fpga_text(f: FpgaVersion | None) -> str:
+    if f is None:
+        return "?"
+    return f"{board_name(f.board_id)} app {f.app_id} v{f.version}"
+
+
+def check_json(rows: list[CheckRow]) -> dict[str, Any]:
+    return {"boards": [{
+        "bus": r.bus, "seq_id": r.seq_id, "placement": r.placement, "serial": hex32(r.serial),
+        "plug_on_board": {"board_id": r.plug_board_id, "board": board_name(r.plug_board_id)},
+        "fpga": None if r.fpga is None else {
+            "board_id": r.fpga.board_id, "board": board_name(r.fpga.board_id),
+            "app_id": r.fpga.app_id, "version": r.fpga.version, "ikl": r.fpga.ikl,
+            "ikh": r.fpga.ikh, "neutral": r.neutral},
+        "program": None if r.program is None else {
+            "name": r.program, "progid": hex32(r.progid),
+            "descriptor": descriptor_json(r.descriptor)},
+        "verdict": r.verdict,
+        "reasons": [{"severity": f.severity, "field": f.field, "expected": f.expected,
+                     "found": f.found, "message": f.message} for f in r.findings],
+    } for r in rows], "clean": not any(r.failed for r in rows)}
+
+
+def print_check(c: Console, rows: list[CheckRow]) -> None:
+    t = Table(title="compatibility: plug-on board - FPGA - DSP program", title_justify="left")
+    for col in ("bus", "seq", "placement", "plug-on", "FPGA", "DSP program", "built for",
+                "verdict"):
+        t.add_column(col, no_wrap=col != "verdict")
+    colours = {"ok": "green", "warning": "yellow", "mismatch": "red", "no program": "dim",
+               "unknown": "red"}
+    for r in rows:
+        d = r.descriptor
+        built = (f"{board_name(d.board_id)} app {d.app_id} v{d.fpga_major}.{d.fpga_minor}"
+                 if d else ("-" if r.program is None else "[yellow]no descriptor[/]"))
+        fpga = fpga_text(r.fpga) + (" [red]NEUTRAL[/]" if r.neutral else "")
+        t.add_row(r.bus, str(r.seq_id), r.placement or "-", board_name(r.plug_board_id), fpga,
+                  r.program or "[dim]none[/]", built,
+                  f"[{colours.get(r.verdict, 'white')}]{r.verdict}[/]")
+    c.print(t)
+    for r in rows:
+        for f in r.findings:
+            colour = "red" if f.severity == "error" else "yellow"
+            c.print(f"  [{colour}]{r.bus} board {r.seq_id}:[/] {f.message}")
+    bad = sum(1 for r in rows if r.failed)
+    c.print("[green]clean: every board fits its FPGA and program[/]" if not bad and rows
+            else f"[red]{bad} board(s) do not fit[/]" if bad else "[yellow]no board found[/]")

@@ -38,7 +38,9 @@ def compare(desc: ImageDescriptor | None, info: BoardInfo, *, what: str = "image
     out: list[Finding] = []
     fpga = info.fpga
     measured = info.measured_board_id
-    if fpga is not None and measured != fpga.board_id:
+    neutral = fpga is not None and measured != fpga.board_id
+    if neutral:
+        assert fpga is not None
         out.append(Finding(
             "error", "plug-on board", _board(fpga.board_id), _board(measured),
             f"the FPGA is made for Board-ID {_board(fpga.board_id)} but the plug-on board "
@@ -55,7 +57,7 @@ def compare(desc: ImageDescriptor | None, info: BoardInfo, *, what: str = "image
         out.append(Finding("error", "Board-ID", _board(desc.board_id), _board(fpga.board_id),
                            f"the {what} is for Board-ID {_board(desc.board_id)}, the FPGA "
                            f"for {_board(fpga.board_id)}"))
-    elif desc.board_id != measured:
+    elif desc.board_id != measured and not neutral:
         out.append(Finding("error", "Board-ID", _board(desc.board_id), _board(measured),
                            f"the {what} is for Board-ID {_board(desc.board_id)}, the plug-on "
                            f"board is {_board(measured)}"))

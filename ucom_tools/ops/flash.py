@@ -17,16 +17,19 @@ from dataclasses import dataclass, field
 from ucom_tools.errors import UcomTimeoutError
 from ucom_tools.image import Image
 from ucom_tools.ops.boards import NotInitialised
+from ucom_tools.ops.compat import compare
 from ucom_tools.ops.enumerate import BusEnumeration, enumerate_bus
 from ucom_tools.ops.robot import BusHandle, Robot
 from ucom_tools.protocol.programmer import Programmer
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import BoardState, StatusOp, Target
+from ucom_tools.wire.descriptor import ImageDescriptor
 from ucom_tools.wire.ids import ALL, Address, IdType, seq
 from ucom_tools.wire.info import BoardInfo
 from ucom_tools.wire.transfer import TransferPlan
 
 ProgressFn = Callable[[str, int, int, int], None]
+Notes = dict[int, tuple[str, ...]]
 """progress(bus, bytes sent, bytes total, boards)"""
 
 
@@ -65,6 +68,7 @@ class BoardResult:
     autostart: bool = False
     started: bool | None = None
     messages: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
 
     @property
     def verified(self) -> bool:
@@ -99,18 +103,24 @@ class FlashResult:
 
     @property
     def failed(self) -> list[BoardResult]:
-        return [b for b in self.boards if not b.verified]
+        """Boards not verified, or verified but not started although a start was asked."""
+        return [b for b in self.boards if not b.verified or b.started is False]
 
 
 def flash(robot: Robot, image: Image, *, selection: Selection = Selection("all"),
           bus: str | None = None, target: Target = Target.FLASH, init: bool = True,
           autostart: bool = False, start: bool = False, verify: bool = True,
           progress: ProgressFn | None = None, cancel: threading.Event | None = None,
-          plan: TransferPlan | None = None) -> FlashResult:
-    """Program ``image`` into the selected boards of every selected bus, in parallel."""
+          plan: TransferPlan | None = None, force: bool = False) -> FlashResult:
+    """Program ``image`` into the selected boards of every selected bus, in parallel.
+
+    Boards whose plug-on board, FPGA (Board-ID, App-ID, major version) do not fit the
+    image's descriptor are refused unless ``force``; a minor version difference or a
+    missing descriptor is a warning."""
     plan = plan or image.plan(target=target)
     handles = robot.select(bus)
-    job = _Job(plan, selection, init, autostart, start, verify, progress, cancel)
+    job = _Job(plan, selection, init, autostart, start, verify, progress, cancel,
+               image.descriptor, force)
     if len(handles) == 1:
         results = [job.run(handles[0])]
     else:
@@ -129,6 +139,31 @@ class _Job:
     verify: bool
     progress: ProgressFn | None
     cancel: threading.Event | None
+    descriptor: ImageDescriptor | None = None
+    force: bool = False
+
+    def _preflight(self, h: BusHandle, targets: list[int], present: dict[int, BoardInfo],
+                   results: dict[int, BoardResult],
+                   placements: dict[int, tuple[int, str | None]]) -> tuple[list[int], Notes]:
+        """Compare the image with every target board; refuse misfits unless forced."""
+        keep: list[int] = []
+        warnings: Notes = {}
+        for n in targets:
+            findings = compare(self.descriptor, present[n])
+            errors = [f for f in findings if f.severity == "error"]
+            notes = [f"warning: {f.message}" for f in findings if f.severity != "error"]
+            if errors and not self.force:
+                serial, placement = placements.get(n, (present[n].serial, None))
+                why = "; ".join(f"{f.field}: expected {f.expected}, found {f.found} ({f.message})"
+                                for f in errors)
+                results[n] = BoardResult(h.name, n, serial, placement, "refused", None,
+                                         f"refused: {why}; --force programs it anyway",
+                                         warnings=tuple(notes))
+                continue
+            notes = [f"forced despite: {f.message}" for f in errors] + notes
+            warnings[n] = tuple(notes)
+            keep.append(n)
+        return keep, warnings
 
     def run(self, h: BusHandle) -> BusFlash:
         enum = None
@@ -177,6 +212,7 @@ class _Job:
             if n not in present:
                 results[n] = _fail(h.name, n, None, None, f"no board with seq ID {n} on {h.name}")
         targets = [n for n in wanted if n in present]
+        targets, warnings = self._preflight(h, targets, present, results, placements)
         if not targets:
             return BusFlash(h.name, tuple(results[n] for n in sorted(results)), enum, 0, 0,
                             "no board to program")
@@ -201,7 +237,8 @@ class _Job:
                                      else "")
                 results[n] = BoardResult(h.name, n, serial, placement,
                                          "verified" if o.verified else "failed", o.progid,
-                                         detail, o.resent_blocks)
+                                         detail, o.resent_blocks,
+                                         warnings=warnings.get(n, ()))
         verified = [n for n in enabled if results[n].verified]
         if self.verify and verified:
             self._read_back(h, verified, results)
