@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import threading
-from pathlib import Path
 from typing import Any
 
 import click
@@ -181,8 +180,7 @@ def list_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, run_in
 
 
 # ----------------------------------------------------------------------------- 4, 7, 8
-def _status_command(name: str, option: int, op: StatusOp, doc: str, off_flag: bool = True
-                    ) -> click.Command:
+def _status_command(name: str, option: int, op: StatusOp, doc: str) -> click.Command:
     @click.command(name, help=doc + "\n\n" + BOARD)
     @click.argument("board")
     @connection_options
@@ -248,9 +246,7 @@ def _pin_command(name: str, option: int, op: StatusOp, doc: str) -> click.Comman
         else:
             render.print_rows(out, rows, f"{name} {board} {level}")
             for b, s in status:
-                lit = [c for bit, c in ((0, "red"), (1, "yellow"), (2, "green"))
-                       if s.leds >> bit & 1]
-                out.print(f"{b} board {ref.address}: LEDs {'+'.join(lit) or 'off'}")
+                out.print(f"{b} board {ref.address}: LEDs {render.status_leds(s)}")
         _finish(ctx, bool(rows) and all(x.ok for x in rows))
     return cmd
 
@@ -470,6 +466,3 @@ COMMANDS = [check_cmd, reset_cmd, init_cmd, info_cmd, prog_enable_cmd, program_c
             start_cmd, autostart_cmd, xreset_cmd, set_init_in_cmd, set_init_out_cmd,
             set_seqid_cmd, count_cmd, first_cmd, last_cmd, list_cmd, reset_one_cmd, flash_cmd]
 
-
-def image_path_type() -> click.Path:
-    return click.Path(dir_okay=False, path_type=Path)

@@ -287,9 +287,7 @@ class Session:
         render.print_rows(self.out, rows, "SetInitIn" if option == 10 else "SetInitOut")
         if rows and all(r.ok for r in rows):
             for bus, s in ops.board_status(self.robot, ref, bus=self.bus):
-                lit = [c for bit, c in ((0, "red"), (1, "yellow"), (2, "green"))
-                       if s.leds >> bit & 1]
-                self.out.print(f"{bus} board {ref.address}: LEDs {'+'.join(lit) or 'off'}")
+                self.out.print(f"{bus} board {ref.address}: LEDs {render.status_leds(s)}")
 
     def do_init_in(self, board: str, level: str) -> None:
         self._pin(board, level, StatusOp.INIT_IN, 10)

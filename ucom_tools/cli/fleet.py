@@ -11,7 +11,7 @@ from rich.table import Table
 from ucom_tools.boards import board_name
 from ucom_tools.cli.output import emit_json, err, leds, out
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.socketcand import DEFAULT_PORT, FleetServer, wait_forever
+from ucom_tools.virtual.socketcand import DEFAULT_PORT, FleetServer, serve_until_interrupted
 from ucom_tools.virtual.topology import BUNDLED
 
 TOPOLOGY_HELP = f"a bundled topology ({', '.join(BUNDLED)}) or a topology file (TOML)"
@@ -90,11 +90,8 @@ def serve(topology: str, state_dir: Path | None, host: str, port: int) -> None:
     print(f"listening on {h}:{p}", flush=True)
     err.print(f"serving {f.name} ({', '.join(f.buses)}) with socketcand on {h}:{p}; "
               f"state: {state_dir or 'not kept'}; Ctrl-C stops")
-    import threading
-    t = threading.Thread(target=server.serve_forever, daemon=True)
-    t.start()
     try:
-        wait_forever(server)
+        serve_until_interrupted(server)
     finally:
         f.close()
         sys.stdout.flush()

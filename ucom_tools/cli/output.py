@@ -33,7 +33,3 @@ def leds(state: dict[str, str]) -> str:
         parts.append(f"[{LED_STYLE[colour]}]{mark}[/]" if v != "off" else "[dim]·[/]")
     return " ".join(parts)
 
-
-def leds_text(state: dict[str, str]) -> str:
-    on = [c for c in ("red", "yellow", "green") if state.get(c, "off") != "off"]
-    return "+".join(c + (" blinking" if state[c] == "blink" else "") for c in on) or "off"

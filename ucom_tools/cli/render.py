@@ -13,11 +13,18 @@ from ucom_tools.ops.boards import ProbeResult, Row
 from ucom_tools.ops.compat import CheckRow
 from ucom_tools.ops.enumerate import BusEnumeration
 from ucom_tools.ops.flash import FlashResult
+from ucom_tools.wire import messages as m
 from ucom_tools.wire.descriptor import ImageDescriptor
 from ucom_tools.wire.fpga import FpgaVersion
 from ucom_tools.wire.ids import Address, IdType
 from ucom_tools.wire.info import BoardInfo
 from ucom_tools.wire.transfer import TransferPlan
+
+
+def status_leds(s: m.StatusReport) -> str:
+    """The LEDs of a status report as text: 'red+green', 'off'."""
+    lit = [c for bit, c in ((0, "red"), (1, "yellow"), (2, "green")) if s.leds >> bit & 1]
+    return "+".join(lit) or "off"
 
 
 def hex32(v: int | None) -> str:

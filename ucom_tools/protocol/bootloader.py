@@ -273,7 +273,3 @@ class BootloaderClient:
             raise UcomTimeoutError(f"board {address} sent {len(words)} of {count} words")
         return [words[start + i] for i in range(count)]
 
-
-def address_of(seq_id: int = 0, fixed_id: int = 0) -> Address:
-    return Address(IdType.FIXED, fixed_id) if fixed_id and not seq_id else Address(
-        IdType.SEQUENTIAL, seq_id)

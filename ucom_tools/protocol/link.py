@@ -91,18 +91,6 @@ class Link:
             out.append(got)
         return out
 
-    def collect(self, timeout: float, done: Callable[[list[Received]], bool] | None = None
-                ) -> list[Received]:
-        """Receive until ``done(received)`` is true or nothing arrives for ``timeout``."""
-        out: list[Received] = []
-        while True:
-            got = self.recv(timeout)
-            if got is None:
-                return out
-            out.append(got)
-            if done is not None and done(out):
-                return out
-
     def messages(self, timeout: float) -> Iterator[Received]:
         while (got := self.recv(timeout)) is not None:
             yield got

@@ -13,8 +13,6 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import can
-
 from ucom_tools.errors import UcomError
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
@@ -234,6 +232,3 @@ class Programmer:
 def _done(b: _Board) -> bool:
     return b.result is not None and b.result.status is ResultStatus.VERIFIED
 
-
-def message_for(arbitration_id: int, data: bytes) -> can.Message:
-    return can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False)

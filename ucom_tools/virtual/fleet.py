@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.errors import TopologyError, UcomError
 from ucom_tools.virtual import topology as topo
 from ucom_tools.virtual.board import Identity, VirtualBoard
@@ -103,6 +104,8 @@ class Fleet:
                     "position": b.identity.position + 1,
                     "placement": b.identity.placement,
                     "board": b.identity.board,
+                    "plug_on": {"name": PLUG_ON_BOARDS[b.identity.board].name,
+                                "carries": PLUG_ON_BOARDS[b.identity.board].carries},
                     "serial": f"0x{b.identity.serial:08X}",
                     "fixed_id": b.identity.fixed_id or None,
                     "seq_id": b.seq_id or None,

@@ -43,10 +43,6 @@ class BusStats:
     def load(self, elapsed_us: float) -> float:
         return self.busy_us / elapsed_us if elapsed_us > 0 else 0.0
 
-    def efficiency(self) -> float:
-        """Payload bits per wire bit."""
-        return self.payload_bits / self.bits if self.bits else 0.0
-
 
 class ChainMember(Protocol):
     powered: bool

@@ -13,7 +13,6 @@ import socket
 import socketserver
 import threading
 import time
-from typing import Any
 
 from ucom_tools.virtual.canbus import wait_for_room
 from ucom_tools.virtual.fleet import Fleet
@@ -140,16 +139,11 @@ class FleetServer(socketserver.ThreadingTCPServer):
         return str(host), int(port)
 
 
-def serve_in_thread(fleet: Fleet, host: str = "127.0.0.1", port: int = 0
-                    ) -> tuple[FleetServer, threading.Thread]:
-    server = FleetServer(fleet, host, port)
+def serve_until_interrupted(server: FleetServer) -> None:
+    """Serve in a thread until Ctrl-C, then shut the server down."""
     thread = threading.Thread(target=server.serve_forever, name="ucom-socketcand", daemon=True)
     thread.start()
-    return server, thread
-
-
-def wait_forever(server: FleetServer, stop: Any = None) -> None:
     with contextlib.suppress(KeyboardInterrupt):
-        while stop is None or not stop.is_set():
-            time.sleep(0.2)
+        while thread.is_alive():
+            thread.join(0.2)
     server.shutdown()

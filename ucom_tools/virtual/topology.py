@@ -65,9 +65,6 @@ class Topology:
                 return b
         raise KeyError(name)
 
-    @property
-    def board_count(self) -> int:
-        return sum(len(b.boards) for b in self.buses)
 
 
 class _Lines:
