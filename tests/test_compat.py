@@ -182,3 +182,16 @@ def test_corrupt_descriptor_in_a_file_is_bad_input(tmp_path: Path) -> None:
     r = ucom("srec", "info", str(path))
     assert r.exit_code == 3
     assert f"{path}:{bad_line}: image descriptor at P:7DE0" in " ".join(r.stderr.split())
+
+
+def test_info_shows_all_three_identities(tmp_path: Path) -> None:
+    assert ucom("flash", ARMAR, "--virtual", SWAPPED, "--state", str(tmp_path), "--force",
+                "--boards", "2").exit_code == 0
+    r = ucom("info", "2", "--virtual", SWAPPED, "--state", str(tmp_path), "--init", "--json")
+    (b,) = json.loads(r.stdout)["boards"]
+    assert b["plug_on_board"] == "3 (Valve)"
+    assert b["fpga"] == "3M app 1 v1.0 NEUTRAL"
+    assert b["built_for"] == "3M app 1 FPGA v1.0, program v3.2"
+    r = ucom("fleet", "show", SWAPPED, "--json")
+    plug = json.loads(r.stdout)["buses"][0]["boards"][1]["plug_on"]
+    assert plug["name"].startswith("UCoM@Ventiltreiberboard") and "valve" in plug["carries"]

@@ -46,7 +46,17 @@ def info_json(inf: BoardInfo) -> dict[str, Any]:
         "autostart": inf.autostart, "prog_enable": inf.prog_enable,
         "flash_valid": inf.flash_valid, "extram_valid": inf.extram_valid,
         "bootloader": "{}.{}".format(*inf.bootloader_version),
+        "plug_on_board": f"{inf.measured_board_id} ({board_name(inf.measured_board_id)})",
+        "fpga": fpga_text(inf.fpga) + (" NEUTRAL" if inf.fpga_neutral else ""),
+        "built_for": (descriptor_text(inf.descriptor) if inf.descriptor else
+                      "corrupt descriptor" if inf.descriptor_corrupt else
+                      "no descriptor" if inf.flash_valid or inf.extram_valid else None),
     }
+
+
+def descriptor_text(d: ImageDescriptor) -> str:
+    return (f"{board_name(d.board_id)} app {d.app_id} FPGA v{d.fpga_major}.{d.fpga_minor}, "
+            "program v{}.{}".format(*d.version))
 
 
 # ----------------------------------------------------------------------------- init
@@ -150,12 +160,13 @@ def print_infos(c: Console, rows: list[Row], title: str) -> None:
         return
     t = Table(title=title, title_justify="left")
     for col in ("bus", "seq ID", "fixed", "serial", "state", "program", "ProgID", "size",
-                "programmed", "flags"):
+                "programmed", "plug-on", "FPGA", "flags"):
         t.add_column(col, no_wrap=True)
     for r in rows:
         inf = r.info
         if inf is None:
-            t.add_row(r.bus, str(r.address), "", "", f"[red]{r.detail}[/]", "", "", "", "", "")
+            t.add_row(r.bus, str(r.address), "", "", f"[red]{r.detail}[/]", "", "", "", "", "",
+                      "", "")
             continue
         flags = " ".join(f for f, on in (("AutoStart", inf.autostart),
                                          ("ProgEnable", inf.prog_enable),
@@ -165,7 +176,9 @@ def print_infos(c: Console, rows: list[Row], title: str) -> None:
                   inf.state.text, inf.name if valid else "[dim]none[/]",
                   hex32(inf.progid) if valid else "-",
                   f"{inf.size_words} w" if valid else "-",
-                  inf.programmed.strftime("%Y-%m-%d %H:%M") if inf.programmed else "-", flags)
+                  inf.programmed.strftime("%Y-%m-%d %H:%M") if inf.programmed else "-",
+                  board_name(inf.measured_board_id),
+                  fpga_text(inf.fpga) + (" [red]NEUTRAL[/]" if inf.fpga_neutral else ""), flags)
     c.print(t)
 
 
