@@ -61,3 +61,16 @@ def test_bad_topology_exits_3_with_one_line(tmp_path: Path) -> None:
 def test_unknown_bundled_name_exits_3() -> None:
     code, _, err = run("fleet", "show", "armar4")
     assert code == 3 and "armar3" in err
+
+
+def test_user_text_is_printed_verbatim_not_as_markup_or_emoji(tmp_path: Path) -> None:
+    path = tmp_path / "arm.toml"
+    path.write_text('name = "[bold]arm :x:"\n[[bus]]\nname = "A"\n'
+                    '[[bus.board]]\nplacement = "[red]elbow[/red] :x:"\nboard = "3M"\n')
+    code, out, _ = run("fleet", "show", str(path))
+    assert code == 0
+    assert "[bold]arm :x:" in out and "[red]elbow[/red] :x:" in out
+    bad = tmp_path / "bad.S"
+    bad.write_text("root:x:0:0:[red]root\n")
+    code, _, err = run("srec", "info", str(bad))
+    assert code == 3 and "root:x:0:0:[red]root" in err

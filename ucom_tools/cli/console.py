@@ -17,6 +17,7 @@ from pathlib import Path
 
 import click
 from rich.console import Console as RichConsole
+from rich.markup import escape
 
 from ucom_tools.cli import render
 from ucom_tools.cli.commands import run_flash
@@ -139,7 +140,7 @@ class Session:
         try:
             words = shlex.split(line)
         except ValueError as e:
-            self.out.print(f"[red]{e}[/]")
+            self.out.print(f"[red]{escape(str(e))}[/]")
             return True
         if not words:
             return True
@@ -154,8 +155,8 @@ class Session:
             return True
         option = self.by_key.get(key)
         if option is None:
-            self.out.print(f"[red]unknown option {words[0]!r}[/]: type a number 1-21, a name "
-                           "(e.g. info 3), 'menu' or q")
+            self.out.print(f"[red]unknown option {escape(repr(words[0]))}[/]: type a number "
+                           "1-21, a name (e.g. info 3), 'menu' or q")
             return True
         args = words[1:]
         try:
@@ -169,13 +170,13 @@ class Session:
         except KeyboardInterrupt:
             self.out.print("[yellow]cancelled[/]")
         except Cancelled as e:
-            self.out.print(f"[yellow]{e}[/]")
+            self.out.print(f"[yellow]{escape(str(e))}[/]")
         except ops.NotInitialised as e:
-            self.out.print(f"[yellow]{e}[/]".replace("run 'ucom init' first", "run option 2 "
-                                                     "(init) first").replace(
-                ", or add --init to this command", ""))
+            text = str(e).replace("run 'ucom init' first", "run option 2 (init) first")
+            text = text.replace(", or add --init to this command", "")
+            self.out.print(f"[yellow]{escape(text)}[/]")
         except UcomError as e:
-            self.out.print(f"[red]{e}[/]")
+            self.out.print(f"[red]{escape(str(e))}[/]")
         return True
 
     def _arguments(self, option: Option, args: list[str]) -> list[str] | None:
@@ -200,7 +201,8 @@ class Session:
         elif name in self.robot.buses:
             self.bus = name
         else:
-            self.out.print(f"[red]no bus {name!r}; buses: {', '.join(self.robot.buses)}[/]")
+            self.out.print(f"[red]no bus {escape(repr(name))}; buses: "
+                           f"{', '.join(self.robot.buses)}[/]")
             return
         self.out.print(f"bus: {self.bus or 'all (' + ', '.join(self.robot.buses) + ')'}")
 
@@ -332,13 +334,13 @@ class Session:
 
     def do_load(self, file: str) -> None:
         self.image = load_image(Path(file).expanduser())
-        self.out.print(f"loaded {self.image.path}: {self.image.size()} words, "
+        self.out.print(f"loaded {escape(self.image.path)}: {self.image.size()} words, "
                        f"ProgID 0x{self.image.progid:08X}")
 
     def do_progid(self) -> None:
         image = self._need_image()
         if image is not None:
-            self.out.print(f"ProgID of {image.name}: [bold]0x{image.progid:08X}[/]")
+            self.out.print(f"ProgID of {escape(image.name)}: [bold]0x{image.progid:08X}[/]")
 
     def do_reset_one(self, board: str) -> None:
         ref = ops.parse_ref(board, allow_all=False)

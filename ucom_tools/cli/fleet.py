@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import click
+from rich.markup import escape
 from rich.table import Table
 
 from ucom_tools.boards import board_name
@@ -38,7 +39,7 @@ def show(topology: str, state_dir: Path | None, as_json: bool) -> None:
         emit_json(snap)
         return
     total = sum(len(b["boards"]) for b in snap["buses"])
-    out.print(f"[bold]{snap['topology']}[/] - {snap['description']}")
+    out.print(f"[bold]{escape(snap['topology'])}[/] - {escape(snap['description'])}")
     out.print(f"{total} boards on {len(snap['buses'])} buses\n")
     for bus in snap["buses"]:
         t = Table(title=f"{bus['name']} ({bus['bitrate'] // 1000} kbit/s)", title_justify="left")
@@ -51,9 +52,10 @@ def show(topology: str, state_dir: Path | None, as_json: bool) -> None:
             fpga = f"{board_name(f['board_id'])} app {f['app_id']} v{f['version']}" + (
                 " [red]NEUTRAL[/]" if f["neutral"] else "")
             t.add_row(
-                str(b["position"]), b["placement"], b["board"], fpga, str(b["seq_id"] or "-"),
+                str(b["position"]), escape(b["placement"]), b["board"], fpga,
+                str(b["seq_id"] or "-"),
                 str(b["fixed_id"] or "-"), b["state"],
-                f"{prog['name']} {prog['progid']}" if prog else "[dim]none[/]",
+                f"{escape(prog['name'])} {prog['progid']}" if prog else "[dim]none[/]",
                 leds(b["leds"]))
         out.print(t)
         if bus["broken_init_links"]:

@@ -7,6 +7,7 @@ import traceback
 from typing import Any
 
 import click
+from rich.markup import escape
 
 from ucom_tools import __version__
 from ucom_tools.cli.output import err
@@ -43,7 +44,7 @@ class UcomGroup(click.Group):
     def _fail(ctx: click.Context, e: Exception, code: int, label: str) -> None:
         if (ctx.obj or {}).get("verbose", 0) >= 2:
             traceback.print_exc(file=sys.stderr)
-        err.print(f"[bold red]ucom: {label}:[/] {e}", markup=True, highlight=False,
+        err.print(f"[bold red]ucom: {label}:[/] {escape(str(e))}", highlight=False,
                   soft_wrap=True)
         ctx.exit(code)
 

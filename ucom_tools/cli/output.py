@@ -14,8 +14,8 @@ def _width() -> int | None:
     return None if sys.stdout.isatty() else 132
 
 
-out = Console(highlight=False, soft_wrap=False, width=_width())
-err = Console(stderr=True, highlight=False)
+out = Console(highlight=False, soft_wrap=False, width=_width(), emoji=False)
+err = Console(stderr=True, highlight=False, emoji=False)
 
 LED_STYLE = {"red": "red", "yellow": "yellow", "green": "green"}
 

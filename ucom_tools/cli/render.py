@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from ucom_tools.boards import app_name, board_name
@@ -86,18 +87,18 @@ def print_enumeration(c: Console, e: BusEnumeration) -> None:
         inf = b.info
         t.add_row(
             f"[red]{b.seq_id}![/]" if b.duplicate else str(b.seq_id),
-            str(b.position or "-"), b.placement or "-", b.board or "-", hex32(b.serial),
-            str(b.fixed_id or "-"), inf.state.text if inf else "?",
-            (inf.name or "[dim]none[/]") if inf else "?",
+            str(b.position or "-"), escape(b.placement or "-"), b.board or "-",
+            hex32(b.serial), str(b.fixed_id or "-"), inf.state.text if inf else "?",
+            (escape(inf.name) or "[dim]none[/]") if inf else "?",
             hex32(inf.progid) if inf and inf.flash_valid else "-")
     c.print(t)
     exp = f" of {e.expected} expected" if e.expected is not None else ""
     colour = "green" if e.ok else "yellow"
     c.print(f"[{colour}]{e.bus}: {e.found} board(s) found{exp}[/]")
     for d in e.diagnosis:
-        c.print(f"  [bold yellow]![/] {d.message}")
+        c.print(f"  [bold yellow]![/] {escape(d.message)}")
         if d.leds:
-            c.print(f"    [dim]LEDs:[/] {d.leds}")
+            c.print(f"    [dim]LEDs:[/] {escape(d.leds)}")
 
 
 # ----------------------------------------------------------------------------- rows
@@ -126,8 +127,9 @@ def print_rows(c: Console, rows: list[Row], title: str) -> None:
         t.add_column(col)
     for r in rows:
         t.add_row(r.bus, str(r.address), "[green]ok[/]" if r.ok and r.detail == "ok" else
-                  (f"[green]{r.detail}[/]" if r.ok else f"[red]{r.detail}[/]"),
-                  r.state.text if r.state is not None else "-", "\n".join(r.reports))
+                  (f"[green]{escape(r.detail)}[/]" if r.ok else f"[red]{escape(r.detail)}[/]"),
+                  r.state.text if r.state is not None else "-",
+                  escape("\n".join(r.reports)))
     c.print(t)
 
 
@@ -155,7 +157,7 @@ def print_infos(c: Console, rows: list[Row], title: str) -> None:
         t.add_column("field", style="bold")
         t.add_column("value")
         for k, v in info_json(r.info).items():
-            t.add_row(k, "-" if v is None else str(v))
+            t.add_row(k, "-" if v is None else escape(str(v)))
         c.print(t)
         return
     t = Table(title=title, title_justify="left")
@@ -165,15 +167,15 @@ def print_infos(c: Console, rows: list[Row], title: str) -> None:
     for r in rows:
         inf = r.info
         if inf is None:
-            t.add_row(r.bus, str(r.address), "", "", f"[red]{r.detail}[/]", "", "", "", "", "",
-                      "", "")
+            t.add_row(r.bus, str(r.address), "", "", f"[red]{escape(r.detail)}[/]", "", "", "",
+                      "", "", "", "")
             continue
         flags = " ".join(f for f, on in (("AutoStart", inf.autostart),
                                          ("ProgEnable", inf.prog_enable),
                                          ("ExtRAM", inf.extram_valid)) if on)
         valid = inf.flash_valid or inf.extram_valid
         t.add_row(r.bus, str(inf.seq_id or "-"), str(inf.fixed_id or "-"), hex32(inf.serial),
-                  inf.state.text, inf.name if valid else "[dim]none[/]",
+                  inf.state.text, escape(inf.name) if valid else "[dim]none[/]",
                   hex32(inf.progid) if valid else "-",
                   f"{inf.size_words} w" if valid else "-",
                   inf.programmed.strftime("%Y-%m-%d %H:%M") if inf.programmed else "-",
@@ -201,7 +203,7 @@ def print_probe(c: Console, results: list[ProbeResult]) -> None:
             c.print(f"{p.bus}: {which} board: seq ID {a.seq_id or '-'}, serial "
                     f"{hex32(a.serial)}" + (f", fixed ID {a.fixed_id}" if a.fixed_id else ""))
         if p.info is not None:
-            c.print(f"  program {p.info.name or 'none'}, state {p.info.state.text}")
+            c.print(f"  program {escape(p.info.name) or 'none'}, state {p.info.state.text}")
         if p.broken:
             c.print(f"[bold yellow]  ! {len(p.answers)} boards answer as {which}: the init "
                     "line is broken.[/] A board right after a break lights yellow only at "
@@ -242,9 +244,9 @@ def descriptor_json(d: ImageDescriptor | None) -> dict[str, Any] | None:
 
 def print_image(c: Console, img: Image, plan: TransferPlan) -> None:
     d = image_json(img, plan)
-    c.print(f"[bold]{img.path}[/]")
-    c.print(f"  header     {d['header']!r}   ({d['records']} records, {img.addressing} "
-            "addresses)")
+    c.print(f"[bold]{escape(img.path)}[/]")
+    c.print(f"  header     {escape(repr(d['header']))}   ({d['records']} records, "
+            f"{img.addressing} addresses)")
     c.print(f"  entry      {d['entry']}")
     c.print(f"  size       {d['size_words']} words ({d['words']['P']} P:, {d['words']['X']} X:)"
             f" = {d['size_words'] * 2} bytes in {d['blocks']} blocks")
@@ -263,7 +265,8 @@ def print_image(c: Console, img: Image, plan: TransferPlan) -> None:
     if desc:
         c.print(f"  built for  Board-ID {desc['board_id']} ({desc['board']}), App-ID "
                 f"{desc['app_id']} ({desc['application']}), FPGA {desc['fpga_version']}")
-        c.print(f"  program    {desc.get('name', '')!r} version {desc['program_version']}")
+        c.print(f"  program    {escape(repr(desc.get('name', '')))} version "
+                f"{desc['program_version']}")
     else:
         c.print("  [yellow]no image descriptor (P:7DE0): programmable, but compatibility with "
                 "board and FPGA cannot be checked[/]")
@@ -288,13 +291,13 @@ def flash_json(r: FlashResult) -> dict[str, Any]:
 
 
 def print_flash(c: Console, r: FlashResult) -> None:
-    t = Table(title=f"{r.image} (ProgID {hex32(r.progid)}, {r.size_words} words) -> "
-                    f"{r.target.name.lower()}", title_justify="left")
+    t = Table(title=f"{escape(r.image)} (ProgID {hex32(r.progid)}, {r.size_words} words) "
+                    f"-> {r.target.name.lower()}", title_justify="left")
     for col in ("bus", "seq ID", "placement", "serial", "result", "ProgID", "resent",
                 "AutoStart", "started"):
         t.add_column(col, no_wrap=col != "result")
     for b in r.boards:
-        t.add_row(b.bus, str(b.seq_id), b.placement or "-", hex32(b.serial),
+        t.add_row(b.bus, str(b.seq_id), escape(b.placement or "-"), hex32(b.serial),
                   "[green]verified[/]" if b.verified else f"[red]{b.outcome}[/]",
                   hex32(b.progid) if b.verified else "-", str(b.resent_blocks or ""),
                   "yes" if b.autostart else "", {None: "", True: "[green]yes[/]",
@@ -302,16 +305,16 @@ def print_flash(c: Console, r: FlashResult) -> None:
     c.print(t)
     for b in r.boards:
         for w in b.warnings:
-            c.print(f"  [yellow]{b.bus} board {b.seq_id}: {w}[/]")
+            c.print(f"  [yellow]{b.bus} board {b.seq_id}: {escape(w)}[/]")
         for msg in b.messages:
-            c.print(f"  [dim]{b.bus} board {b.seq_id}:[/] {msg}")
+            c.print(f"  [dim]{b.bus} board {b.seq_id}:[/] {escape(msg)}")
     for bus in r.buses:
         if bus.enumeration is not None:
             for d in bus.enumeration.diagnosis:
-                c.print(f"  [bold yellow]! {bus.bus}:[/] {d.message}")
+                c.print(f"  [bold yellow]! {bus.bus}:[/] {escape(d.message)}")
     for b in r.boards:
         if not b.verified:
-            c.print(f"  [red]{b.bus} board {b.seq_id}:[/] {b.detail}")
+            c.print(f"  [red]{b.bus} board {b.seq_id}:[/] {escape(b.detail)}")
     ok = sum(1 for b in r.boards if b.verified)
     colour = "green" if r.all_verified else "red"
     c.print(f"[{colour}]{ok} of {len(r.boards)} board(s) verified[/]")
@@ -357,14 +360,15 @@ def print_check(c: Console, rows: list[CheckRow]) -> None:
         built = (f"{board_name(d.board_id)} app {d.app_id} v{d.fpga_major}.{d.fpga_minor}"
                  if d else ("-" if r.program is None else "[yellow]no descriptor[/]"))
         fpga = fpga_text(r.fpga) + (" [red]NEUTRAL[/]" if r.neutral else "")
-        t.add_row(r.bus, str(r.seq_id), r.placement or "-", board_name(r.plug_board_id), fpga,
-                  r.program or "[dim]none[/]", built,
+        t.add_row(r.bus, str(r.seq_id), escape(r.placement or "-"),
+                  board_name(r.plug_board_id), fpga,
+                  escape(r.program) if r.program else "[dim]none[/]", built,
                   f"[{colours.get(r.verdict, 'white')}]{r.verdict}[/]")
     c.print(t)
     for r in rows:
         for f in r.findings:
             colour = "red" if f.severity == "error" else "yellow"
-            c.print(f"  [{colour}]{r.bus} board {r.seq_id}:[/] {f.message}")
+            c.print(f"  [{colour}]{r.bus} board {r.seq_id}:[/] {escape(f.message)}")
     bad = sum(1 for r in rows if r.failed)
     c.print("[green]clean: every board fits its FPGA and program[/]" if not bad and rows
             else f"[red]{bad} board(s) do not fit[/]" if bad else "[yellow]no board found[/]")
