@@ -8,7 +8,6 @@ AutoStart in non-volatile memory and volatile ExtRAM behave as in the dissertati
 
 from __future__ import annotations
 
-import sys
 from array import array
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -19,7 +18,8 @@ from ucom_tools.errors import FrameError
 from ucom_tools.virtual.application import DspProgram
 from ucom_tools.virtual.fpga import ExternalMemory, VirtualFpga
 from ucom_tools.virtual.nvmem import NonVolatile
-from ucom_tools.virtual.receiver import Reception, RejectedBlock, Timing
+from ucom_tools.virtual.programming import BoardProgramming
+from ucom_tools.virtual.receiver import Reception, Timing
 from ucom_tools.virtual.simbus import SimBus
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import (
@@ -27,10 +27,8 @@ from ucom_tools.wire.codes import (
     ErrorCode,
     InitAckKind,
     InitOp,
-    MetaField,
     ReadyReason,
     ReportChannel,
-    ResultStatus,
     Space,
     StatusOp,
     Target,
@@ -91,6 +89,7 @@ class VirtualBoard:
         self.fpga = VirtualFpga(identity.fpga or FpgaVersion(plug, 1, 1, 0), plug)
         self.xmem = ExternalMemory(self.fpga)
         self._suppress_autostart = False
+        self.programming = BoardProgramming(self)
         if powered:
             self.power_on(bus.now)
 
@@ -132,7 +131,7 @@ class VirtualBoard:
     def _reset(self, t: float, clear_autostart: bool) -> None:
         if clear_autostart and self.nv.record.autostart:
             self.nv.record.autostart = False
-            self._persist(record_only=True)
+            self.persist(record_only=True)
         self.state = BoardState.BOOTLOADER
         self.application = None
         self.bus.at(t + self.timing.reset_us, self._after_reset)
@@ -180,7 +179,7 @@ class VirtualBoard:
         for frame in m.text_reports(text):
             self.send(t, frame)
 
-    def _error(self, t: float, code: ErrorCode, function: int, detail: int = 0,
+    def error(self, t: float, code: ErrorCode, function: int, detail: int = 0,
                via_fixed: bool = False) -> None:
         self.send(t + self.timing.reply_us, m.Error(code, function, detail), via_fixed=via_fixed)
 
@@ -190,7 +189,7 @@ class VirtualBoard:
             return
         function = arbitration_id >> 6
         if function == _PROGRAM and len(data) == 8 and self.reception is not None:
-            self._data(data, t)  # hot path of a transfer: raw data frame, always broadcast
+            self.programming.data(data, t)  # hot path: raw data frame of a transfer
             return
         if function in _FROM_BOARD:
             return  # another board's traffic
@@ -206,7 +205,7 @@ class VirtualBoard:
             broadcast, via_fixed = False, True
         if function > 27:
             if not broadcast:
-                self._error(t, ErrorCode.UNKNOWN_FUNCTION, function, via_fixed=via_fixed)
+                self.error(t, ErrorCode.UNKNOWN_FUNCTION, function, via_fixed=via_fixed)
             else:
                 self.ignored += 1
             return
@@ -214,7 +213,7 @@ class VirtualBoard:
             if self.application is not None:
                 self.application.on_frame(function, Address(IdType(id_type), number), data, t)
             elif not broadcast:
-                self._error(t, ErrorCode.NOT_RUNNING, function, via_fixed=via_fixed)
+                self.error(t, ErrorCode.NOT_RUNNING, function, via_fixed=via_fixed)
             return
         try:
             _, msg = m.decode(arbitration_id, data, sender=Direction.HOST_TO_BOARD)
@@ -222,7 +221,7 @@ class VirtualBoard:
             if function == _PROGRAM and not self.prog_enable:
                 return
             code = ErrorCode.BAD_LENGTH if "length" in err.field else ErrorCode.BAD_VALUE
-            self._error(t, code, function, via_fixed=via_fixed)
+            self.error(t, code, function, via_fixed=via_fixed)
             return
         self._dispatch(msg, t, broadcast, via_fixed)
 
@@ -248,12 +247,12 @@ class VirtualBoard:
             case _ if msg.FUNCTION is Function.PROGRAM:
                 if running:
                     if not broadcast:
-                        self._error(t, ErrorCode.RUNNING, _PROGRAM, via_fixed=via_fixed)
+                        self.error(t, ErrorCode.RUNNING, _PROGRAM, via_fixed=via_fixed)
                 elif not self.prog_enable:
                     if not broadcast:
-                        self._error(t, ErrorCode.NOT_ENABLED, _PROGRAM, via_fixed=via_fixed)
+                        self.error(t, ErrorCode.NOT_ENABLED, _PROGRAM, via_fixed=via_fixed)
                 else:
-                    self._program(msg, t)
+                    self.programming.handle(msg, t)
 
     # ================================================================= init chain
     def _init(self, msg: m.InitRequest, t: float) -> None:
@@ -320,15 +319,15 @@ class VirtualBoard:
         op, value = msg.op, msg.value
         if op is StatusOp.PROG_ENABLE:
             if self.application is not None:
-                self._error(t, ErrorCode.RUNNING, Function.SET_STATUS, op, via_fixed)
+                self.error(t, ErrorCode.RUNNING, Function.SET_STATUS, op, via_fixed)
                 return
             self.prog_enable = bool(value)
         elif op is StatusOp.AUTOSTART:
             if value and not self.nv.record.flash_valid:
-                self._error(t, ErrorCode.NO_PROGRAM, Function.SET_STATUS, op, via_fixed)
+                self.error(t, ErrorCode.NO_PROGRAM, Function.SET_STATUS, op, via_fixed)
                 return
             self.nv.record.autostart = bool(value)
-            self._persist(record_only=True)
+            self.persist(record_only=True)
         elif op is StatusOp.INIT_IN:
             self.in_drive = bool(value)
         elif op is StatusOp.INIT_OUT:
@@ -344,14 +343,14 @@ class VirtualBoard:
         elif msg.channel is ReportChannel.MEMORY:
             words = self.read_memory(msg.space, msg.address, msg.count)
             if words is None:
-                self._error(t, ErrorCode.UNMAPPED_ADDRESS, Function.REPORT_REQUEST,
+                self.error(t, ErrorCode.UNMAPPED_ADDRESS, Function.REPORT_REQUEST,
                             (msg.space << 16) | msg.address, via_fixed)
                 return
             for i in range(0, len(words), 3):
                 self.send(t, m.MemoryReport(msg.address + i, tuple(words[i:i + 3])),
                           via_fixed=via_fixed)
         else:
-            self._error(t, ErrorCode.BAD_VALUE, Function.REPORT_REQUEST, msg.channel, via_fixed)
+            self.error(t, ErrorCode.BAD_VALUE, Function.REPORT_REQUEST, msg.channel, via_fixed)
 
     def read_memory(self, space: Space, address: int, count: int) -> list[int] | None:
         """Words for a memory report: program or data flash, or X: external memory (with
@@ -442,12 +441,12 @@ class VirtualBoard:
                       via_fixed=via_fixed)
             return
         if self.application is not None or self.reception is not None:
-            self._error(t, ErrorCode.RUNNING if self.application else ErrorCode.BUSY,
+            self.error(t, ErrorCode.RUNNING if self.application else ErrorCode.BUSY,
                         Function.START, target, via_fixed)
             return
         valid = self.nv.record.flash_valid if target is Target.FLASH else self.extram is not None
         if not valid:
-            self._error(t, ErrorCode.NO_PROGRAM, Function.START, target, via_fixed)
+            self.error(t, ErrorCode.NO_PROGRAM, Function.START, target, via_fixed)
             return
         self._start_program(target, t + self.timing.reply_us, announce=True, via_fixed=via_fixed)
 
@@ -469,152 +468,8 @@ class VirtualBoard:
             self.send(t, m.Ready(ReadyReason.STARTED, self.state, target), via_fixed=via_fixed)
         self.application.start(t)
 
-    # ================================================================= programming
-    def _program(self, msg: m.BootMessage, t: float) -> None:
-        rx = self.reception
-        if isinstance(msg, m.ProgramBegin):
-            self.reception = Reception(msg.target, msg.blocks, msg.entry, self.timing)
-            self.state = BoardState.BOOTLOADER
-            if msg.target is Target.FLASH and self.nv.record.flash_valid:
-                # From here on a power loss must leave no startable program behind.
-                self.nv.record.flash_valid = False
-                self.nv.record.autostart = False
-                self._persist(record_only=True)
-            return
-        if isinstance(msg, m.ProgramAbort):
-            self.reception = None
-            self.state = BoardState.BOOTLOADER
-            return
-        if rx is None:
-            self._error(t, ErrorCode.SEQUENCE, _PROGRAM)
-            return
-        if isinstance(msg, m.ProgramMeta):
-            rx.meta[msg.field] = msg.value
-        elif isinstance(msg, m.ProgramErase):
-            if rx.target is Target.FLASH:
-                try:
-                    rx.add_erase(msg)
-                except RejectedBlock as err:
-                    self._error(t, err.code, _PROGRAM, err.detail)
-        elif isinstance(msg, m.ProgramPrepare):
-            self.state = BoardState.ERASING
-            if rx.target is Target.EXTRAM:
-                rx.extram = {Space.P: array("H", [0xFFFF]) * len(self.nv.p.words),
-                             Space.X: array("H", [0xFFFF]) * len(self.nv.x.words)}
-            else:
-                for space, page in rx.erase_pages:
-                    self.nv.erase_page(space, page)
-            rx.erased = False
-            done = t + rx.erase_time()
-            self.bus.at(done, self._erased)
-        elif isinstance(msg, m.ProgramBlock):
-            if not rx.erased:
-                self._error(t, ErrorCode.BUSY, _PROGRAM, msg.index)
-                return
-            try:
-                rx.open_block(msg)
-            except RejectedBlock as err:
-                self._error(t, err.code, _PROGRAM, err.detail)
-        elif isinstance(msg, m.ProgramEnd):
-            self.bus.at(max(t, rx.free_at) + rx.size_hint() * self.timing.verify_word_us,
-                        self._finish)
-
-    def _erased(self, t: float) -> None:
-        rx = self.reception
-        if rx is None or not self.powered:
-            return
-        rx.erased = True
-        rx.free_at = t
-        self.state = BoardState.RECEIVING
-        self.send(t, m.Ready(ReadyReason.ERASED, self.state, self.timing.rx_capacity,
-                             int(rx.frame_cost + 0.999)))
-
-    def _data(self, data: bytes, t: float) -> None:
-        rx = self.reception
-        assert rx is not None
-        if not rx.erased:
-            rx.overruns += 1
-            return
-        accepted, payload = rx.take_data(data, t)
-        if not accepted:
-            self.overruns += 1
-        elif payload is not None and rx.current is not None:
-            block = rx.current
-            rx.current = None
-            if not rx.skip_current:
-                words = array("H")
-                words.frombytes(payload)
-                if sys.byteorder == "big":
-                    words.byteswap()
-                if rx.target is Target.FLASH:
-                    if not self.nv.space(block.space).program(block.address, words):
-                        rx.failed_words += 1
-                else:
-                    base = self.nv.space(block.space).base
-                    ext = rx.extram[block.space]
-                    ext[block.address - base:block.address - base + len(words)] = words
-                rx.received[block.index] = (block.space, block.address, len(words))
-        if rx.paused or rx.free_at - t < self.timing.high_water * rx.frame_cost:
-            return
-        backlog = rx.backlog(t)
-        if backlog >= self.timing.high_water:
-            rx.paused = True
-            self.send(t + self.timing.reply_us, m.Ready(ReadyReason.PAUSE, self.state,
-                                                        int(backlog)))
-            self.bus.at(rx.free_at - self.timing.low_water * rx.frame_cost, self._maybe_resume)
-
-    def _maybe_resume(self, t: float) -> None:
-        rx = self.reception
-        if rx is None or not rx.paused or not self.powered:
-            return
-        if rx.backlog(t) > self.timing.low_water + 1e-6:
-            self.bus.at(rx.free_at - self.timing.low_water * rx.frame_cost, self._maybe_resume)
-            return
-        rx.paused = False
-        self.send(t, m.Ready(ReadyReason.RESUME, self.state, int(rx.backlog(t))))
-
-    def _finish(self, t: float) -> None:
-        rx = self.reception
-        if rx is None or not self.powered:
-            return
-        read = {}
-        for index, (space, address, nwords) in rx.received.items():
-            if rx.target is Target.FLASH:
-                read[index] = self.nv.space(space).read(address, nwords)
-            else:
-                base = self.nv.space(space).base
-                read[index] = rx.extram[space][address - base:address - base + nwords]
-        result, missing = rx.result(read)
-        self.overruns += rx.overruns
-        rx.overruns = 0
-        if result.status is ResultStatus.VERIFIED:
-            self._commit(rx)
-        self.send(t, result)
-        for run in missing:
-            self.send(t, run)
-
-    def _commit(self, rx: Reception) -> None:
-        meta = rx.meta
-        size = int.from_bytes(meta.get(MetaField.SIZE, bytes(4)), "big")
-        date = int.from_bytes(meta.get(MetaField.DATE, bytes(4)), "big")
-        name = b"".join(meta.get(MetaField.NAME_0 + i, b"") for i in range(7))
-        name_s = name.rstrip(b"\0").decode("latin-1")
-        progid = rx.expected_progid()
-        if rx.target is Target.FLASH:
-            rec = self.nv.record
-            rec.flash_valid = True
-            rec.progid, rec.size_words, rec.date, rec.name, rec.entry = (progid, size, date,
-                                                                         name_s, rx.entry)
-            self._persist()
-        else:
-            self.extram = rx.extram
-            self.extram_meta = (progid, size, name_s, rx.entry, date)
-        self.reception = None
-        self.prog_enable = False
-        self.state = BoardState.BOOTLOADER
-
     # ================================================================= persistence
-    def _persist(self, record_only: bool = False) -> None:
+    def persist(self, record_only: bool = False) -> None:
         """Write non-volatile state to the fleet's state directory (if it has one)."""
         if self.state_file is None:
             return
