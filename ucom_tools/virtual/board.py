@@ -8,16 +8,15 @@ AutoStart in non-volatile memory and volatile ExtRAM behave as in the dissertati
 
 from __future__ import annotations
 
-from array import array
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.errors import FrameError
 from ucom_tools.virtual.application import DspProgram
 from ucom_tools.virtual.fpga import ExternalMemory, VirtualFpga
-from ucom_tools.virtual.nvmem import NonVolatile
+from ucom_tools.virtual.nvmem import Memory, NonVolatile
 from ucom_tools.virtual.programming import BoardProgramming
 from ucom_tools.virtual.receiver import Reception, Timing
 from ucom_tools.virtual.simbus import SimBus
@@ -41,7 +40,8 @@ from ucom_tools.wire.transfer import decode_date
 
 BOOTLOADER_VERSION = (1, 0)
 _FROM_BOARD = frozenset(f.value for f in Function if f.direction is Direction.BOARD_TO_HOST)
-_MCA_FROM_HOST = frozenset({13, 15, 21, 22, 24, 25, 26})
+_MCA_FROM_HOST = frozenset(f.value for f in Function if f.direction is Direction.HOST_TO_BOARD
+                           and f not in m.BOOTLOADER_FUNCTIONS)
 _PROGRAM = int(Function.PROGRAM)
 
 
@@ -78,12 +78,11 @@ class VirtualBoard:
         self.prog_enable = False
         self.chain_active = False
         self.reception: Reception | None = None
-        self.extram: dict[Space, array] | None = None
+        self.extram: dict[Space, Memory] | None = None
         # progid, size, name, entry, date of the program held in ExtRAM
         self.extram_meta: tuple[int, int, str, int, int] | None = None
         self.application: DspProgram | None = None
         self.overruns = 0
-        self.ignored = 0
         self.stagger_us = (identity.serial & 0x3F) * bus.us_per_bit
         plug = PLUG_ON_BOARDS[identity.board].board_id
         self.fpga = VirtualFpga(identity.fpga or FpgaVersion(plug, 1, 1, 0), plug)
@@ -103,26 +102,25 @@ class VirtualBoard:
     def power_off(self) -> None:
         """Power loss: flash keeps what was written; everything else is gone."""
         self.powered = False
-        self.xmem.clear_ram()
         self.fpga = VirtualFpga(self.fpga.config, self.fpga.plug_board_id)
         self.xmem = ExternalMemory(self.fpga)
+        self._drop_volatile()
         self.in_drive = self.out_drive = False
-        self.reception = None
-        self.application = None
-        self.extram = None
-        self.extram_meta = None
-        self.state = BoardState.BOOTLOADER
 
-    def _boot(self, t: float) -> None:
+    def _drop_volatile(self) -> None:
+        """What a reset or a power loss takes away (the seq ID survives a reset)."""
         self.prog_enable = False
         self.reception = None
         self.extram = None
         self.extram_meta = None
         self.application = None
         self.chain_active = False
+        self.state = BoardState.BOOTLOADER
+
+    def _boot(self, t: float) -> None:
+        self._drop_volatile()
         self.in_drive = False
         self.out_drive = True
-        self.state = BoardState.BOOTLOADER
         rec = self.nv.record
         if rec.autostart and rec.flash_valid and not self._suppress_autostart:
             self._start_program(Target.FLASH, t, announce=False)
@@ -170,17 +168,12 @@ class VirtualBoard:
             return
         self.bus.send(self, t, encode_id(msg.FUNCTION, addr), msg.encode())
 
-    def send_raw(self, t: float, function: int, data: bytes) -> None:
-        addr = self.reply_address()
-        if addr is not None:
-            self.bus.send(self, t, encode_id(function, addr), data)
-
     def report_text(self, t: float, text: str) -> None:
         for frame in m.text_reports(text):
             self.send(t, frame)
 
     def error(self, t: float, code: ErrorCode, function: int, detail: int = 0,
-               via_fixed: bool = False) -> None:
+              via_fixed: bool = False) -> None:
         self.send(t + self.timing.reply_us, m.Error(code, function, detail), via_fixed=via_fixed)
 
     # ================================================================= receiving
@@ -206,8 +199,6 @@ class VirtualBoard:
         if function > 27:
             if not broadcast:
                 self.error(t, ErrorCode.UNKNOWN_FUNCTION, function, via_fixed=via_fixed)
-            else:
-                self.ignored += 1
             return
         if function in _MCA_FROM_HOST:
             if self.application is not None:
@@ -271,15 +262,12 @@ class VirtualBoard:
         elif msg.op is InitOp.END:
             self.chain_active = False
             self.in_drive = self.out_drive = False
-        elif msg.op is InitOp.PROBE_FIRST:
+        elif msg.op in (InitOp.PROBE_FIRST, InitOp.PROBE_LAST):
+            first = msg.op is InitOp.PROBE_FIRST
             saved = (self.in_drive, self.out_drive)
-            self.in_drive, self.out_drive = False, True
-            self.bus.at(settle, self._probe(InitAckKind.FIRST))
-            self.bus.at(settle + 1.0, self._restore_pins(saved))
-        elif msg.op is InitOp.PROBE_LAST:
-            saved = (self.in_drive, self.out_drive)
-            self.in_drive, self.out_drive = True, False
-            self.bus.at(settle, self._probe(InitAckKind.LAST))
+            # first: drive the output, look at the input; last: the other way round
+            self.in_drive, self.out_drive = not first, first
+            self.bus.at(settle, self._probe(InitAckKind.FIRST if first else InitAckKind.LAST))
             self.bus.at(settle + 1.0, self._restore_pins(saved))
 
     def _claim_if_first(self, number: int) -> Callable[[float], None]:
@@ -344,7 +332,7 @@ class VirtualBoard:
             words = self.read_memory(msg.space, msg.address, msg.count)
             if words is None:
                 self.error(t, ErrorCode.UNMAPPED_ADDRESS, Function.REPORT_REQUEST,
-                            (msg.space << 16) | msg.address, via_fixed)
+                           (msg.space << 16) | msg.address, via_fixed)
                 return
             for i in range(0, len(words), 3):
                 self.send(t, m.MemoryReport(msg.address + i, tuple(words[i:i + 3])),
@@ -369,13 +357,12 @@ class VirtualBoard:
         if target is Target.EXTRAM:
             if self.extram is None:
                 return None
-            start = DESCRIPTOR_ADDRESS - self.nv.p.base
-            words = list(self.extram[Space.P][start:start + DESCRIPTOR_WORDS])
+            memory = self.extram[Space.P]
+        elif self.nv.record.flash_valid:
+            memory = self.nv.p
         else:
-            if not self.nv.record.flash_valid:
-                return None
-            words = list(self.nv.p.read(DESCRIPTOR_ADDRESS, DESCRIPTOR_WORDS))
-        return ImageDescriptor.from_words(words)
+            return None
+        return ImageDescriptor.from_words(list(memory.read(DESCRIPTOR_ADDRESS, DESCRIPTOR_WORDS)))
 
     def pins(self) -> dict[str, bool]:
         pos = self.identity.position
@@ -410,9 +397,8 @@ class VirtualBoard:
     def info(self) -> BoardInfo:
         rec = self.nv.record
         ext = self.extram_meta
-        show_ext = ext is not None and (self.state is BoardState.RUNNING_EXTRAM
-                                        or self.state is not BoardState.RUNNING_FLASH)
-        if show_ext and ext is not None:
+        # the running program, else a loaded ExtRAM program, else the flash program
+        if ext is not None and self.state is not BoardState.RUNNING_FLASH:
             progid, size, name, entry, date = ext
             target = Target.EXTRAM
         else:
@@ -424,8 +410,7 @@ class VirtualBoard:
         except FrameError:
             desc, corrupt = None, True
         if desc is not None:
-            desc = ImageDescriptor(desc.board_id, desc.app_id, desc.fpga_major, desc.fpga_minor,
-                                   desc.version, "")
+            desc = replace(desc, name="")  # the name does not travel in Info
         fpga = self.fpga
         return BoardInfo(self.state, rec.autostart, self.prog_enable, rec.flash_valid,
                          self.extram is not None, self.seq_id, self.identity.fixed_id,
@@ -442,7 +427,7 @@ class VirtualBoard:
             return
         if self.application is not None or self.reception is not None:
             self.error(t, ErrorCode.RUNNING if self.application else ErrorCode.BUSY,
-                        Function.START, target, via_fixed)
+                       Function.START, target, via_fixed)
             return
         valid = self.nv.record.flash_valid if target is Target.FLASH else self.extram is not None
         if not valid:

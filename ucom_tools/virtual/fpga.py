@@ -113,6 +113,3 @@ class ExternalMemory:
             self.fpga.write(address, value)
         else:
             self.ram[address] = value & 0xFFFF
-
-    def clear_ram(self) -> None:
-        self.ram.clear()

@@ -57,9 +57,19 @@ class Memory:
         self.words[start:start + len(values)] = values
         return ok
 
+    def write(self, address: int, values: array) -> None:
+        """Store words as RAM does (no flash semantics)."""
+        start = address - self.base
+        self.words[start:start + len(values)] = values
+
     def read(self, address: int, count: int) -> array:
         start = address - self.base
         return self.words[start:start + count]
+
+
+def external_ram() -> dict[Space, Memory]:
+    """Empty external RAM for an ExtRAM program, mapped like flash (P: and X:)."""
+    return {Space.P: Memory(0, P_WORDS), Space.X: Memory(X_FLASH_START, X_WORDS)}
 
 
 class NonVolatile:

@@ -9,10 +9,9 @@ Program Finished, committing the program only when it verified.
 
 from __future__ import annotations
 
-import sys
-from array import array
 from typing import TYPE_CHECKING
 
+from ucom_tools.virtual.nvmem import external_ram
 from ucom_tools.virtual.receiver import Reception, RejectedBlock
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import (
@@ -25,6 +24,7 @@ from ucom_tools.wire.codes import (
     Target,
 )
 from ucom_tools.wire.ids import Function
+from ucom_tools.wire.transfer import bytes_to_words
 
 if TYPE_CHECKING:
     from ucom_tools.virtual.board import VirtualBoard
@@ -68,12 +68,10 @@ class BoardProgramming:
         elif isinstance(msg, m.ProgramPrepare):
             b.state = BoardState.ERASING
             if rx.target is Target.EXTRAM:
-                rx.extram = {Space.P: array("H", [0xFFFF]) * len(b.nv.p.words),
-                             Space.X: array("H", [0xFFFF]) * len(b.nv.x.words)}
+                rx.extram = external_ram()
             else:
                 for space, page in rx.erase_pages:
                     b.nv.erase_page(space, page)
-            rx.erased = False
             done = t + rx.erase_time()
             b.bus.at(done, self.erased)
         elif isinstance(msg, m.ProgramBlock):
@@ -86,7 +84,7 @@ class BoardProgramming:
                 b.error(t, err.code, _PROGRAM, err.detail)
         elif isinstance(msg, m.ProgramEnd):
             b.bus.at(max(t, rx.free_at) + rx.size_hint() * b.timing.verify_word_us,
-                        self.finish)
+                     self.finish)
 
     def erased(self, t: float) -> None:
         b = self.board
@@ -97,7 +95,7 @@ class BoardProgramming:
         rx.free_at = t
         b.state = BoardState.RECEIVING
         b.send(t, m.Ready(ReadyReason.ERASED, b.state, b.timing.rx_capacity,
-                             int(rx.frame_cost + 0.999)))
+                          int(rx.frame_cost + 0.999)))
 
     def data(self, data: bytes, t: float) -> None:
         b = self.board
@@ -113,25 +111,19 @@ class BoardProgramming:
             block = rx.current
             rx.current = None
             if not rx.skip_current:
-                words = array("H")
-                words.frombytes(payload)
-                if sys.byteorder == "big":
-                    words.byteswap()
+                words = bytes_to_words(payload)
                 if rx.target is Target.FLASH:
                     if not b.nv.space(block.space).program(block.address, words):
                         rx.failed_words += 1
                 else:
-                    base = b.nv.space(block.space).base
-                    ext = rx.extram[block.space]
-                    ext[block.address - base:block.address - base + len(words)] = words
+                    rx.extram[block.space].write(block.address, words)
                 rx.received[block.index] = (block.space, block.address, len(words))
         if rx.paused or rx.free_at - t < b.timing.high_water * rx.frame_cost:
             return
         backlog = rx.backlog(t)
         if backlog >= b.timing.high_water:
             rx.paused = True
-            b.send(t + b.timing.reply_us, m.Ready(ReadyReason.PAUSE, b.state,
-                                                        int(backlog)))
+            b.send(t + b.timing.reply_us, m.Ready(ReadyReason.PAUSE, b.state, int(backlog)))
             b.bus.at(rx.free_at - b.timing.low_water * rx.frame_cost, self.maybe_resume)
 
     def maybe_resume(self, t: float) -> None:
@@ -150,14 +142,8 @@ class BoardProgramming:
         rx = b.reception
         if rx is None or not b.powered:
             return
-        read = {}
-        for index, (space, address, nwords) in rx.received.items():
-            if rx.target is Target.FLASH:
-                read[index] = b.nv.space(space).read(address, nwords)
-            else:
-                base = b.nv.space(space).base
-                read[index] = rx.extram[space][address - base:address - base + nwords]
-        result, missing = rx.result(read)
+        memory = rx.extram if rx.target is Target.EXTRAM else {s: b.nv.space(s) for s in Space}
+        result, missing = rx.result(memory)
         b.overruns += rx.overruns
         rx.overruns = 0
         if result.status is ResultStatus.VERIFIED:

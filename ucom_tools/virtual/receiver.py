@@ -10,15 +10,13 @@ block is reported missing at END.
 
 from __future__ import annotations
 
-import sys
-import zlib
-from array import array
 from dataclasses import dataclass, field
 
 from ucom_tools.memory import PROTECTED_KINDS, Kind, first_unprogrammable, page_refusal
+from ucom_tools.virtual.nvmem import Memory
 from ucom_tools.wire.codes import ErrorCode, MetaField, ResultStatus, Space, Target
 from ucom_tools.wire.messages import ProgramBlock, ProgramErase, ProgramMissing, ProgramResult
-from ucom_tools.wire.transfer import PAGE_WORDS, WORDS_PER_FRAME
+from ucom_tools.wire.transfer import PAGE_WORDS, WORDS_PER_FRAME, Block, progid_of_blocks
 
 
 @dataclass(frozen=True)
@@ -36,14 +34,6 @@ class Timing:
     rx_capacity: int = 128
     high_water: int = 96
     low_water: int = 32
-
-
-def words_le(words: array) -> bytes:
-    """Words as bytes, low byte first (the order of the CAN data frames)."""
-    if sys.byteorder == "big":
-        words = array("H", words)
-        words.byteswap()
-    return words.tobytes()
 
 
 class RejectedBlock(Exception):
@@ -76,8 +66,9 @@ class Reception:
     paused: bool = False
     overruns: int = 0
     failed_words: int = 0
-    extram: dict[Space, array] = field(default_factory=dict)
+    extram: dict[Space, Memory] = field(default_factory=dict)
     frame_cost: float = field(init=False, default=0.0)
+    """Microseconds the board needs to store one data frame."""
 
     # ---------------------------------------------------------------- erase list
     def add_erase(self, frame: ProgramErase) -> None:
@@ -96,7 +87,6 @@ class Reception:
         t = self.timing
         self.frame_cost = (t.extram_frame_us if self.target is Target.EXTRAM
                            else WORDS_PER_FRAME * t.word_program_us + t.frame_overhead_us)
-        """Microseconds the board needs to store one data frame."""
 
     # ---------------------------------------------------------------- blocks
     def open_block(self, block: ProgramBlock) -> None:
@@ -168,20 +158,21 @@ class Reception:
         raw = self.meta.get(MetaField.PROGID)
         return int.from_bytes(raw, "big") if raw else -1
 
-    def result(self, read: dict[int, array]) -> tuple[ProgramResult, list[ProgramMissing]]:
-        """Verify what was stored (``read``: block index -> words read back)."""
+    def result(self, memory: dict[Space, Memory]) -> tuple[ProgramResult, list[ProgramMissing]]:
+        """Verify what was stored: read every block back from ``memory`` and compute its
+        ProgID the way the host did (:func:`~ucom_tools.wire.transfer.progid_of_blocks`)."""
         missing = self.missing_runs()
         if missing:
             n = sum(r.count for r in missing)
             return ProgramResult(ResultStatus.MISSING, min(n, 0xFFFF), 0), missing[:8]
         if self.failed_words:
             return ProgramResult(ResultStatus.FLASH_FAILURE, 0, 0), []
-        crc = 0
+        stored = []
         for index in range(self.blocks_total):
             space, address, nwords = self.received[index]
-            head = bytes((space,)) + address.to_bytes(2, "big") + nwords.to_bytes(2, "big")
-            crc = zlib.crc32(head + words_le(read[index]), crc)
-        progid = crc & 0xFFFFFFFF
+            stored.append(Block(index, space, address,
+                                tuple(memory[space].read(address, nwords))))
+        progid = progid_of_blocks(stored)
         status = (ResultStatus.VERIFIED if progid == self.expected_progid()
                   else ResultStatus.PROGID_MISMATCH)
         return ProgramResult(status, 0, progid), []

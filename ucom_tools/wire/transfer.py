@@ -36,6 +36,23 @@ VECTOR_WORDS = range(0x0000, 0x0004)
 DATE_EPOCH = datetime(2000, 1, 1, tzinfo=UTC)
 
 
+def words_to_bytes(words: Iterable[int]) -> bytes:
+    """16-bit words as CAN data bytes, low byte first."""
+    raw = array("H", words)
+    if sys.byteorder == "big":
+        raw.byteswap()
+    return raw.tobytes()
+
+
+def bytes_to_words(data: bytes) -> array:
+    """CAN data bytes (low byte first) as 16-bit words."""
+    words = array("H")
+    words.frombytes(data)
+    if sys.byteorder == "big":
+        words.byteswap()
+    return words
+
+
 @dataclass(frozen=True, slots=True)
 class Block:
     """One unit of the transfer: ``len(words)`` words from ``space:address``."""
@@ -55,10 +72,7 @@ class Block:
 
     def payload(self) -> bytes:
         """The block's words as CAN data bytes, low byte first."""
-        raw = array("H", self.words)
-        if sys.byteorder == "big":
-            raw.byteswap()
-        return raw.tobytes()
+        return words_to_bytes(self.words)
 
     def header(self) -> ProgramBlock:
         return ProgramBlock(self.space, self.address, self.frames, self.index)
