@@ -19,6 +19,7 @@ from ucom_tools.ops.flash import FlashResult, Selection, flash
 from ucom_tools.ops.robot import ConnectSpec, Robot
 from ucom_tools.protocol.programmer import Cancelled
 from ucom_tools.wire.codes import StatusOp, Target
+from ucom_tools.wire.ids import IdType
 
 BOARD = "BOARD is a seq ID (1-31), F<n> for a fixed ID, or 'all'; BUS:<n> picks one bus."
 
@@ -414,7 +415,7 @@ def _program_command(name: str, target: Target, doc: str) -> click.Command:
         img = _image(image)
         if ref.is_all:
             selection = Selection("enabled")
-        elif ref.address.id_type.name == "FIXED":
+        elif ref.address.id_type is IdType.FIXED:
             raise InputError("program by seq ID (run init first); fixed IDs are not used for "
                              "programming", key="BOARD")
         else:

@@ -66,7 +66,7 @@ def enumerate_bus(handle: BusHandle, *, with_info: bool = True) -> BusEnumeratio
     infos = client.info_many(ALL) if with_info and result.acks else {}
     firsts = client.probe() if result.acks else []
     expected = handle.expected
-    by_serial = _expected_serials(expected, trust=handle.virtual)
+    by_serial = expected_positions(handle)
     seen: set[int] = set()
     boards = []
     for ack in result.acks:
@@ -90,10 +90,13 @@ def enumerate_bus(handle: BusHandle, *, with_info: bool = True) -> BusEnumeratio
                           tuple(diagnosis))
 
 
-def _expected_serials(expected: BusSpec | None, *, trust: bool) -> dict[int, int]:
-    if expected is None:
+def expected_positions(handle: BusHandle) -> dict[int, int]:
+    """Serial number -> chain position of the boards the topology lets us recognise: all of
+    a virtual fleet, and those of a real robot whose topology gives their serial."""
+    if handle.expected is None:
         return {}
-    return {b.serial: b.position for b in expected.boards if trust or b.serial_explicit}
+    return {b.serial: b.position for b in handle.expected.boards
+            if handle.virtual or b.serial_explicit}
 
 
 def _where(expected: BusSpec, pos: int) -> str:

@@ -12,13 +12,13 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
-from ucom_tools.errors import UcomTimeoutError
+from ucom_tools.errors import InputError, UcomTimeoutError
 from ucom_tools.image import Image
 from ucom_tools.ops.boards import NotInitialised
 from ucom_tools.ops.compat import compare
-from ucom_tools.ops.enumerate import BusEnumeration, enumerate_bus
+from ucom_tools.ops.enumerate import BusEnumeration, enumerate_bus, expected_positions
 from ucom_tools.ops.robot import BusHandle, Robot
 from ucom_tools.protocol.programmer import Programmer
 from ucom_tools.wire import messages as m
@@ -42,7 +42,6 @@ class Selection:
 
     @classmethod
     def parse(cls, text: str) -> Selection:
-        from ucom_tools.errors import InputError
         if text.strip().lower() == "all":
             return cls("all")
         try:
@@ -153,7 +152,7 @@ class _Job:
             errors = [f for f in findings if f.severity == "error"]
             notes = [f"warning: {f.message}" for f in findings if f.severity != "error"]
             if errors and not self.force:
-                serial, placement = placements.get(n, (present[n].serial, None))
+                serial, placement = placements[n]
                 why = "; ".join(f"{f.field}: expected {f.expected}, found {f.found} ({f.message})"
                                 for f in errors)
                 results[n] = BoardResult(h.name, n, serial, placement, "refused", None,
@@ -165,9 +164,10 @@ class _Job:
             keep.append(n)
         return keep, warnings
 
-    def run(self, h: BusHandle) -> BusFlash:
-        enum = None
-        placements: dict[int, tuple[int, str | None]] = {}
+    def _survey(self, h: BusHandle) -> BusFlash | tuple[
+            BusEnumeration | None, dict[Address, BoardInfo], dict[int, tuple[int, str | None]]]:
+        """Who is on the bus (with a fresh init chain, or the numbers the boards have), and
+        where; a faulty chain ends the job for this bus."""
         if self.init:
             enum = enumerate_bus(h)
             if any(b.duplicate for b in enum.boards) or any(
@@ -178,27 +178,32 @@ class _Job:
                              for b in enum.boards)
                 return BusFlash(h.name, rows, enum, 0, 0, "init chain faulty")
             infos = {seq(b.seq_id): b.info for b in enum.boards if b.info is not None}
-            placements = {b.seq_id: (b.serial, b.placement) for b in enum.boards}
-        else:
-            infos = h.client.info_many(ALL)
-            if not infos:
-                raise NotInitialised(
-                    f"{h.name}: no board has a seq ID yet. Programming (option 5) works only "
-                    "after a successful init chain (option 2): run 'ucom init' first, or use "
-                    "'ucom flash', which runs it.")
-            firsts = h.client.probe()
-            if len(firsts) > 1:
-                serials = ", ".join(f"0x{a.serial:08X}" for a in firsts)
-                rows = tuple(_fail(h.name, a.number, inf.serial, None,
-                                   "not programmed: the init chain is faulty (Get First: "
-                                   f"{len(firsts)} boards answer, serials {serials}); two "
-                                   "boards may share this seq ID")
-                             for a, inf in sorted(infos.items(), key=lambda kv: kv[0].number))
-                return BusFlash(h.name, rows, None, 0, 0, "init chain faulty")
-            known = {b.serial: b.placement for b in (h.expected.boards if h.expected else ())
-                     if h.virtual or b.serial_explicit}
-            placements = {a.number: (inf.serial, known.get(inf.serial))
-                          for a, inf in infos.items() if a.id_type is IdType.SEQUENTIAL}
+            return enum, infos, {b.seq_id: (b.serial, b.placement) for b in enum.boards}
+        infos = h.client.info_many(ALL)
+        if not infos:
+            raise NotInitialised(
+                f"{h.name}: no board has a seq ID yet. Programming (option 5) works only "
+                "after a successful init chain (option 2): run 'ucom init' first, or use "
+                "'ucom flash', which runs it.")
+        firsts = h.client.probe()
+        if len(firsts) > 1:
+            serials = ", ".join(f"0x{a.serial:08X}" for a in firsts)
+            rows = tuple(_fail(h.name, a.number, inf.serial, None,
+                               "not programmed: the init chain is faulty (Get First: "
+                               f"{len(firsts)} boards answer, serials {serials}); two "
+                               "boards may share this seq ID")
+                         for a, inf in sorted(infos.items(), key=lambda kv: kv[0].number))
+            return BusFlash(h.name, rows, None, 0, 0, "init chain faulty")
+        boards = h.expected.boards if h.expected is not None else ()
+        known = {serial: boards[pos].placement for serial, pos in expected_positions(h).items()}
+        return None, infos, {a.number: (inf.serial, known.get(inf.serial))
+                             for a, inf in infos.items() if a.id_type is IdType.SEQUENTIAL}
+
+    def run(self, h: BusHandle) -> BusFlash:
+        survey = self._survey(h)
+        if isinstance(survey, BusFlash):
+            return survey
+        enum, infos, placements = survey
         present = {a.number: inf for a, inf in infos.items()
                    if a.id_type is IdType.SEQUENTIAL}
         if self.selection.kind == "all":
@@ -232,7 +237,7 @@ class _Job:
             frames, rounds = transfer.frames_sent, transfer.rounds
             for n in enabled:
                 o = transfer.outcomes[seq(n)]
-                serial, placement = placements.get(n, (present[n].serial, None))
+                serial, placement = placements[n]
                 detail = o.status + ("; " + "; ".join(o.errors) if o.errors and not o.verified
                                      else "")
                 results[n] = BoardResult(h.name, n, serial, placement,
@@ -247,7 +252,7 @@ class _Job:
             for n in verified:
                 ok = h.client.set_status(seq(n), StatusOp.AUTOSTART, 1)
                 r = results[n]
-                results[n] = _replace(r, autostart=bool(ok and ok[0].ok))
+                results[n] = replace(r, autostart=bool(ok and ok[0].ok))
         if self.start and verified:
             for n in verified:
                 answers = h.client.start(seq(n), self.plan.target)
@@ -255,7 +260,7 @@ class _Job:
                 started = bool(answers) and answers[0].ok
                 texts = tuple(e.describe() for a in answers for e in a.errors) + tuple(
                     t for a in answers for t in a.reports)
-                results[n] = _replace(r, started=started, messages=r.messages + texts)
+                results[n] = replace(r, started=started, messages=r.messages + texts)
         return BusFlash(h.name, tuple(results[n] for n in sorted(results)), enum, frames,
                         rounds)
 
@@ -284,7 +289,7 @@ class _Job:
                                                   "refused ProgEnable: " + r.message.describe())
         for n in targets:
             if n not in ok and n not in results:
-                serial, placement = placements.get(n, (present[n].serial, None))
+                serial, placement = placements[n]
                 results[n] = _fail(h.name, n, serial, placement, "did not acknowledge ProgEnable")
         return [n for n in targets if n in ok]
 
@@ -295,20 +300,15 @@ class _Job:
             try:
                 inf = h.client.info(Address(IdType.SEQUENTIAL, n))
             except UcomTimeoutError:
-                results[n] = _replace(r, outcome="failed",
+                results[n] = replace(r, outcome="failed",
                                       detail="verified, but the Info read-back timed out")
                 continue
             valid = inf.flash_valid if self.plan.target is Target.FLASH else inf.extram_valid
             if not valid or inf.progid != self.plan.progid:
-                results[n] = _replace(r, outcome="failed", detail=(
+                results[n] = replace(r, outcome="failed", detail=(
                     f"Info read-back shows ProgID 0x{inf.progid:08X}, valid={valid}"))
 
 
 def _fail(bus: str, n: int, serial: int | None, placement: str | None,
           detail: str) -> BoardResult:
     return BoardResult(bus, n, serial, placement, "failed", None, detail)
-
-
-def _replace(r: BoardResult, **changes: object) -> BoardResult:
-    from dataclasses import replace
-    return replace(r, **changes)  # type: ignore[arg-type]

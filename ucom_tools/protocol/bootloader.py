@@ -88,6 +88,15 @@ class StartResult:
         return self.started and not self.errors
 
 
+@dataclass
+class _Started:
+    """What one board has said so far after Start."""
+
+    started: bool = False
+    errors: list[m.Error] = field(default_factory=list)
+    state: BoardState | None = None
+
+
 class BootloaderClient:
     """Bootloader services on one bus."""
 
@@ -218,7 +227,7 @@ class BootloaderClient:
         """Start a program and gather what each board says: Ready(STARTED), the program's
         compatibility verdict (Error, text reports) and a reset that may follow."""
         self.link.send(m.Start(target), address)
-        seen: dict[Address, dict[str, object]] = {}
+        seen: dict[Address, _Started] = {}
         for got in self.link.messages(self.timeouts.reply):
             self._absorb(got)
             msg = got.message
@@ -226,26 +235,17 @@ class BootloaderClient:
                 continue
             if isinstance(msg, m.Ready) and msg.reason in (ReadyReason.STARTED,
                                                            ReadyReason.BOOT):
-                e = seen.setdefault(got.address, {"started": False, "errors": [], "state": None})
-                e["started"] = bool(e["started"]) or msg.reason is ReadyReason.STARTED
-                e["state"] = msg.state
+                s = seen.setdefault(got.address, _Started())
+                s.started |= msg.reason is ReadyReason.STARTED
+                s.state = msg.state
             elif isinstance(msg, m.Error):
-                e = seen.setdefault(got.address, {"started": False, "errors": [], "state": None})
-                errors = e["errors"]
-                assert isinstance(errors, list)
-                errors.append(msg)
-                if e["started"]:
-                    e["state"] = BoardState.BOOTLOADER  # the program ended or aborted
+                s = seen.setdefault(got.address, _Started())
+                s.errors.append(msg)
+                if s.started:
+                    s.state = BoardState.BOOTLOADER  # the program ended or aborted
         texts = self.take_texts()
-        out = []
-        for a, e in sorted(seen.items(), key=lambda kv: (kv[0].id_type, kv[0].number)):
-            errors = e["errors"]
-            state = e["state"]
-            assert isinstance(errors, list)
-            assert state is None or isinstance(state, BoardState)
-            out.append(StartResult(a, bool(e["started"]), tuple(errors),
-                                   tuple(texts.get(a, ())), state))
-        return out
+        return [StartResult(a, s.started, tuple(s.errors), tuple(texts.get(a, ())), s.state)
+                for a, s in sorted(seen.items(), key=lambda kv: (kv[0].id_type, kv[0].number))]
 
     def status(self, address: Address) -> m.StatusReport:
         self.link.send(m.ReportRequest(ReportChannel.STATUS), address)
