@@ -15,13 +15,13 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from ucom_tools.config.topology import parse  # noqa: E402
 from ucom_tools.image import load_image  # noqa: E402
 from ucom_tools.protocol.bootloader import BootloaderClient  # noqa: E402
 from ucom_tools.protocol.link import Link  # noqa: E402
 from ucom_tools.protocol.programmer import Programmer  # noqa: E402
 from ucom_tools.virtual.canbus import VirtualUcomBus  # noqa: E402
 from ucom_tools.virtual.fleet import Fleet  # noqa: E402
-from ucom_tools.virtual.topology import parse  # noqa: E402
 from ucom_tools.wire.canbits import payload_rate  # noqa: E402
 from ucom_tools.wire.codes import StatusOp  # noqa: E402
 from ucom_tools.wire.ids import ALL, seq  # noqa: E402

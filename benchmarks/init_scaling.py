@@ -16,12 +16,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from ucom_tools.config.topology import parse  # noqa: E402
 from ucom_tools.protocol.bootloader import BootloaderClient  # noqa: E402
 from ucom_tools.protocol.link import Link  # noqa: E402
 from ucom_tools.protocol.timeouts import DEFAULT  # noqa: E402
 from ucom_tools.virtual.canbus import VirtualUcomBus  # noqa: E402
 from ucom_tools.virtual.fleet import Fleet  # noqa: E402
-from ucom_tools.virtual.topology import parse  # noqa: E402
 
 
 def run(n: int) -> tuple[float, float, int]:

@@ -6,12 +6,12 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
+from ucom_tools.config.topology import parse
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.virtual import fleet as fleet_mod
 from ucom_tools.virtual.canbus import VirtualUcomBus
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.topology import parse
 
 
 @pytest.fixture(autouse=True)

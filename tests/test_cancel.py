@@ -28,7 +28,7 @@ def test_cancel_aborts_the_transfer_and_boards_stay_in_their_bootloader() -> Non
         with pytest.raises(Cancelled):
             flash(robot, image, bus="CAN0", progress=progress, cancel=cancel)
         h = robot.buses["CAN0"]
-        assert robot.fleet.buses["CAN0"].stats.by_function[11] < 12288 // 4
+        assert robot.buses["CAN0"].bus.sim.stats.by_function[11] < 12288 // 4
         for n in (1, 2, 3):
             info = h.client.info(seq(n))
             assert not info.flash_valid and info.state is BoardState.BOOTLOADER

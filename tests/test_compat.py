@@ -64,7 +64,7 @@ def test_start_policy_through_real_frames() -> None:
         image = load_image(ARMAR)
         assert flash(robot, image, force=True).all_verified
         client = robot.buses["CAN1"].client
-        boards = robot.fleet.boards["CAN1"]
+        boards = robot.buses["CAN1"].bus.fleet.boards["CAN1"]
         ok, swapped, app, major, minor = (client.start(seq(n))[0] for n in range(1, 6))
         assert ok.ok and ok.state is BoardState.RUNNING_FLASH
         assert not any("warning" in t for t in ok.reports)
@@ -96,9 +96,9 @@ def test_a_major_mismatch_with_autostart_does_not_loop(tmp_path: Path) -> None:
     # power-up: AutoStart starts the program, which aborts and resets once, then stays put
     robot = open_robot(robot_spec)
     try:
-        sim = robot.fleet.buses["CAN1"]
+        sim = robot.buses["CAN1"].bus.sim
         sim.run_until(sim.now + 100_000)
-        board = robot.fleet.boards["CAN1"][3]
+        board = robot.buses["CAN1"].bus.fleet.boards["CAN1"][3]
         assert board.state is BoardState.BOOTLOADER and board.application is None
         # quiet: nothing left to happen (a reset loop always has its next reset scheduled;
         # the board has no number yet, so a loop would send no frames to count)

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
+from ucom_tools.config import topology
 from ucom_tools.errors import TopologyError
-from ucom_tools.virtual import topology
 
 
 @pytest.mark.parametrize("name, buses", [

@@ -10,8 +10,8 @@ from typing import Any
 
 import click
 
+from ucom_tools.config.topology import BUNDLED
 from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot
-from ucom_tools.virtual.topology import BUNDLED
 
 
 def connection_options(f: Callable[..., Any]) -> Callable[..., Any]:

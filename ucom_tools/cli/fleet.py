@@ -11,9 +11,9 @@ from rich.table import Table
 
 from ucom_tools.boards import board_name
 from ucom_tools.cli.output import emit_json, err, leds, out
+from ucom_tools.config.topology import BUNDLED
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.virtual.socketcand import DEFAULT_PORT, FleetServer, serve_until_interrupted
-from ucom_tools.virtual.topology import BUNDLED
 
 TOPOLOGY_HELP = f"a bundled topology ({', '.join(BUNDLED)}) or a topology file (TOML)"
 

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ucom_tools.config.topology import BusSpec
 from ucom_tools.ops.robot import BusHandle
 from ucom_tools.protocol.bootloader import ChainAck, InitResult
-from ucom_tools.virtual.topology import BusSpec
 from ucom_tools.wire.ids import ALL, seq
 from ucom_tools.wire.info import BoardInfo
 

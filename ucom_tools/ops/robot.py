@@ -11,12 +11,12 @@ from typing import Any
 
 import can
 
-from ucom_tools.errors import BusError, InputError
+from ucom_tools.config import topology as topo_mod
+from ucom_tools.config.topology import BusSpec, Topology
+from ucom_tools.errors import BusError, InputError, UcomError
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
-from ucom_tools.virtual import topology as topo_mod
-from ucom_tools.virtual.topology import BusSpec, Topology
 
 
 @dataclass(frozen=True)
@@ -59,7 +59,6 @@ class Robot:
     spec: ConnectSpec
     buses: dict[str, BusHandle]
     topology: Topology | None
-    fleet: Any = None
     timeouts: Timeouts = field(default=DEFAULT)
 
     def select(self, name: str | None) -> list[BusHandle]:
@@ -73,8 +72,6 @@ class Robot:
         for h in self.buses.values():
             with contextlib.suppress(Exception):
                 h.bus.shutdown()
-        if self.fleet is not None:
-            self.fleet.close()
 
 
 def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:
@@ -131,19 +128,30 @@ def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:
 
 
 def _open_virtual(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
-    from ucom_tools.virtual.canbus import VirtualUcomBus
-    from ucom_tools.virtual.fleet import Fleet
-
+    """The virtual fleet through python-can's registered ``ucom_virtual`` interface: one
+    process-wide fleet per topology, shared by its buses and released with the last."""
     assert spec.virtual is not None
     topology = topo_mod.load(spec.virtual)
-    fleet = Fleet(topology, state_dir=spec.state_dir, realtime=spec.pace)
-    buses = {}
-    for b in topology.buses:
-        bus = VirtualUcomBus(b.name, fleet=fleet)
-        link = Link(bus, b.name)
-        buses[b.name] = BusHandle(b.name, bus, link, BootloaderClient(link, timeouts), b,
-                                  virtual=True)
-    return Robot(spec, buses, topology, fleet=fleet, timeouts=timeouts)
+    buses: dict[str, BusHandle] = {}
+    try:
+        for b in topology.buses:
+            try:
+                bus = can.Bus(interface="ucom_virtual", channel=f"{spec.virtual}/{b.name}",
+                              state_dir=spec.state_dir, realtime=spec.pace)
+            except can.CanError as err:
+                if isinstance(err.__cause__, UcomError):
+                    raise err.__cause__ from None
+                raise BusError(f"cannot open the virtual bus {b.name}: {_one_line(err)}") \
+                    from err
+            link = Link(bus, b.name)
+            buses[b.name] = BusHandle(b.name, bus, link, BootloaderClient(link, timeouts), b,
+                                      virtual=True)
+    except BaseException:
+        for h in buses.values():
+            with contextlib.suppress(Exception):
+                h.bus.shutdown()
+        raise
+    return Robot(spec, buses, topology, timeouts=timeouts)
 
 
 def _reach_socketcand(host: str | None, port: int | None) -> None:

@@ -13,12 +13,13 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ucom_tools.boards import PLUG_ON_BOARDS
+from ucom_tools.config.topology import Timing
 from ucom_tools.errors import FrameError
 from ucom_tools.virtual.application import DspProgram
 from ucom_tools.virtual.fpga import ExternalMemory, VirtualFpga
 from ucom_tools.virtual.nvmem import Memory, NonVolatile
 from ucom_tools.virtual.programming import BoardProgramming
-from ucom_tools.virtual.receiver import Reception, Timing
+from ucom_tools.virtual.receiver import Reception
 from ucom_tools.virtual.simbus import SimBus
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import (

@@ -21,7 +21,7 @@ from typing import Any
 import can
 
 from ucom_tools.errors import UcomError
-from ucom_tools.virtual.fleet import Fleet, shared_fleet
+from ucom_tools.virtual.fleet import Fleet, release_shared, shared_fleet
 from ucom_tools.virtual.simbus import SimBus
 
 INF = float("inf")
@@ -69,6 +69,7 @@ class VirtualUcomBus(can.BusABC):
                  realtime: bool = False, receive_own_messages: bool = False,
                  **kwargs: Any) -> None:
         name = str(channel or "")
+        self._shared = fleet is None
         if fleet is None:
             if topology is None:
                 if "/" not in name:
@@ -88,6 +89,8 @@ class VirtualUcomBus(can.BusABC):
         try:
             self.sim = fleet.bus(name)
         except UcomError as err:
+            if self._shared:
+                release_shared(fleet)
             raise can.CanInitializationError(str(err)) from err
         self.fleet = fleet
         self.realtime = fleet.realtime
@@ -161,5 +164,9 @@ class VirtualUcomBus(can.BusABC):
         return (got[0], False) if got else (None, False)
 
     def shutdown(self) -> None:
+        if self._is_shutdown:
+            return
         self.sim.detach(self.port)
+        if self._shared:
+            release_shared(self.fleet)
         super().shutdown()

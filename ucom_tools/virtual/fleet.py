@@ -13,12 +13,12 @@ from pathlib import Path
 from typing import Any
 
 from ucom_tools.boards import PLUG_ON_BOARDS
+from ucom_tools.config import topology as topo
+from ucom_tools.config.topology import BoardSpec, Topology
 from ucom_tools.errors import TopologyError, UcomError
-from ucom_tools.virtual import topology as topo
 from ucom_tools.virtual.board import Identity, VirtualBoard
 from ucom_tools.virtual.clock import RealtimeDriver
 from ucom_tools.virtual.simbus import SimBus
-from ucom_tools.virtual.topology import BoardSpec, Topology
 
 
 class Fleet:
@@ -154,19 +154,40 @@ def install_program(board: VirtualBoard, spec: BoardSpec) -> None:
 
 
 _SHARED: dict[tuple[str, str, bool], Fleet] = {}
+_USERS: dict[tuple[str, str, bool], int] = {}
 _SHARED_LOCK = threading.Lock()
+
+
+def _key(name_or_path: str, state_dir: Path | None, realtime: bool) -> tuple[str, str, bool]:
+    return (name_or_path, str(state_dir or ""), realtime)
 
 
 def shared_fleet(name_or_path: str, state_dir: Path | None = None,
                  realtime: bool = False) -> Fleet:
-    """The process-wide fleet for a topology, so several bus objects share its boards."""
-    key = (name_or_path, str(state_dir or ""), realtime)
+    """The process-wide fleet for a topology, so several bus objects share its boards.
+
+    Each call counts as one user; :func:`release_shared` ends a use, and the fleet is
+    closed and forgotten when its last user is gone, so the next one powers up anew."""
+    key = _key(name_or_path, state_dir, realtime)
     with _SHARED_LOCK:
         fleet = _SHARED.get(key)
         if fleet is None:
             fleet = _SHARED[key] = Fleet.load(name_or_path, state_dir=state_dir,
                                               realtime=realtime)
+        _USERS[key] = _USERS.get(key, 0) + 1
         return fleet
+
+
+def release_shared(fleet: Fleet) -> None:
+    """One user of a shared fleet is done with it."""
+    with _SHARED_LOCK:
+        for key, f in list(_SHARED.items()):
+            if f is fleet:
+                _USERS[key] -= 1
+                if _USERS[key] <= 0:
+                    del _SHARED[key], _USERS[key]
+                    f.close()
+                return
 
 
 def forget_shared() -> None:
@@ -175,3 +196,4 @@ def forget_shared() -> None:
         for f in _SHARED.values():
             f.close()
         _SHARED.clear()
+        _USERS.clear()

@@ -12,28 +12,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from ucom_tools.config.topology import Timing
 from ucom_tools.memory import PROTECTED_KINDS, Kind, first_unprogrammable, page_refusal
 from ucom_tools.virtual.nvmem import Memory
 from ucom_tools.wire.codes import ErrorCode, MetaField, ResultStatus, Space, Target
 from ucom_tools.wire.messages import ProgramBlock, ProgramErase, ProgramMissing, ProgramResult
 from ucom_tools.wire.transfer import PAGE_WORDS, WORDS_PER_FRAME, Block, progid_of_blocks
-
-
-@dataclass(frozen=True)
-class Timing:
-    """Time constants of a virtual board (microseconds), overridable per topology."""
-
-    reply_us: float = 50.0
-    settle_us: float = 100.0
-    reset_us: float = 2000.0
-    page_erase_us: float = 20000.0
-    word_program_us: float = 20.0
-    frame_overhead_us: float = 10.0
-    extram_frame_us: float = 4.0
-    verify_word_us: float = 0.05
-    rx_capacity: int = 128
-    high_water: int = 96
-    low_water: int = 32
 
 
 class RejectedBlock(Exception):

@@ -18,11 +18,28 @@ from typing import Any
 
 from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.errors import TopologyError
-from ucom_tools.virtual.receiver import Timing
 from ucom_tools.wire.fpga import FpgaVersion
 
 BUNDLED = ("armar3", "lauron4", "kairo2", "odete", "puma200", "rosi")
 BITRATES = (10_000, 20_000, 50_000, 100_000, 125_000, 250_000, 500_000, 800_000, 1_000_000)
+
+
+@dataclass(frozen=True)
+class Timing:
+    """Time constants of a virtual board (microseconds), overridable per topology
+    (``[timing]``; ``man/ucom-protocol.7``, TIMEOUTS)."""
+
+    reply_us: float = 50.0
+    settle_us: float = 100.0
+    reset_us: float = 2000.0
+    page_erase_us: float = 20000.0
+    word_program_us: float = 20.0
+    frame_overhead_us: float = 10.0
+    extram_frame_us: float = 4.0
+    verify_word_us: float = 0.05
+    rx_capacity: int = 128
+    high_water: int = 96
+    low_water: int = 32
 
 
 @dataclass(frozen=True)
@@ -154,7 +171,7 @@ def _key_name(path: tuple[Any, ...], key: str) -> str:
 def resolve(name_or_path: str) -> tuple[str, str]:
     """(source name, text) of a bundled topology name or a topology file path."""
     if name_or_path in BUNDLED:
-        res = resources.files("ucom_tools.virtual") / "topologies" / f"{name_or_path}.toml"
+        res = resources.files("ucom_tools.config") / "topologies" / f"{name_or_path}.toml"
         return name_or_path, res.read_text(encoding="utf-8")
     path = Path(name_or_path)
     try:
