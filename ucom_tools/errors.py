@@ -25,16 +25,20 @@ class InputError(UcomError):
 
     def __init__(
         self, message: str, *, file: str | None = None, line: int | None = None,
-        key: str | None = None,
+        key: str | None = None, column: int | None = None,
     ) -> None:
         where = ""
         if file is not None:
-            where = file + (f":{line}" if line is not None else "") + ": "
+            where = file
+            if line is not None:
+                where += f":{line}" + (f":{column}" if column is not None else "")
+            where += ": "
         if key is not None:
             where += f"{key}: "
         super().__init__(where + message)
         self.file = file
         self.line = line
+        self.column = column
         self.key = key
         self.reason = message
 

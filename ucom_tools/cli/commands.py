@@ -10,7 +10,7 @@ import click
 from ucom_tools.cli import render
 from ucom_tools.cli.connect import connection_options, init_option, json_option, robot
 from ucom_tools.cli.main import EXIT_FAILED, EXIT_INTERRUPTED
-from ucom_tools.cli.output import emit_json, err, out
+from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.errors import InputError
 from ucom_tools.image import Image, load_image
 from ucom_tools.ops import boards as ops
@@ -33,7 +33,7 @@ def _rows(ctx: click.Context, rows: list[ops.Row], as_json: bool, title: str) ->
     if as_json:
         emit_json(render.rows_json(rows))
     else:
-        render.print_rows(out, rows, title)
+        render.print_rows(stdout(), rows, title)
     _finish(ctx, bool(rows) and all(r.ok for r in rows))
 
 
@@ -65,7 +65,7 @@ def reset_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, as_js
     if as_json:
         emit_json(render.rows_json(rows))
     else:
-        render.print_reset(out, rows, "Reset All")
+        render.print_reset(stdout(), rows, "Reset All")
 
 
 @click.command("xreset", help="Option 9, XReset: clear the AutoStart flag and reset "
@@ -82,7 +82,7 @@ def xreset_cmd(ctx: click.Context, board: str, spec: ConnectSpec, bus_name: str 
     if as_json:
         emit_json(render.rows_json(rows))
     else:
-        render.print_reset(out, rows, "XReset")
+        render.print_reset(stdout(), rows, "XReset")
 
 
 @click.command("reset-one")
@@ -122,7 +122,7 @@ def init_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, no_inf
         emit_json({"buses": [render.enumeration_json(e) for e in results]})
     else:
         for e in results:
-            render.print_enumeration(out, e)
+            render.print_enumeration(stdout(), e)
     _finish(ctx, all(e.ok for e in results))
 
 
@@ -148,9 +148,9 @@ def _info_out(ctx: click.Context, rows: list[ops.Row], as_json: bool, title: str
                                "detail": x.detail,
                                **(render.info_json(x.info) if x.info else {})} for x in rows]})
     elif rows:
-        render.print_infos(out, rows, title)
+        render.print_infos(stdout(), rows, title)
     else:
-        out.print(f"[yellow]{title}: no board answered[/]")
+        stdout().print(f"[yellow]{title}: no board answered[/]")
     _finish(ctx, bool(rows) and all(x.ok for x in rows))
 
 
@@ -245,9 +245,9 @@ def _pin_command(name: str, option: int, op: StatusOp, doc: str) -> click.Comman
             data["status"] = [{"bus": b, "pins": s.pins, "leds": s.leds} for b, s in status]
             emit_json(data)
         else:
-            render.print_rows(out, rows, f"{name} {board} {level}")
+            render.print_rows(stdout(), rows, f"{name} {board} {level}")
             for b, s in status:
-                out.print(f"{b} board {ref.address}: LEDs {render.status_leds(s)}")
+                stdout().print(f"{b} board {ref.address}: LEDs {render.status_leds(s)}")
         _finish(ctx, bool(rows) and all(x.ok for x in rows))
     return cmd
 
@@ -286,7 +286,7 @@ def _probe_command(name: str, last: bool, doc: str) -> click.Command:
         if as_json:
             emit_json(render.probe_json(results))
         else:
-            render.print_probe(out, results)
+            render.print_probe(stdout(), results)
         _finish(ctx, all(len(p.answers) == 1 for p in results))
     return cmd
 
@@ -305,10 +305,10 @@ def run_flash(r: Robot, image: Image, **kwargs: Any) -> FlashResult:
     cancel = threading.Event()
     box: dict[str, Any] = {}
     progress = None
-    if err.is_terminal:
+    if stderr().is_terminal:
         progress = Progress(TextColumn("{task.description}"), BarColumn(), DownloadColumn(),
                             TransferSpeedColumn(), TextColumn("{task.fields[boards]} board(s)"),
-                            console=err, transient=True)
+                            console=stderr(), transient=True)
         tasks: dict[str, Any] = {}
         lock = threading.Lock()
 
@@ -349,12 +349,12 @@ def _flash_out(ctx: click.Context, result: FlashResult, as_json: bool) -> None:
     if as_json:
         emit_json(render.flash_json(result))
     else:
-        render.print_flash(out, result)
+        render.print_flash(stdout(), result)
     if not result.all_verified or result.failed:
         names = ", ".join(f"{b.bus}:{b.seq_id}" + ("" if b.verified else " (not verified)")
                           + (" (did not start)" if b.verified and b.started is False else "")
                           for b in result.failed) or "no board found"
-        err.print(f"[red]failed: {names}[/]")
+        stderr().print(f"[red]failed: {names}[/]")
         ctx.exit(EXIT_FAILED)
 
 
@@ -393,7 +393,7 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
             result = run_flash(r, img, selection=selection, bus=bus_name, autostart=autostart,
                                start=start_after, verify=not no_verify, force=force)
         except (KeyboardInterrupt, Cancelled):
-            err.print("[yellow]flash cancelled: the boards dropped the transfer and keep no "
+            stderr().print("[yellow]flash cancelled: the boards dropped the transfer and keep no "
                       "startable program[/]")
             ctx.exit(EXIT_INTERRUPTED)
     _flash_out(ctx, result, as_json)
@@ -425,7 +425,7 @@ def _program_command(name: str, target: Target, doc: str) -> click.Command:
                 result = run_flash(r, img, selection=selection, bus=ref.bus or bus_name,
                                    target=target, init=False, force=force)
             except (KeyboardInterrupt, Cancelled):
-                err.print("[yellow]cancelled[/]")
+                stderr().print("[yellow]cancelled[/]")
                 ctx.exit(EXIT_INTERRUPTED)
         _flash_out(ctx, result, as_json)
     return cmd
@@ -459,7 +459,7 @@ def check_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, as_js
     if as_json:
         emit_json(render.check_json(rows))
     else:
-        render.print_check(out, rows)
+        render.print_check(stdout(), rows)
     _finish(ctx, bool(rows) and not any(x.failed for x in rows))
 
 

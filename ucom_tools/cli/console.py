@@ -22,7 +22,7 @@ from rich.markup import escape
 from ucom_tools.cli import render
 from ucom_tools.cli.commands import run_flash
 from ucom_tools.cli.connect import connection_options
-from ucom_tools.cli.output import err, out
+from ucom_tools.cli.output import stderr, stdout
 from ucom_tools.errors import InputError, UcomError
 from ucom_tools.image import Image, load_image
 from ucom_tools.ops import boards as ops
@@ -61,12 +61,12 @@ FORCE = Param("force", "'force' to program a board the image does not fit", True
 class Session:
     """One console session: the open buses, the loaded image, the init state."""
 
-    def __init__(self, robot: Robot, image: Image | None, *, console: RichConsole = out,
+    def __init__(self, robot: Robot, image: Image | None, *, console: RichConsole | None = None,
                  ask: Callable[[str], str] | None = None) -> None:
         self.robot = robot
         self.image = image
         self.bus: str | None = None
-        self.out = console
+        self.out = console or stdout()
         self.ask = ask or (lambda prompt: input(prompt))
         self.initialised: set[str] = set()
         self.dsp_list: list[ops.Row] = []
@@ -422,4 +422,4 @@ def console(image_path: str | None, spec: ConnectSpec, bus_name: str | None) -> 
             _scripted(session)
     finally:
         robot.close()
-    err.print("[dim]bye[/]")
+    stderr().print("[dim]bye[/]")

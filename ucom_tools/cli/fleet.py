@@ -10,7 +10,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from ucom_tools.boards import board_name
-from ucom_tools.cli.output import emit_json, err, leds, out
+from ucom_tools.cli.output import emit_json, leds, stderr, stdout
 from ucom_tools.config.topology import BUNDLED
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.virtual.socketcand import DEFAULT_PORT, FleetServer, serve_until_interrupted
@@ -39,8 +39,8 @@ def show(topology: str, state_dir: Path | None, as_json: bool) -> None:
         emit_json(snap)
         return
     total = sum(len(b["boards"]) for b in snap["buses"])
-    out.print(f"[bold]{escape(snap['topology'])}[/] - {escape(snap['description'])}")
-    out.print(f"{total} boards on {len(snap['buses'])} buses\n")
+    stdout().print(f"[bold]{escape(snap['topology'])}[/] - {escape(snap['description'])}")
+    stdout().print(f"{total} boards on {len(snap['buses'])} buses\n")
     for bus in snap["buses"]:
         t = Table(title=f"{bus['name']} ({bus['bitrate'] // 1000} kbit/s)", title_justify="left")
         for col in ("pos", "placement", "board", "FPGA", "seq ID", "fixed ID", "state",
@@ -57,14 +57,14 @@ def show(topology: str, state_dir: Path | None, as_json: bool) -> None:
                 str(b["fixed_id"] or "-"), b["state"],
                 f"{escape(prog['name'])} {prog['progid']}" if prog else "[dim]none[/]",
                 leds(b["leds"]))
-        out.print(t)
+        stdout().print(t)
         if bus["broken_init_links"]:
-            out.print(f"  [yellow]init line cut before position(s) "
+            stdout().print(f"  [yellow]init line cut before position(s) "
                       f"{', '.join(map(str, bus['broken_init_links']))}[/]")
-    out.print("[dim]LEDs at power-on: first board yellow only, every later board yellow+green"
+    stdout().print("[dim]LEDs at power-on: first board yellow only, every later board yellow+green"
               " (B.2.3); 'ucom init' numbers the boards.[/]")
     if any(b["fpga"]["neutral"] for bus in snap["buses"] for b in bus["boards"]):
-        out.print("[red]NEUTRAL[/]: the FPGA is made for another plug-on board than the one "
+        stdout().print("[red]NEUTRAL[/]: the FPGA is made for another plug-on board than the one "
                   "plugged on; it ignores its inputs and keeps its outputs high impedance.")
 
 
@@ -90,7 +90,7 @@ def serve(topology: str, state_dir: Path | None, host: str, port: int) -> None:
         raise BusError(f"cannot listen on {host}:{port}: {e.strerror}") from None
     h, p = server.address
     print(f"listening on {h}:{p}", flush=True)
-    err.print(f"serving {f.name} ({', '.join(f.buses)}) with socketcand on {h}:{p}; "
+    stderr().print(f"serving {f.name} ({', '.join(f.buses)}) with socketcand on {h}:{p}; "
               f"state: {state_dir or 'not kept'}; Ctrl-C stops")
     try:
         serve_until_interrupted(server)

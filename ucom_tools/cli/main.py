@@ -10,7 +10,8 @@ import click
 from rich.markup import escape
 
 from ucom_tools import __version__
-from ucom_tools.cli.output import err
+from ucom_tools.cli import output
+from ucom_tools.cli.output import stderr
 from ucom_tools.errors import BusError, InputError, UcomError
 
 EXIT_OK = 0
@@ -37,14 +38,14 @@ class UcomGroup(click.Group):
         except UcomError as e:
             self._fail(ctx, e, EXIT_FAILED, "error")
         except KeyboardInterrupt:
-            err.print("[yellow]interrupted[/]")
+            stderr().print("[yellow]interrupted[/]")
             ctx.exit(EXIT_INTERRUPTED)
 
     @staticmethod
     def _fail(ctx: click.Context, e: Exception, code: int, label: str) -> None:
         if (ctx.obj or {}).get("verbose", 0) >= 2:
             traceback.print_exc(file=sys.stderr)
-        err.print(f"[bold red]ucom: {label}:[/] {escape(str(e))}", highlight=False,
+        stderr().print(f"[bold red]ucom: {label}:[/] {escape(str(e))}", highlight=False,
                   soft_wrap=True)
         ctx.exit(code)
 
@@ -61,6 +62,7 @@ def cli(ctx: click.Context, verbose: int) -> None:
     (file, topology, argument), 4 bus or connection failure, 130 interrupted.
     See ucom(1) and ucom-protocol(7).
     """
+    output.reset()
     ctx.ensure_object(dict)
     ctx.obj["verbose"] = verbose
 

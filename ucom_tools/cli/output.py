@@ -1,27 +1,66 @@
-"""Output helpers: data to stdout (tables for people, JSON when asked), the rest to stderr."""
+"""Output: data to stdout (tables for people, JSON when asked), the rest to stderr.
+
+The two rich consoles are made for each invocation (:func:`reset`), so the width follows
+the situation of that run: ``COLUMNS`` when set, the terminal's width when standard output
+is a terminal, and no limit when it is piped (a table is never cut short in a file or
+a pipe; tables wrap their cells instead of truncating them on a narrow terminal).
+"""
 
 from __future__ import annotations
 
 import json
+import os
 import sys
 from typing import Any
 
 from rich.console import Console
 
+UNLIMITED = 100_000
+"""Width of a piped standard output: tables take the width they need."""
 
-def _width() -> int | None:
-    # Pipes and CI get rich's 80 columns by default; tables of boards need more.
-    return None if sys.stdout.isatty() else 132
+_consoles: dict[str, Console] = {}
 
 
-out = Console(highlight=False, soft_wrap=False, width=_width(), emoji=False)
-err = Console(stderr=True, highlight=False, emoji=False)
+def _stdout_width() -> int | None:
+    columns = os.environ.get("COLUMNS", "")
+    if columns.isdigit() and int(columns) > 0:
+        return int(columns)
+    try:
+        if sys.stdout.isatty():
+            return None  # rich measures the terminal
+    except (AttributeError, ValueError):
+        pass
+    return UNLIMITED
 
-LED_STYLE = {"red": "red", "yellow": "yellow", "green": "green"}
+
+def reset() -> None:
+    """Forget the consoles; the next use makes them for the current streams and env."""
+    _consoles.clear()
+
+
+def stdout() -> Console:
+    """The console for data (tables); see the module docstring for its width."""
+    c = _consoles.get("out")
+    if c is None:
+        c = _consoles["out"] = Console(highlight=False, soft_wrap=False, emoji=False,
+                                       width=_stdout_width())
+    return c
+
+
+def stderr() -> Console:
+    """The console for progress, notes and errors."""
+    c = _consoles.get("err")
+    if c is None:
+        c = _consoles["err"] = Console(stderr=True, highlight=False, emoji=False)
+    return c
 
 
 def emit_json(data: Any) -> None:
     sys.stdout.write(json.dumps(data, indent=2, default=str) + "\n")
+    sys.stdout.flush()
+
+
+LED_STYLE = {"red": "red", "yellow": "yellow", "green": "green"}
 
 
 def leds(state: dict[str, str]) -> str:
@@ -32,4 +71,3 @@ def leds(state: dict[str, str]) -> str:
         mark = {"on": "●", "blink": "◐"}.get(v, "·")
         parts.append(f"[{LED_STYLE[colour]}]{mark}[/]" if v != "off" else "[dim]·[/]")
     return " ".join(parts)
-

@@ -5,7 +5,7 @@ from __future__ import annotations
 import click
 
 from ucom_tools.cli import render
-from ucom_tools.cli.output import emit_json, out
+from ucom_tools.cli.output import emit_json, stdout
 from ucom_tools.image import load_image
 
 
@@ -29,7 +29,7 @@ def info(file: str, addressing: str, as_json: bool) -> None:
     if as_json:
         emit_json(render.image_json(img, plan))
     else:
-        render.print_image(out, img, plan)
+        render.print_image(stdout(), img, plan)
 
 
 @srec.command("progid")

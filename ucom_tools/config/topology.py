@@ -21,6 +21,9 @@ from ucom_tools.errors import TopologyError
 from ucom_tools.wire.fpga import FpgaVersion
 
 BUNDLED = ("armar3", "lauron4", "kairo2", "odete", "puma200", "rosi")
+SOURCE_ROOT = Path(__file__).resolve().parents[2]
+"""Relative paths in a bundled topology (programs, attribute trees) are relative to the
+ucom-tools source tree (where ``firmware_images/`` and ``attribute_trees/`` are)."""
 BITRATES = (10_000, 20_000, 50_000, 100_000, 125_000, 250_000, 500_000, 800_000, 1_000_000)
 
 
@@ -59,6 +62,11 @@ class BoardSpec:
     """The FPGA configuration (the topology's, or one made for the plug-on board)."""
     serial_explicit: bool = False
     """True when the file gave the serial (so a real robot's boards can be recognised)."""
+    tree: Path | None = None
+    """The attribute tree file of this board (``man/ucom-tree.5``), if the topology names one."""
+    tree_block: int | None = None
+    """Which ``DSP{ <n>{ }<n> }DSP`` block of :attr:`tree` is this board's; None = the
+    file's only block."""
 
 
 @dataclass(frozen=True)
@@ -185,7 +193,7 @@ def resolve(name_or_path: str) -> tuple[str, str]:
 
 def load(name_or_path: str) -> Topology:
     source, text = resolve(name_or_path)
-    base = None if name_or_path in BUNDLED else Path(name_or_path).parent
+    base = SOURCE_ROOT if name_or_path in BUNDLED else Path(name_or_path).parent
     return parse(text, source, base)
 
 
@@ -273,7 +281,7 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
     if not isinstance(raw, dict):
         raise c.fail(path[:2], "board", "must be [[bus.board]] tables")
     c.no_extra(raw, path, {"placement", "board", "fixed_id", "serial", "program", "autostart",
-                           "powered", "init_link", "joints", "fpga"})
+                           "powered", "init_link", "joints", "fpga", "tree", "tree_block"})
     placement = c.take(raw, path, "placement", str)
     board = c.take(raw, path, "board", str)
     if board not in PLUG_ON_BOARDS:
@@ -299,6 +307,20 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
             program = base / program
         if not program.is_file():
             raise c.fail(path, "program", f"no such S-record file: {program}")
+    tree_raw = c.take(raw, path, "tree", str, "")
+    tree = None
+    if tree_raw:
+        tree = Path(tree_raw)
+        if not tree.is_absolute() and base is not None:
+            tree = base / tree
+        if not tree.is_file():
+            raise c.fail(path, "tree", f"no such attribute tree file: {tree}")
+    tree_block = c.take(raw, path, "tree_block", int, None)
+    if tree_block is not None:
+        if not tree:
+            raise c.fail(path, "tree_block", "needs 'tree' (the file the block is in)")
+        if tree_block < 0:
+            raise c.fail(path, "tree_block", f"must be a block number >= 0, got {tree_block}")
     link = c.take(raw, path, "init_link", str, "ok")
     if link not in ("ok", "broken"):
         raise c.fail(path, "init_link", f"expected \"ok\" or \"broken\", got {link!r}")
@@ -310,4 +332,5 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
         position=j, fpga=fpga, placement=placement, board=board, fixed_id=fixed_id, serial=serial,
         program=program, autostart=c.take(raw, path, "autostart", bool, False),
         powered=c.take(raw, path, "powered", bool, True), init_link_broken=link == "broken",
-        joints=tuple(joints), line=c.lines.of(*path) or 0, serial_explicit="serial" in raw)
+        joints=tuple(joints), line=c.lines.of(*path) or 0, serial_explicit="serial" in raw,
+        tree=tree, tree_block=tree_block)
