@@ -160,8 +160,8 @@ def test_a_block_outside_the_erased_pages_is_refused(host) -> None:
     h.client.init_chain()
     enable_all(h)
     plan = plan_of(image_words(8))
-    h.link.send(plan.begin(), ALL)
-    h.link.send(m.ProgramPrepare(), ALL)
+    for frame in (plan.begin(), *plan.meta(), m.ProgramPrepare(0)):
+        h.link.send(frame, ALL)
     assert any(isinstance(g.message, m.Ready) for g in h.link.drain(0.05))
     h.link.send(m.ProgramBlock(Space.P, 0x8000, 1, 0), ALL)
     h.link.send(m.ProgramBlock(Space.P, 0x0100, 1, 0), ALL)
@@ -174,10 +174,8 @@ def test_erase_takes_page_erase_time(host) -> None:
     h.client.init_chain()
     enable_all(h)
     plan = plan_of(image_words(256 * 10 - 4))  # P:0004-09FF = pages 0..9
-    h.link.send(plan.begin(), ALL)
-    for e in plan.erases():
-        h.link.send(e, ALL)
-    h.link.send(m.ProgramPrepare(), ALL)
+    for frame in (plan.begin(), *plan.meta(), *plan.erases(), plan.prepare()):
+        h.link.send(frame, ALL)
     t0 = h.sim.now
     got = h.link.recv(1.0)
     assert isinstance(got.message, m.Ready) and got.message.reason is ReadyReason.ERASED
@@ -196,7 +194,7 @@ def test_flow_control_pauses_the_stream_for_slow_flash(host) -> None:
     assert all(b.overruns == 0 for b in h.boards)
 
 
-def test_only_missed_blocks_are_sent_again(host) -> None:
+def test_only_missed_frames_are_sent_again(host) -> None:
     h = host("armar3", "CAN1")
     victim = h.boards[1]
     state = {"in_block": False, "drop": 2}
@@ -205,7 +203,7 @@ def test_only_missed_blocks_are_sent_again(host) -> None:
         if arb >> 6 != Function.PROGRAM or node is not victim:
             return False
         if len(data) < 8:
-            state["in_block"] = data[0] == 0x05 and int.from_bytes(data[5:7], "big") == 5
+            state["in_block"] = data[0] == 0x05 and data[4] == 5
             return False
         if state["in_block"] and state["drop"]:
             state["drop"] -= 1
@@ -216,9 +214,10 @@ def test_only_missed_blocks_are_sent_again(host) -> None:
     plan = plan_of(image_words(3000))
     result = program(h, plan)
     assert result.all_verified and result.rounds == 2
-    assert result.blocks_sent == len(plan.blocks) + 1
-    assert result.outcomes[seq(2)].resent_blocks == 1
-    assert result.outcomes[seq(1)].resent_blocks == 0
+    assert result.resent_frames == 2  # the two lost frames, not their 64-frame block
+    assert result.data_frames == sum(b.frames for b in plan.blocks) + 2
+    assert result.outcomes[seq(2)].resent_frames == 2
+    assert result.outcomes[seq(1)].resent_frames == 0
 
 
 def test_power_loss_mid_transfer_leaves_the_board_in_its_bootloader(host) -> None:

@@ -44,7 +44,7 @@ def test_flash_refuses_misfits_naming_board_field_expected_found() -> None:
     assert "FPGA major: expected 1, found 2" in boards[4]["detail"]
     assert any("built for FPGA 1.0, the FPGA is 1.1; it will run" in w
                for w in boards[5]["warnings"])
-    assert "CAN1:2 (not verified)" in r.stderr
+    assert "CAN1:2 (refused)" in r.stderr
 
 
 def test_force_programs_with_a_warning_and_the_board_ends_the_program() -> None:

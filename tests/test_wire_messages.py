@@ -49,16 +49,18 @@ MESSAGES = st.one_of(
     _set_status(), _init_request(),
     st.builds(m.ReportRequest, st.sampled_from(ReportChannel), st.sampled_from(Space), u16, u16),
     st.builds(m.Start, st.sampled_from(Target)),
-    st.builds(m.ProgramBegin, st.sampled_from(Target), st.integers(1, 0xFFFF), u16),
+    st.builds(m.ProgramBegin, st.sampled_from(Target), st.integers(1, 256), u16),
     st.builds(m.ProgramMeta, st.integers(0, 9), st.binary(min_size=4, max_size=4)),
     st.builds(m.ProgramErase, st.sampled_from(Space), u8, st.integers(1, 256)),
-    st.builds(m.ProgramPrepare), st.builds(m.ProgramEnd), st.builds(m.ProgramAbort),
-    st.builds(m.ProgramBlock, st.sampled_from(Space), u16, st.integers(1, 64), u16),
-    st.builds(m.ProgramData, st.binary(min_size=8, max_size=8)),
+    st.builds(m.ProgramPrepare, u16), st.builds(m.ProgramEnd), st.builds(m.ProgramAbort),
+    st.builds(m.ProgramBlock, st.sampled_from(Space), u16, st.integers(1, 64), u8, u16),
+    st.builds(m.ProgramData, st.binary(min_size=8, max_size=8), st.integers(0, 63)),
     st.builds(m.Error, st.sampled_from(ErrorCode), u8, u32),
     st.builds(m.InitAck, st.sampled_from(InitAckKind), numbers, numbers, u8, u32),
-    st.builds(m.ProgramResult, st.sampled_from(ResultStatus), u16, u32),
+    st.builds(m.ProgramResult, st.sampled_from(ResultStatus), st.integers(0, 64), u32),
     st.builds(m.ProgramMissing, u16, st.integers(1, 0xFFFF)),
+    st.integers(0, 63).flatmap(lambda first: st.builds(
+        m.ProgramPartial, u16, st.just(first), st.integers(1, 64 - first))),
     st.builds(m.InfoFrame, st.integers(0, 9), st.binary(min_size=7, max_size=7)),
     st.builds(m.Ready, st.sampled_from(ReadyReason), st.sampled_from(BoardState), u16, u32),
     st.builds(m.StatusReport, st.sampled_from(BoardState), st.integers(0, 15),
@@ -75,7 +77,10 @@ def test_every_message_round_trips(msg: m.BootMessage, address: Address) -> None
     assert len(data) <= 8
     got_address, got = m.decode(arb, data)
     assert got == msg
-    assert got_address == address
+    if isinstance(msg, m.ProgramData):  # no address: bits 5-0 are the slot
+        assert arb == 0x2C0 | msg.slot
+    else:
+        assert got_address == address
 
 
 @given(MESSAGES)
@@ -93,12 +98,17 @@ def test_direction_check_rejects_the_other_side(msg: m.BootMessage) -> None:
     (m.InitRequest(InitOp.NEXT, 2), ALL, 0x280, "0202"),
     (m.SetStatus(StatusOp.PROG_ENABLE, 1), seq(3), 0x1C3, "0101"),
     (m.Start(Target.FLASH), seq(2), 0x302, "00"),
-    (m.ProgramBlock(Space.P, 0x0100, 64, 1), ALL, 0x2C0, "05000100400001"),
+    (m.ProgramBlock(Space.P, 0x0100, 64, 1, 0x1234), ALL, 0x2C0, "05 40 0100 01 1234"),
+    (m.ProgramBlock(Space.X, 0x1000, 3, 130, 0xBEEF), ALL, 0x2C0, "05 83 1000 82 beef"),
     (m.InitAck(InitAckKind.ASSIGNED, 1, 0, 0x10, 0x12345678), seq(1), 0x0C1,
      "0001001012345678"),
     (m.Ready(ReadyReason.ERASED, BoardState.RECEIVING, 128, 90), seq(1), 0x181,
      "010200800000005a"),
     (m.ProgramResult(ResultStatus.VERIFIED, 0, 0xCAFEBABE), seq(1), 0x101, "000000 00cafebabe"),
+    (m.ProgramResult(ResultStatus.MISSING, 2, 0), seq(1), 0x101, "000100 0200000000"),
+    (m.ProgramPartial(5, 17, 2), seq(1), 0x101, "02 0005 11 02"),
+    (m.ProgramData(bytes(range(8)), 9), ALL, 0x2C9, "0001020304050607"),
+    (m.ProgramPrepare(24), ALL, 0x2C0, "04 0018"),
     (m.Error(ErrorCode.PROTECTED_ADDRESS, 11, 0x8000), seq(4), 0x084, "050b00008000"),
 ])
 def test_byte_layouts(msg: m.BootMessage, address: Address, ident: int, payload: str) -> None:
@@ -114,7 +124,7 @@ def test_byte_layouts(msg: m.BootMessage, address: Address, ident: int, payload:
     (Function.PROGRAM, b"", "Program payload length"),
     (Function.PROGRAM, b"\x08", "Program op"),
     (Function.PROGRAM, b"\x05\x00\x01", "Program Block payload length"),
-    (Function.PROGRAM, b"\x05\x03\x00\x00\x40\x00\x00", "Program Block space"),
+    (Function.PROGRAM, b"\x05\x41\x00\x00\x00\x00\x00", "Program Block frames"),
     (Function.PROGRAM, b"\x05\x00\x00\x00\x41\x00\x00", "Program Block frames"),
     (Function.READY, b"\x09\x00\x00\x00\x00\x00\x00\x00", "Ready reason"),
     (Function.ERROR, b"\x01", "Error payload length"),

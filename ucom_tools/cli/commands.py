@@ -351,7 +351,9 @@ def _flash_out(ctx: click.Context, result: FlashResult, as_json: bool) -> None:
     else:
         render.print_flash(stdout(), result)
     if not result.all_verified or result.failed:
-        names = ", ".join(f"{b.bus}:{b.seq_id}" + ("" if b.verified else " (not verified)")
+        names = ", ".join((f"{b.bus}:{b.seq_id}" if b.seq_id else f"{b.bus}:{b.placement}")
+                          + ("" if b.verified else f" ({b.outcome})" if b.outcome != "failed"
+                             else " (not verified)")
                           + (" (did not start)" if b.verified and b.started is False else "")
                           for b in result.failed) or "no board found"
         stderr().print(f"[red]failed: {names}[/]")

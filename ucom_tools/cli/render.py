@@ -278,12 +278,14 @@ def flash_json(r: FlashResult) -> dict[str, Any]:
         "image": r.image, "progid": hex32(r.progid), "size_words": r.size_words,
         "target": r.target.name.lower(), "all_verified": r.all_verified,
         "boards": [{
-            "bus": b.bus, "seq_id": b.seq_id, "serial": hex32(b.serial), "placement": b.placement,
+            "bus": b.bus, "seq_id": b.seq_id or None, "serial": hex32(b.serial),
+            "placement": b.placement,
             "outcome": b.outcome, "verified_progid": hex32(b.progid) if b.verified else None,
-            "detail": b.detail, "resent_blocks": b.resent_blocks, "autostart": b.autostart,
+            "detail": b.detail, "resent_frames": b.resent_frames, "autostart": b.autostart,
             "started": b.started, "messages": list(b.messages),
             "warnings": list(b.warnings)} for b in r.boards],
         "buses": [{"name": bus.bus, "frames": bus.frames, "rounds": bus.rounds,
+                   "resent_frames": bus.resent_frames,
                    "note": bus.note or None,
                    "diagnosis": [d.message for d in bus.enumeration.diagnosis]
                    if bus.enumeration else []} for bus in r.buses],
@@ -297,9 +299,9 @@ def print_flash(c: Console, r: FlashResult) -> None:
                 "AutoStart", "started"):
         t.add_column(col, no_wrap=col != "result")
     for b in r.boards:
-        t.add_row(b.bus, str(b.seq_id), escape(b.placement or "-"), hex32(b.serial),
+        t.add_row(b.bus, str(b.seq_id or "-"), escape(b.placement or "-"), hex32(b.serial),
                   "[green]verified[/]" if b.verified else f"[red]{b.outcome}[/]",
-                  hex32(b.progid) if b.verified else "-", str(b.resent_blocks or ""),
+                  hex32(b.progid) if b.verified else "-", str(b.resent_frames or ""),
                   "yes" if b.autostart else "", {None: "", True: "[green]yes[/]",
                                                  False: "[red]no[/]"}[b.started])
     c.print(t)
@@ -314,7 +316,8 @@ def print_flash(c: Console, r: FlashResult) -> None:
                 c.print(f"  [bold yellow]! {bus.bus}:[/] {escape(d.message)}")
     for b in r.boards:
         if not b.verified:
-            c.print(f"  [red]{b.bus} board {b.seq_id}:[/] {escape(b.detail)}")
+            who = f"board {b.seq_id}" if b.seq_id else escape(b.placement or "a board")
+            c.print(f"  [red]{b.bus} {who}:[/] {escape(b.detail)}")
     ok = sum(1 for b in r.boards if b.verified)
     colour = "green" if r.all_verified else "red"
     c.print(f"[{colour}]{ok} of {len(r.boards)} board(s) verified[/]")

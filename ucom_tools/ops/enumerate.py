@@ -8,9 +8,10 @@ at (dissertation B.2.3).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
-from ucom_tools.config.topology import BusSpec
+from ucom_tools.config.topology import BoardSpec, BusSpec
 from ucom_tools.ops.robot import BusHandle
 from ucom_tools.protocol.bootloader import ChainAck, InitResult
 from ucom_tools.wire.ids import ALL, seq
@@ -63,7 +64,8 @@ def enumerate_bus(handle: BusHandle, *, with_info: bool = True) -> BusEnumeratio
     client = handle.client
     result = client.init_chain()
     dups = result.duplicates()
-    infos = client.info_many(ALL) if with_info and result.acks else {}
+    numbered = [seq(n) for n in result.numbers if n not in dups]
+    infos = client.info_many(ALL, expect=numbered) if with_info and result.acks else {}
     firsts = client.probe() if result.acks else []
     expected = handle.expected
     by_serial = expected_positions(handle)
@@ -97,6 +99,28 @@ def expected_positions(handle: BusHandle) -> dict[int, int]:
         return {}
     return {b.serial: b.position for b in handle.expected.boards
             if handle.virtual or b.serial_explicit}
+
+
+def missing_expected(handle: BusHandle, serials: Iterable[int | None], answered: int
+                     ) -> list[BoardSpec]:
+    """Boards the topology expects on this bus that did not answer: recognised by serial
+    where the topology lets us recognise every board, otherwise (chain order) the
+    positions after the last one that answered."""
+    expected = handle.expected
+    if expected is None:
+        return []
+    by_serial = expected_positions(handle)
+    if by_serial and len(by_serial) == len(expected.boards):
+        seen = {s for s in serials if s is not None}
+        if seen:
+            return [b for b in expected.boards if b.serial not in seen]
+    return list(expected.boards[answered:])
+
+
+def describe_missing(bus: str, spec: BoardSpec, expected: int) -> str:
+    joints = f"; joints {', '.join(spec.joints)}" if spec.joints else ""
+    return (f"expected at position {spec.position + 1} ({spec.placement}{joints}) of the "
+            f"{expected} boards the topology lists on {bus}, but no board there answered")
 
 
 def _where(expected: BusSpec, pos: int) -> str:

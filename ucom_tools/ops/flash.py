@@ -18,7 +18,13 @@ from ucom_tools.errors import InputError, UcomTimeoutError
 from ucom_tools.image import Image
 from ucom_tools.ops.boards import NotInitialised
 from ucom_tools.ops.compat import compare
-from ucom_tools.ops.enumerate import BusEnumeration, enumerate_bus, expected_positions
+from ucom_tools.ops.enumerate import (
+    BusEnumeration,
+    describe_missing,
+    enumerate_bus,
+    expected_positions,
+    missing_expected,
+)
 from ucom_tools.ops.robot import BusHandle, Robot
 from ucom_tools.protocol.programmer import Programmer
 from ucom_tools.wire import messages as m
@@ -58,12 +64,14 @@ class Selection:
 class BoardResult:
     bus: str
     seq_id: int
+    """0 for a board the topology expects that never answered (outcome "missing")."""
     serial: int | None
     placement: str | None
     outcome: str  # "verified" | "failed"
     progid: int | None
     detail: str
-    resent_blocks: int = 0
+    resent_frames: int = 0
+    """Data frames this board lacked after a round and that were sent again."""
     autostart: bool = False
     started: bool | None = None
     messages: tuple[str, ...] = ()
@@ -82,6 +90,7 @@ class BusFlash:
     frames: int
     rounds: int
     note: str = ""
+    resent_frames: int = 0
 
 
 @dataclass(frozen=True)
@@ -206,24 +215,26 @@ class _Job:
         enum, infos, placements = survey
         present = {a.number: inf for a, inf in infos.items()
                    if a.id_type is IdType.SEQUENTIAL}
+        results: dict[int, BoardResult] = {}
+        absent: list[BoardResult] = []
         if self.selection.kind == "all":
             wanted = sorted(present)
+            absent = self._unaccounted(h, enum, present, results)
         elif self.selection.kind == "enabled":
             wanted = sorted(n for n, inf in present.items() if inf.prog_enable)
         else:
             wanted = list(self.selection.numbers)
-        results: dict[int, BoardResult] = {}
         for n in wanted:
             if n not in present:
                 results[n] = _fail(h.name, n, None, None, f"no board with seq ID {n} on {h.name}")
         targets = [n for n in wanted if n in present]
         targets, warnings = self._preflight(h, targets, present, results, placements)
         if not targets:
-            return BusFlash(h.name, tuple(results[n] for n in sorted(results)), enum, 0, 0,
-                            "no board to program")
+            return BusFlash(h.name, (*(results[n] for n in sorted(results)), *absent), enum,
+                            0, 0, "no board to program")
         self._to_bootloader(h, targets, present)
         enabled = self._enable(h, targets, present, results, placements)
-        frames = rounds = 0
+        frames = rounds = resent = 0
         if enabled:
             total = self.plan.size_words * 2
 
@@ -235,6 +246,7 @@ class _Job:
                                     cancel=self.cancel)
             transfer = programmer.transfer(self.plan, [seq(n) for n in enabled])
             frames, rounds = transfer.frames_sent, transfer.rounds
+            resent = transfer.resent_frames
             for n in enabled:
                 o = transfer.outcomes[seq(n)]
                 serial, placement = placements[n]
@@ -242,7 +254,7 @@ class _Job:
                                      else "")
                 results[n] = BoardResult(h.name, n, serial, placement,
                                          "verified" if o.verified else "failed", o.progid,
-                                         detail, o.resent_blocks,
+                                         detail, o.resent_frames,
                                          warnings=warnings.get(n, ()))
         verified = [n for n in enabled if results[n].verified]
         if self.verify and verified:
@@ -261,8 +273,29 @@ class _Job:
                 texts = tuple(e.describe() for a in answers for e in a.errors) + tuple(
                     t for a in answers for t in a.reports)
                 results[n] = replace(r, started=started, messages=r.messages + texts)
-        return BusFlash(h.name, tuple(results[n] for n in sorted(results)), enum, frames,
-                        rounds)
+        return BusFlash(h.name, (*(results[n] for n in sorted(results)), *absent), enum,
+                        frames, rounds, resent_frames=resent)
+
+    def _unaccounted(self, h: BusHandle, enum: BusEnumeration | None,
+                     present: dict[int, BoardInfo], results: dict[int, BoardResult]
+                     ) -> list[BoardResult]:
+        """Boards that cannot be programmed although they belong to the job: found by the
+        init chain without an Info record, and expected by the topology without answering
+        at all.  Each becomes a failed result, so the job cannot end "all verified"."""
+        found = list(enum.boards) if enum is not None else []
+        for b in found:
+            if b.info is None and b.seq_id not in present and not b.duplicate:
+                results[b.seq_id] = _fail(
+                    h.name, b.seq_id, b.serial, b.placement,
+                    "answered the init chain, but its Info record did not arrive "
+                    f"(asked {1 + h.client.timeouts.retries} times); not programmed")
+        serials = [b.serial for b in found] + [inf.serial for inf in present.values()]
+        answered = len(found) if enum is not None else len(present)
+        expected = len(h.expected.boards) if h.expected is not None else 0
+        return [BoardResult(h.name, 0, spec.serial if spec.serial_explicit or h.virtual
+                            else None, spec.placement, "missing", None,
+                            describe_missing(h.name, spec, expected))
+                for spec in missing_expected(h, serials, answered)]
 
     def _to_bootloader(self, h: BusHandle, targets: list[int],
                        present: dict[int, BoardInfo]) -> None:
@@ -277,7 +310,8 @@ class _Job:
         for n in others:  # never program a board that was not asked for
             h.client.set_status(seq(n), StatusOp.PROG_ENABLE, 0)
         if set(targets) == set(present):
-            replies = h.client.set_status(ALL, StatusOp.PROG_ENABLE, 1)
+            replies = h.client.set_status(ALL, StatusOp.PROG_ENABLE, 1,
+                                          expect=[seq(n) for n in targets])
         else:
             replies = [r for n in targets
                        for r in h.client.set_status(seq(n), StatusOp.PROG_ENABLE, 1)]

@@ -40,6 +40,17 @@ class ConnectSpec:
         return f"{self.interface} {where}{','.join(self.channels)}".strip()
 
 
+TRANSPORT_MARGIN = {"virtual": 0.0, "socketcand": 0.25}
+"""Seconds every wait adds for the transport (a network bus needs more than an adapter);
+other interfaces: :data:`LOCAL_MARGIN`."""
+LOCAL_MARGIN = 0.02
+DEFAULT_BITRATE = 1_000_000
+
+
+def transport_margin(kind: str) -> float:
+    return TRANSPORT_MARGIN.get(kind, LOCAL_MARGIN)
+
+
 @dataclass
 class BusHandle:
     """One open bus with its protocol clients and the boards expected on it."""
@@ -116,7 +127,8 @@ def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:
                 raise BusError(f"cannot open {spec.interface} channel {channel!r}: "
                                f"{_one_line(err)}") from err
             name = exp.name if exp is not None else channel
-            link = Link(bus, name)
+            bitrate = spec.bitrate or (exp.bitrate if exp is not None else DEFAULT_BITRATE)
+            link = Link(bus, name, bitrate=bitrate, margin=transport_margin(spec.interface))
             buses[name] = BusHandle(name, bus, link, BootloaderClient(link, timeouts), exp,
                                     virtual=False)
     except BaseException:
@@ -143,7 +155,8 @@ def _open_virtual(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
                     raise err.__cause__ from None
                 raise BusError(f"cannot open the virtual bus {b.name}: {_one_line(err)}") \
                     from err
-            link = Link(bus, b.name)
+            margin = transport_margin("virtual") if not spec.pace else LOCAL_MARGIN
+            link = Link(bus, b.name, bitrate=b.bitrate, margin=margin)
             buses[b.name] = BusHandle(b.name, bus, link, BootloaderClient(link, timeouts), b,
                                       virtual=True)
     except BaseException:

@@ -2,7 +2,14 @@
 
 Turns python-can exceptions into :class:`~ucom_tools.errors.BusError` and frames into
 ``(Address, message)`` pairs; frames that are not bootloader-level messages (MCA traffic,
-foreign identifiers) are passed to ``on_other`` or dropped.
+other hosts' requests) are passed to ``on_other`` or dropped.
+
+Every wait of the host is derived from the work (``man/ucom-protocol.7``, TIMEOUTS): the
+link keeps a *wire horizon*, the time by which every frame it has handed to the bus has
+crossed the wire at the bus bitrate, assuming worst-case bit stuffing; a wait for an
+answer is the rest of that horizon, plus the wire time of the answer frames, plus the
+board's own time, plus the transport margin of this link (a network bus needs more than
+a local adapter).  Wire times are doubled to leave room for other traffic on the bus.
 """
 
 from __future__ import annotations
@@ -15,7 +22,11 @@ import can
 
 from ucom_tools.errors import BusError, FrameError
 from ucom_tools.wire import messages as m
+from ucom_tools.wire.canbits import worst_frame_bits
 from ucom_tools.wire.ids import Address, Direction
+
+SHARED_BUS_FACTOR = 2.0
+"""Wire times in deadlines are multiplied by this: the bus may carry other traffic."""
 
 
 @dataclass(frozen=True)
@@ -26,14 +37,43 @@ class Received:
 
 
 class Link:
-    """Send and receive UCoM messages on one bus."""
+    """Send and receive UCoM messages on one bus.
 
-    def __init__(self, bus: can.BusABC, name: str = "") -> None:
+    ``bitrate`` is the bus bitrate the deadlines assume; ``margin`` the transport margin
+    in seconds (0 for the in-process virtual fleet, a few ms for a local adapter, more for
+    a network bus such as socketcand)."""
+
+    def __init__(self, bus: can.BusABC, name: str = "", *, bitrate: int = 1_000_000,
+                 margin: float = 0.0) -> None:
         self.bus = bus
         self.name = name or str(getattr(bus, "channel_info", "bus"))
+        self.bitrate = bitrate
+        self.margin = margin
         self.malformed: list[tuple[can.Message, FrameError]] = []
         self.on_other: Callable[[can.Message], None] | None = None
+        clock = getattr(bus, "clock", None)
+        self.clock: Callable[[], float] = clock if callable(clock) else time.monotonic
+        """Seconds on the bus's own time base (virtual time on the in-process fleet)."""
+        self._horizon = 0.0
+        self.frames_sent = 0
 
+    # ------------------------------------------------------------------ timing
+    def wire_time(self, frames: int, dlc: int = 8) -> float:
+        """Worst-case seconds ``frames`` frames of ``dlc`` bytes take on this bus."""
+        return frames * worst_frame_bits(dlc) / self.bitrate
+
+    def budget(self, board_time: float, *, answers: int = 0) -> float:
+        """Seconds to wait for an answer to the last frame sent: the frames still on their
+        way, ``answers`` answer frames, the board's ``board_time`` and the margin."""
+        ahead = max(0.0, self._horizon - self.clock())
+        return (SHARED_BUS_FACTOR * (ahead + self.wire_time(answers)) + board_time
+                + self.margin)
+
+    def deadline(self, board_time: float, *, answers: int = 0) -> float:
+        """:meth:`budget` as an absolute time on :attr:`clock`."""
+        return self.clock() + self.budget(board_time, answers=answers)
+
+    # ------------------------------------------------------------------ sending
     def send(self, message: m.BootMessage, address: Address) -> None:
         arb, data = m.encode(message, address)
         self.send_raw(arb, data)
@@ -43,31 +83,42 @@ class Link:
         for attempt in range(50):
             try:
                 self.bus.send(msg, timeout=0.1)
-                return
+                break
             except can.CanOperationError as err:
                 if "buffer" not in str(err).lower() or attempt == 49:
                     raise BusError(f"{self.name}: cannot send: {err}") from err
-                time.sleep(0.001)
+                time.sleep(0.001)  # a full adapter queue: back off, then try again
             except can.CanError as err:
                 raise BusError(f"{self.name}: cannot send: {err}") from err
+            except OSError as err:
+                raise BusError(f"{self.name}: cannot send: {err.strerror or err}") from err
+        now = self.clock()
+        self._horizon = max(self._horizon, now) + self.wire_time(1, len(data))
+        self.frames_sent += 1
 
+    # ------------------------------------------------------------------ receiving
     def recv(self, timeout: float) -> Received | None:
-        """The next bootloader-level message from a board, or None after ``timeout``.
+        """The next bootloader-level message from a board, or None after ``timeout``
+        seconds of the bus's clock (virtual time on the in-process fleet)."""
+        return self.recv_until(self.clock() + timeout)
 
-        On the virtual fleet in virtual time the wait costs no wall time."""
-        deadline = time.monotonic() + timeout
-        remaining = timeout
+    def recv_until(self, deadline: float) -> Received | None:
+        """The next bootloader-level message from a board, or None at ``deadline``."""
         while True:
+            remaining = max(0.0, deadline - self.clock())
             try:
-                raw = self.bus.recv(max(0.0, remaining))
+                raw = self.bus.recv(remaining)
             except can.CanError as err:
                 raise BusError(f"{self.name}: cannot receive: {err}") from err
+            except OSError as err:
+                raise BusError(f"{self.name}: cannot receive: {err.strerror or err}") from err
             if raw is None:
                 return None
             got = self._decode(raw)
             if got is not None:
                 return got
-            remaining = deadline - time.monotonic()
+            if remaining <= 0.0:
+                return None
 
     def _decode(self, raw: can.Message) -> Received | None:
         if raw.is_extended_id or raw.is_error_frame or raw.is_remote_frame:
@@ -77,20 +128,28 @@ class Link:
                                     sender=Direction.BOARD_TO_HOST)
         except FrameError as err:
             code = raw.arbitration_id >> 6
-            if code <= 27 and code in m.BOOTLOADER_FUNCTIONS:
+            if code <= 27 and code in m.BOOTLOADER_FUNCTIONS and \
+                    m.Function(code).direction is Direction.BOARD_TO_HOST:
                 self.malformed.append((raw, err))
             elif self.on_other is not None:
                 self.on_other(raw)
             return None
         return Received(address, msg, raw.timestamp)
 
+    def until(self, deadline: float) -> Iterator[Received]:
+        """Every message until ``deadline`` (absolute, on :attr:`clock`); the caller stops
+        early by breaking out."""
+        while (got := self.recv_until(deadline)) is not None:
+            yield got
+
+    def quiet(self, gap: float, limit: float) -> Iterator[Received]:
+        """Messages until none arrived for ``gap`` seconds, or until ``limit`` (absolute)."""
+        while True:
+            got = self.recv_until(min(limit, self.clock() + gap))
+            if got is None:
+                return
+            yield got
+
     def drain(self, quiet: float = 0.0) -> list[Received]:
         """Everything already received (and whatever arrives within ``quiet``)."""
-        out = []
-        while (got := self.recv(quiet)) is not None:
-            out.append(got)
-        return out
-
-    def messages(self, timeout: float) -> Iterator[Received]:
-        while (got := self.recv(timeout)) is not None:
-            yield got
+        return list(self.quiet(quiet, self.clock() + max(quiet, 0.0) * 100 + 1.0))

@@ -1,10 +1,18 @@
 """Host side of the programming transfer (``man/ucom-protocol.7``, PROGRAMMING).
 
-One broadcast transfer per bus, for any number of ProgEnabled boards: Begin, Meta,
-Erase, Prepare; wait for Ready(ERASED) from every board; stream the blocks, obeying
-Ready(PAUSE)/Ready(RESUME); End; read every board's Program Finished; resend only the
-blocks some board missed; repeat.  A board counts as programmed only when it reported
-VERIFIED with the host's ProgID.
+One broadcast transfer per bus, for any number of ProgEnabled boards:
+
+1. the preamble (BEGIN, META, ERASE, PREPARE) and Ready(ERASED) from every board; a board
+   that does not report erased flash is asked again (PREPARE, then the whole preamble
+   addressed to it alone), so a lost frame costs a repetition, not the board;
+2. the blocks: a BLOCK frame, then its data frames, each carrying its slot, obeying
+   Ready(PAUSE)/Ready(RESUME) (a lost RESUME costs the time the board needs to drain);
+3. END, and every board's Program Finished with what it lacks, frame by frame; END is
+   asked again of a board whose answer does not come;
+4. exactly the missing frames again (the union over the boards; a board ignores what
+   it has), then END again: rounds go on while a round makes progress.
+
+A board counts as programmed only when it reported VERIFIED with the host's ProgID.
 """
 
 from __future__ import annotations
@@ -14,11 +22,18 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from ucom_tools.errors import UcomError
-from ucom_tools.protocol.link import Link
+from ucom_tools.protocol.link import Link, Received
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.wire import messages as m
-from ucom_tools.wire.codes import ReadyReason, ResultStatus, Target
-from ucom_tools.wire.ids import ALL, Address, Function, encode_id
+from ucom_tools.wire.answers import MAX_REPORTS
+from ucom_tools.wire.codes import (
+    ErrorCode,
+    PrepareFault,
+    ReadyReason,
+    ResultStatus,
+    split_prepare_fault,
+)
+from ucom_tools.wire.ids import ALL, Address, Function
 from ucom_tools.wire.transfer import TransferPlan
 
 
@@ -26,10 +41,20 @@ class Cancelled(UcomError):
     """The user cancelled a transfer (Ctrl-C); ABORT was sent."""
 
 
+PREAMBLE_ASKS = 2
+"""The preamble is repaired up to this many times (1 + retries) times: it is many frames."""
+REFUSALS = frozenset({ErrorCode.PROTECTED_ADDRESS, ErrorCode.UNMAPPED_ADDRESS,
+                      ErrorCode.BAD_VALUE, ErrorCode.NOT_ENABLED, ErrorCode.RUNNING,
+                      ErrorCode.FLASH_FAILURE})
+"""Errors by which a board refuses a transfer (asking again would not help)."""
 POLL_EVERY = 8
 """Frames between two looks at the receive queue while streaming (PAUSE, Error)."""
+MAX_ROUNDS = 64
+"""A safety bound: rounds stop earlier, as soon as one makes no progress."""
 
 Progress = Callable[[int, int], None]
+Missing = frozenset[tuple[int, int]]
+"""(block, slot) pairs a board lacks."""
 
 
 @dataclass(frozen=True)
@@ -38,7 +63,7 @@ class BoardOutcome:
     verified: bool
     progid: int | None
     status: str
-    resent_blocks: int = 0
+    resent_frames: int = 0
     errors: tuple[str, ...] = ()
 
 
@@ -47,8 +72,9 @@ class TransferResult:
     outcomes: dict[Address, BoardOutcome]
     plan_progid: int
     rounds: int
-    blocks_sent: int
     frames_sent: int
+    data_frames: int
+    resent_frames: int
 
     @property
     def all_verified(self) -> bool:
@@ -60,18 +86,35 @@ class _Board:
         self.address = address
         self.alive = True
         self.erased = False
+        self.lacks: tuple[PrepareFault | None, int] | None = None
+        """What the board's Error SEQUENCE said it lacks of the preamble."""
+        self.silent = 0
+        """Preamble repairs sent to this board that brought no answer at all."""
+        self.fault: str | None = None
+        self.frame_us = 100.0
         self.result: m.ProgramResult | None = None
-        self.missing: list[m.ProgramMissing] = []
+        self.reports: list[m.ProgramMissing | m.ProgramPartial] = []
+        self.missing: Missing | None = None
         self.errors: list[str] = []
         self.failure = ""
         self.resent = 0
+
+    @property
+    def verified(self) -> bool:
+        return self.result is not None and self.result.status is ResultStatus.VERIFIED
+
+    @property
+    def answered(self) -> bool:
+        """A RESULT and every report it announced have arrived."""
+        r = self.result
+        return r is not None and len(self.reports) >= r.reports
 
 
 class Programmer:
     """Programs one image into the ProgEnabled boards of one bus."""
 
-    def __init__(self, link: Link, timeouts: Timeouts = DEFAULT, *, max_rounds: int = 4,
-                 progress: Progress | None = None,
+    def __init__(self, link: Link, timeouts: Timeouts = DEFAULT, *,
+                 max_rounds: int = MAX_ROUNDS, progress: Progress | None = None,
                  cancel: threading.Event | None = None) -> None:
         self.link = link
         self.cancel = cancel
@@ -79,156 +122,233 @@ class Programmer:
         self.max_rounds = max_rounds
         self.progress = progress
         self.frames_sent = 0
-        self._paused: set[Address] = set()
+        self._state: dict[Address, _Board] = {}
+        self._paused: dict[Address, float] = {}
 
     # ------------------------------------------------------------------ sending
-    def _send(self, msg: m.BootMessage) -> None:
-        self.link.send(msg, ALL)
+    def _send(self, msg: m.BootMessage, address: Address = ALL) -> None:
+        self.link.send(msg, address)
         self.frames_sent += 1
 
+    def _preamble_frames(self, plan: TransferPlan) -> list[m.BootMessage]:
+        return [plan.begin(), *plan.meta(), *plan.erases(), plan.prepare()]
+
+    def _check_cancel(self) -> None:
+        if self.cancel is not None and self.cancel.is_set():
+            self._send(m.ProgramAbort())
+            raise Cancelled("programming cancelled; the boards dropped the transfer and keep "
+                            "no startable program")
+
+    # ------------------------------------------------------------------ transfer
     def transfer(self, plan: TransferPlan, boards: list[Address]) -> TransferResult:
-        state = {a: _Board(a) for a in boards}
-        self._paused = set()
-        self._send(plan.begin())
-        for meta in plan.meta():
-            self._send(meta)
-        erases = plan.erases() if plan.target is Target.FLASH else []
-        for erase in erases:
-            self._send(erase)
-        self._send(m.ProgramPrepare())
-        pages = sum(e.count for e in erases)
-        self._await_erased(state, self.timeouts.reply + pages * self.timeouts.erase_per_page)
-        todo = list(range(len(plan.blocks)))
-        rounds = blocks_sent = 0
-        total_bytes = sum(len(b.words) * 2 for b in plan.blocks)
-        sent_bytes = 0
-        data_id = encode_id(Function.PROGRAM, ALL)
-        while todo and rounds < self.max_rounds and any(b.alive for b in state.values()):
+        state = self._state = {a: _Board(a) for a in boards}
+        self._paused = {}
+        self._preamble(plan)
+        needed: dict[int, set[int]] = {i: set(range(b.frames))
+                                       for i, b in enumerate(plan.blocks)}
+        rounds = data_frames = resent = 0
+        total = sum(len(b.words) * 2 for b in plan.blocks)
+        while needed and rounds < self.max_rounds:
+            if not any(b.alive and not b.verified for b in state.values()):
+                break
             rounds += 1
-            for i in todo:
-                if self.cancel is not None and self.cancel.is_set():
-                    self._send(m.ProgramAbort())
-                    raise Cancelled("programming cancelled; the boards dropped the transfer "
-                                    "and keep no startable program")
-                block = plan.blocks[i]
-                self._send(block.header())
-                raw = block.payload()
-                for off in range(0, len(raw), 8):
-                    self.link.send_raw(data_id, raw[off:off + 8])
-                    self.frames_sent += 1
-                    if self.frames_sent % POLL_EVERY == 0:
-                        self._poll(state)
-                sent_bytes += len(raw)
-                blocks_sent += 1
-                if self.progress is not None:
-                    self.progress(min(sent_bytes, total_bytes), total_bytes)
-            self._send(m.ProgramEnd())
-            self._await_results(state)
-            missing: set[int] = set()
-            for b in state.values():
-                if b.alive and b.result is not None and b.result.status is ResultStatus.MISSING:
-                    for run in b.missing:
-                        missing.update(range(run.first, run.first + run.count))
-                    b.resent += sum(r.count for r in b.missing)
-            todo = sorted(i for i in missing if i < len(plan.blocks))
+            sent = self._stream(plan, needed, total if rounds == 1 else None)
+            data_frames += sent
+            if rounds > 1:
+                resent += sent
+            self._end(plan)
+            needed, progress = self._missing(plan)
+            if not progress:
+                break
+        for b in state.values():
+            if b.alive and not b.verified and b.missing:
+                b.failure = (f"{len(b.missing)} data frame(s) still missing after {rounds} "
+                             "round(s); the last round brought no progress")
         outcomes = {a: self._outcome(b, plan.progid) for a, b in state.items()}
-        return TransferResult(outcomes, plan.progid, rounds, blocks_sent, self.frames_sent)
+        return TransferResult(outcomes, plan.progid, rounds, self.frames_sent, data_frames,
+                              resent)
 
-    # ------------------------------------------------------------------ receiving
-    def _handle(self, state: dict[Address, _Board], got_addr: Address, msg: object) -> None:
-        b = state.get(got_addr)
-        if b is None:
-            return
-        if isinstance(msg, m.Ready):
-            if msg.reason is ReadyReason.ERASED:
-                b.erased = True
-            elif msg.reason is ReadyReason.PAUSE:
-                self._paused.add(got_addr)
-            elif msg.reason is ReadyReason.RESUME:
-                self._paused.discard(got_addr)
-        elif isinstance(msg, m.Error):
-            b.errors.append(msg.describe())
-        elif isinstance(msg, m.ProgramResult):
-            b.result = msg
-            b.missing = []
-        elif isinstance(msg, m.ProgramMissing):
-            b.missing.append(msg)
+    # ------------------------------------------------------------------ preamble
+    def _preamble(self, plan: TransferPlan) -> None:
+        """Preamble broadcast, then Ready(ERASED) from every board.  A board that did not
+        answer is asked again alone: PREPARE (its answer or PREPARE may have been lost),
+        exactly what its Error SEQUENCE says it lacks, or the whole preamble."""
+        state = self._state
+        for frame in self._preamble_frames(plan):
+            self._send(frame)
+        pages = plan.prepare().pages
+        board_time = self.timeouts.reply + pages * self.timeouts.erase_per_page
+        attempts = PREAMBLE_ASKS * (1 + self.timeouts.retries)
+        for attempt in range(attempts):
+            pending = [b for b in state.values() if b.alive and not b.erased]
+            deadline = self.link.deadline(board_time, answers=len(pending))
+            for got in self.link.until(deadline):
+                self._handle(got)
+                if all(b.erased or b.fault or b.lacks is not None for b in pending):
+                    break
+            for b in pending:
+                if b.fault and not b.erased:
+                    b.alive = False
+                    b.failure = "refused the transfer: " + b.fault
+            pending = [b for b in pending if b.alive and not b.erased]
+            if not pending or attempt == attempts - 1:
+                break
+            for b in pending:
+                self._check_cancel()
+                for frame in self._repair(plan, b):
+                    self._send(frame, b.address)
+        for b in state.values():
+            if b.alive and not b.erased:
+                b.alive = False
+                b.failure = ("did not report erased flash (Ready ERASED), asked "
+                             f"{attempts} times")
 
-    def _poll(self, state: dict[Address, _Board]) -> None:
-        while (got := self.link.recv(0.0)) is not None:
-            self._handle(state, got.address, got.message)
+    def _repair(self, plan: TransferPlan, b: _Board) -> list[m.BootMessage]:
+        """The frames that complete board ``b``'s preamble, from what it said it lacks."""
+        lacks, b.lacks = b.lacks, None
+        if lacks is None:
+            b.silent += 1
+            return [plan.prepare()] if b.silent == 1 else self._preamble_frames(plan)
+        fault, info = lacks
+        if fault is PrepareFault.META_INCOMPLETE:
+            return [*(f for f in plan.meta() if info >> f.field & 1), plan.prepare()]
+        if fault is PrepareFault.ERASE_INCOMPLETE:
+            return [*plan.erases(), plan.prepare()]
+        return self._preamble_frames(plan)
+
+    # ------------------------------------------------------------------ data
+    def _stream(self, plan: TransferPlan, needed: dict[int, set[int]],
+                total: int | None) -> int:
+        """Send the needed frames of each block; returns the number of data frames."""
+        sent = 0
+        sent_bytes = 0
+        for i in sorted(needed):
+            self._check_cancel()
+            block = plan.blocks[i]
+            self._send(block.header())
+            for frame in block.data_frames(needed[i]):
+                self._send(frame)
+                sent += 1
+                if sent % POLL_EVERY == 0:
+                    self._poll()
+            sent_bytes += 8 * len(needed[i])
+            if total is not None and self.progress is not None:
+                self.progress(min(sent_bytes, total), total)
+        return sent
+
+    def _poll(self) -> None:
+        """Handle what arrived; while a board paused, wait for its RESUME, at most as long
+        as it needs to drain its ring (a lost RESUME must not stall the transfer)."""
+        while (got := self.link.recv_until(self.link.clock())) is not None:
+            self._handle(got)
         while self._paused:
-            got = self.link.recv(self.timeouts.pause)
+            addr, until = min(self._paused.items(), key=lambda kv: kv[1])
+            got = self.link.recv_until(until)
             if got is None:
-                for a in self._paused:
-                    state[a].alive = False
-                    state[a].failure = "stalled: sent PAUSE and no RESUME"
-                self._paused.clear()
-                break
-            self._handle(state, got.address, got.message)
+                self._paused.pop(addr, None)
+            else:
+                self._handle(got)
 
-    def _await_erased(self, state: dict[Address, _Board], timeout: float) -> None:
-        pending = {a for a, b in state.items() if b.alive}
-        while pending:
-            got = self.link.recv(timeout)
-            if got is None:
-                break
-            self._handle(state, got.address, got.message)
-            pending = {a for a in pending if not state[a].erased}
-        for a in pending:
-            b = state[a]
-            b.alive = False
-            b.failure = ("refused the transfer: " + "; ".join(b.errors) if b.errors
-                         else "did not report erased flash (Ready ERASED) in time")
-
-    def _await_results(self, state: dict[Address, _Board]) -> None:
-        # A board that verified has left the transfer and will not answer again.
-        waiting = [b for b in state.values() if b.alive and not _done(b)]
+    # ------------------------------------------------------------------ end
+    def _end(self, plan: TransferPlan) -> None:
+        waiting = [b for b in self._state.values() if b.alive and not b.verified]
         for b in waiting:
             b.result = None
-            b.missing = []
-
-        def complete(b: _Board) -> bool:
-            if not b.alive:
-                return True
-            r = b.result
-            if r is None:
-                return False
-            if r.status is not ResultStatus.MISSING:
-                return True
-            got = sum(x.count for x in b.missing)
-            return got >= r.missing or len(b.missing) >= 8
-
-        while not all(complete(b) for b in waiting):
-            got = self.link.recv(self.timeouts.verify)
-            if got is None:
+            b.reports = []
+        self._send(m.ProgramEnd())
+        board_time = self.timeouts.verify(plan.size_words)
+        for attempt in range(1 + self.timeouts.retries):
+            lacking = [b for b in waiting if not b.answered]
+            deadline = self.link.deadline(board_time,
+                                          answers=len(lacking) * (1 + MAX_REPORTS))
+            for got in self.link.until(deadline):
+                self._handle(got)
+                if all(b.answered or not b.alive for b in lacking):
+                    break
+            lacking = [b for b in waiting if b.alive and b.result is None]
+            if not lacking or attempt == self.timeouts.retries:
                 break
-            self._handle(state, got.address, got.message)
+            for b in lacking:
+                self._send(m.ProgramEnd(), b.address)
         for b in waiting:
             if b.alive and b.result is None:
                 b.alive = False
-                b.failure = "sent no Program Finished after End"
+                b.failure = ("sent no Program Finished after End, asked "
+                             f"{1 + self.timeouts.retries} times")
+
+    def _missing(self, plan: TransferPlan) -> tuple[dict[int, set[int]], bool]:
+        """What to send again (the union over the boards), and whether the round made
+        progress (a board verified, or what some board lacks changed)."""
+        needed: dict[int, set[int]] = {}
+        progress = False
+        for b in self._state.values():
+            if not b.alive:
+                continue
+            r = b.result
+            if r is None:
+                continue
+            if r.status is ResultStatus.VERIFIED:
+                progress |= b.missing is None or bool(b.missing)
+                b.missing = frozenset()
+                continue
+            if r.status is not ResultStatus.MISSING:
+                b.alive = False
+                b.failure = r.status.text + (
+                    f" (board computed 0x{r.progid:08X}, image has 0x{plan.progid:08X})"
+                    if r.status is ResultStatus.PROGID_MISMATCH else "")
+                continue
+            lacks: set[tuple[int, int]] = set()
+            for rep in b.reports:
+                if isinstance(rep, m.ProgramMissing):
+                    for i in range(rep.first, min(rep.first + rep.count, len(plan.blocks))):
+                        lacks.update((i, s) for s in range(plan.blocks[i].frames))
+                elif rep.block < len(plan.blocks):
+                    lacks.update((rep.block, s) for s in range(rep.first, rep.first + rep.count)
+                                 if s < plan.blocks[rep.block].frames)
+            new = frozenset(lacks)
+            progress |= new != b.missing
+            b.missing = new
+            b.resent += len(new)
+            for i, s in new:
+                needed.setdefault(i, set()).add(s)
+        return needed, progress
+
+    # ------------------------------------------------------------------ receiving
+    def _handle(self, got: Received) -> None:
+        b = self._state.get(got.address)
+        if b is None:
+            return
+        msg = got.message
+        if isinstance(msg, m.Ready):
+            if msg.reason is ReadyReason.ERASED:
+                b.erased = True
+                b.frame_us = float(msg.value32 or b.frame_us)
+            elif msg.reason is ReadyReason.PAUSE:
+                drain = msg.value16 * b.frame_us / 1e6
+                self._paused[got.address] = self.link.deadline(drain)
+            elif msg.reason is ReadyReason.RESUME:
+                self._paused.pop(got.address, None)
+        elif isinstance(msg, m.Error):
+            b.errors.append(msg.describe())
+            if msg.function == Function.PROGRAM:
+                if msg.code is ErrorCode.SEQUENCE:
+                    b.lacks = split_prepare_fault(msg.detail)
+                elif msg.code in REFUSALS and not b.erased:
+                    b.fault = msg.describe()
+        elif isinstance(msg, m.ProgramResult):
+            b.result = msg
+            b.reports = []
+        elif isinstance(msg, m.ProgramMissing | m.ProgramPartial):
+            b.reports.append(msg)
 
     def _outcome(self, b: _Board, progid: int) -> BoardOutcome:
         errors = tuple(b.errors)
-        if not b.alive or b.result is None:
-            return BoardOutcome(b.address, False, None, b.failure or "no answer", b.resent,
-                                errors)
         r = b.result
-        if r.status is ResultStatus.VERIFIED and r.progid == progid:
+        if b.verified and r is not None and r.progid == progid:
             return BoardOutcome(b.address, True, r.progid, "verified", b.resent, errors)
-        if r.status is ResultStatus.VERIFIED:
+        if b.verified and r is not None:
             return BoardOutcome(b.address, False, r.progid,
-                                f"board reports ProgID 0x{r.progid:08X}, "
-                                f"image has 0x{progid:08X}", b.resent, errors)
-        detail = r.status.text
-        if r.status is ResultStatus.MISSING:
-            detail += f" ({r.missing} blocks still missing after the last round)"
-        elif r.status is ResultStatus.PROGID_MISMATCH:
-            detail += f" (board computed 0x{r.progid:08X}, image has 0x{progid:08X})"
-        return BoardOutcome(b.address, False, r.progid or None, detail, b.resent, errors)
-
-
-def _done(b: _Board) -> bool:
-    return b.result is not None and b.result.status is ResultStatus.VERIFIED
-
+                                f"board reports ProgID 0x{r.progid:08X}, image has "
+                                f"0x{progid:08X}", b.resent, errors)
+        return BoardOutcome(b.address, False, r.progid if r and r.progid else None,
+                            b.failure or "no answer", b.resent, errors)

@@ -16,18 +16,14 @@ run-time behaviour plugs in here in a later revision.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 from ucom_tools.boards import board_name
 from ucom_tools.errors import FrameError
+from ucom_tools.virtual.port import ProgramHost
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import CheckField, ErrorCode, Target
 from ucom_tools.wire.descriptor import ImageDescriptor
 from ucom_tools.wire.fpga import FPGA_BASE, FpgaVersion, Reg
 from ucom_tools.wire.ids import Address, Function
-
-if TYPE_CHECKING:
-    from ucom_tools.virtual.board import VirtualBoard
 
 STARTUP_US = 200.0
 """Time from Start until the program has read the FPGA and decided."""
@@ -36,18 +32,18 @@ STARTUP_US = 200.0
 class DspProgram:
     """A started program: checks compatibility, then runs (announcing itself)."""
 
-    def __init__(self, board: VirtualBoard, target: Target, name: str, progid: int) -> None:
+    def __init__(self, board: ProgramHost, target: Target, name: str, progid: int) -> None:
         self.board = board
         self.target = target
         self.name = name
         self.progid = progid
 
     def start(self, t: float) -> None:
-        self.board.bus.at(t + STARTUP_US, self._check)
+        self.board.at(t + STARTUP_US, self._check)
 
     def _check(self, t: float) -> None:
         board = self.board
-        if board.application is not self:
+        if not board.running(self):
             return  # reset or power loss in the meantime
         xmem = board.xmem
         fpga = FpgaVersion.decode(xmem.read(FPGA_BASE + Reg.VERSION1),
@@ -73,12 +69,12 @@ class DspProgram:
                 board.report_text(t, f"program '{self.name}' aborted: built for FPGA "
                                      f"{desc.fpga_major}.{desc.fpga_minor}, the FPGA is "
                                      f"{fpga.version}; resetting")
-                board.abort_program(t, reset=True)
+                board.end_program(t, reset=True)
             else:
                 board.send(t, m.Error(ErrorCode.INCOMPATIBLE, Function.START, detail))
                 why = _explain(field, expected, found)
                 board.report_text(t, f"program '{self.name}' ended: {why}")
-                board.abort_program(t, reset=False)
+                board.end_program(t, reset=False)
             return
         if desc.fpga_minor != fpga.minor:
             board.report_text(t, f"warning: program '{self.name}' was built for FPGA "

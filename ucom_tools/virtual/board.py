@@ -4,6 +4,11 @@ The board reacts to frames on its :class:`~ucom_tools.virtual.simbus.SimBus` and
 with real frames; it never shares state with the host.  Init pins, LEDs, flash timing,
 AutoStart in non-volatile memory and volatile ExtRAM behave as in the dissertation
 (B.2.2, B.2.3, B.3.1).
+
+The board is composed of its memory (flash and bootloader record, the FPGA behind the X:
+window), its programming part (:mod:`~ucom_tools.virtual.programming`) and the program it
+runs (:mod:`~ucom_tools.virtual.application`); it hands itself to those parts as a
+:class:`~ucom_tools.virtual.port.BoardPort`, so they never import this module.
 """
 
 from __future__ import annotations
@@ -17,9 +22,8 @@ from ucom_tools.config.topology import Timing
 from ucom_tools.errors import FrameError
 from ucom_tools.virtual.application import DspProgram
 from ucom_tools.virtual.fpga import ExternalMemory, VirtualFpga
-from ucom_tools.virtual.nvmem import Memory, NonVolatile
+from ucom_tools.virtual.nvmem import NonVolatile
 from ucom_tools.virtual.programming import BoardProgramming
-from ucom_tools.virtual.receiver import Reception
 from ucom_tools.virtual.simbus import SimBus
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import (
@@ -27,6 +31,7 @@ from ucom_tools.wire.codes import (
     ErrorCode,
     InitAckKind,
     InitOp,
+    ProgramOp,
     ReadyReason,
     ReportChannel,
     Space,
@@ -71,38 +76,56 @@ class VirtualBoard:
         self.state_file = state_file
         if state_file is not None:
             self.nv.load(state_file)
-        self.powered = False
+        self._powered = False
         self.in_drive = False
         self.out_drive = False
-        self.state = BoardState.BOOTLOADER
         self.seq_id = 0
-        self.prog_enable = False
         self.chain_active = False
-        self.reception: Reception | None = None
-        self.extram: dict[Space, Memory] | None = None
-        # progid, size, name, entry, date of the program held in ExtRAM
-        self.extram_meta: tuple[int, int, str, int, int] | None = None
+        self.programming = BoardProgramming(self, self.nv)
         self.application: DspProgram | None = None
-        self.overruns = 0
         self.stagger_us = (identity.serial & 0x3F) * bus.us_per_bit
         plug = PLUG_ON_BOARDS[identity.board].board_id
         self.fpga = VirtualFpga(identity.fpga or FpgaVersion(plug, 1, 1, 0), plug)
         self.xmem = ExternalMemory(self.fpga)
         self._suppress_autostart = False
-        self.programming = BoardProgramming(self)
         if powered:
             self.power_on(bus.now)
+
+    # ================================================================= port and state
+    @property
+    def powered(self) -> bool:
+        return self._powered
+
+    @property
+    def state(self) -> BoardState:
+        """Derived from what the board does: a program, a transfer, or the bootloader."""
+        app = self.application
+        if app is not None:
+            return (BoardState.RUNNING_EXTRAM if app.target is Target.EXTRAM
+                    else BoardState.RUNNING_FLASH)
+        return self.programming.state() or BoardState.BOOTLOADER
+
+    @property
+    def prog_enable(self) -> bool:
+        return self.programming.enabled
+
+    @property
+    def overruns(self) -> int:
+        return self.programming.overruns
+
+    def at(self, t: float, callback: Callable[[float], None]) -> None:
+        self.bus.at(t, callback)
 
     # ================================================================= power & reset
     def power_on(self, t: float) -> None:
         """Power-on: volatile state cleared, init outputs set (B.2.2 (b))."""
-        self.powered = True
+        self._powered = True
         self.seq_id = 0
         self._boot(t)
 
     def power_off(self) -> None:
         """Power loss: flash keeps what was written; everything else is gone."""
-        self.powered = False
+        self._powered = False
         self.fpga = VirtualFpga(self.fpga.config, self.fpga.plug_board_id)
         self.xmem = ExternalMemory(self.fpga)
         self._drop_volatile()
@@ -110,13 +133,9 @@ class VirtualBoard:
 
     def _drop_volatile(self) -> None:
         """What a reset or a power loss takes away (the seq ID survives a reset)."""
-        self.prog_enable = False
-        self.reception = None
-        self.extram = None
-        self.extram_meta = None
+        self.programming.drop()
         self.application = None
         self.chain_active = False
-        self.state = BoardState.BOOTLOADER
 
     def _boot(self, t: float) -> None:
         self._drop_volatile()
@@ -131,20 +150,22 @@ class VirtualBoard:
         if clear_autostart and self.nv.record.autostart:
             self.nv.record.autostart = False
             self.persist(record_only=True)
-        self.state = BoardState.BOOTLOADER
         self.application = None
         self.bus.at(t + self.timing.reset_us, self._after_reset)
 
-    def abort_program(self, t: float, *, reset: bool) -> None:
+    def running(self, program: object) -> bool:
+        """Is ``program`` still the one this board runs (no reset or power loss since)?"""
+        return self.application is program and self._powered
+
+    def end_program(self, t: float, *, reset: bool) -> None:
         """The program ended (incompatible) or aborted with a reset (FPGA major)."""
         self.application = None
-        self.state = BoardState.BOOTLOADER
         if reset:
             self._suppress_autostart = True
             self.bus.at(t + self.timing.reset_us, self._after_reset)
 
     def _after_reset(self, t: float) -> None:
-        if not self.powered:
+        if not self._powered:
             return
         self._boot(t)
         if self.reply_address() is not None:
@@ -179,24 +200,30 @@ class VirtualBoard:
 
     # ================================================================= receiving
     def on_frame(self, arbitration_id: int, data: bytes, t: float) -> None:
-        if not self.powered:
+        if not self._powered:
             return
         function = arbitration_id >> 6
-        if function == _PROGRAM and len(data) == 8 and self.reception is not None:
-            self.programming.data(data, t)  # hot path: raw data frame of a transfer
+        if function == _PROGRAM and len(data) == 8:
+            # a data frame: no address; bits 5-0 are its slot in the current block, which
+            # only a BLOCK frame addressed to this board (or broadcast) opens
+            if self.programming.reception is not None and self.application is None:
+                self.programming.data(arbitration_id & 0x3F, data, t)
             return
         if function in _FROM_BOARD:
             return  # another board's traffic
         id_type, number = (arbitration_id >> 5) & 1, arbitration_id & 0x1F
         if id_type == 0:
             broadcast = number == 0
-            if not broadcast and number != self.seq_id:
-                return
+            mine = broadcast or number == self.seq_id
             via_fixed = False
         else:
-            if not self.identity.fixed_id or number != self.identity.fixed_id:
-                return
-            broadcast, via_fixed = False, True
+            broadcast = False
+            mine = bool(self.identity.fixed_id) and number == self.identity.fixed_id
+            via_fixed = True
+        if not mine:
+            if function == _PROGRAM and data and data[0] == ProgramOp.BLOCK:
+                self.programming.other_block()
+            return
         if function > 27:
             if not broadcast:
                 self.error(t, ErrorCode.UNKNOWN_FUNCTION, function, via_fixed=via_fixed)
@@ -210,7 +237,7 @@ class VirtualBoard:
         try:
             _, msg = m.decode(arbitration_id, data, sender=Direction.HOST_TO_BOARD)
         except FrameError as err:
-            if function == _PROGRAM and not self.prog_enable:
+            if broadcast and function == _PROGRAM:
                 return
             code = ErrorCode.BAD_LENGTH if "length" in err.field else ErrorCode.BAD_VALUE
             self.error(t, code, function, via_fixed=via_fixed)
@@ -240,11 +267,9 @@ class VirtualBoard:
                 if running:
                     if not broadcast:
                         self.error(t, ErrorCode.RUNNING, _PROGRAM, via_fixed=via_fixed)
-                elif not self.prog_enable:
-                    if not broadcast:
-                        self.error(t, ErrorCode.NOT_ENABLED, _PROGRAM, via_fixed=via_fixed)
                 else:
-                    self.programming.handle(msg, t)
+                    self.programming.handle(msg, t, addressed=not broadcast,
+                                            via_fixed=via_fixed)
 
     # ================================================================= init chain
     def _init(self, msg: m.InitRequest, t: float) -> None:
@@ -258,6 +283,8 @@ class VirtualBoard:
         elif msg.op is InitOp.NEXT:
             if self.seq_id == msg.number - 1 and self.chain_active:
                 self.out_drive = False
+            if self.chain_active and self.seq_id == msg.number:
+                self._init_ack(InitAckKind.ASSIGNED, settle)  # asked again: its ack was lost
             if self.chain_active and not self.seq_id:
                 self.bus.at(settle, self._claim_if_first(msg.number))
         elif msg.op is InitOp.END:
@@ -273,7 +300,7 @@ class VirtualBoard:
 
     def _claim_if_first(self, number: int) -> Callable[[float], None]:
         def sample(t: float) -> None:
-            if not self.powered or not self.chain_active or self.seq_id:
+            if not self._powered or not self.chain_active or self.seq_id:
                 return
             if self.bus.init_in_set(self.identity.position):
                 return
@@ -283,7 +310,7 @@ class VirtualBoard:
 
     def _probe(self, kind: InitAckKind) -> Callable[[float], None]:
         def sample(t: float) -> None:
-            if not self.powered:
+            if not self._powered:
                 return
             pos = self.identity.position
             free = (not self.bus.init_in_set(pos) if kind is InitAckKind.FIRST
@@ -310,7 +337,7 @@ class VirtualBoard:
             if self.application is not None:
                 self.error(t, ErrorCode.RUNNING, Function.SET_STATUS, op, via_fixed)
                 return
-            self.prog_enable = bool(value)
+            self.programming.enabled = bool(value)
         elif op is StatusOp.AUTOSTART:
             if value and not self.nv.record.flash_valid:
                 self.error(t, ErrorCode.NO_PROGRAM, Function.SET_STATUS, op, via_fixed)
@@ -356,9 +383,9 @@ class VirtualBoard:
     def descriptor(self, target: Target) -> ImageDescriptor | None:
         """The image descriptor of the program in ``target`` (raises FrameError if corrupt)."""
         if target is Target.EXTRAM:
-            if self.extram is None:
+            if self.programming.extram is None:
                 return None
-            memory = self.extram[Space.P]
+            memory = self.programming.extram.memory[Space.P]
         elif self.nv.record.flash_valid:
             memory = self.nv.p
         else:
@@ -376,7 +403,7 @@ class VirtualBoard:
 
     def leds(self) -> dict[str, str]:
         """LEDs as B.2.3 describes: init pins in the bootloader, program status when running."""
-        if not self.powered:
+        if not self._powered:
             return {"red": "off", "yellow": "off", "green": "off"}
         if self.application is not None:
             return {"red": "off", "yellow": "off", "green": "blink"}
@@ -397,10 +424,11 @@ class VirtualBoard:
 
     def info(self) -> BoardInfo:
         rec = self.nv.record
-        ext = self.extram_meta
+        ext = self.programming.extram
         # the running program, else a loaded ExtRAM program, else the flash program
         if ext is not None and self.state is not BoardState.RUNNING_FLASH:
-            progid, size, name, entry, date = ext
+            progid, size, name, entry, date = (ext.progid, ext.size_words, ext.name, ext.entry,
+                                               ext.date)
             target = Target.EXTRAM
         else:
             progid, size, name, entry, date = (rec.progid, rec.size_words, rec.name, rec.entry,
@@ -414,7 +442,7 @@ class VirtualBoard:
             desc = replace(desc, name="")  # the name does not travel in Info
         fpga = self.fpga
         return BoardInfo(self.state, rec.autostart, self.prog_enable, rec.flash_valid,
-                         self.extram is not None, self.seq_id, self.identity.fixed_id,
+                         ext is not None, self.seq_id, self.identity.fixed_id,
                          BOOTLOADER_VERSION, progid, size, decode_date(date) if date else None,
                          self.identity.serial, entry, target, name,
                          fpga.read(Reg.VERSION1), fpga.read(Reg.VERSION2),
@@ -426,11 +454,12 @@ class VirtualBoard:
             self.send(t + self.timing.reply_us, m.Ready(ReadyReason.STARTED, self.state, target),
                       via_fixed=via_fixed)
             return
-        if self.application is not None or self.reception is not None:
+        if self.application is not None or self.programming.busy:
             self.error(t, ErrorCode.RUNNING if self.application else ErrorCode.BUSY,
                        Function.START, target, via_fixed)
             return
-        valid = self.nv.record.flash_valid if target is Target.FLASH else self.extram is not None
+        valid = (self.nv.record.flash_valid if target is Target.FLASH
+                 else self.programming.extram is not None)
         if not valid:
             self.error(t, ErrorCode.NO_PROGRAM, Function.START, target, via_fixed)
             return
@@ -440,15 +469,14 @@ class VirtualBoard:
                        via_fixed: bool = False) -> None:
         self.chain_active = False
         self.in_drive = self.out_drive = False
-        self.prog_enable = False
+        self.programming.enabled = False
         if target is Target.FLASH:
             rec = self.nv.record
             name, progid = rec.name, rec.progid
-            self.state = BoardState.RUNNING_FLASH
         else:
-            assert self.extram_meta is not None
-            progid, _, name, _, _ = self.extram_meta
-            self.state = BoardState.RUNNING_EXTRAM
+            ext = self.programming.extram
+            assert ext is not None
+            name, progid = ext.name, ext.progid
         self.application = DspProgram(self, target, name, progid)
         if announce:
             self.send(t, m.Ready(ReadyReason.STARTED, self.state, target), via_fixed=via_fixed)

@@ -100,6 +100,13 @@ class VirtualUcomBus(can.BusABC):
         self.channel_info = f"virtual UCoM bus {fleet.name}/{name}"
         super().__init__(channel=name, **kwargs)
 
+    def clock(self) -> float:
+        """Seconds on this bus's time base: the host's virtual time, or the wall clock when
+        the fleet runs in real time.  Timeouts given to :meth:`recv` count on it."""
+        if self.realtime:
+            return time.monotonic()
+        return self.port.host_time / 1e6
+
     # ------------------------------------------------------------------ send
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if msg.is_extended_id or msg.is_fd or msg.is_remote_frame or msg.is_error_frame:

@@ -67,6 +67,18 @@ class Memory:
         return self.words[start:start + count]
 
 
+@dataclass
+class ExtRamProgram:
+    """A program loaded into external RAM (volatile: gone after reset or power loss)."""
+
+    memory: dict[Space, Memory]
+    progid: int
+    size_words: int
+    name: str
+    entry: int
+    date: int
+
+
 def external_ram() -> dict[Space, Memory]:
     """Empty external RAM for an ExtRAM program, mapped like flash (P: and X:)."""
     return {Space.P: Memory(0, P_WORDS), Space.X: Memory(X_FLASH_START, X_WORDS)}

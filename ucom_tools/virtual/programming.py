@@ -1,33 +1,35 @@
 """Board side of the programming transfer: the Program frames a virtual UCoM takes.
 
 BEGIN clears the program-valid and AutoStart flags (non-volatile) before anything is
-erased; PREPARE erases the listed pages and answers Ready(ERASED); data frames go
-through the flow-controlled receive ring of :class:`~ucom_tools.virtual.receiver.Reception`
-(Ready PAUSE/RESUME); END verifies the stored words against the ProgID and answers
-Program Finished, committing the program only when it verified.
+erased; PREPARE checks that the preamble is complete, erases the listed pages and answers
+Ready(ERASED) (a repeated PREPARE asks again); data frames go through the flow-controlled
+receive ring of :class:`~ucom_tools.virtual.receiver.Reception` (Ready PAUSE/RESUME) into
+the block their slot names; END verifies the stored words against the ProgID and answers
+Program Finished with what is missing, committing the program only when it verified
+(``man/ucom-protocol.7``, PROGRAMMING).
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Callable
 
-from ucom_tools.virtual.nvmem import external_ram
-from ucom_tools.virtual.receiver import Reception, RejectedBlock
+from ucom_tools.virtual.nvmem import ExtRamProgram, NonVolatile, external_ram
+from ucom_tools.virtual.port import BoardPort
+from ucom_tools.virtual.receiver import BlockState, Reception, RejectedBlock
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import (
     BoardState,
     ErrorCode,
     MetaField,
+    PrepareFault,
     ReadyReason,
     ResultStatus,
     Space,
     Target,
+    prepare_fault,
 )
 from ucom_tools.wire.ids import Function
 from ucom_tools.wire.transfer import bytes_to_words
-
-if TYPE_CHECKING:
-    from ucom_tools.virtual.board import VirtualBoard
 
 _PROGRAM = int(Function.PROGRAM)
 
@@ -35,125 +37,199 @@ _PROGRAM = int(Function.PROGRAM)
 class BoardProgramming:
     """The programming part of one virtual board's bootloader."""
 
-    def __init__(self, board: VirtualBoard) -> None:
-        self.board = board
+    def __init__(self, port: BoardPort, nv: NonVolatile) -> None:
+        self.port = port
+        self.nv = nv
+        self.enabled = False
+        """ProgEnable (SetStatus): broadcast Program frames are taken only when set."""
+        self.reception: Reception | None = None
+        self.finished: m.ProgramResult | None = None
+        """The RESULT of the last verified transfer, repeated for an addressed END."""
+        self.extram: ExtRamProgram | None = None
+        self.overruns = 0
 
-    def handle(self, msg: m.BootMessage, t: float) -> None:
-        b = self.board
-        rx = b.reception
+    # ------------------------------------------------------------------ state
+    def drop(self) -> None:
+        """Reset or power loss: the transfer, ProgEnable and ExtRAM are gone."""
+        self.enabled = False
+        self.reception = None
+        self.finished = None
+        self.extram = None
+
+    def state(self) -> BoardState | None:
+        """ERASING or RECEIVING while a transfer is under way, else None."""
+        rx = self.reception
+        if rx is None or not rx.prepared:
+            return None
+        return BoardState.RECEIVING if rx.erased else BoardState.ERASING
+
+    @property
+    def busy(self) -> bool:
+        return self.reception is not None
+
+    # ------------------------------------------------------------------ frames
+    def handle(self, msg: m.BootMessage, t: float, *, addressed: bool, via_fixed: bool) -> None:
+        """A Program control frame for this board (broadcast or addressed to it)."""
+        port = self.port
+        if not self.enabled:
+            if isinstance(msg, m.ProgramEnd) and addressed and self.finished is not None:
+                port.send(t + port.timing.reply_us, self.finished, via_fixed=via_fixed)
+            elif addressed:
+                port.error(t, ErrorCode.NOT_ENABLED, _PROGRAM, via_fixed=via_fixed)
+            return
+        rx = self.reception
         if isinstance(msg, m.ProgramBegin):
-            b.reception = Reception(msg.target, msg.blocks, msg.entry, b.timing)
-            b.state = BoardState.BOOTLOADER
-            if msg.target is Target.FLASH and b.nv.record.flash_valid:
-                # From here on a power loss must leave no startable program behind.
-                b.nv.record.flash_valid = False
-                b.nv.record.autostart = False
-                b.persist(record_only=True)
+            self._begin(msg)
             return
         if isinstance(msg, m.ProgramAbort):
-            b.reception = None
-            b.state = BoardState.BOOTLOADER
+            self.reception = None
             return
         if rx is None:
-            b.error(t, ErrorCode.SEQUENCE, _PROGRAM)
-            return
+            if isinstance(msg, m.ProgramPrepare | m.ProgramEnd):
+                port.error(t, ErrorCode.SEQUENCE, _PROGRAM, prepare_fault(PrepareFault.NO_BEGIN),
+                           via_fixed)
+            return  # the rest of a preamble whose BEGIN was lost
         if isinstance(msg, m.ProgramMeta):
             rx.meta[msg.field] = msg.value
         elif isinstance(msg, m.ProgramErase):
-            if rx.target is Target.FLASH:
+            if rx.target is Target.FLASH and not rx.prepared:
                 try:
                     rx.add_erase(msg)
                 except RejectedBlock as err:
-                    b.error(t, err.code, _PROGRAM, err.detail)
+                    port.error(t, err.code, _PROGRAM, err.detail, via_fixed)
         elif isinstance(msg, m.ProgramPrepare):
-            b.state = BoardState.ERASING
-            if rx.target is Target.EXTRAM:
-                rx.extram = external_ram()
-            else:
-                for space, page in rx.erase_pages:
-                    b.nv.erase_page(space, page)
-            done = t + rx.erase_time()
-            b.bus.at(done, self.erased)
+            self._prepare(rx, msg, t, via_fixed)
         elif isinstance(msg, m.ProgramBlock):
             if not rx.erased:
-                b.error(t, ErrorCode.BUSY, _PROGRAM, msg.index)
+                port.error(t, ErrorCode.BUSY, _PROGRAM, msg.index, via_fixed)
                 return
             try:
                 rx.open_block(msg)
             except RejectedBlock as err:
-                b.error(t, err.code, _PROGRAM, err.detail)
+                port.error(t, err.code, _PROGRAM, err.detail, via_fixed)
         elif isinstance(msg, m.ProgramEnd):
-            b.bus.at(max(t, rx.free_at) + rx.size_hint() * b.timing.verify_word_us,
-                     self.finish)
+            port.at(max(t, rx.free_at) + rx.stored_words() * port.timing.verify_word_us,
+                    self._finish(via_fixed))
 
-    def erased(self, t: float) -> None:
-        b = self.board
-        rx = b.reception
-        if rx is None or not b.powered:
-            return
-        rx.erased = True
-        rx.free_at = t
-        b.state = BoardState.RECEIVING
-        b.send(t, m.Ready(ReadyReason.ERASED, b.state, b.timing.rx_capacity,
-                          int(rx.frame_cost + 0.999)))
+    def other_block(self) -> None:
+        """A BLOCK frame addressed to another board: its data frames are not ours."""
+        if self.reception is not None:
+            self.reception.current = None
 
-    def data(self, data: bytes, t: float) -> None:
-        b = self.board
-        rx = b.reception
+    def data(self, slot: int, data: bytes, t: float) -> None:
+        """A data frame (slot from the identifier) while a transfer is under way."""
+        rx = self.reception
         assert rx is not None
         if not rx.erased:
             rx.overruns += 1
             return
-        accepted, payload = rx.take_data(data, t)
-        if not accepted:
-            b.overruns += 1
-        elif payload is not None and rx.current is not None:
-            block = rx.current
+        before = rx.overruns
+        block = rx.take_data(slot, data, t)
+        if rx.overruns != before:
+            self.overruns += 1
+        elif block is not None:
+            self._store(rx, block)
+        self._pace(rx, t)
+
+    # ------------------------------------------------------------------ steps
+    def _begin(self, msg: m.ProgramBegin) -> None:
+        self.reception = Reception(msg.target, msg.blocks, msg.entry, self.port.timing)
+        self.finished = None
+        rec = self.nv.record
+        if msg.target is Target.FLASH and (rec.flash_valid or rec.autostart):
+            # From here on a power loss must leave no startable program behind.
+            rec.flash_valid = False
+            rec.autostart = False
+            self.port.persist(record_only=True)
+
+    def _prepare(self, rx: Reception, msg: m.ProgramPrepare, t: float, via_fixed: bool) -> None:
+        port = self.port
+        if rx.erased:
+            self._send_erased(rx, t + port.timing.reply_us)
+            return
+        if rx.prepared:
+            return  # still erasing: Ready(ERASED) follows when done
+        detail = None
+        if not rx.meta_complete():
+            detail = prepare_fault(PrepareFault.META_INCOMPLETE, rx.meta_lacking())
+        elif rx.target is Target.FLASH and len(rx.erase_pages) != msg.pages:
+            detail = prepare_fault(PrepareFault.ERASE_INCOMPLETE, len(rx.erase_pages))
+        if detail is not None:
+            port.error(t, ErrorCode.SEQUENCE, _PROGRAM, detail, via_fixed)
+            return
+        rx.prepared = True
+        if rx.target is Target.EXTRAM:
+            rx.extram = external_ram()
+        else:
+            for space, page in rx.erase_pages:
+                self.nv.erase_page(space, page)
+        port.at(t + rx.erase_time(), self._erased)
+
+    def _erased(self, t: float) -> None:
+        rx = self.reception
+        if rx is None or not self.port.powered or not rx.prepared:
+            return
+        rx.erased = True
+        rx.free_at = t
+        self._send_erased(rx, t)
+
+    def _send_erased(self, rx: Reception, t: float) -> None:
+        self.port.send(t, m.Ready(ReadyReason.ERASED, BoardState.RECEIVING,
+                                  self.port.timing.rx_capacity, int(rx.frame_cost + 0.999)))
+
+    def _store(self, rx: Reception, block: BlockState) -> None:
+        h = block.header
+        words = bytes_to_words(bytes(block.data))
+        if rx.target is Target.FLASH:
+            if not self.nv.space(h.space).program(h.address, words):
+                rx.failed_words += 1
+        else:
+            rx.extram[h.space].write(h.address, words)
+        block.stored = True
+        if rx.current is block:
             rx.current = None
-            if not rx.skip_current:
-                words = bytes_to_words(payload)
-                if rx.target is Target.FLASH:
-                    if not b.nv.space(block.space).program(block.address, words):
-                        rx.failed_words += 1
-                else:
-                    rx.extram[block.space].write(block.address, words)
-                rx.received[block.index] = (block.space, block.address, len(words))
-        if rx.paused or rx.free_at - t < b.timing.high_water * rx.frame_cost:
+
+    def _pace(self, rx: Reception, t: float) -> None:
+        timing = self.port.timing
+        if rx.paused or rx.free_at - t < timing.high_water * rx.frame_cost:
             return
         backlog = rx.backlog(t)
-        if backlog >= b.timing.high_water:
+        if backlog >= timing.high_water:
             rx.paused = True
-            b.send(t + b.timing.reply_us, m.Ready(ReadyReason.PAUSE, b.state, int(backlog)))
-            b.bus.at(rx.free_at - b.timing.low_water * rx.frame_cost, self.maybe_resume)
+            self.port.send(t + timing.reply_us, m.Ready(ReadyReason.PAUSE, BoardState.RECEIVING,
+                                                        int(backlog)))
+            self.port.at(rx.free_at - timing.low_water * rx.frame_cost, self._maybe_resume)
 
-    def maybe_resume(self, t: float) -> None:
-        b = self.board
-        rx = b.reception
-        if rx is None or not rx.paused or not b.powered:
+    def _maybe_resume(self, t: float) -> None:
+        rx = self.reception
+        timing = self.port.timing
+        if rx is None or not rx.paused or not self.port.powered:
             return
-        if rx.backlog(t) > b.timing.low_water + 1e-6:
-            b.bus.at(rx.free_at - b.timing.low_water * rx.frame_cost, self.maybe_resume)
+        if rx.backlog(t) > timing.low_water + 1e-6:
+            self.port.at(rx.free_at - timing.low_water * rx.frame_cost, self._maybe_resume)
             return
         rx.paused = False
-        b.send(t, m.Ready(ReadyReason.RESUME, b.state, int(rx.backlog(t))))
+        self.port.send(t, m.Ready(ReadyReason.RESUME, BoardState.RECEIVING, int(rx.backlog(t))))
 
-    def finish(self, t: float) -> None:
-        b = self.board
-        rx = b.reception
-        if rx is None or not b.powered:
-            return
-        memory = rx.extram if rx.target is Target.EXTRAM else {s: b.nv.space(s) for s in Space}
-        result, missing = rx.result(memory)
-        b.overruns += rx.overruns
-        rx.overruns = 0
-        if result.status is ResultStatus.VERIFIED:
-            self.commit(rx)
-        b.send(t, result)
-        for run in missing:
-            b.send(t, run)
+    def _finish(self, via_fixed: bool) -> Callable[[float], None]:
+        def finish(t: float) -> None:
+            rx = self.reception
+            if rx is None or not self.port.powered:
+                return
+            memory = rx.extram if rx.target is Target.EXTRAM else {
+                s: self.nv.space(s) for s in Space}
+            result, reports = rx.result(memory)
+            self.overruns += rx.overruns
+            rx.overruns = 0
+            if result.status is ResultStatus.VERIFIED:
+                self._commit(rx)
+                self.finished = result
+            self.port.send(t, result, via_fixed=via_fixed)
+            for report in reports:
+                self.port.send(t, report, via_fixed=via_fixed)
+        return finish
 
-    def commit(self, rx: Reception) -> None:
-        b = self.board
+    def _commit(self, rx: Reception) -> None:
         meta = rx.meta
         size = int.from_bytes(meta.get(MetaField.SIZE, bytes(4)), "big")
         date = int.from_bytes(meta.get(MetaField.DATE, bytes(4)), "big")
@@ -161,15 +237,12 @@ class BoardProgramming:
         name_s = name.rstrip(b"\0").decode("latin-1")
         progid = rx.expected_progid()
         if rx.target is Target.FLASH:
-            rec = b.nv.record
+            rec = self.nv.record
             rec.flash_valid = True
             rec.progid, rec.size_words, rec.date, rec.name, rec.entry = (progid, size, date,
                                                                          name_s, rx.entry)
-            b.persist()
+            self.port.persist()
         else:
-            b.extram = rx.extram
-            b.extram_meta = (progid, size, name_s, rx.entry, date)
-        b.reception = None
-        b.prog_enable = False
-        b.state = BoardState.BOOTLOADER
-
+            self.extram = ExtRamProgram(rx.extram, progid, size, name_s, rx.entry, date)
+        self.reception = None
+        self.enabled = False

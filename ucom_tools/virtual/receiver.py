@@ -1,11 +1,15 @@
-"""Board side of the programming transfer: erase, receive blocks, pace, verify.
+"""Board side of the programming transfer as plain state: erase list, blocks, flow model.
 
-One :class:`Reception` lives from Program BEGIN to END (or ABORT / reset).  It owns the
-receive-buffer model that drives flow control: every data frame costs the board
-``4 * word_program_us + frame_overhead_us`` to program; frames wait in a ring of
-``rx_capacity`` frames.  At ``high_water`` buffered frames the board sends Ready(PAUSE),
-at ``low_water`` Ready(RESUME); a frame that finds the ring full is lost (overrun) and its
-block is reported missing at END.
+One :class:`Reception` lives from Program BEGIN to the verified END (or ABORT, a new
+BEGIN, a reset).  Blocks are known from their BLOCK frame; each data frame carries its
+slot in the block, so a block fills in any order and a lost frame leaves exactly one
+hole, which END reports (PARTIAL) and a resend fills.
+
+The receive ring drives flow control: every data frame costs the board
+``4 * word_program_us + frame_overhead_us`` (flash) or ``extram_frame_us`` (ExtRAM);
+frames wait in a ring of ``rx_capacity`` frames.  At ``high_water`` buffered frames the
+board sends Ready(PAUSE), at ``low_water`` Ready(RESUME); a frame that finds the ring
+full is lost (overrun) and its slot stays empty.
 """
 
 from __future__ import annotations
@@ -15,9 +19,25 @@ from dataclasses import dataclass, field
 from ucom_tools.config.topology import Timing
 from ucom_tools.memory import PROTECTED_KINDS, Kind, first_unprogrammable, page_refusal
 from ucom_tools.virtual.nvmem import Memory
+from ucom_tools.wire.answers import MAX_REPORTS
 from ucom_tools.wire.codes import ErrorCode, MetaField, ResultStatus, Space, Target
-from ucom_tools.wire.messages import ProgramBlock, ProgramErase, ProgramMissing, ProgramResult
-from ucom_tools.wire.transfer import PAGE_WORDS, WORDS_PER_FRAME, Block, progid_of_blocks
+from ucom_tools.wire.messages import (
+    ProgramBlock,
+    ProgramErase,
+    ProgramMissing,
+    ProgramPartial,
+    ProgramResult,
+)
+from ucom_tools.wire.transfer import (
+    PAGE_WORDS,
+    WORDS_PER_FRAME,
+    Block,
+    block_crc,
+    progid_of_blocks,
+)
+
+META_FIELDS = frozenset(range(MetaField.NAME_0 + 7))
+"""Every META field a transfer must carry before PREPARE (ProgID, size, date, name)."""
 
 
 class RejectedBlock(Exception):
@@ -32,6 +52,36 @@ def refusal_code(kind: Kind) -> ErrorCode:
 
 
 @dataclass
+class BlockState:
+    """One block as the board knows it: where it goes and which frames arrived."""
+
+    header: ProgramBlock
+    data: bytearray
+    got: int = 0
+    """Bit i set = data frame i arrived."""
+    stored: bool = False
+
+    @property
+    def complete(self) -> bool:
+        return self.got == (1 << self.header.frames) - 1
+
+    def holes(self) -> list[tuple[int, int]]:
+        """Runs (first slot, count) of frames that did not arrive."""
+        runs: list[tuple[int, int]] = []
+        slot, n = 0, self.header.frames
+        while slot < n:
+            if self.got >> slot & 1:
+                slot += 1
+                continue
+            end = slot
+            while end < n and not self.got >> end & 1:
+                end += 1
+            runs.append((slot, end - slot))
+            slot = end
+        return runs
+
+
+@dataclass
 class Reception:
     """State of one transfer on one board."""
 
@@ -41,11 +91,14 @@ class Reception:
     timing: Timing
     meta: dict[int, bytes] = field(default_factory=dict)
     erase_pages: list[tuple[Space, int]] = field(default_factory=list)
+    prepared: bool = False
     erased: bool = False
-    received: dict[int, tuple[Space, int, int]] = field(default_factory=dict)
-    current: ProgramBlock | None = None
-    skip_current: bool = False
-    buffer: bytearray = field(default_factory=bytearray)
+    blocks: dict[int, BlockState] = field(default_factory=dict)
+    current: BlockState | None = None
+    last_slot: int = -1
+    """The slot of the last data frame since the current BLOCK frame (they rise)."""
+    corrupt_blocks: int = 0
+    """Blocks whose data did not match the CRC of their BLOCK frame (discarded)."""
     free_at: float = 0.0
     paused: bool = False
     overruns: int = 0
@@ -54,108 +107,133 @@ class Reception:
     frame_cost: float = field(init=False, default=0.0)
     """Microseconds the board needs to store one data frame."""
 
-    # ---------------------------------------------------------------- erase list
+    def __post_init__(self) -> None:
+        t = self.timing
+        self.frame_cost = (t.extram_frame_us if self.target is Target.EXTRAM
+                           else WORDS_PER_FRAME * t.word_program_us + t.frame_overhead_us)
+
+    # ---------------------------------------------------------------- preamble
     def add_erase(self, frame: ProgramErase) -> None:
         for page in range(frame.first_page, frame.first_page + frame.count):
             bad = page_refusal(frame.space, page)
             if bad is not None:
                 raise RejectedBlock(refusal_code(bad[1]), (frame.space << 16) | bad[0])
-            self.erase_pages.append((frame.space, page))
+            if (frame.space, page) not in self.erase_pages:
+                self.erase_pages.append((frame.space, page))
+
+    def meta_complete(self) -> bool:
+        return self.meta.keys() >= META_FIELDS
+
+    def meta_lacking(self) -> int:
+        """The META fields not received, as a bit mask (bit i = field i)."""
+        return sum(1 << f for f in META_FIELDS if f not in self.meta)
 
     def erase_time(self) -> float:
         if self.target is Target.EXTRAM:
             return 0.0
         return len(self.erase_pages) * self.timing.page_erase_us
 
-    def __post_init__(self) -> None:
-        t = self.timing
-        self.frame_cost = (t.extram_frame_us if self.target is Target.EXTRAM
-                           else WORDS_PER_FRAME * t.word_program_us + t.frame_overhead_us)
-
     # ---------------------------------------------------------------- blocks
-    def open_block(self, block: ProgramBlock) -> None:
-        """Start a block; raises :class:`RejectedBlock` for a block the board refuses."""
+    def open_block(self, header: ProgramBlock) -> None:
+        """Make ``header``'s block the current one; raises :class:`RejectedBlock` for a
+        block the board refuses.  A block met again (a resend) keeps what arrived."""
         self.current = None
-        self.buffer = bytearray()
-        words = block.frames * WORDS_PER_FRAME
-        detail = (block.space << 16) | block.address
-        if block.index >= self.blocks_total:
-            raise RejectedBlock(ErrorCode.BAD_VALUE, block.index)
-        if block.address // PAGE_WORDS != (block.address + words - 1) // PAGE_WORDS:
+        words = header.frames * WORDS_PER_FRAME
+        detail = (header.space << 16) | header.address
+        if header.index >= self.blocks_total:
+            raise RejectedBlock(ErrorCode.BAD_VALUE, header.index)
+        if header.address // PAGE_WORDS != (header.address + words - 1) // PAGE_WORDS:
             raise RejectedBlock(ErrorCode.BAD_VALUE, detail)
-        bad = first_unprogrammable(block.space, block.address, words)
+        bad = first_unprogrammable(header.space, header.address, words)
         if bad is not None:
-            raise RejectedBlock(refusal_code(bad[1]), (block.space << 16) | bad[0])
-        if self.target is Target.FLASH and (block.space, block.address // PAGE_WORDS) not in \
+            raise RejectedBlock(refusal_code(bad[1]), (header.space << 16) | bad[0])
+        if self.target is Target.FLASH and (header.space, header.address // PAGE_WORDS) not in \
                 self.erase_pages:
             raise RejectedBlock(ErrorCode.SEQUENCE, detail)
-        self.current = block
-        self.skip_current = block.index in self.received
+        known = self.blocks.get(header.index)
+        if known is None or known.header != header:
+            known = BlockState(header, bytearray(header.frames * 8))
+            self.blocks[header.index] = known
+        self.current = None if known.stored else known
+        self.last_slot = -1
 
-    def take_data(self, data: bytes, t: float) -> tuple[bool, bytes | None]:
-        """Buffer one data frame at time ``t``.
-
-        Returns (accepted, completed block payload or None).  A frame that overruns the
-        receive ring is dropped and spoils its block."""
+    def take_data(self, slot: int, data: bytes, t: float) -> BlockState | None:
+        """Buffer one data frame at time ``t``; returns its block when this frame
+        completed it.  A frame that overruns the receive ring is lost."""
         cost = self.frame_cost
         start = self.free_at if self.free_at > t else t
-        backlog = (start - t) / cost
-        if backlog >= self.timing.rx_capacity:
+        if (start - t) / cost >= self.timing.rx_capacity:
             self.overruns += 1
-            self.current = None  # block incomplete -> missing at END
-            return False, None
+            return None
         self.free_at = start + cost
         block = self.current
         if block is None:
-            return True, None
-        self.buffer += data
-        if len(self.buffer) == block.frames * 8:
-            payload = bytes(self.buffer)
-            self.buffer = bytearray()
-            return True, payload
-        return True, None
+            return None
+        if slot <= self.last_slot:
+            # slots rise after a BLOCK frame: this frame belongs to a block whose BLOCK
+            # frame was lost, not to this one
+            self.current = None
+            return None
+        self.last_slot = slot
+        if slot >= block.header.frames or block.got >> slot & 1:
+            return None
+        block.data[8 * slot:8 * slot + 8] = data
+        block.got |= 1 << slot
+        if not block.complete:
+            return None
+        if block_crc(bytes(block.data)) != block.header.crc:
+            block.got = 0  # some frame is not this block's: ask for all of it again
+            self.corrupt_blocks += 1
+            return None
+        return block
 
-    def size_hint(self) -> int:
-        """Words received so far (the amount END has to read back and checksum)."""
-        return sum(n for _, _, n in self.received.values())
+    def stored_words(self) -> int:
+        """Words stored so far (what END has to read back and checksum)."""
+        return sum(b.header.frames * WORDS_PER_FRAME for b in self.blocks.values() if b.stored)
 
     def backlog(self, t: float) -> float:
         """Data frames waiting in the receive ring at time ``t``."""
         return (self.free_at - t) / self.frame_cost if self.free_at > t else 0.0
 
     # ---------------------------------------------------------------- end
-    def missing_runs(self) -> list[ProgramMissing]:
-        runs: list[ProgramMissing] = []
+    def reports(self) -> list[ProgramMissing | ProgramPartial]:
+        """What is missing, in block order: runs of unknown blocks and the holes of known
+        ones; at most :data:`MAX_REPORTS` (the rest is reported after the next END)."""
+        out: list[ProgramMissing | ProgramPartial] = []
         i = 0
-        while i < self.blocks_total:
-            if i in self.received:
-                i += 1
+        while i < self.blocks_total and len(out) < MAX_REPORTS:
+            b = self.blocks.get(i)
+            if b is None:
+                j = i
+                while j < self.blocks_total and j not in self.blocks:
+                    j += 1
+                out.append(ProgramMissing(i, j - i))
+                i = j
                 continue
-            j = i
-            while j < self.blocks_total and j not in self.received:
-                j += 1
-            runs.append(ProgramMissing(i, j - i))
-            i = j
-        return runs
+            if not b.stored:
+                out += [ProgramPartial(i, first, count) for first, count in b.holes()]
+            i += 1
+        return out[:MAX_REPORTS]
 
     def expected_progid(self) -> int:
         raw = self.meta.get(MetaField.PROGID)
         return int.from_bytes(raw, "big") if raw else -1
 
-    def result(self, memory: dict[Space, Memory]) -> tuple[ProgramResult, list[ProgramMissing]]:
+    def result(self, memory: dict[Space, Memory]
+               ) -> tuple[ProgramResult, list[ProgramMissing | ProgramPartial]]:
         """Verify what was stored: read every block back from ``memory`` and compute its
         ProgID the way the host did (:func:`~ucom_tools.wire.transfer.progid_of_blocks`)."""
-        missing = self.missing_runs()
+        missing = self.reports()
         if missing:
-            n = sum(r.count for r in missing)
-            return ProgramResult(ResultStatus.MISSING, min(n, 0xFFFF), 0), missing[:8]
+            return ProgramResult(ResultStatus.MISSING, len(missing), 0), missing
         if self.failed_words:
             return ProgramResult(ResultStatus.FLASH_FAILURE, 0, 0), []
         stored = []
         for index in range(self.blocks_total):
-            space, address, nwords = self.received[index]
-            stored.append(Block(index, space, address,
-                                tuple(memory[space].read(address, nwords))))
+            h = self.blocks[index].header
+            nwords = h.frames * WORDS_PER_FRAME
+            stored.append(Block(index, h.space, h.address,
+                                tuple(memory[h.space].read(h.address, nwords))))
         progid = progid_of_blocks(stored)
         status = (ResultStatus.VERIFIED if progid == self.expected_progid()
                   else ResultStatus.PROGID_MISMATCH)

@@ -1,7 +1,9 @@
 """A simulated CAN bus: arbitration, bit-exact timing, load counters and the init line.
 
-Time is virtual, in microseconds.  Frames that are pending when the bus falls idle go out
-in arbitration order (lowest identifier first); each occupies the bus for its length in
+Time is virtual, in microseconds.  Each node sends its own frames in the order it queued
+them (a FIFO transmit queue, as CAN interfaces keep an application's frames in order);
+when the bus falls idle the frames at the heads of the nodes' queues go out in
+arbitration order (lowest identifier first); each occupies the bus for its length in
 bits (stuffing included, :mod:`ucom_tools.wire.canbits`) at the bus bitrate.  Nodes are
 virtual boards and host ports; the bus also carries the init line that runs from each
 board's init output to the next board's init input (dissertation B.2.2).
@@ -15,7 +17,7 @@ from __future__ import annotations
 import heapq
 import itertools
 import threading
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -45,9 +47,11 @@ class BusStats:
 
 
 class ChainMember(Protocol):
-    powered: bool
     in_drive: bool
     out_drive: bool
+
+    @property
+    def powered(self) -> bool: ...
 
 
 class SimBus:
@@ -66,6 +70,8 @@ class SimBus:
         self._events: list[tuple[float, int, Callable[[float], None] | None,
                                  tuple[int, bytes, object] | None]] = []
         self._contenders: list[tuple[int, int, bytes, object]] = []
+        self._waiting: dict[int, deque[tuple[int, int, bytes, object]]] = {}
+        """Ready frames behind a sender's frame that contends (by id(sender)): FIFO."""
         self._seq = itertools.count()
         self.nodes: list[Node] = []
         self.chain: list[ChainMember] = []
@@ -119,11 +125,23 @@ class SimBus:
                     assert callback is not None
                     callback(t)
                 else:
-                    heapq.heappush(contenders, (frame[0], seq, frame[1], frame[2]))
+                    entry = (frame[0], seq, frame[1], frame[2])
+                    queue = self._waiting.get(id(frame[2]))
+                    if queue is None:
+                        self._waiting[id(frame[2])] = deque()
+                        heapq.heappush(contenders, entry)
+                    else:
+                        queue.append(entry)
             if contenders:
                 if self.now > limit:
                     return
-                self._transmit(*heapq.heappop(contenders))
+                head = heapq.heappop(contenders)
+                queue = self._waiting[id(head[3])]
+                if queue:
+                    heapq.heappush(contenders, queue.popleft())
+                else:
+                    del self._waiting[id(head[3])]
+                self._transmit(*head)
                 if stop is not None and stop():
                     return
                 continue

@@ -99,28 +99,33 @@ class InitAck:
 
 _RESULT = struct.Struct(">BBHI")
 _MISSING = struct.Struct(">BHH")
+_PARTIAL = struct.Struct(">BHBB")
+MAX_REPORTS = 64
+"""At most this many MISSING/PARTIAL frames follow one RESULT."""
 
 
 @dataclass(frozen=True, slots=True)
 class ProgramResult:
-    """Function 4 (RESULT): outcome of a transfer and the ProgID the board computed."""
+    """Function 4 (RESULT): outcome of a transfer, the ProgID the board computed, and how
+    many MISSING/PARTIAL frames follow (``reports``)."""
 
     FUNCTION: ClassVar[Function] = Function.PROGRAM_FINISHED
     status: ResultStatus
-    missing: int
+    reports: int
     progid: int
 
     def __post_init__(self) -> None:
-        check_range("Program Finished missing", self.missing, 0, 0xFFFF)
+        check_range("Program Finished reports", self.reports, 0, MAX_REPORTS)
         check_range("Program Finished ProgID", self.progid, 0, 0xFFFFFFFF)
 
     def encode(self) -> bytes:
-        return _RESULT.pack(FinishedKind.RESULT, self.status, self.missing, self.progid)
+        return _RESULT.pack(FinishedKind.RESULT, self.status, self.reports, self.progid)
 
 
 @dataclass(frozen=True, slots=True)
 class ProgramMissing:
-    """Function 4 (MISSING): a run of ``count`` blocks from ``first`` that the board lacks."""
+    """Function 4 (MISSING): ``count`` blocks from ``first`` of which the board has nothing
+    (their BLOCK frame never arrived)."""
 
     FUNCTION: ClassVar[Function] = Function.PROGRAM_FINISHED
     first: int
@@ -134,15 +139,38 @@ class ProgramMissing:
         return _MISSING.pack(FinishedKind.MISSING, self.first, self.count)
 
 
-def decode_finished(data: bytes) -> ProgramResult | ProgramMissing:
+@dataclass(frozen=True, slots=True)
+class ProgramPartial:
+    """Function 4 (PARTIAL): data frames ``first`` .. ``first + count - 1`` of block
+    ``block`` did not arrive."""
+
+    FUNCTION: ClassVar[Function] = Function.PROGRAM_FINISHED
+    block: int
+    first: int
+    count: int
+
+    def __post_init__(self) -> None:
+        check_range("Program Finished block", self.block, 0, 0xFFFF)
+        check_range("Program Finished first frame", self.first, 0, 63)
+        check_range("Program Finished frame count", self.count, 1, 64 - self.first)
+
+    def encode(self) -> bytes:
+        return _PARTIAL.pack(FinishedKind.PARTIAL, self.block, self.first, self.count)
+
+
+def decode_finished(data: bytes) -> ProgramResult | ProgramMissing | ProgramPartial:
     if not data:
         raise FrameError("Program Finished payload length", "expected 5 or 8 bytes, got 0")
     kind = check_enum(FinishedKind, "Program Finished kind", data[0])
     if kind is FinishedKind.RESULT:
         check_length("Program Finished result", data, _RESULT.size)
-        _, status, missing, progid = _RESULT.unpack(data)
-        return ProgramResult(check_enum(ResultStatus, "Program Finished status", status), missing,
-                             progid)
+        _, status, reports, progid = _RESULT.unpack(data)
+        return ProgramResult(check_enum(ResultStatus, "Program Finished status", status),
+                             reports, progid)
+    if kind is FinishedKind.PARTIAL:
+        check_length("Program Finished partial", data, _PARTIAL.size)
+        _, block, first, count = _PARTIAL.unpack(data)
+        return ProgramPartial(block, first, count)
     check_length("Program Finished missing", data, _MISSING.size)
     _, first, count = _MISSING.unpack(data)
     return ProgramMissing(first, count)

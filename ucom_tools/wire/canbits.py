@@ -112,3 +112,10 @@ def frame_bits(arbitration_id: int, data: bytes, remote: bool = False) -> int:
     value = (header << (8 * dlc)) | int.from_bytes(data, "big") if not remote else header
     region = (value << 15) | crc15(value, nbits)
     return nbits + 15 + stuff_bits(region, nbits + 15) + FIXED_TAIL_BITS
+
+
+def worst_frame_bits(dlc: int) -> int:
+    """Longest a standard data frame of ``dlc`` bytes can be: every stuff bit that the
+    34 + 8n bits from SOF to the CRC can need (one per 4 bits after the first 5)."""
+    stuffed = 34 + 8 * dlc
+    return unstuffed_bits(dlc) + (stuffed - 1) // 4

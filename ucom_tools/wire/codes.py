@@ -174,6 +174,33 @@ class FinishedKind(IntEnum):
 
     RESULT = 0x00
     MISSING = 0x01
+    PARTIAL = 0x02
+
+
+class PrepareFault(IntEnum):
+    """What the Error SEQUENCE a board answers PREPARE (or END) with is about: bits 31-24
+    of its detail; bits 15-0 say more (:func:`prepare_fault`)."""
+
+    NO_BEGIN = 1
+    """No transfer: BEGIN did not arrive (or the board finished it)."""
+    META_INCOMPLETE = 2
+    """A META frame is missing."""
+    ERASE_INCOMPLETE = 3
+    """The ERASE frames name fewer pages than PREPARE announces."""
+
+
+def prepare_fault(fault: PrepareFault, info: int = 0) -> int:
+    """The Error detail for a PREPARE that cannot be carried out: ``fault`` in bits
+    31-24; ``info`` in bits 15-0: the META fields lacking (bit i = field i) for
+    META_INCOMPLETE, the pages the board holds in its erase list for ERASE_INCOMPLETE."""
+    return (int(fault) << 24) | (info & 0xFFFF)
+
+
+def split_prepare_fault(detail: int) -> tuple[PrepareFault | None, int]:
+    try:
+        return PrepareFault(detail >> 24), detail & 0xFFFF
+    except ValueError:
+        return None, detail & 0xFFFF
 
 
 class CheckField(IntEnum):

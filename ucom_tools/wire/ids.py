@@ -156,3 +156,18 @@ def decode_id(arbitration_id: int) -> tuple[int, Address]:
     if not 0 <= arbitration_id <= 0x7FF:
         raise FrameError("identifier", f"must be an 11-bit value, got 0x{arbitration_id:X}")
     return arbitration_id >> 6, Address(IdType((arbitration_id >> 5) & 1), arbitration_id & 0x1F)
+
+
+DATA_SLOTS = 64
+"""Program data frames carry their position in the block (0-63) in identifier bits 5-0."""
+
+
+def data_frame_id(slot: int) -> int:
+    """Identifier of a Program data frame at position ``slot`` of its block.
+
+    Data frames carry no board address: bits 5-0 (type bit and board number elsewhere) are
+    the frame's index in the block opened by the last BLOCK frame, and the boards that BLOCK
+    frame addressed store it (``man/ucom-protocol.7``, PROGRAMMING)."""
+    if not 0 <= slot < DATA_SLOTS:
+        raise FrameError("data frame slot", f"must be 0..{DATA_SLOTS - 1}, got {slot}")
+    return (int(Function.PROGRAM) << 6) | slot

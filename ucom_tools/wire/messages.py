@@ -19,6 +19,7 @@ from ucom_tools.wire.answers import (
     InitAck,
     MemoryReport,
     ProgramMissing,
+    ProgramPartial,
     ProgramResult,
     Ready,
     StatusReport,
@@ -26,7 +27,7 @@ from ucom_tools.wire.answers import (
     decode_finished,
     text_reports,
 )
-from ucom_tools.wire.ids import Address, Direction, Function, decode_id, encode_id
+from ucom_tools.wire.ids import Address, Direction, Function, data_frame_id, decode_id, encode_id
 from ucom_tools.wire.requests import (
     InfoRequest,
     InitRequest,
@@ -67,6 +68,7 @@ __all__ = [
     "ProgramFrame",
     "ProgramMeta",
     "ProgramMissing",
+    "ProgramPartial",
     "ProgramPrepare",
     "ProgramResult",
     "Ready",
@@ -93,7 +95,8 @@ class Message(Protocol):
 
 BootMessage = (Reset | XReset | SetStatus | InfoRequest | ReportRequest | InitRequest
                | ProgramFrame | Start | Error | InitAck | ProgramResult | ProgramMissing
-               | InfoFrame | Ready | StatusReport | MemoryReport | TextReport | AppReport)
+               | ProgramPartial | InfoFrame | Ready | StatusReport | MemoryReport | TextReport
+               | AppReport)
 
 _DECODERS: dict[Function, Callable[[bytes], BootMessage]] = {
     Function.RESET: Reset.decode,
@@ -119,7 +122,10 @@ BOOTLOADER_FUNCTIONS = frozenset(_DECODERS)
 
 
 def encode(message: BootMessage, address: Address) -> tuple[int, bytes]:
-    """The (identifier, payload) of ``message`` to or from ``address``."""
+    """The (identifier, payload) of ``message`` to or from ``address``; a Program data
+    frame has no address: its identifier carries its slot."""
+    if isinstance(message, ProgramData):
+        return data_frame_id(message.slot), message.data
     return encode_id(message.FUNCTION, address), message.encode()
 
 
@@ -142,5 +148,5 @@ def decode(arbitration_id: int, data: bytes, *,
         raise FrameError("function", f"{function.label} is sent by the "
                          f"{function.direction.value}, not by the {sender.value}")
     if function is Function.PROGRAM and len(data) == 8:
-        return address, ProgramData(bytes(data))
+        return address, ProgramData(bytes(data), arbitration_id & 0x3F)
     return address, decoder(bytes(data))

@@ -21,7 +21,7 @@ from ucom_tools.wire.codes import (
     Target,
 )
 from ucom_tools.wire.fields import check_enum, check_length, check_range
-from ucom_tools.wire.ids import Function
+from ucom_tools.wire.ids import DATA_SLOTS, Function
 
 
 @dataclass(frozen=True, slots=True)
@@ -146,6 +146,8 @@ _BEGIN = struct.Struct(">BBHH")
 _META = struct.Struct(">BB4s")
 _ERASE = struct.Struct(">BBHH")
 _BLOCK = struct.Struct(">BBHBH")
+"""op, space << 7 | frames, word address, block index, CRC-16 of the block's data."""
+MAX_BLOCKS = 256
 
 
 @dataclass(frozen=True, slots=True)
@@ -158,7 +160,7 @@ class ProgramBegin:
     entry: int
 
     def __post_init__(self) -> None:
-        check_range("Program Begin blocks", self.blocks, 1, 0xFFFF)
+        check_range("Program Begin blocks", self.blocks, 1, MAX_BLOCKS)
         check_range("Program Begin entry", self.entry, 0, 0xFFFF)
 
     def encode(self) -> bytes:
@@ -199,45 +201,61 @@ class ProgramErase:
         return _ERASE.pack(ProgramOp.ERASE, self.space, self.first_page, self.count)
 
 
+_PREPARE = struct.Struct(">BH")
+
+
 @dataclass(frozen=True, slots=True)
 class ProgramPrepare:
-    """Program control frame: the erase list is complete; answer Ready(ERASED) when done."""
+    """Program control frame: the preamble is complete (``pages`` pages were listed in ERASE
+    frames); erase, then answer Ready(ERASED).  Repeated, it asks for Ready(ERASED) again."""
 
     FUNCTION: ClassVar[Function] = Function.PROGRAM
+    pages: int = 0
+
+    def __post_init__(self) -> None:
+        check_range("Program Prepare pages", self.pages, 0, 0xFFFF)
 
     def encode(self) -> bytes:
-        return bytes((ProgramOp.PREPARE,))
+        return _PREPARE.pack(ProgramOp.PREPARE, self.pages)
 
 
 @dataclass(frozen=True, slots=True)
 class ProgramBlock:
-    """Program control frame: ``frames`` data frames for ``space:address`` follow."""
+    """Program control frame: the data frames of block ``index`` (``frames`` of them, for
+    ``space:address``) follow; ``crc`` is the CRC-16/CCITT-FALSE of the block's data bytes,
+    which the board checks before it programs the block."""
 
     FUNCTION: ClassVar[Function] = Function.PROGRAM
     space: Space
     address: int
     frames: int
     index: int
+    crc: int = 0
 
     def __post_init__(self) -> None:
         check_range("Program Block address", self.address, 0, 0xFFFF)
         check_range("Program Block frames", self.frames, 1, 64)
-        check_range("Program Block index", self.index, 0, 0xFFFF)
+        check_range("Program Block index", self.index, 0, MAX_BLOCKS - 1)
+        check_range("Program Block CRC", self.crc, 0, 0xFFFF)
 
     def encode(self) -> bytes:
-        return _BLOCK.pack(ProgramOp.BLOCK, self.space, self.address, self.frames, self.index)
+        return _BLOCK.pack(ProgramOp.BLOCK, (self.space << 7) | self.frames, self.address,
+                           self.index, self.crc)
 
 
 @dataclass(frozen=True, slots=True)
 class ProgramData:
-    """Program data frame: exactly 8 bytes = 4 words, each low byte first."""
+    """Program data frame: exactly 8 bytes = 4 words, each low byte first, at position
+    ``slot`` (0-63) of the current block; the slot travels in identifier bits 5-0."""
 
     FUNCTION: ClassVar[Function] = Function.PROGRAM
     data: bytes
+    slot: int = 0
 
     def __post_init__(self) -> None:
         if len(self.data) != 8:
             raise FrameError("Program data", f"must be 8 bytes, got {len(self.data)}")
+        check_range("Program data slot", self.slot, 0, DATA_SLOTS - 1)
 
     def encode(self) -> bytes:
         return self.data
@@ -267,10 +285,11 @@ ProgramFrame = (ProgramBegin | ProgramMeta | ProgramErase | ProgramPrepare | Pro
                 | ProgramData | ProgramEnd | ProgramAbort)
 
 
-def decode_program(data: bytes) -> ProgramFrame:
-    """Decode any frame of function Program (DLC 8 = data, else a control frame)."""
+def decode_program(data: bytes, slot: int = 0) -> ProgramFrame:
+    """Decode any frame of function Program (DLC 8 = data at ``slot``, else a control
+    frame)."""
     if len(data) == 8:
-        return ProgramData(bytes(data))
+        return ProgramData(bytes(data), slot)
     if not data:
         raise FrameError("Program payload length", "expected 1..8 bytes, got 0")
     op = check_enum(ProgramOp, "Program op", data[0])
@@ -288,11 +307,12 @@ def decode_program(data: bytes) -> ProgramFrame:
         return ProgramErase(check_enum(Space, "Program Erase space", space), first, count)
     if op is ProgramOp.BLOCK:
         check_length("Program Block", data, _BLOCK.size)
-        _, space, addr, frames, index = _BLOCK.unpack(data)
-        return ProgramBlock(check_enum(Space, "Program Block space", space), addr, frames, index)
-    check_length(f"Program {op.name.title()}", data, 1)
+        _, packed, addr, index, crc = _BLOCK.unpack(data)
+        return ProgramBlock(Space(packed >> 7), addr, packed & 0x7F, index, crc)
     if op is ProgramOp.PREPARE:
-        return ProgramPrepare()
+        check_length("Program Prepare", data, _PREPARE.size)
+        return ProgramPrepare(_PREPARE.unpack(data)[1])
+    check_length(f"Program {op.name.title()}", data, 1)
     return ProgramEnd() if op is ProgramOp.END else ProgramAbort()
 
 

@@ -10,6 +10,7 @@ followed by its words, low byte first.  See ``man/ucom-protocol.7``.
 
 from __future__ import annotations
 
+import binascii
 import itertools
 import sys
 import zlib
@@ -25,6 +26,7 @@ from ucom_tools.wire.messages import (
     ProgramData,
     ProgramErase,
     ProgramMeta,
+    ProgramPrepare,
 )
 
 PAGE_WORDS = 256
@@ -75,11 +77,20 @@ class Block:
         return words_to_bytes(self.words)
 
     def header(self) -> ProgramBlock:
-        return ProgramBlock(self.space, self.address, self.frames, self.index)
+        return ProgramBlock(self.space, self.address, self.frames, self.index,
+                            block_crc(self.payload()))
 
-    def data_frames(self) -> list[ProgramData]:
+    def data_frames(self, slots: Iterable[int] | None = None) -> list[ProgramData]:
+        """The block's data frames (all, or those at ``slots``), each knowing its slot."""
         raw = self.payload()
-        return [ProgramData(raw[i:i + 8]) for i in range(0, len(raw), 8)]
+        chosen = range(self.frames) if slots is None else sorted(slots)
+        return [ProgramData(raw[8 * i:8 * i + 8], i) for i in chosen]
+
+
+def block_crc(payload: bytes) -> int:
+    """CRC-16/CCITT-FALSE (polynomial 0x1021, initial value 0xFFFF, no reflection) of a
+    block's data bytes, carried in its BLOCK frame."""
+    return binascii.crc_hqx(payload, 0xFFFF)
 
 
 def make_blocks(words: Mapping[tuple[Space, int], int]) -> list[Block]:
@@ -166,7 +177,10 @@ class TransferPlan:
         return meta_frames(self.progid, self.size_words, self.when, self.name)
 
     def erases(self) -> list[ProgramErase]:
-        return erase_ranges(self.blocks)
+        return erase_ranges(self.blocks) if self.target is Target.FLASH else []
+
+    def prepare(self) -> ProgramPrepare:
+        return ProgramPrepare(sum(e.count for e in self.erases()))
 
     def block_frames(self, indices: Iterable[int] | None = None) -> Iterator[
             ProgramBlock | ProgramData]:
