@@ -192,7 +192,7 @@ def test_options_from_environment() -> None:
 def test_bus_that_cannot_be_opened_gives_one_line_and_exit_4() -> None:
     r = ucom("init", "-i", "socketcand", "--host", "127.0.0.1", "--port", "1", "-c", "CAN0")
     assert r.exit_code == 4
-    assert "cannot open socketcand on 127.0.0.1:1: Connection refused" in r.stderr
+    assert "cannot connect to socketcand 127.0.0.1:1: Connection refused" in r.stderr
     assert "Traceback" not in r.stderr
     r = ucom("init", "-i", "no-such-interface", "-c", "x")
     assert r.exit_code == 4

@@ -55,7 +55,7 @@ def test_plain_s1_and_s2_files_and_byte_addressing() -> None:
     s2 = "\n".join([rec(0x80, [1, 2], "2"), bincopy.pack_srec("8", 0x80, 0, None)])
     assert parse_image(s2).size() == 2
     byte_addressed = "\n".join([rec(0x100, [1, 2, 3, 4], "1"), rec(0x108, [5, 6], "1"),
-                                rec(0x10C, [7], "1")])
+                                rec(0x10C, [7], "1"), bincopy.pack_srec("9", 0x100, 0, None)])
     img = parse_image(byte_addressed)
     assert img.addressing == "byte"
     assert sorted(a for _, a in img.words) == list(range(0x80, 0x87))
@@ -90,7 +90,7 @@ def _bad_checksum() -> str:
 CORPUS = [
     ("bad_checksum", _with(good_lines(), 2, _bad_checksum()), 3, "checksum"),
     ("not_hex", _with(good_lines(), 3, "S3090000008405XX0600E7"), 4, "malformed"),
-    ("short_record", _with(good_lines(), 3, "S3090000"), 4, "malformed"),
+    ("short_record", _with(good_lines(), 3, "S3090000"), 4, "record cut short"),
     ("type_s4", _with(good_lines(), 3, "S4030000FC"), 4, "unknown record type S4"),
     ("not_srecord", "this is not an S-record file\n", 1, "not an S-record"),
     ("odd_bytes", _with(good_lines(), 3, bincopy.pack_srec("3", 0x84, 3, b"\x01\x02\x03")),

@@ -1,27 +1,41 @@
-"""The console options of dsp_console2can as ``ucom`` subcommands, and ``ucom flash``."""
+"""The console options of dsp_console2can as ``ucom`` subcommands, and ``ucom flash``.
+
+Thin click glue: each command parses its arguments, runs an operation of
+:mod:`ucom_tools.ops` and prints its result (a table, or JSON with ``--json``); the
+exit code says how it went (:mod:`ucom_tools.cli.exitcodes`).  Help texts come from the
+option table of :mod:`ucom_tools.cli.menu`, which the console shares.
+"""
 
 from __future__ import annotations
 
-import threading
 from typing import Any
 
 import click
 
 from ucom_tools.cli import render
-from ucom_tools.cli.connect import connection_options, init_option, json_option, robot
-from ucom_tools.cli.main import EXIT_FAILED, EXIT_INTERRUPTED
+from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
+from ucom_tools.cli.flashrun import run_flash
+from ucom_tools.cli.menu import help_text, label, parse_level
+from ucom_tools.cli.options import (
+    connection_json,
+    connection_options,
+    init_option,
+    json_option,
+    robot,
+)
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.errors import InputError
-from ucom_tools.image import Image, load_image
+from ucom_tools.image import load_image
 from ucom_tools.ops import boards as ops
 from ucom_tools.ops.enumerate import enumerate_bus
-from ucom_tools.ops.flash import FlashResult, Selection, flash
-from ucom_tools.ops.robot import ConnectSpec, Robot
+from ucom_tools.ops.flash import FlashResult, Selection
+from ucom_tools.ops.robot import ConnectSpec
 from ucom_tools.protocol.programmer import Cancelled
 from ucom_tools.wire.codes import StatusOp, Target
 from ucom_tools.wire.ids import IdType
 
 BOARD = "BOARD is a seq ID (1-31), F<n> for a fixed ID, or 'all'; BUS:<n> picks one bus."
+ONE_BOARD = "BOARD is a seq ID (1-31) or F<n> for a fixed ID; BUS:<n> picks one bus."
 
 
 def _finish(ctx: click.Context, ok: bool) -> None:
@@ -29,47 +43,45 @@ def _finish(ctx: click.Context, ok: bool) -> None:
         ctx.exit(EXIT_FAILED)
 
 
-def _rows(ctx: click.Context, rows: list[ops.Row], as_json: bool, title: str) -> None:
+def _json(spec: ConnectSpec, data: dict[str, Any]) -> None:
+    """JSON on stdout, with the bus that was used."""
+    emit_json({**data, "connection": connection_json(spec)})
+
+
+def _verbose(ctx: click.Context) -> int:
+    return int((ctx.find_root().obj or {}).get("verbose", 0))
+
+
+def _rows(ctx: click.Context, spec: ConnectSpec, rows: list[ops.Row], as_json: bool,
+          title: str) -> None:
     if as_json:
-        emit_json(render.rows_json(rows))
+        _json(spec, render.rows_json(rows))
     else:
         render.print_rows(stdout(), rows, title)
     _finish(ctx, bool(rows) and all(r.ok for r in rows))
 
 
-def _level(text: str) -> int:
-    t = text.strip().lower()
-    if t in ("set", "1", "lo", "low", "on"):
-        return 1
-    if t in ("release", "0", "hi", "high", "off"):
-        return 0
-    raise InputError(f"{text!r}: LEVEL is 'set' (drive the pin low) or 'release'", key="LEVEL")
-
-
-def _image(path: str) -> Image:
-    return load_image(path)
-
-
 # ----------------------------------------------------------------------------- 1, 9, 21
-@click.command("reset")
+@click.command("reset", help=help_text(1, "Boards answer once they have a number (seq ID "
+                                          "from the init chain, or a fixed ID); a reset keeps "
+                                          "the seq ID, a power cycle clears it.  With a "
+                                          "topology, an expected board that does not answer "
+                                          "makes the exit code 1."))
 @connection_options
 @json_option
 @click.pass_context
 def reset_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, as_json: bool) -> None:
-    """Option 1, Reset All: reset every board and list who answered (who is alive).
-
-    Boards answer once they have a number (seq ID from the init chain, or a fixed ID);
-    a reset keeps the seq ID, a power cycle clears it."""
     with robot(spec) as r:
-        rows = ops.reset(r, bus=bus_name)
+        rows = ops.reset(r, bus=bus_name, what=label(1))
     if as_json:
-        emit_json(render.rows_json(rows))
+        _json(spec, render.rows_json(rows))
     else:
         render.print_reset(stdout(), rows, "Reset All")
+    _finish(ctx, all(x.ok for x in rows))
 
 
-@click.command("xreset", help="Option 9, XReset: clear the AutoStart flag and reset "
-               "(default: every board).\n\n" + BOARD)
+@click.command("xreset", help=help_text(9, "Default: every board (boards without a number "
+                                           "act too, but cannot answer).\n\n" + BOARD))
 @click.argument("board", default="all")
 @connection_options
 @json_option
@@ -78,14 +90,15 @@ def xreset_cmd(ctx: click.Context, board: str, spec: ConnectSpec, bus_name: str 
                as_json: bool) -> None:
     ref = ops.parse_ref(board)
     with robot(spec) as r:
-        rows = ops.reset(r, ref, bus=bus_name, clear_autostart=True)
+        rows = ops.reset(r, ref, bus=bus_name, clear_autostart=True, what=label(9))
     if as_json:
-        emit_json(render.rows_json(rows))
+        _json(spec, render.rows_json(rows))
     else:
         render.print_reset(stdout(), rows, "XReset")
+    _finish(ctx, all(x.ok for x in rows))
 
 
-@click.command("reset-one")
+@click.command("reset-one", help=help_text(21, ONE_BOARD))
 @click.argument("board")
 @connection_options
 @init_option
@@ -93,33 +106,29 @@ def xreset_cmd(ctx: click.Context, board: str, spec: ConnectSpec, bus_name: str 
 @click.pass_context
 def reset_one_cmd(ctx: click.Context, board: str, spec: ConnectSpec, bus_name: str | None,
                   run_init: bool, as_json: bool) -> None:
-    """Option 21, Reset Specific: reset one board (needs a completed init).
-
-    BOARD is a seq ID (1-31) or F<n> for a fixed ID; BUS:<n> picks one bus."""
     ref = ops.parse_ref(board, allow_all=False)
     with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
-        rows = ops.reset(r, ref, bus=bus_name)
-    _rows(ctx, rows, as_json, f"Reset board {ref}")
+        rows = ops.reset(r, ref, bus=bus_name, what=label(21))
+    _rows(ctx, spec, rows, as_json, f"Reset board {ref}")
 
 
 # ----------------------------------------------------------------------------- 2
-@click.command("init")
+@click.command("init", help=help_text(2, "Per bus: the boards in chain order with seq ID and "
+                                         "Info, compared with the boards the topology expects, "
+                                         "and a diagnosis when they differ (broken init line, "
+                                         "unpowered board, clashing fixed IDs) saying where to "
+                                         "look and which LEDs tell.  Exit code 1 when a bus "
+                                         "shows a fault."))
 @connection_options
 @click.option("--no-info", is_flag=True, help="Do not read every board's Info.")
 @json_option
 @click.pass_context
 def init_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, no_info: bool,
              as_json: bool) -> None:
-    """Option 2, Init: number the boards along the init line and check the wiring.
-
-    Per bus: the boards in chain order with seq ID and Info, compared with the boards the
-    topology expects, and a diagnosis when they differ (broken init line, unpowered
-    board, clashing fixed IDs) saying where to look and which LEDs tell.  Exit code 1
-    when a bus shows a fault."""
     with robot(spec) as r:
         results = [enumerate_bus(h, with_info=not no_info) for h in r.select(bus_name)]
     if as_json:
-        emit_json({"buses": [render.enumeration_json(e) for e in results]})
+        _json(spec, {"buses": [render.enumeration_json(e) for e in results]})
     else:
         for e in results:
             render.print_enumeration(stdout(), e)
@@ -127,8 +136,7 @@ def init_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, no_inf
 
 
 # ----------------------------------------------------------------------------- 3, 13, 16/17
-@click.command("info", help="Option 3, GetInfo: program name, date, ProgID, size, flags of "
-               "a board (needs init).\n\n" + BOARD)
+@click.command("info", help=help_text(3, BOARD))
 @click.argument("board")
 @connection_options
 @init_option
@@ -138,51 +146,56 @@ def info_cmd(ctx: click.Context, board: str, spec: ConnectSpec, bus_name: str | 
              run_init: bool, as_json: bool) -> None:
     ref = ops.parse_ref(board)
     with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
-        rows = ops.info(r, ref, bus=bus_name)
-    _info_out(ctx, rows, as_json, "GetInfo")
+        rows = ops.info(r, ref, bus=bus_name, what=label(3))
+    _info_out(ctx, spec, rows, as_json, "GetInfo")
 
 
-def _info_out(ctx: click.Context, rows: list[ops.Row], as_json: bool, title: str) -> None:
+def _info_out(ctx: click.Context, spec: ConnectSpec, rows: list[ops.Row], as_json: bool,
+              title: str) -> None:
     if as_json:
-        emit_json({"boards": [{"bus": x.bus, **render.addr_json(x.address), "ok": x.ok,
-                               "detail": x.detail,
-                               **(render.info_json(x.info) if x.info else {})} for x in rows]})
+        _json(spec, {"boards": [{"bus": x.bus, **render.addr_json(x.address),
+                                 "placement": x.placement, "ok": x.ok, "detail": x.detail,
+                                 **(render.info_json(x.info) if x.info else {})}
+                                for x in rows]})
     elif rows:
         render.print_infos(stdout(), rows, title)
     else:
-        stdout().print(f"[yellow]{title}: no board answered[/]")
+        stdout().print(f"[yellow]{title}: no board answered[/] (boards answer once they "
+                       "have a number: run 'ucom init', or add --init)")
     _finish(ctx, bool(rows) and all(x.ok for x in rows))
 
 
-@click.command("count")
+@click.command("count", help=help_text(13, "Boards answer once they have a number: add "
+                                           "--init before the first init chain.  With a "
+                                           "topology, an expected board that does not answer "
+                                           "makes the exit code 1."))
 @connection_options
 @init_option
 @json_option
 @click.pass_context
 def count_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, run_init: bool,
               as_json: bool) -> None:
-    """Option 13, Count: GetInfo of every board that has a number."""
     with robot(spec, run_init=run_init, bus=bus_name) as r:
-        rows = ops.info(r, ops.BoardRef(None, ops.ALL), bus=bus_name)
-    _info_out(ctx, rows, as_json, "Count")
+        rows = ops.info(r, ops.BoardRef(None, ops.ALL), bus=bus_name, what=label(13))
+    _info_out(ctx, spec, rows, as_json, "Count")
 
 
-@click.command("list")
+@click.command("list", help=help_text(16, "Options 16 and 17 in one: build and print the "
+                                          "list of active boards."))
 @connection_options
 @init_option
 @json_option
 @click.pass_context
 def list_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, run_init: bool,
              as_json: bool) -> None:
-    """Options 16 and 17: build and print the list of active boards (DSP list)."""
     with robot(spec, run_init=run_init, bus=bus_name) as r:
         rows = ops.dsp_list(r, bus=bus_name)
-    _info_out(ctx, rows, as_json, "DSP list")
+    _info_out(ctx, spec, rows, as_json, "DSP list")
 
 
-# ----------------------------------------------------------------------------- 4, 7, 8
-def _status_command(name: str, option: int, op: StatusOp, doc: str) -> click.Command:
-    @click.command(name, help=doc + "\n\n" + BOARD)
+# ----------------------------------------------------------------------------- 4, 8
+def _status_command(name: str, option: int, op: StatusOp) -> click.Command:
+    @click.command(name, help=help_text(option, BOARD))
     @click.argument("board")
     @connection_options
     @init_option
@@ -193,21 +206,19 @@ def _status_command(name: str, option: int, op: StatusOp, doc: str) -> click.Com
             run_init: bool, as_json: bool, off: bool) -> None:
         ref = ops.parse_ref(board)
         with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
-            rows = ops.set_status(r, ref, op, 0 if off else 1, option=option, bus=bus_name)
-        _rows(ctx, rows, as_json, f"{name} {board}" + (" off" if off else ""))
+            rows = ops.set_status(r, ref, op, 0 if off else 1, what=label(option),
+                                  bus=bus_name)
+        _rows(ctx, spec, rows, as_json, f"{name} {board}" + (" off" if off else ""))
     return cmd
 
 
-prog_enable_cmd = _status_command(
-    "prog-enable", 4, StatusOp.PROG_ENABLE,
-    "Option 4, SetProgEnable: enable programming of one board or all (needs init).")
-autostart_cmd = _status_command(
-    "autostart", 8, StatusOp.AUTOSTART,
-    "Option 8, SetAutoStart: start the flash program right after every reset.")
+prog_enable_cmd = _status_command("prog-enable", 4, StatusOp.PROG_ENABLE)
+autostart_cmd = _status_command("autostart", 8, StatusOp.AUTOSTART)
 
 
-@click.command("start", help="Option 7, Start: start the program in flash (or ExtRAM) and "
-               "show its messages.\n\n" + BOARD)
+# ----------------------------------------------------------------------------- 7
+@click.command("start", help=help_text(7, "Shows the messages the program sends as it "
+                                          "starts (its compatibility check).\n\n" + BOARD))
 @click.argument("board")
 @click.option("--extram", is_flag=True, help="Start the program loaded into external RAM.")
 @connection_options
@@ -218,14 +229,16 @@ def start_cmd(ctx: click.Context, board: str, extram: bool, spec: ConnectSpec,
               bus_name: str | None, run_init: bool, as_json: bool) -> None:
     ref = ops.parse_ref(board)
     with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
-        rows = ops.start(r, ref, Target.EXTRAM if extram else Target.FLASH, bus=bus_name)
-    _rows(ctx, rows, as_json, f"Start {board}")
+        rows = ops.start(r, ref, Target.EXTRAM if extram else Target.FLASH, bus=bus_name,
+                         what=label(7))
+    _rows(ctx, spec, rows, as_json, f"Start {board}" + (" (ExtRAM)" if extram else ""))
 
 
 # ----------------------------------------------------------------------------- 10, 11, 12
-def _pin_command(name: str, option: int, op: StatusOp, doc: str) -> click.Command:
-    @click.command(name, help=doc + " LEVEL is 'set' (drive the pin low) or 'release'; the "
-                   "board's LEDs show it.\n\nBOARD is a seq ID or F<n>; BUS:<n> picks a bus.")
+def _pin_command(name: str, option: int, op: StatusOp) -> click.Command:
+    @click.command(name, help=help_text(option, "LEVEL is 'set' (drive the pin low) or "
+                                                "'release'; the board's LEDs show it.\n\n"
+                                        + ONE_BOARD))
     @click.argument("board")
     @click.argument("level")
     @connection_options
@@ -235,15 +248,15 @@ def _pin_command(name: str, option: int, op: StatusOp, doc: str) -> click.Comman
     def cmd(ctx: click.Context, board: str, level: str, spec: ConnectSpec,
             bus_name: str | None, run_init: bool, as_json: bool) -> None:
         ref = ops.parse_ref(board, allow_all=False)
-        value = _level(level)
+        value = parse_level(level)
         with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
-            rows = ops.set_status(r, ref, op, value, option=option, bus=bus_name)
+            rows = ops.set_status(r, ref, op, value, what=label(option), bus=bus_name)
             status = (ops.board_status(r, ref, bus=bus_name)
                       if rows and all(x.ok for x in rows) else [])
         if as_json:
             data = render.rows_json(rows)
             data["status"] = [{"bus": b, "pins": s.pins, "leds": s.leds} for b, s in status]
-            emit_json(data)
+            _json(spec, data)
         else:
             render.print_rows(stdout(), rows, f"{name} {board} {level}")
             for b, s in status:
@@ -252,13 +265,14 @@ def _pin_command(name: str, option: int, op: StatusOp, doc: str) -> click.Comman
     return cmd
 
 
-set_init_in_cmd = _pin_command("set-init-in", 10, StatusOp.INIT_IN,
-                               "Option 10, SetInitIn: drive one board's init input (debugging).")
-set_init_out_cmd = _pin_command("set-init-out", 11, StatusOp.INIT_OUT,
-                                "Option 11, SetInitOut: drive one board's init output.")
+set_init_in_cmd = _pin_command("set-init-in", 10, StatusOp.INIT_IN)
+set_init_out_cmd = _pin_command("set-init-out", 11, StatusOp.INIT_OUT)
 
 
-@click.command("set-seqid")
+@click.command("set-seqid", help=help_text(12, "OLD is the board's seq ID (BUS:<n> picks a "
+                                               "bus), NEW the seq ID it takes.  A NEW that "
+                                               "another board of the bus holds is refused "
+                                               "(exit code 3, nothing sent)."))
 @click.argument("old")
 @click.argument("new", type=click.IntRange(1, 31))
 @connection_options
@@ -267,16 +281,15 @@ set_init_out_cmd = _pin_command("set-init-out", 11, StatusOp.INIT_OUT,
 @click.pass_context
 def set_seqid_cmd(ctx: click.Context, old: str, new: int, spec: ConnectSpec,
                   bus_name: str | None, run_init: bool, as_json: bool) -> None:
-    """Option 12, SetSeqID: give the board with seq ID OLD the seq ID NEW (needs init)."""
     ref = ops.parse_ref(old, allow_all=False, what="OLD")
     with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
-        rows = ops.set_status(r, ref, StatusOp.SEQ_ID, new, option=12, bus=bus_name)
-    _rows(ctx, rows, as_json, f"set-seqid {old} -> {new}")
+        rows = ops.set_seqid(r, ref, new, bus=bus_name, what=label(12))
+    _rows(ctx, spec, rows, as_json, f"set-seqid {old} -> {new}")
 
 
 # ----------------------------------------------------------------------------- 14, 15
-def _probe_command(name: str, last: bool, doc: str) -> click.Command:
-    @click.command(name, help=doc)
+def _probe_command(name: str, option: int, last: bool, detail: str) -> click.Command:
+    @click.command(name, help=help_text(option, detail))
     @connection_options
     @json_option
     @click.pass_context
@@ -284,80 +297,41 @@ def _probe_command(name: str, last: bool, doc: str) -> click.Command:
         with robot(spec) as r:
             results = ops.probe(r, last=last, bus=bus_name)
         if as_json:
-            emit_json(render.probe_json(results))
+            _json(spec, render.probe_json(results))
         else:
             render.print_probe(stdout(), results)
         _finish(ctx, all(len(p.answers) == 1 for p in results))
     return cmd
 
 
-first_cmd = _probe_command("first", False, "Option 14, Get First: which board is first on the "
-                           "init line; two answers mean the init line is broken.")
-last_cmd = _probe_command("last", True, "Option 15, Get Last: which board is last on the init "
-                          "line (found through its init output).")
+first_cmd = _probe_command("first", 14, False, "Two answers mean the init line is broken "
+                           "(exit code 1).")
+last_cmd = _probe_command("last", 15, True, "Found through its init output, the reverse "
+                          "direction of the chain; two answers mean a broken line.")
 
 
 # ----------------------------------------------------------------------------- 5, 6, flash
-def run_flash(r: Robot, image: Image, **kwargs: Any) -> FlashResult:
-    """Run a flash operation with progress on a TTY; Ctrl-C cancels it cleanly."""
-    from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
-
-    cancel = threading.Event()
-    box: dict[str, Any] = {}
-    progress = None
-    if stderr().is_terminal:
-        progress = Progress(TextColumn("{task.description}"), BarColumn(), DownloadColumn(),
-                            TransferSpeedColumn(), TextColumn("{task.fields[boards]} board(s)"),
-                            console=stderr(), transient=True)
-        tasks: dict[str, Any] = {}
-        lock = threading.Lock()
-
-        def report(bus: str, sent: int, total: int, boards: int) -> None:
-            with lock:
-                if bus not in tasks:
-                    tasks[bus] = progress.add_task(bus, total=total, boards=boards)
-            progress.update(tasks[bus], completed=sent, boards=boards)
-
-        kwargs["progress"] = report
-
-    def work() -> None:
-        try:
-            box["result"] = flash(r, image, cancel=cancel, **kwargs)
-        except BaseException as e:  # handed to the main thread below
-            box["error"] = e
-
-    worker = threading.Thread(target=work, name="ucom-flash")
-    if progress is not None:
-        progress.start()
-    worker.start()
-    try:
-        while worker.is_alive():
-            worker.join(0.1)
-    except KeyboardInterrupt:
-        cancel.set()
-        worker.join()
-        raise
-    finally:
-        if progress is not None:
-            progress.stop()
-    if "error" in box:
-        raise box["error"]
-    return box["result"]
-
-
-def _flash_out(ctx: click.Context, result: FlashResult, as_json: bool) -> None:
+def _flash_out(ctx: click.Context, spec: ConnectSpec, result: FlashResult,
+               as_json: bool) -> None:
     if as_json:
-        emit_json(render.flash_json(result))
+        _json(spec, render.flash_json(result))
     else:
         render.print_flash(stdout(), result)
     if not result.all_verified or result.failed:
-        names = ", ".join((f"{b.bus}:{b.seq_id}" if b.seq_id else f"{b.bus}:{b.placement}")
-                          + ("" if b.verified else f" ({b.outcome})" if b.outcome != "failed"
-                             else " (not verified)")
-                          + (" (did not start)" if b.verified and b.started is False else "")
-                          for b in result.failed) or "no board found"
-        stderr().print(f"[red]failed: {names}[/]")
+        names = ", ".join(
+            (f"{b.bus}:{b.seq_id}" if b.seq_id else f"{b.bus}:{b.placement}")
+            + ("" if b.verified else f" ({b.outcome})" if b.outcome != "failed"
+               else " (not verified)")
+            + (" (did not start)" if b.verified and b.started is False else "")
+            for b in result.failed) or "no board found"
+        stderr().print(f"[red]failed: {names}[/]", soft_wrap=True)
         ctx.exit(EXIT_FAILED)
+
+
+def _cancelled(ctx: click.Context) -> None:
+    stderr().print("[yellow]flash cancelled: the boards dropped the transfer and keep no "
+                   "startable program[/]")
+    ctx.exit(EXIT_INTERRUPTED)
 
 
 @click.command("flash")
@@ -381,28 +355,29 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
 
     Resets, runs the init chain with wiring checks, brings boards that run a program back
     to their bootloader, enables programming, sends the image once per bus (all buses in
-    parallel), checks every board's ProgID, resends only what a board missed, then sets
-    AutoStart and starts the boards when asked.  Option 20 (ProgAll) is
-    'flash --boards all'.  Boards the image does not fit (plug-on board, FPGA Board-ID,
-    App-ID, FPGA major version) are refused unless --force.  Exit code 0 only when every
-    selected board verified."""
-    img = _image(image)
+    parallel), checks every board's ProgID, resends only the frames a board missed (on a
+    bus that loses frames too), then sets AutoStart and starts the boards when asked.
+    Option 20 (ProgAll) is 'flash --boards all'.  Boards the image does not fit (plug-on
+    board, FPGA Board-ID, App-ID, FPGA major version) are refused unless --force.  Exit
+    code 0 only when every selected board verified; with a topology, an expected board
+    that never answered fails the job too."""
+    img = load_image(image)
     selection = Selection.parse(boards)
     with robot(spec) as r:
         for h in r.select(bus_name):
             h.client.reset()
         try:
             result = run_flash(r, img, selection=selection, bus=bus_name, autostart=autostart,
-                               start=start_after, verify=not no_verify, force=force)
+                               start=start_after, verify=not no_verify, force=force,
+                               verbose=_verbose(ctx))
         except (KeyboardInterrupt, Cancelled):
-            stderr().print("[yellow]flash cancelled: the boards dropped the transfer and keep no "
-                      "startable program[/]")
-            ctx.exit(EXIT_INTERRUPTED)
-    _flash_out(ctx, result, as_json)
+            _cancelled(ctx)
+            return
+    _flash_out(ctx, spec, result, as_json)
 
 
-def _program_command(name: str, target: Target, doc: str) -> click.Command:
-    @click.command(name, help=doc)
+def _program_command(name: str, option: int, target: Target, detail: str) -> click.Command:
+    @click.command(name, help=help_text(option, detail))
     @click.argument("board")
     @click.argument("image", type=click.Path(dir_okay=False))
     @click.option("--force", is_flag=True,
@@ -414,7 +389,7 @@ def _program_command(name: str, target: Target, doc: str) -> click.Command:
     def cmd(ctx: click.Context, board: str, image: str, force: bool, spec: ConnectSpec,
             bus_name: str | None, run_init: bool, as_json: bool) -> None:
         ref = ops.parse_ref(board)
-        img = _image(image)
+        img = load_image(image)
         if ref.is_all:
             selection = Selection("enabled")
         elif ref.address.id_type is IdType.FIXED:
@@ -425,22 +400,23 @@ def _program_command(name: str, target: Target, doc: str) -> click.Command:
         with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
             try:
                 result = run_flash(r, img, selection=selection, bus=ref.bus or bus_name,
-                                   target=target, init=False, force=force)
+                                   target=target, init=False, force=force,
+                                   verbose=_verbose(ctx), what=label(option))
             except (KeyboardInterrupt, Cancelled):
-                stderr().print("[yellow]cancelled[/]")
-                ctx.exit(EXIT_INTERRUPTED)
-        _flash_out(ctx, result, as_json)
+                _cancelled(ctx)
+                return
+        _flash_out(ctx, spec, result, as_json)
     return cmd
 
 
 program_cmd = _program_command(
-    "program", Target.FLASH,
-    "Option 5, Program: program IMAGE into board BOARD, or into every ProgEnabled board "
-    "with 'all' (needs init; see prog-enable).  Verified like 'flash'.")
+    "program", 5, Target.FLASH,
+    "Programs IMAGE into board BOARD, or with 'all' into every ProgEnabled board (see "
+    "prog-enable); verified like 'flash'.\n\n" + BOARD)
 extram_cmd = _program_command(
-    "extram-load", Target.EXTRAM,
-    "Option 6, ExtRAMLoad: load IMAGE into external RAM of BOARD instead of flash (gone "
-    "after reset; start it with 'start --extram').")
+    "extram-load", 6, Target.EXTRAM,
+    "Loads IMAGE into external RAM of BOARD instead of flash (gone after reset; start it "
+    "with 'start --extram').\n\n" + BOARD)
 
 
 @click.command("check")
@@ -453,13 +429,14 @@ def check_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, as_js
     Runs the init chain, reads every board's Info (FPGA version registers, measured
     Board-ID, the stored program's descriptor) and judges each board: ok, warning (FPGA
     minor version, program without descriptor), mismatch (plug-on board vs FPGA, Board-ID,
-    App-ID, FPGA major version) or no program.  Exit code 1 when a board mismatches."""
+    App-ID, FPGA major version), no program, or missing (expected by the topology, no
+    answer).  Exit code 1 when a board mismatches or is missing."""
     from ucom_tools.ops.compat import check
 
     with robot(spec) as r:
         rows = check(r, bus=bus_name)
     if as_json:
-        emit_json(render.check_json(rows))
+        _json(spec, render.check_json(rows))
     else:
         render.print_check(stdout(), rows)
     _finish(ctx, bool(rows) and not any(x.failed for x in rows))
@@ -468,4 +445,3 @@ def check_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, as_js
 COMMANDS = [check_cmd, reset_cmd, init_cmd, info_cmd, prog_enable_cmd, program_cmd, extram_cmd,
             start_cmd, autostart_cmd, xreset_cmd, set_init_in_cmd, set_init_out_cmd,
             set_seqid_cmd, count_cmd, first_cmd, last_cmd, list_cmd, reset_one_cmd, flash_cmd]
-

@@ -2,9 +2,10 @@
 
 Accepts option numbers or names with arguments (``3 5``, ``info 5``, ``load FILE``),
 asks for missing arguments, keeps history and completes names and files on a terminal,
-shows the loaded image and the bus in the prompt.  Ctrl-C cancels the running
-operation, not the console.  Reads plain lines when standard input is not a terminal,
-so it can be driven by a script.
+shows the loaded image and the bus in the prompt.  Ctrl-C cancels the running operation
+or the argument prompt, not the console.  Reads plain lines when standard input is not a
+terminal, so it can be driven by a script.  The options, their names and which need init
+come from the table of :mod:`ucom_tools.cli.menu`, shared with the subcommands.
 """
 
 from __future__ import annotations
@@ -20,8 +21,9 @@ from rich.console import Console as RichConsole
 from rich.markup import escape
 
 from ucom_tools.cli import render
-from ucom_tools.cli.commands import run_flash
-from ucom_tools.cli.connect import connection_options
+from ucom_tools.cli.flashrun import run_flash
+from ucom_tools.cli.menu import OPTIONS, MenuOption, label, parse_flag, parse_level
+from ucom_tools.cli.options import connection_options
 from ucom_tools.cli.output import stderr, stdout
 from ucom_tools.errors import InputError, UcomError
 from ucom_tools.image import Image, load_image
@@ -43,19 +45,34 @@ class Param:
 
 @dataclass(frozen=True)
 class Option:
-    number: str
-    name: str
-    title: str
+    """A menu option of :mod:`~ucom_tools.cli.menu` with its console arguments and action."""
+
+    entry: MenuOption
     params: tuple[Param, ...]
     run: Callable[..., None]
-    needs_init: bool = False
-    aliases: tuple[str, ...] = ()
+
+    @property
+    def number(self) -> str:
+        return str(self.entry.number)
+
+    @property
+    def name(self) -> str:
+        return self.entry.command
+
+    @property
+    def title(self) -> str:
+        return self.entry.title
+
+    @property
+    def needs_init(self) -> bool:
+        return self.entry.needs_init
 
 
 BOARD = Param("board", "board (seq ID, F<n> for a fixed ID, or all)")
 ONE_BOARD = Param("board", "board (seq ID or F<n>)")
 LEVEL = Param("level", "level (set = drive low, release)")
 FORCE = Param("force", "'force' to program a board the image does not fit", True)
+TARGET = Param("target", "'flash' (default) or 'extram'", True)
 
 
 class Session:
@@ -73,45 +90,36 @@ class Session:
         self.options = self._options()
         self.by_key: dict[str, Option] = {}
         for o in self.options:
-            for key in (o.number, o.name, *o.aliases):
+            for key in (o.number, o.name, *o.entry.aliases):
                 self.by_key[key] = o
 
     # ------------------------------------------------------------------ menu & prompt
     def _options(self) -> list[Option]:
-        return [
-            Option("1", "reset", "Reset All", (), self.do_reset),
-            Option("2", "init", "Init", (), self.do_init),
-            Option("3", "info", "GetInfo", (BOARD,), self.do_info, True, ("getinfo",)),
-            Option("4", "prog-enable", "SetProgEnable", (BOARD, Param("on", "on/off", True)),
-                   self.do_prog_enable, True, ("progenable",)),
-            Option("5", "program", "Program", (BOARD, FORCE), self.do_program, True),
-            Option("6", "extram-load", "ExtRAMLoad", (ONE_BOARD, FORCE), self.do_extram, False,
-                   ("extramload",)),
-            Option("7", "start", "Start", (BOARD,), self.do_start),
-            Option("8", "autostart", "SetAutoStart", (BOARD, Param("on", "on/off", True)),
-                   self.do_autostart, False, ("setautostart",)),
-            Option("9", "xreset", "XReset", (Param("board", "board or all", True),),
-                   self.do_xreset),
-            Option("10", "set-init-in", "SetInitIn", (ONE_BOARD, LEVEL), self.do_init_in, True,
-                   ("setinitin",)),
-            Option("11", "set-init-out", "SetInitOut", (ONE_BOARD, LEVEL), self.do_init_out,
-                   True, ("setinitout",)),
-            Option("12", "set-seqid", "SetSeqID", (ONE_BOARD, Param("new", "new seq ID")),
-                   self.do_seqid, True, ("setseqid",)),
-            Option("13", "count", "Count", (), self.do_count),
-            Option("14", "first", "Get First", (), self.do_first, False, ("getfirst",)),
-            Option("15", "last", "Get Last", (), self.do_last, False, ("getlast",)),
-            Option("16", "list-update", "DSPListUpdate", (), self.do_list_update, False,
-                   ("dsplistupdate",)),
-            Option("17", "list", "Print DspList", (), self.do_list_print, False,
-                   ("printdsplist",)),
-            Option("18", "load", "Load S-Record File", (Param("file", "S-record file"),),
-                   self.do_load),
-            Option("19", "progid", "Calc ProgID", (), self.do_progid, False, ("calcprogid",)),
-            Option("20", "progall", "ProgAll", (FORCE,), self.do_progall),
-            Option("21", "reset-one", "Reset Specific", (ONE_BOARD,), self.do_reset_one, True,
-                   ("resetspecific",)),
-        ]
+        on = Param("on", "on/off", True)
+        table: dict[int, tuple[tuple[Param, ...], Callable[..., None]]] = {
+            1: ((), self.do_reset),
+            2: ((), self.do_init),
+            3: ((BOARD,), self.do_info),
+            4: ((BOARD, on), self.do_prog_enable),
+            5: ((BOARD, FORCE), self.do_program),
+            6: ((ONE_BOARD, FORCE), self.do_extram),
+            7: ((BOARD, TARGET), self.do_start),
+            8: ((BOARD, on), self.do_autostart),
+            9: ((Param("board", "board or all", True),), self.do_xreset),
+            10: ((ONE_BOARD, LEVEL), self.do_init_in),
+            11: ((ONE_BOARD, LEVEL), self.do_init_out),
+            12: ((ONE_BOARD, Param("new", "new seq ID")), self.do_seqid),
+            13: ((), self.do_count),
+            14: ((), self.do_first),
+            15: ((), self.do_last),
+            16: ((), self.do_list_update),
+            17: ((), self.do_list_print),
+            18: ((Param("file", "S-record file"),), self.do_load),
+            19: ((), self.do_progid),
+            20: ((FORCE,), self.do_progall),
+            21: ((ONE_BOARD,), self.do_reset_one),
+        }
+        return [Option(entry, *table[entry.number]) for entry in OPTIONS]
 
     def menu(self) -> None:
         lines = []
@@ -172,7 +180,7 @@ class Session:
         except Cancelled as e:
             self.out.print(f"[yellow]{escape(str(e))}[/]")
         except ops.NotInitialised as e:
-            text = str(e).replace("run 'ucom init' first", "run option 2 (init) first")
+            text = str(e).replace("run 'ucom init' first", "run option 2 (Init) first")
             text = text.replace(", or add --init to this command", "")
             self.out.print(f"[yellow]{escape(text)}[/]")
         except UcomError as e:
@@ -188,7 +196,10 @@ class Session:
         for p in option.params[len(args):]:
             if p.optional:
                 break
-            answer = self.ask(f"  {p.prompt}: ").strip()
+            try:
+                answer = self.ask(f"  {p.prompt}: ").strip()
+            except KeyboardInterrupt:
+                answer = ""  # Ctrl-C at a prompt cancels the prompt, not the console
             if not answer:
                 self.out.print("[dim]cancelled[/]")
                 return None
@@ -218,20 +229,13 @@ class Session:
                 self.initialised.add(h.name)
 
     def do_info(self, board: str) -> None:
-        rows = ops.info(self.robot, ops.parse_ref(board), bus=self.bus)
+        rows = ops.info(self.robot, ops.parse_ref(board), bus=self.bus, what=label(3))
         render.print_infos(self.out, rows, "GetInfo")
-
-    def _flag(self, text: str | None) -> int:
-        if text is None or text.lower() in ("on", "1", "yes", "set"):
-            return 1
-        if text.lower() in ("off", "0", "no", "clear"):
-            return 0
-        raise InputError(f"{text!r}: expected on or off")
 
     def do_prog_enable(self, board: str, on: str | None = None) -> None:
         ref = ops.parse_ref(board)
-        rows = ops.set_status(self.robot, ref, StatusOp.PROG_ENABLE, self._flag(on), option=4,
-                              bus=self.bus)
+        rows = ops.set_status(self.robot, ref, StatusOp.PROG_ENABLE, parse_flag(on),
+                              what=label(4), bus=self.bus)
         render.print_rows(self.out, rows, "SetProgEnable")
 
     def _need_image(self) -> Image | None:
@@ -244,14 +248,19 @@ class Session:
         return self.image
 
     def _program(self, selection: Selection, target: Target, bus: str | None,
-                 force: str | None) -> None:
+                 force: str | None, option: int) -> None:
         if force is not None and force.lower() != "force":
             raise InputError(f"{force!r}: the only word allowed here is 'force'")
         image = self._need_image()
         if image is None:
             return
         result = run_flash(self.robot, image, selection=selection, bus=bus, target=target,
-                           init=False, force=force is not None)
+                           init=False, force=force is not None, what=label(option))
+        if selection.kind == "enabled" and not result.boards:
+            self.out.print("[yellow]no board is ProgEnabled:[/] 'all' programs the boards "
+                           "that option 4 enabled; use '4 all' first, or option 20 "
+                           "(ProgAll), which enables and programs every board")
+            return
         render.print_flash(self.out, result)
         if any(b.outcome == "refused" for b in result.boards):
             self.out.print("[dim]add 'force' to program them anyway, e.g. '5 all force'[/]")
@@ -259,33 +268,39 @@ class Session:
     def do_program(self, board: str, force: str | None = None) -> None:
         ref = ops.parse_ref(board)
         sel = Selection("enabled") if ref.is_all else Selection("list", (ref.address.number,))
-        self._program(sel, Target.FLASH, ref.bus or self.bus, force)
+        self._program(sel, Target.FLASH, ref.bus or self.bus, force, 5)
 
     def do_extram(self, board: str, force: str | None = None) -> None:
         ref = ops.parse_ref(board)
         sel = Selection("enabled") if ref.is_all else Selection("list", (ref.address.number,))
-        self._program(sel, Target.EXTRAM, ref.bus or self.bus, force)
+        self._program(sel, Target.EXTRAM, ref.bus or self.bus, force, 6)
 
     def do_progall(self, force: str | None = None) -> None:
-        self._program(Selection("all"), Target.FLASH, self.bus, force)
+        self._program(Selection("all"), Target.FLASH, self.bus, force, 20)
 
-    def do_start(self, board: str) -> None:
-        rows = ops.start(self.robot, ops.parse_ref(board), bus=self.bus)
-        render.print_rows(self.out, rows, "Start")
+    def do_start(self, board: str, target: str | None = None) -> None:
+        where = (target or "flash").lower()
+        if where not in ("flash", "extram"):
+            raise InputError(f"{target!r}: start from 'flash' or 'extram'")
+        rows = ops.start(self.robot, ops.parse_ref(board),
+                         Target.EXTRAM if where == "extram" else Target.FLASH, bus=self.bus,
+                         what=label(7))
+        render.print_rows(self.out, rows, "Start" + (" (ExtRAM)" if where == "extram" else ""))
 
     def do_autostart(self, board: str, on: str | None = None) -> None:
         rows = ops.set_status(self.robot, ops.parse_ref(board), StatusOp.AUTOSTART,
-                              self._flag(on), option=8, bus=self.bus)
+                              parse_flag(on), what=label(8), bus=self.bus)
         render.print_rows(self.out, rows, "SetAutoStart")
 
     def do_xreset(self, board: str = "all") -> None:
-        rows = ops.reset(self.robot, ops.parse_ref(board), bus=self.bus, clear_autostart=True)
+        rows = ops.reset(self.robot, ops.parse_ref(board), bus=self.bus, clear_autostart=True,
+                         what=label(9))
         render.print_reset(self.out, rows, "XReset")
 
     def _pin(self, board: str, level: str, op: StatusOp, option: int) -> None:
-        from ucom_tools.cli.commands import _level
         ref = ops.parse_ref(board, allow_all=False)
-        rows = ops.set_status(self.robot, ref, op, _level(level), option=option, bus=self.bus)
+        rows = ops.set_status(self.robot, ref, op, parse_level(level), what=label(option),
+                              bus=self.bus)
         render.print_rows(self.out, rows, "SetInitIn" if option == 10 else "SetInitOut")
         if rows and all(r.ok for r in rows):
             for bus, s in ops.board_status(self.robot, ref, bus=self.bus):
@@ -304,12 +319,12 @@ class Session:
             raise InputError(f"{new!r} is not a seq ID 1-31") from None
         if not 1 <= value <= 31:
             raise InputError(f"{value} is not a seq ID 1-31")
-        rows = ops.set_status(self.robot, ops.parse_ref(board, allow_all=False),
-                              StatusOp.SEQ_ID, value, option=12, bus=self.bus)
+        rows = ops.set_seqid(self.robot, ops.parse_ref(board, allow_all=False), value,
+                             bus=self.bus, what=label(12))
         render.print_rows(self.out, rows, "SetSeqID")
 
     def do_count(self) -> None:
-        rows = ops.info(self.robot, ops.BoardRef(None, ALL), bus=self.bus)
+        rows = ops.info(self.robot, ops.BoardRef(None, ALL), bus=self.bus, what=label(13))
         if rows:
             render.print_infos(self.out, rows, "Count")
         else:
@@ -344,7 +359,7 @@ class Session:
 
     def do_reset_one(self, board: str) -> None:
         ref = ops.parse_ref(board, allow_all=False)
-        rows = ops.reset(self.robot, ref, bus=self.bus)
+        rows = ops.reset(self.robot, ref, bus=self.bus, what=label(21))
         render.print_reset(self.out, rows, f"Reset board {ref}")
 
 

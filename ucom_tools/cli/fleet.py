@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import sys
 from pathlib import Path
 
@@ -13,7 +14,12 @@ from ucom_tools.boards import board_name
 from ucom_tools.cli.output import emit_json, leds, stderr, stdout
 from ucom_tools.config.topology import BUNDLED
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.socketcand import DEFAULT_PORT, FleetServer, serve_until_interrupted
+from ucom_tools.virtual.socketcand import (
+    DEFAULT_PORT,
+    MAX_CLIENTS,
+    FleetServer,
+    serve_until_interrupted,
+)
 
 TOPOLOGY_HELP = f"a bundled topology ({', '.join(BUNDLED)}) or a topology file (TOML)"
 
@@ -25,7 +31,7 @@ def fleet() -> None:
 
 @fleet.command("show")
 @click.argument("topology", metavar="TOPOLOGY")
-@click.option("--state", "state_dir", type=click.Path(file_okay=False, path_type=Path),
+@click.option("--state", "state_dir", type=click.Path(path_type=Path),
               help="Directory with the boards' non-volatile memory (see 'fleet serve').")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of tables.")
 def show(topology: str, state_dir: Path | None, as_json: bool) -> None:
@@ -45,7 +51,7 @@ def show(topology: str, state_dir: Path | None, as_json: bool) -> None:
         t = Table(title=f"{bus['name']} ({bus['bitrate'] // 1000} kbit/s)", title_justify="left")
         for col in ("pos", "placement", "board", "FPGA", "seq ID", "fixed ID", "state",
                     "program", "LEDs r y g"):
-            t.add_column(col, no_wrap=True)
+            t.add_column(col, overflow="fold")
         for b in bus["boards"]:
             prog = b["program"]
             f = b["fpga"]
@@ -70,20 +76,33 @@ def show(topology: str, state_dir: Path | None, as_json: bool) -> None:
 
 @fleet.command("serve")
 @click.argument("topology", metavar="TOPOLOGY")
-@click.option("--state", "state_dir", type=click.Path(file_okay=False, path_type=Path),
+@click.option("--state", "state_dir", type=click.Path(path_type=Path),
               help="Keep each board's flash and AutoStart flag in DIR across restarts.")
 @click.option("--host", default="127.0.0.1", show_default=True, help="Address to bind.")
 @click.option("--port", default=DEFAULT_PORT, show_default=True, type=click.IntRange(0, 65535),
               help="TCP port (0 = any free port; the chosen one is printed).")
-def serve(topology: str, state_dir: Path | None, host: str, port: int) -> None:
+@click.option("--max-clients", default=MAX_CLIENTS, show_default=True,
+              type=click.IntRange(1, None),
+              help="Clients served at once; one more is told '< error too many clients (N) >' "
+                   "and closed.")
+@click.pass_context
+def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, port: int,
+          max_clients: int) -> None:
     """Serve TOPOLOGY's buses with the socketcand protocol, in real time.
 
-    Other processes reach the boards through python-can's socketcand interface, e.g.
+    Other processes reach the boards through a socketcand client: 'ucom ... -i socketcand
+    --host 127.0.0.1 --port 29536 -c CAN0', or python-can's
     can.Bus(interface="socketcand", host="127.0.0.1", port=29536, channel="CAN0").
-    Runs until interrupted (Ctrl-C)."""
+    No client can stop the bus for the others: a malformed element gets
+    '< error ... >', a client that stops reading is dropped, connections are limited.
+    Clients dropped or refused are logged on stderr (-v: every connection).  Runs until
+    interrupted (Ctrl-C)."""
+    verbose = int((ctx.find_root().obj or {}).get("verbose", 0))
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING,
+                        format="ucom fleet serve: %(message)s", stream=sys.stderr)
     f = Fleet.load(topology, state_dir=state_dir, realtime=True)
     try:
-        server = FleetServer(f, host, port)
+        server = FleetServer(f, host, port, max_clients=max_clients)
     except OSError as e:
         f.close()
         from ucom_tools.errors import BusError

@@ -1,4 +1,9 @@
-"""``ucom``: the root command and its error boundary (exit codes, one red line)."""
+"""``ucom``: the root command and its error boundary (exit codes, one red line).
+
+Every error a user can cause ends here as one line on stderr and an exit code of
+:mod:`ucom_tools.cli.exitcodes`; a traceback only with ``-vv``.  The subcommands live in
+their own modules (commands, console, srec, fleet, tree), which never import this one.
+"""
 
 from __future__ import annotations
 
@@ -10,19 +15,15 @@ import click
 from rich.markup import escape
 
 from ucom_tools import __version__
-from ucom_tools.cli import output
+from ucom_tools.cli import commands, console, fleet, output, srec
+from ucom_tools.cli.exitcodes import (
+    EXIT_BAD_INPUT,
+    EXIT_BUS,
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+)
 from ucom_tools.cli.output import stderr
 from ucom_tools.errors import BusError, InputError, UcomError
-
-EXIT_OK = 0
-EXIT_FAILED = 1
-"""The operation failed on some boards (they are named in the output)."""
-EXIT_USAGE = 2
-EXIT_BAD_INPUT = 3
-"""A file or argument is wrong; nothing was sent or written."""
-EXIT_BUS = 4
-"""A bus could not be opened or failed."""
-EXIT_INTERRUPTED = 130
 
 
 class UcomGroup(click.Group):
@@ -46,39 +47,38 @@ class UcomGroup(click.Group):
         if (ctx.obj or {}).get("verbose", 0) >= 2:
             traceback.print_exc(file=sys.stderr)
         stderr().print(f"[bold red]ucom: {label}:[/] {escape(str(e))}", highlight=False,
-                  soft_wrap=True)
+                       soft_wrap=True)
         ctx.exit(code)
 
 
-@click.group(cls=UcomGroup, context_settings={"help_option_names": ["-h", "--help"],
-                                              "auto_envvar_prefix": "UCOM"})
+@click.group(cls=UcomGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="ucom")
 @click.option("-v", "--verbose", count=True, help="More detail; -vv shows tracebacks.")
 @click.pass_context
 def cli(ctx: click.Context, verbose: int) -> None:
     """Toolchain and bus console for UCoM controller boards (ARMAR-III and others).
 
-    Exit codes: 0 success, 1 some boards failed, 2 usage error, 3 bad input
-    (file, topology, argument), 4 bus or connection failure, 130 interrupted.
-    See ucom(1) and ucom-protocol(7).
+    Exit codes: 0 success, 1 some boards failed (or are missing, or a wiring fault),
+    2 usage error, 3 bad input (file, topology, argument, environment; nothing was sent),
+    4 bus or connection failure, 130 interrupted.  The connection options may come from
+    UCOM_INTERFACE, UCOM_CHANNEL, UCOM_BITRATE, UCOM_HOST, UCOM_PORT, UCOM_VIRTUAL,
+    UCOM_TOPOLOGY, UCOM_STATE, UCOM_PACE; a bus named on the command line wins over the
+    environment.  See ucom(1) and ucom-protocol(7).
     """
     output.reset()
     ctx.ensure_object(dict)
     ctx.obj["verbose"] = verbose
 
 
-def _register() -> None:
-    from ucom_tools.cli import commands, console, fleet, srec
-
-    for command in commands.COMMANDS:
-        cli.add_command(command)
-    cli.add_command(console.console)
-    cli.add_command(srec.srec)
-    cli.add_command(fleet.fleet)
-
-
-_register()
+for _command in commands.COMMANDS:
+    cli.add_command(_command)
+cli.add_command(console.console)
+cli.add_command(srec.srec)
+cli.add_command(fleet.fleet)
 
 
 def main() -> None:
     cli(prog_name="ucom")
+
+
+__all__ = ["EXIT_FAILED", "cli", "main"]

@@ -1,4 +1,9 @@
-"""Tables and JSON for operation results (shared by the commands and the console)."""
+"""Tables and JSON for operation results (shared by the commands and the console).
+
+Table cells never end in an ellipsis: on a narrow terminal a long cell folds onto the next
+line; a piped output has no width limit (:mod:`ucom_tools.cli.output`), so serials,
+ProgIDs and names always come out whole.
+"""
 
 from __future__ import annotations
 
@@ -32,9 +37,24 @@ def hex32(v: int | None) -> str:
     return f"0x{v:08X}" if v is not None else "-"
 
 
-def addr_json(a: Address) -> dict[str, Any]:
+def addr_json(a: Address | None) -> dict[str, Any]:
+    if a is None:
+        return {"seq_id": None, "fixed_id": None}
     return {"seq_id": a.number if a.id_type is IdType.SEQUENTIAL else None,
             "fixed_id": a.number if a.id_type is IdType.FIXED else None}
+
+
+def who(r: Row) -> str:
+    """A row's board: its address, or the placement of an expected board that is absent."""
+    return str(r.address) if r.address is not None else (r.placement or "-")
+
+
+def table(title: str, columns: tuple[str, ...], **kwargs: Any) -> Table:
+    """A table whose cells fold instead of being cut short."""
+    t = Table(title=title, title_justify="left", **kwargs)
+    for col in columns:
+        t.add_column(col, overflow="fold")
+    return t
 
 
 def info_json(inf: BoardInfo) -> dict[str, Any]:
@@ -82,7 +102,7 @@ def print_enumeration(c: Console, e: BusEnumeration) -> None:
     t = Table(title=f"{e.bus}: init chain", title_justify="left")
     for col in ("seq ID", "pos", "placement", "board", "serial", "fixed ID", "state",
                 "program", "ProgID"):
-        t.add_column(col, no_wrap=True)
+        t.add_column(col, overflow="fold")
     for b in e.boards:
         inf = b.info
         t.add_row(
@@ -106,7 +126,7 @@ def rows_json(rows: list[Row]) -> dict[str, Any]:
     out = []
     for r in rows:
         d: dict[str, Any] = {"bus": r.bus, **addr_json(r.address), "ok": r.ok,
-                             "detail": r.detail,
+                             "placement": r.placement, "detail": r.detail,
                              "state": r.state.text if r.state is not None else None}
         if r.serial is not None:
             d["serial"] = hex32(r.serial)
@@ -124,9 +144,9 @@ def print_rows(c: Console, rows: list[Row], title: str) -> None:
         return
     t = Table(title=title, title_justify="left")
     for col in ("bus", "board", "result", "state", "messages"):
-        t.add_column(col)
+        t.add_column(col, overflow="fold")
     for r in rows:
-        t.add_row(r.bus, str(r.address), "[green]ok[/]" if r.ok and r.detail == "ok" else
+        t.add_row(r.bus, escape(who(r)), "[green]ok[/]" if r.ok and r.detail == "ok" else
                   (f"[green]{escape(r.detail)}[/]" if r.ok else f"[red]{escape(r.detail)}[/]"),
                   r.state.text if r.state is not None else "-",
                   escape("\n".join(r.reports)))
@@ -140,10 +160,10 @@ def print_reset(c: Console, rows: list[Row], title: str) -> None:
         return
     t = Table(title=f"{title}: boards that answered (alive)", title_justify="left")
     for col in ("bus", "board", "serial", "state after reset"):
-        t.add_column(col)
+        t.add_column(col, overflow="fold")
     for r in rows:
-        t.add_row(r.bus, str(r.address), hex32(r.serial),
-                  r.state.text if r.state is not None else "-")
+        t.add_row(r.bus, escape(who(r)), hex32(r.serial),
+                  r.state.text if r.state is not None else f"[red]{escape(r.detail)}[/]")
     c.print(t)
 
 
@@ -163,11 +183,11 @@ def print_infos(c: Console, rows: list[Row], title: str) -> None:
     t = Table(title=title, title_justify="left")
     for col in ("bus", "seq ID", "fixed", "serial", "state", "program", "ProgID", "size",
                 "programmed", "plug-on", "FPGA", "flags"):
-        t.add_column(col, no_wrap=True)
+        t.add_column(col, overflow="fold")
     for r in rows:
         inf = r.info
         if inf is None:
-            t.add_row(r.bus, str(r.address), "", "", f"[red]{escape(r.detail)}[/]", "", "", "",
+            t.add_row(r.bus, escape(who(r)), "", "", f"[red]{escape(r.detail)}[/]", "", "", "",
                       "", "", "", "")
             continue
         flags = " ".join(f for f, on in (("AutoStart", inf.autostart),
@@ -253,7 +273,7 @@ def print_image(c: Console, img: Image, plan: TransferPlan) -> None:
     c.print(f"  ProgID     [bold]{d['progid']}[/]")
     t = Table(show_header=True, box=None, padding=(0, 2))
     for col in ("space", "words", "from", "to"):
-        t.add_column(col)
+        t.add_column(col, overflow="fold")
     for s in d["segments"]:
         t.add_row(s["space"], str(s["words"]), f"{s['space']}:{s['start']}",
                   f"{s['space']}:{s['end']}")
@@ -297,7 +317,7 @@ def print_flash(c: Console, r: FlashResult) -> None:
                     f"-> {r.target.name.lower()}", title_justify="left")
     for col in ("bus", "seq ID", "placement", "serial", "result", "ProgID", "resent",
                 "AutoStart", "started"):
-        t.add_column(col, no_wrap=col != "result")
+        t.add_column(col, overflow="fold")
     for b in r.boards:
         t.add_row(b.bus, str(b.seq_id or "-"), escape(b.placement or "-"), hex32(b.serial),
                   "[green]verified[/]" if b.verified else f"[red]{b.outcome}[/]",
@@ -336,7 +356,8 @@ def fpga_text(f: FpgaVersion | None) -> str:
 
 def check_json(rows: list[CheckRow]) -> dict[str, Any]:
     return {"boards": [{
-        "bus": r.bus, "seq_id": r.seq_id, "placement": r.placement, "serial": hex32(r.serial),
+        "bus": r.bus, "seq_id": r.seq_id or None, "placement": r.placement,
+        "serial": hex32(r.serial),
         "plug_on_board": {"board_id": r.plug_board_id, "board": board_name(r.plug_board_id)},
         "fpga": None if r.fpga is None else {
             "board_id": r.fpga.board_id, "board": board_name(r.fpga.board_id),
@@ -355,23 +376,26 @@ def print_check(c: Console, rows: list[CheckRow]) -> None:
     t = Table(title="compatibility: plug-on board - FPGA - DSP program", title_justify="left")
     for col in ("bus", "seq", "placement", "plug-on", "FPGA", "DSP program", "built for",
                 "verdict"):
-        t.add_column(col, no_wrap=col != "verdict")
+        t.add_column(col, overflow="fold")
     colours = {"ok": "green", "warning": "yellow", "mismatch": "red", "no program": "dim",
-               "unknown": "red"}
+               "unknown": "red", "missing": "red"}
     for r in rows:
         d = r.descriptor
         built = (f"{board_name(d.board_id)} app {d.app_id} v{d.fpga_major}.{d.fpga_minor}"
                  if d else ("-" if r.program is None else "[yellow]no descriptor[/]"))
-        fpga = fpga_text(r.fpga) + (" [red]NEUTRAL[/]" if r.neutral else "")
-        t.add_row(r.bus, str(r.seq_id), escape(r.placement or "-"),
-                  board_name(r.plug_board_id), fpga,
+        fpga = ("-" if r.verdict == "missing" else fpga_text(r.fpga)) + (
+            " [red]NEUTRAL[/]" if r.neutral else "")
+        t.add_row(r.bus, str(r.seq_id or "-"), escape(r.placement or "-"),
+                  board_name(r.plug_board_id) if r.verdict != "missing" else "-", fpga,
                   escape(r.program) if r.program else "[dim]none[/]", built,
                   f"[{colours.get(r.verdict, 'white')}]{r.verdict}[/]")
     c.print(t)
     for r in rows:
         for f in r.findings:
             colour = "red" if f.severity == "error" else "yellow"
-            c.print(f"  [{colour}]{r.bus} board {r.seq_id}:[/] {escape(f.message)}")
+            where = f"board {r.seq_id}" if r.seq_id else escape(r.placement or "?")
+            c.print(f"  [{colour}]{r.bus} {where}:[/] {escape(f.message)}")
     bad = sum(1 for r in rows if r.failed)
     c.print("[green]clean: every board fits its FPGA and program[/]" if not bad and rows
-            else f"[red]{bad} board(s) do not fit[/]" if bad else "[yellow]no board found[/]")
+            else f"[red]{bad} board(s) do not fit or are missing[/]" if bad
+            else "[yellow]no board found[/]")

@@ -216,6 +216,7 @@ def parse(text: str, source: str, base: Path | None = None) -> Topology:
     buses = []
     serials: set[int] = set()
     names: set[str] = set()
+    placements: dict[str, tuple[str, int]] = {}
     for i, braw in enumerate(buses_raw):
         path = ("bus", i)
         if not isinstance(braw, dict):
@@ -233,6 +234,12 @@ def parse(text: str, source: str, base: Path | None = None) -> Topology:
             raise c.fail(path, "board", f"at most 31 boards per bus, got {len(boards_raw)}")
         boards = tuple(_board(c, name, bname, i, j, b, base, serials)
                        for j, b in enumerate(boards_raw))
+        for j, b in enumerate(boards):
+            first = placements.setdefault(b.placement, (bname, b.position))
+            if first != (bname, b.position):
+                raise c.fail(("bus", i, "board", j), "placement",
+                             f"{b.placement!r} is also the placement of board "
+                             f"{first[1] + 1} on {first[0]}; every board needs its own")
         buses.append(BusSpec(bname, bitrate, boards))
     return Topology(name, description, source, tuple(buses), timing)
 

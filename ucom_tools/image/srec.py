@@ -7,18 +7,28 @@ Plain files with S1/S2 records and S5/S6 count records are read the same way; fi
 whose addresses count bytes (``addressing="byte"``, or detected by ``"auto"``) have
 their addresses halved.
 
-Records are parsed with bincopy (syntax, lengths, checksums); everything that can make a
-programming fail is checked here, so that nothing reaches the bus from a bad file.
+Files are read as a stream, line by line, each line at most :data:`MAX_LINE_CHARS` long and
+the whole at most :data:`MAX_FILE_BYTES`, so that a device, a FIFO or a huge file that is
+no S-record file is rejected at its first bad line without reading the rest.  Each record's
+structure is checked here (type, hex digits, the length byte against what the line holds:
+a record cut short names where it ends), its checksum by bincopy; a termination record
+(S7, S8 or S9) must end the file, so a truncated file is never taken for a short image.
+Everything else that can make a programming fail is checked too, so that nothing reaches
+the bus from a bad file.
 """
 
 from __future__ import annotations
 
+import io
 import itertools
 import os
 import re
+import stat
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import TextIO
 
 import bincopy
 
@@ -30,6 +40,16 @@ from ucom_tools.wire.transfer import VECTOR_WORDS, TransferPlan
 
 X_OFFSET = 0x0020_0000
 MAX_FILE_BYTES = 16 * 1024 * 1024
+"""Largest file accepted (line ends included), counted while reading."""
+MAX_RECORD_CHARS = 2 + 2 * (1 + 255)
+"""Longest S-record: ``S``, the type, then the length byte and up to 255 bytes in hex."""
+MAX_LINE_CHARS = MAX_RECORD_CHARS + 64
+"""Longest line accepted (without its line end): a record and some blanks around it."""
+
+_ADDRESS_BYTES = {"0": 2, "1": 2, "2": 3, "3": 4, "5": 2, "6": 3, "7": 4, "8": 3, "9": 2}
+_TERMINATION = "789"
+_NOT_TEXT = re.compile(r"[^\t\x20-\x7e]")
+_NOT_HEX = re.compile(r"[^0-9A-Fa-f]")
 
 
 @dataclass(frozen=True)
@@ -96,26 +116,83 @@ class Image:
 
 
 def load_image(path: str | Path, *, addressing: str = "auto") -> Image:
-    """Read and check an S-record file; raises :class:`ImageError` naming file and line."""
-    p = Path(path)
+    """Read and check an S-record file; raises :class:`ImageError` naming file and line.
+
+    The file is read line by line and checked as it is read: reading stops at the first
+    bad line, or once more than :data:`MAX_FILE_BYTES` have come (devices, FIFOs)."""
+    source = str(path)
+    _check_addressing(addressing, source)
     try:
-        if p.stat().st_size > MAX_FILE_BYTES:
-            raise ImageError(f"file is larger than {MAX_FILE_BYTES // 2**20} MiB; not an "
-                             "S-record image for a DSP56F803", file=str(path))
-        raw = p.read_bytes()
+        with open(path, encoding="latin-1", newline="") as stream:  # latin-1: byte = char
+            st = os.fstat(stream.fileno())
+            too_big = stat.S_ISREG(st.st_mode) and st.st_size > MAX_FILE_BYTES
+            records = _records(_lines(stream, source, too_big=too_big), source)
     except FileNotFoundError:
-        raise ImageError("no such file", file=str(path)) from None
+        raise ImageError("no such file", file=source) from None
     except IsADirectoryError:
-        raise ImageError("is a directory, not an S-record file", file=str(path)) from None
+        raise ImageError("is a directory, not an S-record file", file=source) from None
     except OSError as err:
-        raise ImageError(f"cannot read: {err.strerror}", file=str(path)) from None
-    try:
-        text = raw.decode("ascii")
-    except UnicodeDecodeError as err:
-        line = raw[:err.start].count(b"\n") + 1
-        raise ImageError("not an S-record file: non-ASCII byte", file=str(path),
-                         line=line) from None
-    return parse_image(text, str(path), addressing=addressing)
+        raise ImageError(f"cannot read: {err.strerror}", file=source) from None
+    return _image(records, source, addressing)
+
+
+def parse_image(text: str, source: str = "<image>", *, addressing: str = "auto") -> Image:
+    """Check S-record text and return the image it describes (the checks of load_image)."""
+    _check_addressing(addressing, source)
+    records = _records(_lines(io.StringIO(text, newline=""), source), source)
+    return _image(records, source, addressing)
+
+
+def _check_addressing(addressing: str, source: str) -> None:
+    if addressing not in ("auto", "word", "byte"):
+        raise ImageError(f"addressing must be auto, word or byte, not {addressing!r}",
+                         file=source)
+
+
+def _lines(stream: TextIO, source: str, *, too_big: bool = False) -> Iterator[tuple[int, str]]:
+    """The numbered lines of ``stream``, without line ends (LF, CR LF or CR), each checked
+    to be printable ASCII and at most MAX_LINE_CHARS long; the whole stream at most
+    MAX_FILE_BYTES, counted while reading since devices and FIFOs report no size.
+
+    ``too_big``: the file's size is known to exceed the limit; it is refused after its
+    first line, so that a file that is no S-record file at all is named as such."""
+    total = 0
+    for no in itertools.count(1):
+        line = stream.readline(MAX_LINE_CHARS + 3)  # a whole line with CR LF, or one more
+        if not line:
+            return
+        total += len(line)
+        if total > MAX_FILE_BYTES:
+            raise ImageError(f"file is larger than {_amount(MAX_FILE_BYTES)}; not an "
+                             "S-record image for a DSP56F803", file=source, line=no)
+        body = line.rstrip("\r\n")
+        bad = _NOT_TEXT.search(body)
+        if bad:
+            raise ImageError(f"not an S-record file: {_describe(bad.group())}", file=source,
+                             line=no, column=bad.start() + 1)
+        if len(body) > MAX_LINE_CHARS:
+            raise ImageError(f"not an S-record: the line is longer than {MAX_LINE_CHARS} "
+                             f"characters (a record has at most {MAX_RECORD_CHARS})",
+                             file=source, line=no)
+        yield no, body
+        if too_big:
+            raise ImageError(f"file is larger than {_amount(MAX_FILE_BYTES)}; not an "
+                             "S-record image for a DSP56F803", file=source)
+
+
+def _amount(size: int) -> str:
+    return f"{size // 2**20} MiB" if size % 2**20 == 0 else f"{size} bytes"
+
+
+def _describe(char: str) -> str:
+    code = ord(char)
+    if code == 0:
+        return "NUL byte (binary data)"
+    if code > 0xFF:
+        return f"non-ASCII character U+{code:04X}"
+    if code > 0x7F:
+        return f"non-ASCII byte 0x{code:02X}"
+    return f"control character 0x{code:02X}"
 
 
 @dataclass
@@ -126,28 +203,61 @@ class _Record:
     data: bytes
 
 
-def _records(text: str, source: str) -> list[_Record]:
+def _records(lines: Iterable[tuple[int, str]], source: str) -> list[_Record]:
     out = []
-    for no, raw in enumerate(text.splitlines(), 1):
-        rec = raw.strip()
-        if not rec:
-            continue
-        if not rec.startswith("S") or len(rec) < 2:
-            raise ImageError(f"not an S-record: {_clip(rec)}", file=source, line=no)
-        if rec[1] not in "01235789":
-            raise ImageError(f"unknown record type S{rec[1]}", file=source, line=no)
-        try:
-            type_, address, size, data = bincopy.unpack_srec(rec)
-        except bincopy.Error as err:
-            raise ImageError(_bincopy_reason(str(err)), file=source, line=no) from None
-        except (ValueError, IndexError):
-            raise ImageError("malformed record: bad hex digits or length", file=source,
-                             line=no) from None
-        if len(data) != size:
-            raise ImageError(f"record length says {size} data bytes, found {len(data)}",
-                             file=source, line=no)
-        out.append(_Record(no, type_, address, bytes(data)))
+    for no, raw in lines:
+        rec = raw.strip(" \t")
+        if rec:
+            indent = len(raw) - len(raw.lstrip(" \t"))
+            out.append(_record(rec, source, no, indent))
     return out
+
+
+def _record(rec: str, source: str, no: int, indent: int) -> _Record:
+    """One record, its structure checked before bincopy unpacks it and checks its sum."""
+    if not rec.startswith("S") or len(rec) < 2 or not rec[1].isdigit():
+        raise ImageError(f"not an S-record: {_clip(rec)}", file=source, line=no)
+    type_ = rec[1]
+    if type_ not in _ADDRESS_BYTES:
+        raise ImageError(f"unknown record type S{type_}", file=source, line=no)
+    digits = rec[2:]
+    bad = _NOT_HEX.search(digits)
+    if bad:
+        raise ImageError(f"malformed record: {bad.group()!r} is not a hex digit", file=source,
+                         line=no, column=indent + 3 + bad.start())
+    if len(digits) < 2:
+        where = "inside" if digits else "before"
+        raise ImageError(f"record cut short: the S{type_} record ends {where} its length byte",
+                         file=source, line=no)
+    length = int(digits[:2], 16)
+    width = _ADDRESS_BYTES[type_]
+    if length < width + 1:
+        raise ImageError(f"malformed record: length byte {length:02X} is too small for an "
+                         f"S{type_} record, whose {width} address bytes and checksum need "
+                         f"{width + 1}", file=source, line=no)
+    held = len(digits) - 2  # hex digits after the length byte
+    n_data = length - width - 1
+    promise = (f"its length byte {digits[:2]} promises {length} bytes ({width} address, "
+               + (f"{n_data} data, " if n_data else "")
+               + f"1 checksum), {2 * length} hex digits")
+    if held < 2 * length:
+        where = ("inside the address" if held < 2 * width else
+                 "inside the data" if held < 2 * (length - 1) else
+                 "before the checksum" if held == 2 * (length - 1) else
+                 "inside the checksum")
+        raise ImageError(f"record cut short: {promise}, the line has only {held}; it "
+                         f"ends {where}", file=source, line=no)
+    if held > 2 * length:
+        raise ImageError(f"malformed record: {promise}, the line has {held}", file=source,
+                         line=no)
+    try:  # bincopy knows no S6; S2 has the same 24-bit address, the type is not summed
+        _, address, _, data = bincopy.unpack_srec("S2" + digits if type_ == "6" else rec)
+    except bincopy.Error as err:
+        raise ImageError(_bincopy_reason(str(err)), file=source, line=no) from None
+    except (ValueError, IndexError):
+        raise ImageError("malformed record: bad hex digits or length", file=source,
+                         line=no) from None
+    return _Record(no, type_, address, bytes(data))
 
 
 def _bincopy_reason(msg: str) -> str:
@@ -173,17 +283,17 @@ def _detect_addressing(records: list[_Record]) -> str:
     return "byte" if byte > word else "word"
 
 
-def parse_image(text: str, source: str = "<image>", *, addressing: str = "auto") -> Image:
-    """Check S-record text and return the image it describes."""
-    if addressing not in ("auto", "word", "byte"):
-        raise ImageError(f"addressing must be auto, word or byte, not {addressing!r}",
-                         file=source)
-    records = _records(text, source)
+def _image(records: list[_Record], source: str, addressing: str) -> Image:
+    """The image the records describe, checked as a whole."""
     if not records:
         raise ImageError("empty file: no S-records", file=source)
+    if not any(r.type in _TERMINATION for r in records):
+        last = records[-1].line
+        raise ImageError(f"no termination record (S7, S8 or S9): the file ends after line "
+                         f"{last}; is it truncated?", file=source, line=last)
     mode = _detect_addressing(records) if addressing == "auto" else addressing
     header = ""
-    entry: int | None = None
+    entry = 0
     end_line = 0
     data_records = 0
     words: dict[tuple[Space, int], int] = {}
@@ -209,10 +319,7 @@ def parse_image(text: str, source: str = "<image>", *, addressing: str = "auto")
         raise ImageError("empty image: no data words to program" + (
             " (only reset-vector words, which the bootloader keeps)" if vectors else ""),
             file=source)
-    if entry is None:
-        entry = min(a for s, a in words if s is Space.P) if any(
-            s is Space.P for s, _ in words) else 0
-    elif not (0x0004 <= entry <= 0x7DFF):
+    if not (0x0004 <= entry <= 0x7DFF):
         raise ImageError(f"entry address P:{entry:04X} is not in program flash "
                          "(P:0004-7DFF)", file=source, line=end_line)
     try:

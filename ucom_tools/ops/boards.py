@@ -2,6 +2,9 @@
 
 Every function returns rows of plain result dataclasses, one per (bus, board); commands
 that need a completed init chain explain how to get one when the boards have no seq ID.
+An operation on every board of a bus whose topology is known also returns a failed row
+for each expected board that did not answer.  ``what`` names the operation in messages
+(the CLI passes e.g. "option 7 (Start)").
 """
 
 from __future__ import annotations
@@ -10,15 +13,13 @@ import re
 from dataclasses import dataclass, field
 
 from ucom_tools.errors import InputError, UcomError, UcomTimeoutError
+from ucom_tools.ops.enumerate import describe_missing, missing_expected
 from ucom_tools.ops.robot import BusHandle, Robot
 from ucom_tools.protocol.bootloader import Reply
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import BoardState, StatusOp, Target
 from ucom_tools.wire.ids import ALL, Address, IdType
 from ucom_tools.wire.info import BoardInfo
-
-OPTION_NAMES = {3: "info", 4: "prog-enable", 5: "program", 10: "set-init-in",
-                11: "set-init-out", 12: "set-seqid", 21: "reset-one"}
 
 
 class NotInitialised(UcomError):
@@ -65,16 +66,18 @@ def parse_ref(text: str, *, allow_all: bool = True, what: str = "BOARD") -> Boar
 
 @dataclass(frozen=True)
 class Row:
-    """One board's answer to a command."""
+    """One board's answer to a command; ``address`` None for an expected board that did not
+    answer (``placement`` names it)."""
 
     bus: str
-    address: Address
+    address: Address | None
     ok: bool
     detail: str
     state: BoardState | None = None
     info: BoardInfo | None = None
     serial: int | None = None
     reports: tuple[str, ...] = field(default=())
+    placement: str | None = None
 
 
 def _buses(robot: Robot, ref: BoardRef | None, bus: str | None) -> list[BusHandle]:
@@ -82,22 +85,33 @@ def _buses(robot: Robot, ref: BoardRef | None, bus: str | None) -> list[BusHandl
     return robot.select(name)
 
 
-def _require_init(h: BusHandle, ref: BoardRef, option: int) -> None:
+def _require_init(h: BusHandle, ref: BoardRef, what: str) -> None:
     """Raise :class:`NotInitialised` when no board of the bus has a seq ID."""
     if ref.address.id_type is IdType.FIXED:
         return
     if h.client.info_many(ALL):
         return
-    name = OPTION_NAMES.get(option, "")
     raise NotInitialised(
-        f"{h.name}: no board has a seq ID yet. Option {option} ({name}) works only after a "
-        "successful init chain (option 2): run 'ucom init' first (the boards keep their seq "
-        "IDs until power-off), or add --init to this command.")
+        f"{h.name}: no board has a seq ID yet. {what[:1].upper() + what[1:]} works only "
+        "after a successful init chain (option 2): run 'ucom init' first (the boards keep "
+        "their seq IDs until power-off), or add --init to this command.")
 
 
-def _missing(h: BusHandle, ref: BoardRef, option: int) -> Row:
-    _require_init(h, ref, option)
+def _missing(h: BusHandle, ref: BoardRef, what: str) -> Row:
+    _require_init(h, ref, what)
     return Row(h.name, ref.address, False, f"no board with {_label(ref.address)} on {h.name}")
+
+
+def _absent(h: BusHandle, rows: list[Row]) -> list[Row]:
+    """Failed rows for the boards the topology expects on ``h`` that are not among
+    ``rows`` (only once some board answered: before init no board can)."""
+    if not rows or h.expected is None:
+        return []
+    expected = len(h.expected.boards)
+    answered = [r for r in rows if r.address is not None]
+    return [Row(h.name, None, False, describe_missing(h.name, spec, expected),
+                placement=spec.placement)
+            for spec in missing_expected(h, [r.serial for r in answered], len(answered))]
 
 
 def _label(a: Address) -> str:
@@ -113,35 +127,39 @@ def _reply_row(h: BusHandle, r: Reply) -> Row:
 
 # ----------------------------------------------------------------------------- options
 def reset(robot: Robot, ref: BoardRef | None = None, *, bus: str | None = None,
-          clear_autostart: bool = False) -> list[Row]:
+          clear_autostart: bool = False, what: str = "reset") -> list[Row]:
     """Options 1, 9 and 21: reset, and list who answered (= who is alive)."""
     rows = []
     target = ref or BoardRef(None, ALL)
     for h in _buses(robot, ref, bus):
         replies = h.client.reset(target.address, clear_autostart=clear_autostart)
         if not replies and not target.is_all:
-            rows.append(_missing(h, target, 21))
+            rows.append(_missing(h, target, what))
             continue
+        bus_rows = []
         for r in replies:
             assert isinstance(r.message, m.Ready)
-            rows.append(Row(h.name, r.address, True, "reset", r.message.state,
-                            serial=r.message.value32))
+            bus_rows.append(Row(h.name, r.address, True, "reset", r.message.state,
+                                serial=r.message.value32))
+        rows += bus_rows + (_absent(h, bus_rows) if target.is_all else [])
     return rows
 
 
-def info(robot: Robot, ref: BoardRef, *, bus: str | None = None) -> list[Row]:
+def info(robot: Robot, ref: BoardRef, *, bus: str | None = None,
+         what: str = "GetInfo") -> list[Row]:
     """Option 3 (one board) and 13 (Count: every board, ``ref`` = all)."""
     rows = []
     for h in _buses(robot, ref, bus):
         infos = h.client.info_many(ref.address)
         if not infos and not ref.is_all:
-            rows.append(_missing(h, ref, 3))
-        for address, inf in sorted(infos.items(), key=lambda kv: kv[0].number):
-            rows.append(Row(h.name, address, True, "ok", inf.state, inf, inf.serial))
+            rows.append(_missing(h, ref, what))
+        bus_rows = [Row(h.name, address, True, "ok", inf.state, inf, inf.serial)
+                    for address, inf in sorted(infos.items(), key=lambda kv: kv[0].number)]
+        rows += bus_rows + (_absent(h, bus_rows) if ref.is_all else [])
     return rows
 
 
-def set_status(robot: Robot, ref: BoardRef, op: StatusOp, value: int, *, option: int,
+def set_status(robot: Robot, ref: BoardRef, op: StatusOp, value: int, *, what: str,
                bus: str | None = None) -> list[Row]:
     """Options 4 (ProgEnable), 8 (AutoStart), 10/11 (init pins), 12 (seq ID)."""
     rows = []
@@ -149,30 +167,79 @@ def set_status(robot: Robot, ref: BoardRef, op: StatusOp, value: int, *, option:
         replies = h.client.set_status(ref.address, op, value)
         if not replies:
             if ref.is_all:
-                _require_init(h, ref, option)
+                _require_init(h, ref, what)
             else:
-                rows.append(_missing(h, ref, option))
+                rows.append(_missing(h, ref, what))
             continue
-        rows += [_reply_row(h, r) for r in replies]
+        bus_rows = [_reply_row(h, r) for r in replies]
+        rows += bus_rows + (_absent(h, bus_rows) if ref.is_all else [])
+    return rows
+
+
+def set_seqid(robot: Robot, ref: BoardRef, new: int, *, bus: str | None = None,
+              what: str = "SetSeqID") -> list[Row]:
+    """Option 12: give the board with seq ID ``ref`` the seq ID ``new``.
+
+    Refused (:class:`~ucom_tools.errors.InputError`, nothing sent) when another board of
+    that bus already holds ``new``: two boards with one seq ID would answer with the same
+    identifiers and drop out of every list.  The change is confirmed by the board's Info
+    at the new number (its serial), so a lost answer is not a failure."""
+    if ref.is_all or ref.address.id_type is not IdType.SEQUENTIAL:
+        raise InputError("SetSeqID changes the seq ID of one board: give its seq ID",
+                         key="OLD")
+    rows = []
+    for h in _buses(robot, ref, bus):
+        infos = h.client.info_many(ALL)
+        old = infos.get(ref.address)
+        if old is None:
+            rows.append(_missing(h, ref, what))
+            continue
+        if new == ref.address.number:
+            rows.append(Row(h.name, ref.address, True, "already has this seq ID", old.state,
+                            old, old.serial))
+            continue
+        holder = infos.get(Address(IdType.SEQUENTIAL, new))
+        if holder is not None:
+            raise InputError(
+                f"seq ID {new} is already held by the board with serial "
+                f"0x{holder.serial:08X} on {h.name}; nothing was sent. Two boards with one "
+                "seq ID would answer with the same identifiers; give another number, or "
+                "move that board first", key="NEW")
+        replies = h.client.set_status(ref.address, StatusOp.SEQ_ID, new)
+        if replies:
+            rows += [_reply_row(h, r) for r in replies]
+            continue
+        try:
+            now = h.client.info(Address(IdType.SEQUENTIAL, new))
+        except UcomTimeoutError:
+            rows.append(Row(h.name, ref.address, False, f"did not take seq ID {new}",
+                            old.state, old, old.serial))
+            continue
+        ok = now.serial == old.serial
+        rows.append(Row(h.name, Address(IdType.SEQUENTIAL, new), ok,
+                        "ok" if ok else "another board answers at the new seq ID",
+                        now.state, now, now.serial))
     return rows
 
 
 def start(robot: Robot, ref: BoardRef, target: Target = Target.FLASH, *,
-          bus: str | None = None) -> list[Row]:
+          bus: str | None = None, what: str = "Start") -> list[Row]:
     """Option 7: start the program in flash (or ExtRAM)."""
     rows = []
     for h in _buses(robot, ref, bus):
         results = h.client.start(ref.address, target)
         if not results:
             if ref.is_all:
-                _require_init(h, ref, 7)
+                _require_init(h, ref, what)
             else:
-                rows.append(_missing(h, ref, 7))
+                rows.append(_missing(h, ref, what))
             continue
+        bus_rows = []
         for r in results:
             detail = "; ".join(e.describe() for e in r.errors) if r.errors else (
                 "started" if r.started else "did not start")
-            rows.append(Row(h.name, r.address, r.ok, detail, r.state, reports=r.reports))
+            bus_rows.append(Row(h.name, r.address, r.ok, detail, r.state, reports=r.reports))
+        rows += bus_rows + (_absent(h, bus_rows) if ref.is_all else [])
     return rows
 
 
@@ -206,7 +273,7 @@ def probe(robot: Robot, *, last: bool = False, bus: str | None = None) -> list[P
 
 def dsp_list(robot: Robot, *, bus: str | None = None) -> list[Row]:
     """Options 16 + 17: build and print the list of active boards (Info broadcast)."""
-    return info(robot, BoardRef(None, ALL), bus=bus)
+    return info(robot, BoardRef(None, ALL), bus=bus, what="DSPListUpdate")
 
 
 def board_status(robot: Robot, ref: BoardRef, *, bus: str | None = None) -> list[

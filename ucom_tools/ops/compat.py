@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from ucom_tools.boards import app_name, board_name
-from ucom_tools.ops.enumerate import enumerate_bus
+from ucom_tools.ops.enumerate import describe_missing, enumerate_bus, missing_expected
 from ucom_tools.ops.robot import Robot
 from ucom_tools.wire.descriptor import ImageDescriptor
 from ucom_tools.wire.fpga import FpgaVersion
@@ -91,12 +91,12 @@ class CheckRow:
     program: str | None
     progid: int | None
     descriptor: ImageDescriptor | None
-    verdict: str  # ok | warning | mismatch | no program | unknown
+    verdict: str  # ok | warning | mismatch | no program | unknown | missing
     findings: tuple[Finding, ...]
 
     @property
     def failed(self) -> bool:
-        return self.verdict in ("mismatch", "unknown")
+        return self.verdict in ("mismatch", "unknown", "missing")
 
 
 def check(robot: Robot, *, bus: str | None = None) -> list[CheckRow]:
@@ -104,6 +104,12 @@ def check(robot: Robot, *, bus: str | None = None) -> list[CheckRow]:
     rows = []
     for h in robot.select(bus):
         enum = enumerate_bus(h)
+        expected = len(h.expected.boards) if h.expected is not None else 0
+        for spec in missing_expected(h, [b.serial for b in enum.boards], enum.found):
+            rows.append(CheckRow(h.name, 0, spec.placement, spec.serial, 15, None, False, None,
+                                 None, None, "missing", (Finding(
+                                     "error", "board", spec.placement, "no answer",
+                                     describe_missing(h.name, spec, expected)),)))
         for b in enum.boards:
             inf = b.info
             if inf is None:

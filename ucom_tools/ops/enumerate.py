@@ -79,6 +79,9 @@ def enumerate_bus(handle: BusHandle, *, with_info: bool = True) -> BusEnumeratio
         if info is not None and info.serial != ack.serial:
             info = None
         pos = by_serial.get(ack.serial)
+        if pos is None and not by_serial and expected is not None and not dups and \
+                ack.seq_id <= len(expected.boards):
+            pos = ack.seq_id - 1  # a sound chain numbers the boards in topology order
         spec = expected.boards[pos] if expected is not None and pos is not None else None
         boards.append(FoundBoard(
             ack.seq_id, ack.serial, ack.fixed_id, ack.bootloader_version,

@@ -119,7 +119,8 @@ def flash(robot: Robot, image: Image, *, selection: Selection = Selection("all")
           bus: str | None = None, target: Target = Target.FLASH, init: bool = True,
           autostart: bool = False, start: bool = False, verify: bool = True,
           progress: ProgressFn | None = None, cancel: threading.Event | None = None,
-          plan: TransferPlan | None = None, force: bool = False) -> FlashResult:
+          plan: TransferPlan | None = None, force: bool = False,
+          what: str = "programming") -> FlashResult:
     """Program ``image`` into the selected boards of every selected bus, in parallel.
 
     Boards whose plug-on board, FPGA (Board-ID, App-ID, major version) do not fit the
@@ -128,7 +129,7 @@ def flash(robot: Robot, image: Image, *, selection: Selection = Selection("all")
     plan = plan or image.plan(target=target)
     handles = robot.select(bus)
     job = _Job(plan, selection, init, autostart, start, verify, progress, cancel,
-               image.descriptor, force)
+               image.descriptor, force, what)
     if len(handles) == 1:
         results = [job.run(handles[0])]
     else:
@@ -149,6 +150,7 @@ class _Job:
     cancel: threading.Event | None
     descriptor: ImageDescriptor | None = None
     force: bool = False
+    what: str = "programming"
 
     def _preflight(self, h: BusHandle, targets: list[int], present: dict[int, BoardInfo],
                    results: dict[int, BoardResult],
@@ -190,10 +192,11 @@ class _Job:
             return enum, infos, {b.seq_id: (b.serial, b.placement) for b in enum.boards}
         infos = h.client.info_many(ALL)
         if not infos:
+            what = self.what[:1].upper() + self.what[1:]
             raise NotInitialised(
-                f"{h.name}: no board has a seq ID yet. Programming (option 5) works only "
-                "after a successful init chain (option 2): run 'ucom init' first, or use "
-                "'ucom flash', which runs it.")
+                f"{h.name}: no board has a seq ID yet. {what} works only after a successful "
+                "init chain (option 2): run 'ucom init' first, or add --init to this "
+                "command; 'ucom flash' runs it itself.")
         firsts = h.client.probe()
         if len(firsts) > 1:
             serials = ", ".join(f"0x{a.serial:08X}" for a in firsts)
@@ -205,7 +208,13 @@ class _Job:
             return BusFlash(h.name, rows, None, 0, 0, "init chain faulty")
         boards = h.expected.boards if h.expected is not None else ()
         known = {serial: boards[pos].placement for serial, pos in expected_positions(h).items()}
-        return None, infos, {a.number: (inf.serial, known.get(inf.serial))
+
+        def placement(a: Address, serial: int) -> str | None:
+            if known or a.number > len(boards):
+                return known.get(serial)
+            return boards[a.number - 1].placement  # a sound chain: topology order
+
+        return None, infos, {a.number: (inf.serial, placement(a, inf.serial))
                              for a, inf in infos.items() if a.id_type is IdType.SEQUENTIAL}
 
     def run(self, h: BusHandle) -> BusFlash:

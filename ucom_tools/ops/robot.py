@@ -4,7 +4,6 @@ its topology expects on each."""
 from __future__ import annotations
 
 import contextlib
-import socket
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ from ucom_tools.errors import BusError, InputError, UcomError
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
+from ucom_tools.transport.socketcand import SocketcandBus
 
 
 @dataclass(frozen=True)
@@ -32,12 +32,21 @@ class ConnectSpec:
     topology: str | None = None
     state_dir: Path | None = None
     pace: bool = False
+    origin: str = "command line"
+    """Where the bus was named: "command line" or "environment"."""
+    ignored: tuple[str, ...] = ()
+    """Environment settings that named another bus and were ignored (``UCOM_X=value``)."""
 
     def describe(self) -> str:
         if self.virtual:
-            return f"virtual {self.virtual}"
-        where = f"{self.host}:{self.port} " if self.host else ""
-        return f"{self.interface} {where}{','.join(self.channels)}".strip()
+            return f"--virtual {self.virtual}"
+        parts = [f"-i {self.interface}"] if self.interface else []
+        if self.host or self.port:
+            parts.append(f"{self.host}:{self.port}")
+        parts += [f"-c {c}" for c in self.channels]
+        if self.topology:
+            parts.append(f"--topology {self.topology}")
+        return " ".join(parts) or "no bus"
 
 
 TRANSPORT_MARGIN = {"virtual": 0.0, "socketcand": 0.25}
@@ -115,13 +124,22 @@ def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:
         kwargs["host"] = spec.host
     if spec.port:
         kwargs["port"] = spec.port
-    if spec.interface == "socketcand":
-        _reach_socketcand(spec.host, spec.port)
+    socketcand = spec.interface == "socketcand"
+    if socketcand and (not spec.host or not spec.port):
+        raise InputError("the socketcand interface needs --host and --port", key="--host")
     buses: dict[str, BusHandle] = {}
     try:
         for channel, exp in zip(channels, expected, strict=True):
             try:
-                bus = can.Bus(interface=spec.interface, channel=channel, **kwargs)
+                if socketcand:
+                    assert spec.host is not None and spec.port is not None
+                    bus: can.BusABC = SocketcandBus(channel, spec.host, spec.port)
+                else:
+                    bus = can.Bus(interface=spec.interface, channel=channel, **kwargs)
+            except can.CanInitializationError as err:
+                raise BusError(_one_line(err) if socketcand else
+                               f"cannot open {spec.interface} channel {channel!r}: "
+                               f"{_one_line(err)}") from err
             except (can.CanError, OSError, ValueError, ImportError, TypeError,
                     NotImplementedError) as err:
                 raise BusError(f"cannot open {spec.interface} channel {channel!r}: "
@@ -165,18 +183,6 @@ def _open_virtual(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
                 h.bus.shutdown()
         raise
     return Robot(spec, buses, topology, timeouts=timeouts)
-
-
-def _reach_socketcand(host: str | None, port: int | None) -> None:
-    """Fail at once on a server that is not there (python-can retries for 10 s)."""
-    if not host or not port:
-        raise InputError("the socketcand interface needs --host and --port", key="--host")
-    try:
-        with socket.create_connection((host, port), timeout=3):
-            pass
-    except OSError as err:
-        raise BusError(f"cannot open socketcand on {host}:{port}: "
-                       f"{err.strerror or err}") from err
 
 
 def _one_line(err: BaseException) -> str:

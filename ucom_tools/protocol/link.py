@@ -25,6 +25,8 @@ from ucom_tools.wire import messages as m
 from ucom_tools.wire.canbits import worst_frame_bits
 from ucom_tools.wire.ids import Address, Direction
 
+SEND_SLACK = 1.0
+"""Seconds an interface may take to accept a frame beyond the frames ahead of it."""
 SHARED_BUS_FACTOR = 2.0
 """Wire times in deadlines are multiplied by this: the bus may carry other traffic."""
 
@@ -79,15 +81,21 @@ class Link:
         self.send_raw(arb, data)
 
     def send_raw(self, arbitration_id: int, data: bytes) -> None:
+        """Hand one frame to the bus.  The interface may take a while to accept it (its
+        transmit queue is full, a network bus pushes back): that wait is bounded like
+        every other, by the frames still ahead plus :data:`SEND_SLACK` and the margin."""
         msg = can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False)
-        for attempt in range(50):
+        limit = self.budget(SEND_SLACK)
+        deadline = time.monotonic() + limit
+        while True:
             try:
-                self.bus.send(msg, timeout=0.1)
+                self.bus.send(msg, timeout=max(0.0, min(limit, deadline - time.monotonic())))
                 break
             except can.CanOperationError as err:
-                if "buffer" not in str(err).lower() or attempt == 49:
+                # an adapter whose queue is full may refuse at once (SocketCAN: ENOBUFS)
+                if "buffer" not in str(err).lower() or time.monotonic() >= deadline:
                     raise BusError(f"{self.name}: cannot send: {err}") from err
-                time.sleep(0.001)  # a full adapter queue: back off, then try again
+                time.sleep(0.001)  # back off, then offer the frame again
             except can.CanError as err:
                 raise BusError(f"{self.name}: cannot send: {err}") from err
             except OSError as err:

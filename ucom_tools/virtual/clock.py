@@ -2,14 +2,22 @@
 
 Used when the fleet is served to other processes (``ucom fleet serve``) or when a user
 asks for pacing; in-process tools otherwise drive the bus in virtual time.
+
+The clock thread runs every node's ``on_frame`` and every scheduled callback.  One that
+raises is logged with its traceback (logger ``ucom.bus``) and the bus goes on.  What
+failed is not retried: a callback is gone, a frame misses the nodes after the failing
+one.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 
 from ucom_tools.virtual.simbus import SimBus
+
+log = logging.getLogger("ucom.bus")
 
 
 class RealtimeDriver:
@@ -39,11 +47,21 @@ class RealtimeDriver:
         with sim.changed:
             while not self._stop:
                 now = self.now_us()
-                sent = sim.stats.frames
-                sim.run_until(now)
-                if sim.stats.frames != sent:
-                    sim.changed.notify_all()  # senders waiting for room in their TX queue
+                self._advance(now)
                 nxt = sim.next_event_time()
                 wait = 0.5 if nxt is None else min(0.5, max(0.0, (nxt - now) / 1e6))
                 if wait > 0:
                     sim.changed.wait(timeout=wait)
+
+    def _advance(self, now: float) -> None:
+        """Run the bus up to ``now`` (hold ``sim.lock``); a node or callback that raises
+        is logged and skipped, never the end of the bus."""
+        sim = self.sim
+        sent = sim.stats.frames
+        try:
+            sim.run_until(now)
+        except Exception:
+            log.exception("bus %s: a node or scheduled callback failed at %.1f us; "
+                          "the bus goes on", sim.name, sim.now)
+        if sim.stats.frames != sent:
+            sim.changed.notify_all()  # senders waiting for room in their TX queue

@@ -6,6 +6,7 @@ AutoStart flag) across restarts, like power cycles of the real robot.
 
 from __future__ import annotations
 
+import os
 import re
 import threading
 import time
@@ -15,7 +16,7 @@ from typing import Any
 from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.config import topology as topo
 from ucom_tools.config.topology import BoardSpec, Topology
-from ucom_tools.errors import TopologyError, UcomError
+from ucom_tools.errors import InputError, TopologyError, UcomError
 from ucom_tools.virtual.board import Identity, VirtualBoard
 from ucom_tools.virtual.clock import RealtimeDriver
 from ucom_tools.virtual.simbus import SimBus
@@ -34,7 +35,7 @@ class Fleet:
         self.boards: dict[str, list[VirtualBoard]] = {}
         self._drivers: list[RealtimeDriver] = []
         if state_dir is not None:
-            state_dir.mkdir(parents=True, exist_ok=True)
+            _state_dir(state_dir)
         for spec in topology.buses:
             sim = SimBus(spec.name, spec.bitrate)
             boards = []
@@ -44,7 +45,7 @@ class Fleet:
                                      timing=topology.timing, powered=False,
                                      state_file=self._state_file(spec.name, b))
                 if b.program is not None and not board.nv.record.flash_valid:
-                    install_program(board, b)
+                    install_program(board, b, topology.source, spec.name)
                 sim.attach(board)
                 sim.chain.append(board)
                 if b.init_link_broken:
@@ -140,7 +141,22 @@ def _program(board: VirtualBoard) -> dict[str, Any] | None:
     return {"name": rec.name, "progid": f"0x{rec.progid:08X}", "size_words": rec.size_words}
 
 
-def install_program(board: VirtualBoard, spec: BoardSpec) -> None:
+def _state_dir(path: Path) -> None:
+    """Make sure ``path`` is a usable state directory (InputError naming it if not)."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise InputError("--state must name a directory; this is a file", file=str(path)) \
+            from None
+    except OSError as err:
+        raise InputError(f"cannot create the state directory: {err.strerror or err}",
+                         file=str(path)) from None
+    if not os.access(path, os.R_OK | os.W_OK | os.X_OK):
+        raise InputError("cannot use the state directory: no permission to read and write "
+                         "it", file=str(path))
+
+
+def install_program(board: VirtualBoard, spec: BoardSpec, source: str, bus: str) -> None:
     """Put a topology's initial program into a board's flash, as if flashed earlier."""
     from ucom_tools.image import load_image  # the image layer is only needed here
 
@@ -148,7 +164,9 @@ def install_program(board: VirtualBoard, spec: BoardSpec) -> None:
     try:
         image = load_image(spec.program)
     except UcomError as err:
-        raise TopologyError(f"program: {err}", file=str(spec.program), line=spec.line) from None
+        raise TopologyError(f"the S-record file it names is not usable: {err}", file=source,
+                            line=spec.line, key=f"{bus}, board {spec.position + 1} "
+                            f"({spec.placement}), program") from None
     board.nv.install(image.plan(when_epoch=spec.program.stat().st_mtime))
     board.nv.record.autostart = spec.autostart
 

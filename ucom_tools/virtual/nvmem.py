@@ -11,6 +11,7 @@ from array import array
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from ucom_tools.errors import InputError
 from ucom_tools.memory import P_FLASH_END, PAGE_WORDS, X_FLASH_END, X_FLASH_START
 from ucom_tools.wire.codes import Space
 from ucom_tools.wire.transfer import TransferPlan, encode_date
@@ -131,20 +132,56 @@ class NonVolatile:
         os.replace(tmp, rec)
 
     def load(self, path: Path) -> bool:
-        """Read what :meth:`save` wrote; False if nothing was stored yet."""
+        """Read what :meth:`save` wrote; False if nothing was stored yet.
+
+        A file that cannot be read or is not what :meth:`save` writes raises
+        :class:`~ucom_tools.errors.InputError` naming it (a power cycle never quietly
+        loses or invents a board's program)."""
         flash = path.with_suffix(".flash")
         rec = path.with_suffix(".json")
         found = False
         if flash.exists():
-            raw = flash.read_bytes()
-            if len(raw) == 2 * (P_WORDS + X_WORDS):
-                self.p.words = array("H")
-                self.p.words.frombytes(raw[:2 * P_WORDS])
-                self.x.words = array("H")
-                self.x.words.frombytes(raw[2 * P_WORDS:])
-                found = True
+            raw = _read(flash)
+            size = 2 * (P_WORDS + X_WORDS)
+            if len(raw) != size:
+                raise InputError(f"not a board's flash image: {len(raw)} bytes, expected {size}; "
+                                 "delete it to start with erased flash", file=str(flash))
+            self.p.words = array("H")
+            self.p.words.frombytes(raw[:2 * P_WORDS])
+            self.x.words = array("H")
+            self.x.words.frombytes(raw[2 * P_WORDS:])
+            found = True
         if rec.exists():
-            data = json.loads(rec.read_text())
-            self.record = BootRecord(**{k: data[k] for k in asdict(BootRecord()) if k in data})
+            self.record = _record(rec)
             found = True
         return found
+
+
+def _read(path: Path) -> bytes:
+    try:
+        return path.read_bytes()
+    except OSError as err:
+        raise InputError(f"cannot read: {err.strerror or err}", file=str(path)) from None
+
+
+def _record(path: Path) -> BootRecord:
+    """The bootloader record saved in ``path``, every field checked."""
+    try:
+        data = json.loads(_read(path).decode("utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as err:
+        line = getattr(err, "lineno", None)
+        raise InputError(f"not a bootloader record (corrupt JSON: {err}); delete it to start "
+                         "with an empty board", file=str(path), line=line) from None
+    if not isinstance(data, dict):
+        raise InputError("not a bootloader record (expected a JSON object)", file=str(path))
+    fields = asdict(BootRecord())
+    values = {}
+    for key, default in fields.items():
+        if key not in data:
+            continue
+        value = data[key]
+        if type(value) is not type(default):
+            raise InputError(f"expected {type(default).__name__}, got {value!r}",
+                             file=str(path), key=key)
+        values[key] = value
+    return BootRecord(**values)

@@ -1,126 +1,473 @@
 """Serve a virtual fleet with the socketcand protocol (raw mode), so that python-can's
 ``socketcand`` interface - and any socketcand client - reaches the boards from another
-process.  One TCP connection opens one bus (``< open CAN0 >``); frames a client sends go
-onto the simulated bus in real time, every frame on the bus goes to every other client.
+process.  One TCP connection opens one bus; frames a client sends go onto the simulated
+bus in real time, every frame on the bus goes to every other client of that bus::
 
-Binds to 127.0.0.1 by default.
+    server  < hi >
+    client  < open CAN0 >               server  < ok >
+    client  < rawmode >                 server  < ok >      (then 20 ms, see below)
+    client  < send 280 2 1 0 >          server  < frame 0C1 1700000000.000345 01... >
+    client  < echo >                    server  < echo >
+
+``send`` takes an identifier of 1-3 hex digits (0..7FF; CAN 2.0A only), a DLC of one hex
+digit 0..8 and exactly DLC data bytes of 1-2 hex digits each (python-can sends them
+unpadded).  Whatever else a client sends - a malformed or unknown element, non-ASCII
+bytes, a command before ``open``, a second ``open`` - is answered with
+``< error ... >`` and the client stays connected.
+
+No client can stop the bus or another client:
+
+* Input is read in chunks and cut into elements; an element may be at most
+  :data:`MAX_ELEMENT` bytes.  A longer one gets ``< error element too long >`` and the
+  client is closed.
+* Output goes through a bounded queue per client (:class:`Outbox`) that the bus fills
+  without ever waiting, and a writer thread per client empties it outside the bus lock.
+  A client that stops reading until its queue overflows is dropped.
+* Back-pressure: a client's frames wait in a transmit queue of
+  :data:`~ucom_tools.virtual.canbus.TX_QUEUE` frames, like a CAN adapter's.  While it is
+  full the server does not read that client's socket, so TCP slows a client that sends
+  faster than the bus carries frames; the wait releases the bus lock, and a client that
+  disconnects meanwhile is noticed and cleaned up.
+* At most ``max_clients`` connections; one more gets ``< error too many clients (N) >``
+  and is closed.
+
+python-can's client reads ``< hi >`` and each ``< ok >`` with a single ``recv(256)``
+and fails if anything arrives glued to them.  So after the rawmode ``< ok >`` the server
+waits until it is written, then :data:`RAWMODE_SETTLE_S` (20 ms), and only then attaches
+the client to the bus.
+
+Binds to 127.0.0.1 by default; every accepted connection has TCP_NODELAY set.  The
+server logs to the ``ucom.serve`` logger: connections at INFO, dropped and refused
+clients at WARNING; a lost client never causes a traceback.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
+import re
+import select
 import socket
 import socketserver
 import threading
 import time
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+import can
 
 from ucom_tools.virtual.canbus import wait_for_room
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.virtual.simbus import SimBus
 
+log = logging.getLogger("ucom.serve")
+
 DEFAULT_PORT = 29536
+MAX_CLIENTS = 16
+"""Connections served at once (``FleetServer(max_clients=...)``)."""
+MAX_QUEUED_FRAMES = 10_000
+"""Frames and replies that may wait for one client; one more and it is dropped."""
+MAX_ELEMENT = 4096
+"""Longest element a client may send, ``<`` and ``>`` included, in bytes."""
+RAWMODE_SETTLE_S = 0.02
+"""Pause between the rawmode ``< ok >`` and the first frame (python-can compatibility)."""
+ROOM_POLL_S = 0.1
+"""How often a client waiting for room in its transmit queue is checked for liveness."""
+FLUSH_S = 1.0
+"""How long the server waits for a last reply to be written before closing a client."""
+_RECV_SIZE = 4096
+_WRITE_BATCH = 512
+_HEX = re.compile(r"[0-9A-Fa-f]+")
+_DONTWAIT = getattr(socket, "MSG_DONTWAIT", 0)
+
+Frame = tuple[int, bytes, float]
+"""A frame for a client: identifier, data, end time on the bus (virtual microseconds)."""
+Line = bytes | Frame
+"""What a client's writer sends: an encoded reply or a frame."""
+
+
+class ElementError(Exception):
+    """An element the server answers with ``< error MESSAGE >``."""
+
+
+class ElementTooLong(ElementError):
+    """An element longer than :data:`MAX_ELEMENT`; the client is closed."""
+
+
+# ---------------------------------------------------------------------- parsing
+class ElementSplitter:
+    """Cuts a client's byte stream into ``< ... >`` elements, holding at most ``limit``
+    bytes of an unfinished one; bytes between elements are skipped."""
+
+    def __init__(self, limit: int = MAX_ELEMENT) -> None:
+        self.limit = limit
+        self._buffer = bytearray()
+
+    def feed(self, chunk: bytes) -> None:
+        self._buffer += chunk
+
+    def next(self) -> bytes | None:
+        """The text between ``<`` and ``>`` of the next complete element, or None;
+        raises :class:`ElementTooLong` instead of holding more than ``limit`` bytes."""
+        buf = self._buffer
+        start = buf.find(b"<")
+        if start < 0:
+            buf.clear()
+            return None
+        del buf[:start]
+        end = buf.find(b">", 1)
+        if end < 0:
+            if len(buf) >= self.limit:  # its ">" would make it longer than the limit
+                raise ElementTooLong("element too long")
+            return None
+        if end + 1 > self.limit:
+            raise ElementTooLong("element too long")
+        element = bytes(buf[1:end])
+        del buf[:end + 1]
+        return element
+
+
+def element_words(element: bytes) -> list[str]:
+    """The words of an element's text; non-ASCII or empty elements are errors."""
+    try:
+        words = element.decode("ascii").split()
+    except UnicodeDecodeError:
+        raise ElementError("non-ASCII bytes in element") from None
+    if not words:
+        raise ElementError("empty element")
+    return words
+
+
+def parse_send(args: list[str]) -> tuple[int, bytes]:
+    """Identifier and data of ``< send ID DLC B0 B1 .. >`` from the words after ``send``."""
+    if len(args) < 2:
+        raise ElementError("usage: send ID DLC DATA...")
+    ident, dlc_text, *byte_words = args
+    arbitration_id = _identifier(ident)
+    dlc = _dlc(dlc_text)
+    if len(byte_words) != dlc:
+        raise ElementError(f"DLC {dlc} but {len(byte_words)} data bytes")
+    return arbitration_id, bytes(_data_byte(w) for w in byte_words)
+
+
+def _identifier(text: str) -> int:
+    if not _HEX.fullmatch(text) or len(text) > 8:
+        raise ElementError(f"bad identifier {_quote(text)}: 1-3 hex digits")
+    if len(text) > 3:
+        raise ElementError(f"extended identifier {text}: only 11-bit identifiers are carried")
+    value = int(text, 16)
+    if value > 0x7FF:
+        raise ElementError(f"identifier {text} above 7FF")
+    return value
+
+
+def _dlc(text: str) -> int:
+    if len(text) != 1 or not _HEX.fullmatch(text):
+        raise ElementError(f"bad DLC {_quote(text)}: one hex digit 0..8")
+    value = int(text, 16)
+    if value > 8:
+        raise ElementError(f"DLC {text} above 8")
+    return value
+
+
+def _data_byte(text: str) -> int:
+    if len(text) > 2 or not _HEX.fullmatch(text):
+        raise ElementError(f"bad data byte {_quote(text)}: 1-2 hex digits")
+    return int(text, 16)
+
+
+def _quote(text: str, limit: int = 16) -> str:
+    """``text`` safe to echo inside an element: printable ASCII, no ``<``, short."""
+    shown = "".join(c if "!" <= c <= "~" and c != "<" else "?" for c in text[:limit])
+    return shown + ("..." if len(text) > limit else "")
+
+
+def _peer(address: Any) -> str:
+    """A client's address as people write it: ``127.0.0.1:40000``, ``[::1]:40000``."""
+    if isinstance(address, tuple) and len(address) >= 2:
+        host = str(address[0])
+        return f"[{host}]:{address[1]}" if ":" in host else f"{host}:{address[1]}"
+    return str(address)
+
+
+# ---------------------------------------------------------------------- output
+class Outbox:
+    """Lines waiting for one client's writer thread.  Bounded, and :meth:`put` never
+    blocks, so the bus thread hands each frame to every client without waiting for any."""
+
+    def __init__(self, limit: int) -> None:
+        self.limit = limit
+        self._lines: deque[Line] = deque()
+        self._cond = threading.Condition()
+        self._closed = False
+        self._writing = False
+
+    def put(self, line: Line) -> bool:
+        """Queue ``line``; false if the queue is full (a closed outbox drops lines)."""
+        with self._cond:
+            if self._closed:
+                return True
+            if len(self._lines) >= self.limit:
+                return False
+            self._lines.append(line)
+            self._cond.notify_all()
+            return True
+
+    def take(self) -> list[Line] | None:
+        """The writer's next batch (waits for one); None once the outbox is closed."""
+        with self._cond:
+            self._writing = False
+            self._cond.notify_all()
+            while not self._lines and not self._closed:
+                self._cond.wait()
+            if self._closed:
+                return None
+            n = min(len(self._lines), _WRITE_BATCH)
+            self._writing = True
+            return [self._lines.popleft() for _ in range(n)]
+
+    def wait_written(self, timeout: float) -> bool:
+        """Wait until everything queued so far is written or the outbox is closed."""
+        with self._cond:
+            return self._cond.wait_for(
+                lambda: self._closed or not (self._lines or self._writing), timeout)
+
+    def close(self) -> None:
+        with self._cond:
+            self._closed = True
+            self._lines.clear()
+            self._cond.notify_all()
+
+
+def encode_line(line: Line, epoch: float) -> bytes:
+    """A reply as is; a frame as ``< frame ID SEC.USEC HEXDATA >``."""
+    if isinstance(line, bytes):
+        return line
+    arbitration_id, data, t_end = line
+    ts = epoch + t_end / 1e6
+    return f"< frame {arbitration_id:03X} {ts:.6f} {data.hex().upper()} >".encode("ascii")
 
 
 class ClientPort:
-    """A socketcand client's attachment to one simulated bus."""
+    """A client's attachment to one simulated bus (a node of the bus and the sender of
+    the client's frames).  ``on_frame`` runs in the bus thread under the bus lock: it only
+    queues the frame, and reports an overflowing queue."""
 
-    def __init__(self, sock: socket.socket, fleet: Fleet, sim: SimBus) -> None:
-        self.sock = sock
-        self.fleet = fleet
+    def __init__(self, sim: SimBus, outbox: Outbox, on_overflow: Callable[[], None]) -> None:
         self.sim = sim
-        self.lock = threading.Lock()
-        self.alive = True
+        self.outbox = outbox
+        self.on_overflow = on_overflow
 
     def on_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None:
-        ts = self.fleet.epoch + t_end / 1e6
-        line = f"< frame {arbitration_id:03X} {ts:.6f} {data.hex().upper()} >"
-        self.write(line)
+        if not self.outbox.put((arbitration_id, data, t_end)):
+            self.on_overflow()
 
-    def write(self, text: str) -> None:
-        if not self.alive:
-            return
+
+# ---------------------------------------------------------------------- one client
+class Connection:
+    """One socketcand client: the handler thread reads and executes its elements, a
+    writer thread sends it replies and frames.  Ends without raising, however the
+    client leaves."""
+
+    def __init__(self, sock: socket.socket, address: Any, fleet: Fleet,
+                 max_queued_frames: int = MAX_QUEUED_FRAMES) -> None:
+        self.sock = sock
+        self.peer = _peer(address)
+        self.fleet = fleet
+        self.outbox = Outbox(max_queued_frames)
+        self.port: ClientPort | None = None
+        self.raw = False
+        self._splitter = ElementSplitter()
+        self._lock = threading.Lock()
+        self._reason: str | None = None
+        self._dropped = False
+        self._writer = threading.Thread(target=self._write_loop, daemon=True,
+                                        name=f"ucom-serve-writer-{self.peer}")
+        self._commands: dict[str, Callable[[list[str]], None]] = {
+            "open": self._open, "rawmode": self._rawmode, "send": self._send,
+            "echo": self._echo}
+
+    @property
+    def alive(self) -> bool:
+        return self._reason is None
+
+    def run(self) -> None:
+        """Serve the client until it leaves or is dropped."""
+        log.info("client %s connected", self.peer)
+        self._writer.start()
+        reason = "disconnected"
         try:
-            with self.lock:
-                self.sock.sendall(text.encode("ascii"))
-        except OSError:
-            self.alive = False
+            self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            self.reply("< hi >")
+            self._read_loop()
+            self.outbox.wait_written(FLUSH_S)
+        except ElementTooLong:
+            self.reply("< error element too long >")
+            self.outbox.wait_written(FLUSH_S)
+            self.drop(f"sent an element longer than {MAX_ELEMENT} bytes")
+        except OSError as err:
+            reason = f"connection lost ({type(err).__name__})"
+        finally:
+            self._detach()
+            self._end(reason, dropped=False)
+            self._writer.join(FLUSH_S)
+
+    def drop(self, reason: str) -> None:
+        """Close a misbehaving client (any thread, idempotent; logged as a warning)."""
+        self._end(reason, dropped=True)
+
+    def close(self) -> None:
+        """Close the connection because the server stops (any thread, idempotent)."""
+        self._end("server closed", dropped=False)
+
+    def reply(self, text: str) -> None:
+        if not self.outbox.put(text.encode("ascii", "replace")):
+            self._overflow()
+
+    # ------------------------------------------------------------------ reading
+    def _read_loop(self) -> None:
+        while self.alive:
+            chunk = self.sock.recv(_RECV_SIZE)
+            if not chunk:
+                return
+            self._splitter.feed(chunk)
+            while self.alive and (element := self._splitter.next()) is not None:
+                self._execute(element)
+
+    def _execute(self, element: bytes) -> None:
+        try:
+            verb, *args = element_words(element)
+            command = self._commands.get(verb)
+            if command is None:
+                raise ElementError(f"unsupported command {_quote(verb)}")
+            command(args)
+        except ElementError as err:
+            self.reply(f"< error {err} >")
+
+    def _open(self, args: list[str]) -> None:
+        if len(args) != 1:
+            raise ElementError("usage: open BUS")
+        if self.port is not None:
+            raise ElementError(f"bus {self.port.sim.name} is already open")
+        sim = self.fleet.buses.get(args[0])
+        if sim is None:
+            raise ElementError(f"no bus {_quote(args[0])} in {self.fleet.name}")
+        self.port = ClientPort(sim, self.outbox, self._overflow)
+        self.reply("< ok >")
+        log.info("client %s opened %s", self.peer, sim.name)
+
+    def _rawmode(self, args: list[str]) -> None:
+        port = self._require_open()
+        if args:
+            raise ElementError("usage: rawmode")
+        if self.raw:
+            raise ElementError("already in raw mode")
+        self.raw = True
+        self.reply("< ok >")
+        # python-can reads this "< ok >" with one recv(): let it arrive alone
+        self.outbox.wait_written(FLUSH_S)
+        time.sleep(RAWMODE_SETTLE_S)
+        if self.alive:
+            port.sim.attach(port)
+
+    def _send(self, args: list[str]) -> None:
+        port = self._require_open()
+        arbitration_id, data = parse_send(args)
+        self._transmit(port, arbitration_id, data)
+
+    def _echo(self, args: list[str]) -> None:
+        self.reply("< echo >")
+
+    def _require_open(self) -> ClientPort:
+        if self.port is None:
+            raise ElementError("no bus open: send < open BUS > first")
+        return self.port
+
+    def _transmit(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
+        """Queue a frame once the client's transmit queue has room.  Meanwhile this
+        client's socket is not read (back-pressure); the wait releases the bus lock."""
+        sim = port.sim
+        while self.alive:
+            with sim.changed:
+                if _room_on_bus(sim, port):
+                    sim.send(port, self.fleet.now_us(sim), arbitration_id, data)
+                    sim.changed.notify_all()
+                    return
+            if _peer_gone(self.sock):
+                self._end("disconnected while waiting for the bus", dropped=False)
+
+    # ------------------------------------------------------------------ writing
+    def _write_loop(self) -> None:
+        epoch = self.fleet.epoch
+        try:
+            while (batch := self.outbox.take()) is not None:
+                self.sock.sendall(b"".join(encode_line(line, epoch) for line in batch))
+        except OSError as err:
+            self._end(f"connection lost ({type(err).__name__})", dropped=False)
+        except Exception:
+            log.exception("client %s: writer failed", self.peer)
+            self.drop("writer failed")
+
+    def _overflow(self) -> None:
+        self.drop(f"stopped reading ({self.outbox.limit} frames waiting)")
+
+    # ------------------------------------------------------------------ ending
+    def _end(self, reason: str, *, dropped: bool) -> None:
+        with self._lock:
+            if self._reason is not None:
+                return
+            self._reason, self._dropped = reason, dropped
+        self.outbox.close()
+        with contextlib.suppress(OSError):
+            self.sock.shutdown(socket.SHUT_RDWR)  # wakes a blocked recv and sendall
+
+    def _detach(self) -> None:
+        port = self.port
+        if port is None:
+            return
+        sim = port.sim
+        with sim.lock:
+            sim.detach(port)
+            if sim.queued.get(port, 0) <= 0:
+                sim.queued.pop(port, None)
+
+    def log_end(self) -> None:
+        """Say how the client went (once its connection is closed and its slot free)."""
+        if self._dropped:
+            log.warning("dropped client %s: %s", self.peer, self._reason)
+        else:
+            log.info("client %s left: %s", self.peer, self._reason or "disconnected")
 
 
+def _room_on_bus(sim: SimBus, sender: ClientPort) -> bool:
+    """Wait up to :data:`ROOM_POLL_S` for room in ``sender``'s transmit queue (hold
+    ``sim.lock``)."""
+    try:
+        wait_for_room(sim, sender, ROOM_POLL_S)
+    except can.CanOperationError:
+        return False
+    return True
+
+
+def _peer_gone(sock: socket.socket) -> bool:
+    """Has the client closed its end?  Looks without taking any of its input."""
+    try:
+        if not _DONTWAIT and not select.select([sock], [], [], 0)[0]:
+            return False
+        return sock.recv(1, socket.MSG_PEEK | _DONTWAIT) == b""
+    except (BlockingIOError, InterruptedError):
+        return False
+    except OSError:
+        return True
+
+
+# ---------------------------------------------------------------------- the server
 class _Handler(socketserver.BaseRequestHandler):
     server: FleetServer
 
     def handle(self) -> None:
-        sock: socket.socket = self.request
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        fleet = self.server.fleet
-        sock.sendall(b"< hi >")
-        port: ClientPort | None = None
-        buffer = ""
-        try:
-            while True:
-                chunk = sock.recv(65536)
-                if not chunk:
-                    return
-                buffer += chunk.decode("ascii", "replace")
-                while True:
-                    start = buffer.find("<")
-                    end = buffer.find(">", start + 1)
-                    if start < 0 or end < 0:
-                        if start < 0:
-                            buffer = ""
-                        break
-                    command = buffer[start + 1:end].split()
-                    buffer = buffer[end + 1:]
-                    port = self._command(sock, fleet, port, command)
-        finally:
-            if port is not None:
-                port.alive = False
-                port.sim.detach(port)
-
-    def _command(self, sock: socket.socket, fleet: Fleet, port: ClientPort | None,
-                 words: list[str]) -> ClientPort | None:
-        if not words:
-            return port
-        verb = words[0]
-        if verb == "open" and port is None and len(words) == 2:
-            if words[1] not in fleet.buses:
-                sock.sendall(f"< error no bus {words[1]} in {fleet.name} >".encode())
-                return None
-            port = ClientPort(sock, fleet, fleet.buses[words[1]])
-            sock.sendall(b"< ok >")
-            return port
-        if verb == "rawmode" and port is not None:
-            port.write("< ok >")
-            # Clients such as python-can read the "< ok >" with one recv(); give it time to
-            # arrive alone before bus traffic starts flowing to this client.
-            time.sleep(0.02)
-            port.sim.attach(port)
-            return port
-        if verb == "send" and port is not None and len(words) >= 3:
-            try:
-                arb = int(words[1], 16)
-                dlc = int(words[2], 16)
-                data = bytes(int(x, 16) for x in words[3:3 + dlc])
-            except ValueError:
-                port.write("< error malformed send >")
-                return port
-            if arb > 0x7FF or dlc > 8 or len(data) != dlc or len(words[1]) > 3:
-                port.write("< error only CAN 2.0A frames (11-bit id, DLC <= 8) >")
-                return port
-            sim = port.sim
-            with sim.changed:
-                # Back-pressure: the next command is read only when there is room, so TCP
-                # throttles a client that sends faster than the bus carries frames.
-                wait_for_room(sim, port, None)
-                sim.send(port, fleet.now_us(sim), arb, data)
-                sim.changed.notify_all()
-            return port
-        if verb == "echo" and port is not None:
-            port.write("< echo >")
-            return port
-        if port is not None:
-            port.write(f"< error unsupported command {verb} >")
-        return port
+        self.server.serve_client(self.request, self.client_address)
 
 
 class FleetServer(socketserver.ThreadingTCPServer):
@@ -128,9 +475,19 @@ class FleetServer(socketserver.ThreadingTCPServer):
 
     daemon_threads = True
     allow_reuse_address = True
+    request_queue_size = 32
 
-    def __init__(self, fleet: Fleet, host: str = "127.0.0.1", port: int = DEFAULT_PORT) -> None:
+    def __init__(self, fleet: Fleet, host: str = "127.0.0.1", port: int = DEFAULT_PORT, *,
+                 max_clients: int = MAX_CLIENTS,
+                 max_queued_frames: int = MAX_QUEUED_FRAMES) -> None:
+        if max_clients < 1 or max_queued_frames < 1:
+            raise ValueError("max_clients and max_queued_frames must be at least 1")
         self.fleet = fleet
+        self.max_clients = max_clients
+        self.max_queued_frames = max_queued_frames
+        self._slots = threading.BoundedSemaphore(max_clients)
+        self._connections: dict[socket.socket, Connection] = {}
+        self._connections_lock = threading.Lock()
         super().__init__((host, port), _Handler)
 
     @property
@@ -138,12 +495,61 @@ class FleetServer(socketserver.ThreadingTCPServer):
         host, port = self.server_address[:2]
         return str(host), int(port)
 
+    def connections(self) -> list[Connection]:
+        """The clients being served now."""
+        with self._connections_lock:
+            return list(self._connections.values())
+
+    def serve_client(self, sock: socket.socket, address: Any) -> None:
+        """Serve one accepted client (in its handler thread)."""
+        conn = Connection(sock, address, self.fleet, self.max_queued_frames)
+        with self._connections_lock:
+            self._connections[sock] = conn
+        conn.run()
+
+    def process_request(self, request: Any, client_address: Any) -> None:
+        if not self._slots.acquire(blocking=False):
+            self._refuse(request, client_address)
+            return
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self._slots.release()
+            raise
+
+    def process_request_thread(self, request: Any, client_address: Any) -> None:
+        try:
+            super().process_request_thread(request, client_address)  # closes the socket
+        finally:
+            with self._connections_lock:
+                conn = self._connections.pop(request, None)
+            self._slots.release()
+            if conn is not None:
+                conn.log_end()
+
+    def _refuse(self, request: socket.socket, client_address: Any) -> None:
+        log.warning("refused client %s: too many clients (%d)", _peer(client_address),
+                    self.max_clients)
+        with contextlib.suppress(OSError):
+            request.sendall(f"< error too many clients ({self.max_clients}) >".encode())
+        self.shutdown_request(request)
+
+    def handle_error(self, request: Any, client_address: Any) -> None:
+        log.error("unexpected error serving %s", _peer(client_address), exc_info=True)
+
+    def server_close(self) -> None:
+        """Stop listening and close every client."""
+        super().server_close()
+        for conn in self.connections():
+            conn.close()
+
 
 def serve_until_interrupted(server: FleetServer) -> None:
-    """Serve in a thread until Ctrl-C, then shut the server down."""
+    """Serve in a thread until Ctrl-C, then shut the server down and close its clients."""
     thread = threading.Thread(target=server.serve_forever, name="ucom-socketcand", daemon=True)
     thread.start()
     with contextlib.suppress(KeyboardInterrupt):
         while thread.is_alive():
             thread.join(0.2)
     server.shutdown()
+    server.server_close()

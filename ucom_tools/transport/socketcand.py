@@ -1,0 +1,413 @@
+"""A socketcand client (raw mode) in which every wait has a deadline.
+
+socketcand (https://github.com/linux-can/socketcand) serves SocketCAN buses over TCP, and
+``ucom fleet serve`` serves the virtual fleet the same way (:mod:`ucom_tools.virtual.socketcand`).
+python-can 4.6 has a client, ``can.interfaces.socketcand.SocketCanDaemonBus``, that a robot
+tool cannot use because it waits forever, or far too long:
+
+- the handshake reads with a blocking ``recv`` without timeout: a server that accepts the
+  connection and says nothing hangs the program; it also compares a whole ``recv()`` with
+  the expected text, so an answer split across two reads fails the handshake, and frames
+  arriving in the same read as the rawmode ``< ok >`` are lost;
+- ``connect`` is retried in a loop for 10 s, so a refused port costs 10 s instead of 1 ms;
+- ``send`` is a ``sendall`` without timeout: it hangs when the server stops reading;
+- a connection closed by the server looks like silence: ``recv`` returns ``b""`` and the
+  bus answers "no frame" forever;
+- Nagle's algorithm stays on unless ``tcp_tune``, which delays every small request.
+
+:class:`SocketcandBus` waits only with deadlines:
+
+``connect_timeout`` (3 s)
+    for the TCP connection, all addresses of the host together.  Resolving the host name
+    (``getaddrinfo``) is the one wait the operating system bounds, not this module.
+``handshake_timeout`` (2 s)
+    for each answer of the handshake, separately: ``< hi >`` after connecting, ``< ok >``
+    to ``< open CHANNEL >``, ``< ok >`` to ``< rawmode >``.
+``send_timeout`` (2 s)
+    for writing one frame to the socket when :meth:`~SocketcandBus.send` gets no
+    ``timeout`` (``send(msg, timeout)`` uses its own).
+the ``timeout`` of ``recv``
+    as for every python-can bus; ``None`` blocks (every caller in ucom-tools passes one).
+
+A connection the server closed or reset, an element longer than :data:`MAX_ELEMENT`, and a
+send that timed out after writing part of a frame leave the bus unusable: that call and
+every later ``recv``/``send`` raise :class:`can.CanOperationError`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import re
+import selectors
+import socket
+import threading
+import time
+from collections import deque
+from typing import Any
+
+import can
+
+log = logging.getLogger(__name__)
+
+MAX_ELEMENT = 4096
+"""Longest element ``< ... >`` accepted from the server, in bytes (a protocol error beyond)."""
+SERVER_ERRORS_KEPT = 100
+"""How many ``< error ... >`` texts :attr:`SocketcandBus.server_errors` keeps (the newest)."""
+_CHUNK = 65536
+
+_HEX = re.compile(r"[0-9A-Fa-f]+", re.ASCII)
+_TIMESTAMP = re.compile(r"\d+(?:\.\d+)?", re.ASCII)
+_CHANNEL = re.compile(r"[^\s<>]+")
+
+
+class ElementSplitter:
+    """Cuts the byte stream from a socketcand server into elements ``< ... >``.
+
+    Elements may arrive split across reads or several in one read; bytes outside elements
+    are skipped.  An unfinished element longer than ``limit`` raises ``ValueError``.
+    """
+
+    def __init__(self, limit: int = MAX_ELEMENT) -> None:
+        self._buffer = bytearray()
+        self._limit = limit
+
+    def feed(self, chunk: bytes) -> None:
+        self._buffer += chunk
+
+    def pop(self) -> str | None:
+        """The next complete element with its brackets, or None until more data arrives."""
+        buf = self._buffer
+        while True:
+            start = buf.find(b"<")
+            if start != 0:
+                self._skip(len(buf) if start < 0 else start)
+                if start < 0:
+                    return None
+            end = buf.find(b">", 1)
+            if end < 0:
+                if len(buf) > self._limit:
+                    raise ValueError(f"an element is longer than {self._limit} bytes")
+                return None
+            inner = buf.find(b"<", 1, end)
+            if inner > 0:  # an unfinished element followed by a new one: drop the first
+                self._skip(inner)
+                continue
+            if end + 1 > self._limit:
+                raise ValueError(f"an element is longer than {self._limit} bytes")
+            element = bytes(buf[:end + 1]).decode("ascii", "replace")
+            del buf[:end + 1]
+            return element
+
+    def _skip(self, count: int) -> None:
+        junk = bytes(self._buffer[:count])
+        del self._buffer[:count]
+        if junk.strip():
+            log.warning("socketcand: skipped %r outside an element", junk[:80])
+
+
+def parse_frame(words: list[str], channel: str) -> can.Message:
+    """``< frame ID SEC.USEC DATA >`` as words -> a received message; ``ValueError`` if bad.
+
+    ID has 3 hex digits (11-bit identifier) or 8 (29-bit); DATA is contiguous hex digits
+    (socketcand) or hex bytes separated by blanks; no data is a frame with DLC 0.
+    """
+    if len(words) < 3:
+        raise ValueError("a frame needs an identifier and a timestamp")
+    ident, stamp, data_words = words[1], words[2], words[3:]
+    if len(ident) not in (3, 8) or not _HEX.fullmatch(ident):
+        raise ValueError(f"identifier {ident!r} is not 3 or 8 hex digits")
+    extended = len(ident) == 8
+    arbitration_id = int(ident, 16)
+    if arbitration_id > (0x1FFFFFFF if extended else 0x7FF):
+        raise ValueError(f"identifier {ident} is out of range")
+    if not _TIMESTAMP.fullmatch(stamp):
+        raise ValueError(f"timestamp {stamp!r} is not SEC.USEC")
+    if not all(_HEX.fullmatch(w) for w in data_words):
+        raise ValueError("data are not hex digits")
+    if len(data_words) == 1 and len(data_words[0]) % 2 == 0:
+        data = bytes.fromhex(data_words[0])
+    elif all(len(w) <= 2 for w in data_words):
+        data = bytes(int(w, 16) for w in data_words)
+    else:
+        raise ValueError("data are neither contiguous hex digits nor hex bytes")
+    if len(data) > 8:
+        raise ValueError(f"{len(data)} data bytes, more than 8")
+    return can.Message(timestamp=float(stamp), arbitration_id=arbitration_id, data=data,
+                       is_extended_id=extended, is_rx=True, channel=channel)
+
+
+def send_element(msg: can.Message) -> str:
+    """The ``< send ID DLC B0 B1 ... >`` element for a message; ``ValueError`` if it has none."""
+    if msg.is_remote_frame:
+        raise ValueError("remote frames")
+    if msg.is_error_frame:
+        raise ValueError("error frames")
+    if msg.is_fd:
+        raise ValueError("CAN FD frames")
+    if msg.is_extended_id:
+        if not 0 <= msg.arbitration_id <= 0x1FFFFFFF:
+            raise ValueError(f"identifier 0x{msg.arbitration_id:X}: more than 29 bits")
+        ident = f"{msg.arbitration_id:08X}"
+    else:
+        if not 0 <= msg.arbitration_id <= 0x7FF:
+            raise ValueError(f"identifier 0x{msg.arbitration_id:X}: more than 11 bits")
+        ident = f"{msg.arbitration_id:03X}"
+    data = bytes(msg.data[:msg.dlc])
+    if msg.dlc > 8 or len(data) != msg.dlc:
+        raise ValueError(f"DLC {msg.dlc} with {len(msg.data)} data bytes")
+    return " ".join(["< send", ident, str(msg.dlc), *(f"{b:02X}" for b in data), ">"])
+
+
+class SocketcandBus(can.BusABC):
+    """One CAN bus of a socketcand server, in raw mode, with a deadline on every wait.
+
+    ``send`` may run on another thread than ``recv`` (sends are serialised by a lock);
+    ``recv`` is for one thread at a time, as on every python-can bus.
+    ``server_errors`` keeps the texts of the last :data:`SERVER_ERRORS_KEPT`
+    ``< error ... >`` elements the server sent (they are also logged).
+    """
+
+    def __init__(self, channel: str, host: str, port: int, *, connect_timeout: float = 3.0,
+                 handshake_timeout: float = 2.0, send_timeout: float = 2.0,
+                 receive_own_messages: bool = False, **kwargs: Any) -> None:
+        if not isinstance(channel, str) or not _CHANNEL.fullmatch(channel):
+            raise can.CanInitializationError(
+                f"socketcand channel must be a name without blanks or <>, got {channel!r}")
+        self.channel = channel
+        self.host = host
+        self.port = port
+        self.handshake_timeout = handshake_timeout
+        self.send_timeout = send_timeout
+        self.receive_own_messages = receive_own_messages
+        self.server_errors: deque[str] = deque(maxlen=SERVER_ERRORS_KEPT)
+        self._where = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+        self._splitter = ElementSplitter()
+        self._pending: deque[can.Message] = deque()
+        self._send_lock = threading.Lock()
+        self._broken: str | None = None
+        self._closed = False
+        with contextlib.ExitStack() as on_failure:
+            self._sock = on_failure.enter_context(_connect(host, port, connect_timeout,
+                                                           self._where))
+            self._readable = on_failure.enter_context(selectors.DefaultSelector())
+            self._writable = on_failure.enter_context(selectors.DefaultSelector())
+            self._readable.register(self._sock, selectors.EVENT_READ)
+            self._writable.register(self._sock, selectors.EVENT_WRITE)
+            self._handshake()
+            on_failure.pop_all()
+        self.channel_info = f"socketcand {host}:{port} {channel}"
+        super().__init__(channel=channel, **kwargs)
+
+    # ------------------------------------------------------------------ handshake
+    def _handshake(self) -> None:
+        self._expect("hi", "the connection")
+        command = f"< open {self.channel} >"
+        self._handshake_send(command)
+        self._expect("ok", command)
+        self._handshake_send("< rawmode >")
+        self._expect("ok", "< rawmode >")
+
+    def _handshake_send(self, command: str) -> None:
+        try:
+            self._write(command.encode("ascii"), self.handshake_timeout)
+        except can.CanOperationError as err:
+            raise can.CanInitializationError(f"{err} during the handshake") from err
+
+    def _expect(self, word: str, what: str) -> None:
+        """Wait for the answer ``< word >`` to ``what``, within the handshake deadline."""
+        try:
+            element = self._next_element(time.monotonic() + self.handshake_timeout)
+        except can.CanOperationError as err:
+            raise can.CanInitializationError(
+                f"{err} during the handshake, before answering {what}") from err
+        if element is None:
+            raise can.CanInitializationError(
+                f"socketcand {self._where} did not answer {what} "
+                f"within {self.handshake_timeout:g} s")
+        words = element[1:-1].split()
+        if words == [word]:
+            return
+        if words and words[0] == "error":
+            self.server_errors.append(" ".join(words[1:]))
+            if what.startswith("< open"):
+                raise can.CanInitializationError(
+                    f"socketcand {self._where} refused to open channel {self.channel}: "
+                    f"{element}")
+        raise can.CanInitializationError(
+            f"socketcand {self._where} answered {what} with {element}, expected < {word} >")
+
+    def _next_element(self, deadline: float) -> str | None:
+        while True:
+            element = self._pop_element()
+            if element is not None:
+                return element
+            if not self._read_more(max(deadline - time.monotonic(), 0.0)):
+                return None
+
+    # ------------------------------------------------------------------ receive
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:
+            if self._closed:
+                raise self._shut_down()
+            if self._pending:
+                return self._pending.popleft(), False
+            self._check_usable()
+            while (element := self._pop_element()) is not None:
+                self._take(element)
+            if self._pending:
+                continue
+            remaining = None if deadline is None else max(deadline - time.monotonic(), 0.0)
+            if not self._read_more(remaining):
+                return None, False
+
+    def _take(self, element: str) -> None:
+        words = element[1:-1].split()
+        kind = words[0] if words else ""
+        if kind == "frame":
+            try:
+                self._pending.append(parse_frame(words, self.channel))
+            except ValueError as err:
+                log.warning("socketcand %s: ignored %s: %s", self._where, element, err)
+        elif kind == "error":
+            text = " ".join(words[1:])
+            self.server_errors.append(text)
+            log.warning("socketcand %s reports an error: %s", self._where, text)
+        else:
+            log.debug("socketcand %s: ignored %s", self._where, element)
+
+    def _pop_element(self) -> str | None:
+        try:
+            return self._splitter.pop()
+        except ValueError as err:
+            raise self._fail(f"socketcand {self._where} protocol error: {err}") from err
+
+    def _read_more(self, timeout: float | None) -> bool:
+        """Wait up to ``timeout`` for data and buffer it; False if none came in time."""
+        self._check_usable()
+        try:
+            if not self._readable.select(timeout):
+                return False
+            chunk = self._sock.recv(_CHUNK)
+        except BlockingIOError:
+            return True
+        except (OSError, ValueError) as err:  # ValueError: closed by shutdown() meanwhile
+            raise self._lost(err) from err
+        if not chunk:
+            raise self._fail(f"socketcand {self._where} closed the connection")
+        self._splitter.feed(chunk)
+        return True
+
+    # ------------------------------------------------------------------ send
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        """Send one data frame; the write must complete within ``timeout`` (default
+        ``send_timeout``), otherwise :class:`can.CanOperationError`."""
+        try:
+            element = send_element(msg)
+        except ValueError as err:
+            raise can.CanOperationError(f"socketcand {self._where} cannot send {err}") from err
+        self._write(element.encode("ascii"), self.send_timeout if timeout is None else timeout)
+        if self.receive_own_messages:
+            self._pending.append(can.Message(
+                timestamp=time.time(), arbitration_id=msg.arbitration_id,
+                is_extended_id=msg.is_extended_id, data=bytes(msg.data[:msg.dlc]),
+                is_rx=False, channel=self.channel))
+
+    def _write(self, data: bytes, limit: float) -> None:
+        """Write all of ``data`` within ``limit`` seconds, or nothing, or break the bus."""
+        limit = max(limit, 0.0)
+        deadline = time.monotonic() + limit
+        if not self._send_lock.acquire(timeout=limit):
+            raise can.CanOperationError(f"socketcand {self._where} took no data for {limit:g} s")
+        try:
+            self._check_usable()
+            view = memoryview(data)
+            sent = 0
+            try:
+                while True:
+                    with contextlib.suppress(BlockingIOError):
+                        sent += self._sock.send(view[sent:])
+                    if sent == len(data):
+                        return
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0 or not self._writable.select(remaining):
+                        break
+            except (OSError, ValueError) as err:
+                raise self._lost(err) from err
+            if sent:
+                self._fail(f"socketcand {self._where} is unusable: a send timed out after "
+                           f"writing {sent} of the {len(data)} bytes of {data.decode()}")
+            raise can.CanOperationError(f"socketcand {self._where} took no data for {limit:g} s")
+        finally:
+            self._send_lock.release()
+
+    # ------------------------------------------------------------------ state
+    def _check_usable(self) -> None:
+        if self._closed:
+            raise self._shut_down()
+        if self._broken is not None:
+            raise can.CanOperationError(self._broken)
+
+    def _fail(self, message: str) -> can.CanOperationError:
+        """Mark the connection broken (first reason wins); the error to raise now."""
+        if self._broken is None:
+            self._broken = message
+            log.warning("%s", message)
+        return can.CanOperationError(message)
+
+    def _lost(self, err: Exception) -> can.CanOperationError:
+        if self._closed:
+            return self._shut_down()
+        reason = (err.strerror if isinstance(err, OSError) else None) or str(err)
+        return self._fail(f"socketcand {self._where} connection lost: {reason}")
+
+    def _shut_down(self) -> can.CanOperationError:
+        return can.CanOperationError(f"socketcand {self._where} bus is shut down")
+
+    def shutdown(self) -> None:
+        """Close the connection; safe to call again, and after the server vanished."""
+        super().shutdown()
+        if self._closed:
+            return
+        self._closed = True
+        with contextlib.suppress(OSError):
+            self._sock.shutdown(socket.SHUT_RDWR)  # wakes a thread waiting in recv
+        self._readable.close()
+        self._writable.close()
+        self._sock.close()
+
+
+def _connect(host: str, port: int, timeout: float, where: str) -> socket.socket:
+    """A non-blocking TCP connection with TCP_NODELAY, made within ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    error: OSError | None = None
+    try:
+        addresses = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except (OSError, OverflowError) as err:
+        raise can.CanInitializationError(
+            f"cannot connect to socketcand {where}: {_reason(err)}") from err
+    for family, kind, proto, _, address in addresses:
+        remaining = deadline - time.monotonic()
+        if remaining <= 0:
+            break
+        sock = socket.socket(family, kind, proto)
+        try:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            sock.settimeout(remaining)
+            sock.connect(address)
+        except OSError as err:
+            sock.close()
+            error = err
+            continue
+        sock.setblocking(False)
+        return sock
+    if error is None or isinstance(error, TimeoutError):
+        reason = f"no connection within {timeout:g} s"
+    else:
+        reason = _reason(error)
+    raise can.CanInitializationError(f"cannot connect to socketcand {where}: {reason}") from error
+
+
+def _reason(err: Exception) -> str:
+    return (err.strerror if isinstance(err, OSError) else None) or str(err) or type(err).__name__
