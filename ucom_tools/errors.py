@@ -61,3 +61,8 @@ class UcomTimeoutError(UcomError, TimeoutError):
 
 class BoardError(UcomError):
     """A board answered with an Error message or refused an operation."""
+
+
+class TreeError(InputError):
+    """An attribute tree (``man/ucom-tree.5``) or its binding to a robot that cannot be used;
+    names ``FILE:LINE:COL`` of the offending token (line 0 = the file as a whole)."""

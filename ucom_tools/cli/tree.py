@@ -1,0 +1,212 @@
+"""``ucom tree check|show|format|diff``: attribute trees (``man/ucom-tree.5``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import click
+from rich.markup import escape
+from rich.table import Table
+
+from ucom_tools.cli.output import emit_json, stderr, stdout
+from ucom_tools.config import attrtree, topology
+from ucom_tools.config.attrtree import Board, Change, Kind, RobotTrees, Tree
+from ucom_tools.errors import TreeError
+
+EXIT_DIFFERENT = 1
+"""``tree diff``: the trees differ (like diff(1))."""
+
+
+@click.group("tree")
+def tree() -> None:
+    """Attribute trees: the per-board configuration of a UCoM program (ucom-tree(5))."""
+
+
+# ----------------------------------------------------------------------------- JSON
+def tree_json(t: Tree) -> dict[str, Any]:
+    return {"file": t.source, "boards": [board_json(b) for b in t.boards]}
+
+
+def board_json(b: Board) -> dict[str, Any]:
+    return {"number": b.number, "prefix": b.prefix, "edges": [{
+        "index": e.index, "kind": e.kind.value, "generic": e.generic, "unique": e.unique,
+        "default": e.default.number if e.default else None,
+        "default_text": e.default.text if e.default else None} for e in b.edges]}
+
+
+def robot_json(r: RobotTrees, extra: list[Tree]) -> dict[str, Any]:
+    trees = list(r.trees) + [t for t in extra if t.source not in {x.source for x in r.trees}]
+    return {
+        "topology": r.topology.name, "source": r.topology.source,
+        "boards": [{"bus": b.bus, "position": b.spec.position + 1,
+                    "placement": b.spec.placement, "tree": str(b.file),
+                    "block": b.board.number, "prefix": b.board.prefix,
+                    "edges": len(b.board.edges),
+                    "defaults": len(b.board.defaults())} for b in r.boards],
+        "trees": [tree_json(t) for t in trees],
+    }
+
+
+def change_json(c: Change) -> dict[str, Any]:
+    return {"change": c.kind.value, "board": c.board, "index": c.index, "name": c.name,
+            "old": c.old, "new": c.new}
+
+
+# ----------------------------------------------------------------------------- check
+def _summary(b: Board) -> str:
+    kinds = ", ".join(f"{len(b.of_kind(k))} {k}" for k in Kind)
+    return (f"board {b.number} '{b.prefix}': {len(b.edges)} edges ({kinds}), "
+            f"{len(b.defaults(Kind.PAR))} PAR + {len(b.defaults(Kind.CI))} CI defaults")
+
+
+def _fail_all(errors: list[TreeError]) -> None:
+    """Every error on its own line, the last through the error boundary (exit 3)."""
+    for e in errors[:-1]:
+        stderr().print(f"[bold red]ucom: bad input:[/] {escape(str(e))}", highlight=False,
+                       soft_wrap=True)
+    if errors:
+        raise errors[-1]
+
+
+@tree.command("check")
+@click.argument("files", nargs=-1, type=click.Path(dir_okay=False))
+@click.option("--topology", "robot", metavar="ROBOT",
+              help="Also check every tree this robot's topology binds (a bundled name such "
+                   "as armar3, or a topology file), and that every board has one.")
+@click.option("--json", "as_json", is_flag=True,
+              help="Print the trees as JSON (one FILE: an object; several: a list).")
+def check(files: tuple[str, ...], robot: str | None, as_json: bool) -> None:
+    """Parse and check attribute tree FILEs; report FILE:LINE:COL of the first mistake in
+    each (exit 3).  With --topology, check a robot's trees and their binding to boards."""
+    if not files and robot is None:
+        raise click.UsageError("give tree FILEs, --topology ROBOT, or both")
+    trees: list[Tree] = []
+    errors: list[TreeError] = []
+    for f in files:
+        try:
+            trees.append(attrtree.load(f))
+        except TreeError as err:
+            errors.append(err)
+    result = attrtree.check(topology.load(robot)) if robot is not None else None
+    if result is not None:
+        errors += result.problems
+    _fail_all(errors)
+    if as_json:
+        if result is not None:
+            emit_json(robot_json(result, trees))
+        else:
+            emit_json(tree_json(trees[0]) if len(trees) == 1 else [tree_json(t) for t in trees])
+        return
+    out = stdout()
+    for t in trees:
+        out.print(f"[green]ok[/] {escape(t.source)}: " + "; ".join(
+            escape(_summary(b)) for b in t.boards), soft_wrap=True)
+    if result is not None:
+        _print_robot(result)
+
+
+def _shown(path: Path) -> str:
+    """A path as people want to read it: relative to the current directory if inside it."""
+    try:
+        return str(path.relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
+
+
+def _print_robot(r: RobotTrees) -> None:
+    t = Table(title=f"{r.topology.name}: attribute trees", title_justify="left")
+    for col in ("bus", "pos", "placement", "tree", "block", "prefix", "edges", "defaults"):
+        t.add_column(col, overflow="fold")
+    for b in r.boards:
+        t.add_row(b.bus, str(b.spec.position + 1), escape(b.spec.placement),
+                  escape(_shown(b.file)), str(b.board.number), escape(b.board.prefix),
+                  str(len(b.board.edges)), str(len(b.board.defaults())))
+    stdout().print(t)
+    stdout().print(f"[green]ok[/] {len(r.boards)} boards, {len(r.trees)} tree files")
+
+
+# ----------------------------------------------------------------------------- show
+@tree.command("show")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--board", "number", type=int, metavar="N", help="Only board block N.")
+def show(file: str, number: int | None) -> None:
+    """A table per board of FILE: index, kind, generic and unique name, default; grouped
+    CI, SO, PAR."""
+    t = attrtree.load(file)
+    boards = t.boards
+    if number is not None:
+        try:
+            boards = (t.board(number),)
+        except KeyError:
+            raise TreeError(f"no board {number} (its boards: "
+                            f"{', '.join(map(str, t.numbers))})", file=file) from None
+    for b in boards:
+        stdout().print(_board_table(t, b))
+
+
+def _board_table(t: Tree, b: Board) -> Table:
+    table = Table(title=f"{escape(t.source)}: board {b.number} '{escape(b.prefix)}'",
+                  title_justify="left", caption=escape(_summary(b)), caption_justify="left")
+    table.add_column("index", justify="right", no_wrap=True)
+    table.add_column("kind", no_wrap=True)
+    for col in ("generic", "unique", "default"):
+        table.add_column(col, overflow="fold")
+    for k in Kind:
+        edges = b.of_kind(k)
+        for i, e in enumerate(edges):
+            default = e.default.text if e.default else ("" if k is Kind.SO else "[dim]-[/]")
+            unique = escape(e.unique) if e.unique != e.generic else f"[dim]{escape(e.unique)}[/]"
+            table.add_row(str(e.index), k.value, escape(e.generic), unique, default,
+                          end_section=i == len(edges) - 1)
+    return table
+
+
+# ----------------------------------------------------------------------------- format
+@tree.command("format")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", "out", type=click.Path(dir_okay=False),
+              help="Write here (atomically; may be FILE itself) instead of to stdout.")
+def format_(file: str, out: str | None) -> None:
+    """Write FILE in the canonical form: two blanks per level, one entry per line, defaults
+    in index order.  Comments other than # CI, # SO, # PAR are dropped."""
+    text_tree = attrtree.load(file)
+    if out is None:
+        click.echo(attrtree.dumps(text_tree), nl=False)
+        return
+    try:
+        attrtree.save(text_tree, out)
+    except OSError as err:
+        raise TreeError(f"cannot write: {err.strerror or err}", file=out) from None
+
+
+# ----------------------------------------------------------------------------- diff
+@tree.command("diff")
+@click.argument("a", type=click.Path(dir_okay=False))
+@click.argument("b", type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print the changes as JSON.")
+@click.pass_context
+def diff(ctx: click.Context, a: str, b: str, as_json: bool) -> None:
+    """What changed from tree A to tree B: boards, prefixes, edges (kind, generic, unique
+    name) and defaults.  Exit 0 when they hold the same data, 1 when they differ."""
+    ta, tb = attrtree.load(a), attrtree.load(b)
+    changes = attrtree.diff(ta, tb)
+    if as_json:
+        emit_json({"a": a, "b": b, "equal": not changes,
+                   "changes": [change_json(c) for c in changes]})
+    elif not changes:
+        stdout().print(f"no differences: {escape(a)} and {escape(b)} hold the same tree",
+                       soft_wrap=True)
+    else:
+        table = Table(title=f"{escape(a)} -> {escape(b)}: {len(changes)} change(s)",
+                      title_justify="left")
+        for col in ("board", "index", "name", "change", "old", "new"):
+            table.add_column(col, overflow="fold")
+        for c in changes:
+            table.add_row(str(c.board), "" if c.index is None else str(c.index),
+                          escape(c.name or ""), c.kind.value,
+                          "[dim]-[/]" if c.old is None else f"[red]{escape(c.old)}[/]",
+                          "[dim]-[/]" if c.new is None else f"[green]{escape(c.new)}[/]")
+        stdout().print(table)
+    if changes:
+        ctx.exit(EXIT_DIFFERENT)

@@ -1,0 +1,134 @@
+"""A robot's attribute trees: the boards of a topology bound to their tree blocks.
+
+The binding is stated in the topology (``tree = "..."`` and, for a file with several
+blocks, ``tree_block = N`` per board), never guessed from file names.  :func:`check`
+loads every tree once and reports every problem (a board without a tree, a block that is
+not there or not chosen, a prefix used by two boards); :func:`bind` is the same for code
+that needs all trees or nothing.  Robot-wide identity of an edge is (prefix, unique name).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from ucom_tools.config.attrtree.model import Board, Edge, Tree
+from ucom_tools.config.attrtree.parser import load
+from ucom_tools.config.topology import BoardSpec, Topology
+from ucom_tools.errors import TreeError
+
+
+@dataclass(frozen=True)
+class BoundBoard:
+    """One board of the topology and its block of the tree."""
+
+    bus: str
+    spec: BoardSpec
+    file: Path
+    board: Board
+
+    @property
+    def where(self) -> str:
+        """'CAN0 board 3 (head right)': the board in the words of ``ucom init``."""
+        return _where(self.bus, self.spec)
+
+
+@dataclass(frozen=True)
+class RobotTrees:
+    """The result of :func:`check`: what could be bound, and every problem found."""
+
+    topology: Topology
+    boards: tuple[BoundBoard, ...]
+    trees: tuple[Tree, ...]
+    """Every tree file the topology names, once each, in topology order."""
+    problems: tuple[TreeError, ...]
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+    def board(self, bus: str, position: int) -> Board:
+        """The tree block of the board at 0-based ``position`` on ``bus``; KeyError if none."""
+        for b in self.boards:
+            if b.bus == bus and b.spec.position == position:
+                return b.board
+        raise KeyError((bus, position))
+
+    def edge(self, prefix: str, unique: str) -> Edge:
+        """The edge with this robot-wide identity; KeyError if none."""
+        for b in self.boards:
+            if b.board.prefix == prefix:
+                return b.board.edge(unique)
+        raise KeyError((prefix, unique))
+
+
+def _where(bus: str, spec: BoardSpec) -> str:
+    return f"{bus} board {spec.position + 1} ({spec.placement})"
+
+
+def check(topology: Topology) -> RobotTrees:
+    """Load and bind the trees of every board of ``topology``; never raises for a single
+    board's problem (they are collected in ``problems``, one per board or file)."""
+    bound: list[BoundBoard] = []
+    problems: list[TreeError] = []
+    trees: dict[Path, Tree | TreeError] = {}
+    prefixes: dict[str, BoundBoard] = {}
+    for bus in topology.buses:
+        for spec in bus.boards:
+            if spec.tree is None:
+                problems.append(_fail(topology, spec, f"{_where(bus.name, spec)} has no "
+                                      "attribute tree (set tree = \"FILE\" in its "
+                                      "[[bus.board]] table)"))
+                continue
+            if spec.tree not in trees:
+                try:
+                    trees[spec.tree] = load(spec.tree)
+                except TreeError as err:
+                    trees[spec.tree] = err
+                    problems.append(err)
+            tree = trees[spec.tree]
+            if isinstance(tree, TreeError):
+                continue
+            board = _block(tree, spec)
+            if isinstance(board, str):
+                problems.append(_fail(topology, spec, f"{_where(bus.name, spec)}: {board}"))
+                continue
+            b = BoundBoard(bus.name, spec, spec.tree, board)
+            if (other := prefixes.get(board.prefix)) is not None:
+                problems.append(TreeError(
+                    f"prefix '{board.prefix}' of {b.where} is also {other.where}'s "
+                    f"({other.file}): (prefix, unique name) must name an edge robot-wide",
+                    file=str(spec.tree), line=board.prefix_line, column=board.prefix_column))
+                continue
+            prefixes[board.prefix] = b
+            bound.append(b)
+    loaded = tuple(t for t in trees.values() if isinstance(t, Tree))
+    return RobotTrees(topology, tuple(bound), loaded, tuple(problems))
+
+
+def _fail(topology: Topology, spec: BoardSpec, message: str) -> TreeError:
+    """A problem of a board's binding, at its [[bus.board]] table in the topology."""
+    return TreeError(message, file=topology.source, line=spec.line or None)
+
+
+def _block(tree: Tree, spec: BoardSpec) -> Board | str:
+    """The board's block of ``tree``, or why there is none."""
+    numbers = ", ".join(map(str, tree.numbers))
+    if spec.tree_block is None:
+        if len(tree.boards) != 1:
+            return (f"{spec.tree} has {len(tree.boards)} board blocks ({numbers}); set "
+                    "tree_block to the one of this board")
+        return tree.boards[0]
+    try:
+        return tree.board(spec.tree_block)
+    except KeyError:
+        return f"tree_block {spec.tree_block} is not in {spec.tree} (its blocks: {numbers})"
+
+
+def bind(topology: Topology) -> RobotTrees:
+    """Like :func:`check`, but raises the first problem: for code that needs every board
+    of the robot configured."""
+    result = check(topology)
+    if result.problems:
+        raise result.problems[0]
+    return result

@@ -1,0 +1,74 @@
+"""Writing attribute trees in the canonical form (``ucom tree format``).
+
+Two blanks of indentation per level, one entry per line, ``Name{`` / ``}Name``, the kind
+markers ``# CI``, ``# SO``, ``# PAR`` before the first edge of each kind, defaults in index
+order, blocks without defaults left out, a blank line between sections, LF line ends.
+Reading the output gives the same :class:`Tree` (comments other than the kind markers, and
+the order of the default lines, are not kept).  :func:`save` replaces a file atomically.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import stat
+import tempfile
+from pathlib import Path
+
+from ucom_tools.config.attrtree.model import Board, Kind, Tree
+
+INDENT = "  "
+
+
+def dumps(tree: Tree) -> str:
+    """The canonical text of ``tree`` (which must be valid, as :func:`parse` returns it)."""
+    out = ["DSP{"]
+    for i, board in enumerate(tree.boards):
+        if i:
+            out.append("")
+        _board(out, board)
+    out.append("}DSP")
+    return "\n".join(out) + "\n"
+
+
+def _board(out: list[str], board: Board) -> None:
+    i1, i2, i3 = INDENT, INDENT * 2, INDENT * 3
+    out += [f"{i1}{board.number}{{", f"{i2}Prefix : {board.prefix}", f"{i2}MappingTable{{"]
+    kind: Kind | None = None
+    for e in board.edges:
+        if e.kind is not kind:
+            kind = e.kind
+            out.append(f"{i3}# {kind}")
+        out.append(f"{i3}{e.index}:{e.generic} ==> {e.unique}")
+    out.append(f"{i2}}}MappingTable")
+    for kind in (Kind.PAR, Kind.CI):
+        section = kind.section
+        defaults = [e for e in board.edges if e.kind is kind and e.default is not None]
+        if defaults and section:
+            out += ["", f"{i2}{section}{{"]
+            out += [f"{i3}{e.unique}:{e.default.text}" for e in defaults if e.default]
+            out.append(f"{i2}}}{section}")
+    out.append(f"{i1}}}{board.number}")
+
+
+def save(tree: Tree, path: str | Path) -> None:
+    """Write ``tree`` to ``path`` atomically: a temporary file in the same directory, synced,
+    then renamed over the target, which is never half-written.  An existing file keeps its
+    permissions."""
+    target = Path(path)
+    try:
+        mode = stat.S_IMODE(target.stat().st_mode)
+    except FileNotFoundError:
+        mode = 0o644
+    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
+            f.write(dumps(tree))
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, mode)
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
