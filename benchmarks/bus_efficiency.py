@@ -32,7 +32,7 @@ TARGETS = {1: 0.90, 31: 0.85}
 
 def chain(n: int) -> Fleet:
     text = 'name = "bench"\n[[bus]]\nname = "CAN0"\nbitrate = 1000000\n'
-    text += '[[bus.board]]\nplacement = "x"\nboard = "3M"\n' * n
+    text += "".join(f'[[bus.board]]\nplacement = "slot {i + 1}"\nboard = "3M"\n' for i in range(n))
     return Fleet(parse(text, f"<{n} boards>"))
 
 

@@ -38,7 +38,7 @@ class AckClock:
 
 def run(n: int) -> tuple[float, float, float]:
     text = 'name = "bench"\n[[bus]]\nname = "CAN0"\nbitrate = 1000000\n'
-    text += '[[bus.board]]\nplacement = "x"\nboard = "3M"\n' * n
+    text += "".join(f'[[bus.board]]\nplacement = "slot {i + 1}"\nboard = "3M"\n' for i in range(n))
     bus = VirtualUcomBus("CAN0", fleet=Fleet(parse(text, "<init>")))
     acks = AckClock()
     bus.sim.attach(acks)

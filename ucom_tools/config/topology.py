@@ -282,6 +282,20 @@ def _fpga(c: _Checker, path: tuple[Any, ...], raw: dict[str, Any], board_id: int
     return FpgaVersion(**values)
 
 
+def _file(c: _Checker, raw: dict[str, Any], path: tuple[Any, ...], key: str,
+          base: Path | None, what: str) -> Path | None:
+    """The file a board's ``key`` names (relative to ``base``), which must exist."""
+    text = c.take(raw, path, key, str, "")
+    if not text:
+        return None
+    file = Path(text)
+    if not file.is_absolute() and base is not None:
+        file = base / file
+    if not file.is_file():
+        raise c.fail(path, key, f"no such {what}: {file}")
+    return file
+
+
 def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Path | None,
            serials: set[int]) -> BoardSpec:
     path = ("bus", i, "board", j)
@@ -306,22 +320,8 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
     if serial in serials:
         raise c.fail(path, "serial", f"0x{serial:08X} is used by another board")
     serials.add(serial)
-    program_raw = c.take(raw, path, "program", str, "")
-    program = None
-    if program_raw:
-        program = Path(program_raw)
-        if not program.is_absolute() and base is not None:
-            program = base / program
-        if not program.is_file():
-            raise c.fail(path, "program", f"no such S-record file: {program}")
-    tree_raw = c.take(raw, path, "tree", str, "")
-    tree = None
-    if tree_raw:
-        tree = Path(tree_raw)
-        if not tree.is_absolute() and base is not None:
-            tree = base / tree
-        if not tree.is_file():
-            raise c.fail(path, "tree", f"no such attribute tree file: {tree}")
+    program = _file(c, raw, path, "program", base, "S-record file")
+    tree = _file(c, raw, path, "tree", base, "attribute tree file")
     tree_block = c.take(raw, path, "tree_block", int, None)
     if tree_block is not None:
         if not tree:

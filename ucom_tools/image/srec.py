@@ -19,6 +19,7 @@ the bus from a bad file.
 
 from __future__ import annotations
 
+import functools
 import io
 import itertools
 import os
@@ -36,7 +37,13 @@ from ucom_tools.errors import FrameError, ImageError
 from ucom_tools.memory import Kind, kind_of
 from ucom_tools.wire.codes import Space, Target
 from ucom_tools.wire.descriptor import DESCRIPTOR_ADDRESS, ImageDescriptor
-from ucom_tools.wire.transfer import VECTOR_WORDS, TransferPlan
+from ucom_tools.wire.transfer import (
+    VECTOR_WORDS,
+    Block,
+    TransferPlan,
+    make_blocks,
+    progid_of_blocks,
+)
 
 X_OFFSET = 0x0020_0000
 MAX_FILE_BYTES = 16 * 1024 * 1024
@@ -107,12 +114,18 @@ class Image:
         if when is None:
             when = (datetime.fromtimestamp(when_epoch, tz=UTC) if when_epoch is not None
                     else datetime.now(tz=UTC))
-        return TransferPlan.build(self.words, entry=self.entry, name=self.name, when=when,
-                                  target=target)
+        return TransferPlan.of_blocks(self.blocks, entry=self.entry, name=self.name,
+                                      when=when, target=target, progid=self.progid)
 
-    @property
+    @functools.cached_property
+    def blocks(self) -> tuple[Block, ...]:
+        """The image cut into transfer blocks (once: it takes every word)."""
+        return tuple(make_blocks(self.words))
+
+    @functools.cached_property
     def progid(self) -> int:
-        return self.plan(when_epoch=0).progid
+        """The image's ProgID (computed once: it needs every block)."""
+        return progid_of_blocks(self.blocks)
 
 
 def load_image(path: str | Path, *, addressing: str = "auto") -> Image:

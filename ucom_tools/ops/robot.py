@@ -4,6 +4,7 @@ its topology expects on each."""
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -128,7 +129,7 @@ def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:
     if socketcand and (not spec.host or not spec.port):
         raise InputError("the socketcand interface needs --host and --port", key="--host")
     buses: dict[str, BusHandle] = {}
-    try:
+    with _closed_on_failure(buses):
         for channel, exp in zip(channels, expected, strict=True):
             try:
                 if socketcand:
@@ -149,11 +150,6 @@ def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:
             link = Link(bus, name, bitrate=bitrate, margin=transport_margin(spec.interface))
             buses[name] = BusHandle(name, bus, link, BootloaderClient(link, timeouts), exp,
                                     virtual=False)
-    except BaseException:
-        for h in buses.values():
-            with contextlib.suppress(Exception):
-                h.bus.shutdown()
-        raise
     return Robot(spec, buses, topology, timeouts=timeouts)
 
 
@@ -163,7 +159,7 @@ def _open_virtual(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
     assert spec.virtual is not None
     topology = topo_mod.load(spec.virtual)
     buses: dict[str, BusHandle] = {}
-    try:
+    with _closed_on_failure(buses):
         for b in topology.buses:
             try:
                 bus = can.Bus(interface="ucom_virtual", channel=f"{spec.virtual}/{b.name}",
@@ -177,12 +173,19 @@ def _open_virtual(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
             link = Link(bus, b.name, bitrate=b.bitrate, margin=margin)
             buses[b.name] = BusHandle(b.name, bus, link, BootloaderClient(link, timeouts), b,
                                       virtual=True)
+    return Robot(spec, buses, topology, timeouts=timeouts)
+
+
+@contextlib.contextmanager
+def _closed_on_failure(buses: dict[str, BusHandle]) -> Iterator[None]:
+    """Shut down the buses opened so far when opening the next one fails."""
+    try:
+        yield
     except BaseException:
         for h in buses.values():
             with contextlib.suppress(Exception):
                 h.bus.shutdown()
         raise
-    return Robot(spec, buses, topology, timeouts=timeouts)
 
 
 def _one_line(err: BaseException) -> str:

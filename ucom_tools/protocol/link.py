@@ -57,12 +57,13 @@ class Link:
         self.clock: Callable[[], float] = clock if callable(clock) else time.monotonic
         """Seconds on the bus's own time base (virtual time on the in-process fleet)."""
         self._horizon = 0.0
+        self._frame_time = [worst_frame_bits(dlc) / bitrate for dlc in range(9)]
         self.frames_sent = 0
 
     # ------------------------------------------------------------------ timing
     def wire_time(self, frames: int, dlc: int = 8) -> float:
         """Worst-case seconds ``frames`` frames of ``dlc`` bytes take on this bus."""
-        return frames * worst_frame_bits(dlc) / self.bitrate
+        return frames * self._frame_time[dlc]
 
     def budget(self, board_time: float, *, answers: int = 0) -> float:
         """Seconds to wait for an answer to the last frame sent: the frames still on their
@@ -84,24 +85,29 @@ class Link:
         """Hand one frame to the bus.  The interface may take a while to accept it (its
         transmit queue is full, a network bus pushes back): that wait is bounded like
         every other, by the frames still ahead plus :data:`SEND_SLACK` and the margin."""
-        msg = can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False)
-        limit = self.budget(SEND_SLACK)
-        deadline = time.monotonic() + limit
+        msg = can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False,
+                          check=False)
+        now = self.clock()
+        ahead = self._horizon - now if self._horizon > now else 0.0
+        limit = SHARED_BUS_FACTOR * ahead + SEND_SLACK + self.margin
+        deadline = 0.0
         while True:
             try:
-                self.bus.send(msg, timeout=max(0.0, min(limit, deadline - time.monotonic())))
+                self.bus.send(msg, timeout=limit)
                 break
             except can.CanOperationError as err:
                 # an adapter whose queue is full may refuse at once (SocketCAN: ENOBUFS)
+                deadline = deadline or time.monotonic() + limit
                 if "buffer" not in str(err).lower() or time.monotonic() >= deadline:
                     raise BusError(f"{self.name}: cannot send: {err}") from err
                 time.sleep(0.001)  # back off, then offer the frame again
+                limit = max(0.0, deadline - time.monotonic())
             except can.CanError as err:
                 raise BusError(f"{self.name}: cannot send: {err}") from err
             except OSError as err:
                 raise BusError(f"{self.name}: cannot send: {err.strerror or err}") from err
-        now = self.clock()
-        self._horizon = max(self._horizon, now) + self.wire_time(1, len(data))
+        self._horizon = (self._horizon if self._horizon > now else now) + \
+            self._frame_time[len(data)]
         self.frames_sent += 1
 
     # ------------------------------------------------------------------ receiving

@@ -33,7 +33,7 @@ from ucom_tools.wire.codes import (
     ResultStatus,
     split_prepare_fault,
 )
-from ucom_tools.wire.ids import ALL, Address, Function
+from ucom_tools.wire.ids import ALL, Address, Function, data_frame_id
 from ucom_tools.wire.transfer import TransferPlan
 
 
@@ -51,6 +51,9 @@ POLL_EVERY = 8
 """Frames between two looks at the receive queue while streaming (PAUSE, Error)."""
 MAX_ROUNDS = 64
 """A safety bound: rounds stop earlier, as soon as one makes no progress."""
+
+DATA_ID = data_frame_id(0)
+"""Identifier of a Program data frame at slot 0; slot s is DATA_ID | s."""
 
 Progress = Callable[[int, int], None]
 Missing = frozenset[tuple[int, int]]
@@ -222,15 +225,18 @@ class Programmer:
         """Send the needed frames of each block; returns the number of data frames."""
         sent = 0
         sent_bytes = 0
+        send_raw = self.link.send_raw
         for i in sorted(needed):
             self._check_cancel()
             block = plan.blocks[i]
             self._send(block.header())
-            for frame in block.data_frames(needed[i]):
-                self._send(frame)
+            raw = block.payload()
+            for slot in sorted(needed[i]):  # the hot path: frames as (identifier, bytes)
+                send_raw(DATA_ID | slot, raw[8 * slot:8 * slot + 8])
                 sent += 1
                 if sent % POLL_EVERY == 0:
                     self._poll()
+            self.frames_sent += len(needed[i])
             sent_bytes += 8 * len(needed[i])
             if total is not None and self.progress is not None:
                 self.progress(min(sent_bytes, total), total)

@@ -122,10 +122,14 @@ class VirtualUcomBus(can.BusABC):
                 sim.send(port, self.fleet.now_us(sim), msg.arbitration_id, data)
                 sim.changed.notify_all()
             else:
-                token = sim.send(port, port.host_time, msg.arbitration_id, data, track=True)
-                marks = sim.sent_marks
-                sim.run_until(INF, stop=lambda: token in marks)
-                port.host_time = sim.sent_at(token) or sim.now
+                t_end = sim.send_alone(port, port.host_time, msg.arbitration_id, data)
+                if t_end is None:
+                    token = sim.send(port, port.host_time, msg.arbitration_id, data,
+                                     track=True)
+                    marks = sim.sent_marks
+                    sim.run_until(INF, stop=lambda: token in marks)
+                    t_end = sim.sent_at(token) or sim.now
+                port.host_time = t_end
         if self.receive_own_messages:
             port.on_frame(msg.arbitration_id, data, port.host_time)
 

@@ -129,7 +129,8 @@ class BoardProgramming:
             self.overruns += 1
         elif block is not None:
             self._store(rx, block)
-        self._pace(rx, t)
+        if not rx.paused and rx.free_at - t >= rx.pause_time:
+            self._pace(rx, t)
 
     # ------------------------------------------------------------------ steps
     def _begin(self, msg: m.ProgramBegin) -> None:
@@ -191,8 +192,6 @@ class BoardProgramming:
 
     def _pace(self, rx: Reception, t: float) -> None:
         timing = self.port.timing
-        if rx.paused or rx.free_at - t < timing.high_water * rx.frame_cost:
-            return
         backlog = rx.backlog(t)
         if backlog >= timing.high_water:
             rx.paused = True

@@ -60,10 +60,15 @@ class BlockState:
     got: int = 0
     """Bit i set = data frame i arrived."""
     stored: bool = False
+    full: int = field(init=False, default=0)
+    """``got`` when every frame arrived."""
+
+    def __post_init__(self) -> None:
+        self.full = (1 << self.header.frames) - 1
 
     @property
     def complete(self) -> bool:
-        return self.got == (1 << self.header.frames) - 1
+        return self.got == self.full
 
     def holes(self) -> list[tuple[int, int]]:
         """Runs (first slot, count) of frames that did not arrive."""
@@ -106,11 +111,17 @@ class Reception:
     extram: dict[Space, Memory] = field(default_factory=dict)
     frame_cost: float = field(init=False, default=0.0)
     """Microseconds the board needs to store one data frame."""
+    ring_time: float = field(init=False, default=0.0)
+    """Microseconds of work a full receive ring holds (a frame beyond is lost)."""
+    pause_time: float = field(init=False, default=0.0)
+    """Microseconds of work at the high-water mark (PAUSE)."""
 
     def __post_init__(self) -> None:
         t = self.timing
         self.frame_cost = (t.extram_frame_us if self.target is Target.EXTRAM
                            else WORDS_PER_FRAME * t.word_program_us + t.frame_overhead_us)
+        self.ring_time = t.rx_capacity * self.frame_cost
+        self.pause_time = t.high_water * self.frame_cost
 
     # ---------------------------------------------------------------- preamble
     def add_erase(self, frame: ProgramErase) -> None:
@@ -160,12 +171,12 @@ class Reception:
     def take_data(self, slot: int, data: bytes, t: float) -> BlockState | None:
         """Buffer one data frame at time ``t``; returns its block when this frame
         completed it.  A frame that overruns the receive ring is lost."""
-        cost = self.frame_cost
-        start = self.free_at if self.free_at > t else t
-        if (start - t) / cost >= self.timing.rx_capacity:
+        free = self.free_at
+        start = free if free > t else t
+        if start - t >= self.ring_time:
             self.overruns += 1
             return None
-        self.free_at = start + cost
+        self.free_at = start + self.frame_cost
         block = self.current
         if block is None:
             return None
@@ -175,11 +186,12 @@ class Reception:
             self.current = None
             return None
         self.last_slot = slot
-        if slot >= block.header.frames or block.got >> slot & 1:
+        got = block.got
+        if slot >= block.header.frames or got >> slot & 1:
             return None
         block.data[8 * slot:8 * slot + 8] = data
-        block.got |= 1 << slot
-        if not block.complete:
+        block.got = got = got | 1 << slot
+        if got != block.full:
             return None
         if block_crc(bytes(block.data)) != block.header.crc:
             block.got = 0  # some frame is not this block's: ask for all of it again

@@ -70,8 +70,9 @@ class SimBus:
         self._events: list[tuple[float, int, Callable[[float], None] | None,
                                  tuple[int, bytes, object] | None]] = []
         self._contenders: list[tuple[int, int, bytes, object]] = []
-        self._waiting: dict[int, deque[tuple[int, int, bytes, object]]] = {}
-        """Ready frames behind a sender's frame that contends (by id(sender)): FIFO."""
+        self._waiting: dict[int, deque[tuple[int, int, bytes, object]] | None] = {}
+        """Per sender with a frame contending (by id(sender)): the ready frames behind it,
+        in order (None: none yet), so each node sends FIFO."""
         self._seq = itertools.count()
         self.nodes: list[Node] = []
         self.chain: list[ChainMember] = []
@@ -106,6 +107,21 @@ class SimBus:
         heapq.heappush(self._events, (t_ready, token, None, (arbitration_id, bytes(data), sender)))
         return token
 
+    def send_alone(self, sender: object, t_ready: float, arbitration_id: int,
+                   data: bytes) -> float | None:
+        """Transmit a frame at once if nothing else can come first: no event is due by
+        ``t_ready`` and no frame waits for the bus (what :meth:`send` and
+        :meth:`run_until` would do, without their queues).  Returns the frame's end time,
+        or None when the frame must take the general way."""
+        events = self._events
+        if self._contenders or (events and events[0][0] <= t_ready):
+            return None
+        if t_ready > self.now:
+            self.now = t_ready
+        self.queued[sender] += 1
+        self._transmit(arbitration_id, -1, data, sender)
+        return self.now
+
     def at(self, t: float, callback: Callable[[float], None]) -> None:
         """Call ``callback(t)`` at virtual time ``t``."""
         heapq.heappush(self._events, (t, next(self._seq), callback, None))
@@ -117,7 +133,7 @@ class SimBus:
 
     def run_until(self, limit: float, stop: Callable[[], bool] | None = None) -> None:
         """Advance virtual time up to ``limit``, or until ``stop()`` turns true."""
-        events, contenders = self._events, self._contenders
+        events, contenders, waiting = self._events, self._contenders, self._waiting
         while True:
             while events and events[0][0] <= self.now:
                 t, seq, callback, frame = heapq.heappop(events)
@@ -126,21 +142,25 @@ class SimBus:
                     callback(t)
                 else:
                     entry = (frame[0], seq, frame[1], frame[2])
-                    queue = self._waiting.get(id(frame[2]))
-                    if queue is None:
-                        self._waiting[id(frame[2])] = deque()
+                    key = id(frame[2])
+                    if key not in waiting:
+                        waiting[key] = None  # the sender's head contends
                         heapq.heappush(contenders, entry)
                     else:
+                        queue = waiting[key]
+                        if queue is None:
+                            waiting[key] = queue = deque()
                         queue.append(entry)
             if contenders:
                 if self.now > limit:
                     return
                 head = heapq.heappop(contenders)
-                queue = self._waiting[id(head[3])]
+                key = id(head[3])
+                queue = waiting[key]
                 if queue:
                     heapq.heappush(contenders, queue.popleft())
                 else:
-                    del self._waiting[id(head[3])]
+                    del waiting[key]
                 self._transmit(*head)
                 if stop is not None and stop():
                     return
@@ -166,7 +186,7 @@ class SimBus:
         stats.by_function[arbitration_id >> 6] += 1
         self.now = t_end
         self.queued[sender] -= 1
-        if seq in self._tracked:
+        if seq >= 0 and seq in self._tracked:
             self._tracked.discard(seq)
             self.sent_marks[seq] = t_end
         drop = self.drop

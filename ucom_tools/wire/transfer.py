@@ -166,9 +166,16 @@ class TransferPlan:
     @classmethod
     def build(cls, words: Mapping[tuple[Space, int], int], *, entry: int, name: str,
               when: datetime, target: Target = Target.FLASH) -> TransferPlan:
-        blocks = tuple(make_blocks(words))
+        return cls.of_blocks(tuple(make_blocks(words)), entry=entry, name=name, when=when,
+                             target=target)
+
+    @classmethod
+    def of_blocks(cls, blocks: tuple[Block, ...], *, entry: int, name: str, when: datetime,
+                  target: Target = Target.FLASH, progid: int | None = None) -> TransferPlan:
+        """A plan from blocks already cut (an image cuts its words once)."""
         size = sum(len(b.words) for b in blocks)
-        return cls(target, entry, blocks, progid_of_blocks(blocks), size, name, when)
+        return cls(target, entry, blocks, progid_of_blocks(blocks) if progid is None
+                   else progid, size, name, when)
 
     def begin(self) -> ProgramBegin:
         return ProgramBegin(self.target, len(self.blocks), self.entry)
