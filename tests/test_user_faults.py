@@ -41,6 +41,7 @@ def test_the_command_line_wins_over_the_environment_and_says_so() -> None:
     r = ucom("init", "-i", "socketcand", "--port", "1", "-c", "CAN0",
              env={"UCOM_VIRTUAL": "armar3"})
     assert r.exit_code == 3 and "--host" in r.stderr and not r.stdout
+    assert "using -i socketcand --port 1 -c CAN0 from the command line" in r.stderr
 
 
 def test_a_virtual_fleet_on_the_command_line_ignores_a_real_bus_in_the_environment() -> None:

@@ -42,8 +42,10 @@ class ConnectSpec:
         if self.virtual:
             return f"--virtual {self.virtual}"
         parts = [f"-i {self.interface}"] if self.interface else []
-        if self.host or self.port:
+        if self.host and self.port:
             parts.append(f"{self.host}:{self.port}")
+        elif self.host or self.port:
+            parts.append(f"--host {self.host}" if self.host else f"--port {self.port}")
         parts += [f"-c {c}" for c in self.channels]
         if self.topology:
             parts.append(f"--topology {self.topology}")
