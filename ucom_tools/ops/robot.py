@@ -84,6 +84,12 @@ class Robot:
     topology: Topology | None
     timeouts: Timeouts = field(default=DEFAULT)
 
+    @property
+    def virtual_time(self) -> bool:
+        """Every bus is the in-process fleet running in virtual time (not paced)."""
+        return bool(self.buses) and all(h.virtual for h in self.buses.values()) and \
+            not self.spec.pace
+
     def select(self, name: str | None) -> list[BusHandle]:
         if name is None:
             return list(self.buses.values())

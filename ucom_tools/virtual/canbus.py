@@ -4,10 +4,11 @@ Registered through the ``can.interface`` entry point, so every python-can tool a
 ``ucom`` command reaches the virtual boards like real hardware.  Channel ``"CAN0"`` with
 ``topology="armar3"``, or ``"armar3/CAN0"`` for short.
 
-In virtual time (the default) the host drives the simulation: ``send`` runs the bus until
-the frame is on the wire, ``recv`` until a frame arrives or the timeout has passed in
-virtual time - a timeout costs no wall time.  With ``realtime=True`` a clock thread paces
-the bus at its bitrate and ``recv`` waits for real.
+In virtual time (the default) the host drives the fleet clock: ``send`` runs it until the
+frame is on the wire, ``recv`` until a frame arrives or the timeout has passed in virtual
+time - a timeout costs no wall time.  Every bus of a fleet shares that clock.  With
+``realtime=True`` a clock thread paces the fleet to the wall clock and ``recv`` waits for
+real.
 """
 
 from __future__ import annotations
@@ -37,7 +38,6 @@ class HostPort:
         self.sim = sim
         self.epoch = epoch
         self.channel = channel
-        self.host_time = sim.now
         self.realtime = realtime
         self.inbox: deque[tuple[can.Message, float]] = deque()
         self.rt_inbox: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
@@ -101,11 +101,12 @@ class VirtualUcomBus(can.BusABC):
         super().__init__(channel=name, **kwargs)
 
     def clock(self) -> float:
-        """Seconds on this bus's time base: the host's virtual time, or the wall clock when
-        the fleet runs in real time.  Timeouts given to :meth:`recv` count on it."""
+        """Seconds on this bus's time base: the fleet clock's virtual time, or the wall
+        clock when the fleet runs in real time.  Timeouts given to :meth:`recv` count on
+        it."""
         if self.realtime:
             return time.monotonic()
-        return self.port.host_time / 1e6
+        return self.sim.now / 1e6
 
     # ------------------------------------------------------------------ send
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
@@ -121,34 +122,30 @@ class VirtualUcomBus(can.BusABC):
                 wait_for_room(sim, port, timeout)
                 sim.send(port, self.fleet.now_us(sim), msg.arbitration_id, data)
                 sim.changed.notify_all()
-            else:
-                t_end = sim.send_alone(port, port.host_time, msg.arbitration_id, data)
+            else:  # the host's time is the fleet clock's: send now, run until it is out
+                t_end = sim.send_alone(port, sim.now, msg.arbitration_id, data)
                 if t_end is None:
-                    token = sim.send(port, port.host_time, msg.arbitration_id, data,
-                                     track=True)
+                    token = sim.send(port, sim.now, msg.arbitration_id, data, track=True)
                     marks = sim.sent_marks
                     sim.run_until(INF, stop=lambda: token in marks)
                     t_end = sim.sent_at(token) or sim.now
-                port.host_time = t_end
         if self.receive_own_messages:
-            port.on_frame(msg.arbitration_id, data, port.host_time)
+            port.on_frame(msg.arbitration_id, data, sim.now)
 
     # ------------------------------------------------------------------ receive
     def recv(self, timeout: float | None = None) -> can.Message | None:
         """Next frame that passes the filters; in virtual time ``timeout`` is virtual."""
         if self.realtime:
             return super().recv(timeout)
-        port, sim = self.port, self.sim
+        sim = self.sim
         with sim.lock:
-            deadline = INF if timeout is None else port.host_time + timeout * 1e6
+            deadline = INF if timeout is None else sim.now + timeout * 1e6
             while True:
                 got = self._next_virtual(deadline)
                 if got is None:
                     return None
-                msg, t_end = got
-                port.host_time = max(port.host_time, t_end)
-                if self._matches_filters(msg):
-                    return msg
+                if self._matches_filters(got[0]):
+                    return got[0]
 
     def _next_virtual(self, deadline: float) -> tuple[can.Message, float] | None:
         port, sim = self.port, self.sim
@@ -159,8 +156,6 @@ class VirtualUcomBus(can.BusABC):
             sim.run_until(deadline, stop=lambda: bool(inbox))
         if inbox:
             return inbox.popleft()
-        if deadline != INF:
-            port.host_time = max(port.host_time, deadline)
         return None
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
@@ -170,7 +165,7 @@ class VirtualUcomBus(can.BusABC):
             except queue.Empty:
                 return None, False
         with self.sim.lock:
-            deadline = INF if timeout is None else self.port.host_time + timeout * 1e6
+            deadline = INF if timeout is None else self.sim.now + timeout * 1e6
             got = self._next_virtual(deadline)
         return (got[0], False) if got else (None, False)
 

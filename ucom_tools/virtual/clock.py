@@ -1,67 +1,125 @@
-"""Real-time pacing of a simulated bus: virtual microseconds follow the wall clock.
+"""The fleet clock: one time base for every bus and board of a fleet.
 
-Used when the fleet is served to other processes (``ucom fleet serve``) or when a user
-asks for pacing; in-process tools otherwise drive the bus in virtual time.
+Every event of a fleet - a frame that becomes ready, wins arbitration or ends on its bus,
+a board's timer, a program's control cycle - is scheduled on one :class:`FleetClock`, in
+virtual microseconds, and run in time order; so four buses at 1 kHz run in step.  Models
+never read ``time``: they are called with the time of their event.
 
-The clock thread runs every node's ``on_frame`` and every scheduled callback.  One that
-raises is logged with its traceback (logger ``ucom.bus``) and the bus goes on.  What
-failed is not retried: a callback is gone, a frame misses the nodes after the failing
-one.
+The clock runs as fast as the CPU allows when the host drives it (in-process tools, tests,
+benchmarks: a wait for an answer runs the clock until the answer or the deadline), or
+paced to the wall clock by a :class:`RealtimeDriver` (``ucom fleet serve``, ``--pace``).
+
+The driver thread runs every node's ``on_frame`` and every scheduled callback.  One that
+raises is logged with its traceback (logger ``ucom.bus``) and the fleet goes on; what
+failed is not retried.
 """
 
 from __future__ import annotations
 
+import heapq
+import itertools
 import logging
 import threading
 import time
-
-from ucom_tools.virtual.simbus import SimBus
+from collections.abc import Callable
+from typing import Any
 
 log = logging.getLogger("ucom.bus")
 
+INF = float("inf")
+
+Event = tuple[float, int, int, Callable[..., None], tuple[Any, ...]]
+"""(time, tier, sequence, function, arguments): at equal times tier 0 (state changes:
+frames ready or ended, timers) runs before tier 1 (arbitration), then in order of
+scheduling."""
+
+
+class FleetClock:
+    """Virtual time and the events of one fleet; ``lock`` guards the whole fleet."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+        self.lock = threading.RLock()
+        self.changed = threading.Condition(self.lock)
+        """Notified when frames went out (senders wait for room) or time was driven."""
+        self._events: list[Event] = []
+        self._seq = itertools.count()
+
+    def at(self, t: float, callback: Callable[..., None], *args: Any, tier: int = 0) -> None:
+        """Call ``callback(t, *args)`` at virtual time ``t`` (never before ``now``)."""
+        heapq.heappush(self._events, (t if t > self.now else self.now, tier, next(self._seq),
+                                      callback, args))
+
+    def next_event_time(self) -> float | None:
+        return self._events[0][0] if self._events else None
+
+    def quiet_until(self, t: float) -> bool:
+        """True if no event is due at or before ``t``."""
+        return not self._events or self._events[0][0] > t
+
+    def advance_to(self, t: float) -> None:
+        """Let time pass to ``t`` when nothing is due before (see :meth:`quiet_until`)."""
+        if t > self.now:
+            self.now = t
+
+    def run_until(self, limit: float, stop: Callable[[], bool] | None = None) -> None:
+        """Run every event due up to ``limit`` in time order, or until ``stop()`` turns
+        true after an event; then time stands at ``limit`` (if finite and reached)."""
+        events = self._events
+        pop = heapq.heappop
+        while events and events[0][0] <= limit:
+            t, _tier, _seq, callback, args = pop(events)
+            self.now = t
+            callback(t, *args)
+            if stop is not None and stop():
+                return
+        if limit != INF and self.now < limit:
+            self.now = limit
+
 
 class RealtimeDriver:
-    """A thread that advances one bus to the wall clock and sleeps until its next event."""
+    """A thread that runs a fleet clock at the pace of the wall clock."""
 
-    def __init__(self, sim: SimBus, t0: float) -> None:
-        self.sim = sim
-        self.t0 = t0
+    def __init__(self, clock: FleetClock, name: str = "fleet") -> None:
+        self.clock = clock
+        self.t0 = time.monotonic() - clock.now / 1e6
         self._stop = False
-        self._thread = threading.Thread(target=self._run, name=f"ucom-bus-{sim.name}",
+        self._thread = threading.Thread(target=self._run, name=f"ucom-clock-{name}",
                                         daemon=True)
 
     def now_us(self) -> float:
+        """Virtual time that corresponds to the wall clock now."""
         return (time.monotonic() - self.t0) * 1e6
 
     def start(self) -> None:
         self._thread.start()
 
     def stop(self) -> None:
-        with self.sim.changed:
+        with self.clock.changed:
             self._stop = True
-            self.sim.changed.notify_all()
+            self.clock.changed.notify_all()
         self._thread.join(timeout=2)
 
     def _run(self) -> None:
-        sim = self.sim
-        with sim.changed:
+        clock = self.clock
+        with clock.changed:
             while not self._stop:
                 now = self.now_us()
                 self._advance(now)
-                nxt = sim.next_event_time()
+                nxt = clock.next_event_time()
                 wait = 0.5 if nxt is None else min(0.5, max(0.0, (nxt - now) / 1e6))
                 if wait > 0:
-                    sim.changed.wait(timeout=wait)
+                    clock.changed.wait(timeout=wait)
 
     def _advance(self, now: float) -> None:
-        """Run the bus up to ``now`` (hold ``sim.lock``); a node or callback that raises
-        is logged and skipped, never the end of the bus."""
-        sim = self.sim
-        sent = sim.stats.frames
-        try:
-            sim.run_until(now)
-        except Exception:
-            log.exception("bus %s: a node or scheduled callback failed at %.1f us; "
-                          "the bus goes on", sim.name, sim.now)
-        if sim.stats.frames != sent:
-            sim.changed.notify_all()  # senders waiting for room in their TX queue
+        """Run the fleet up to ``now`` (holding the lock); a node or callback that raises
+        is logged and skipped, never the end of the fleet."""
+        clock = self.clock
+        while True:
+            try:
+                clock.run_until(now)
+                break
+            except Exception:
+                log.exception("a node or scheduled callback failed at %.1f us; the bus "
+                              "goes on", clock.now)
+        clock.changed.notify_all()  # senders waiting for room in their TX queue

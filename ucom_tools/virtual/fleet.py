@@ -18,7 +18,7 @@ from ucom_tools.config import topology as topo
 from ucom_tools.config.topology import BoardSpec, Topology
 from ucom_tools.errors import InputError, TopologyError, UcomError
 from ucom_tools.virtual.board import Identity, VirtualBoard
-from ucom_tools.virtual.clock import RealtimeDriver
+from ucom_tools.virtual.clock import FleetClock, RealtimeDriver
 from ucom_tools.virtual.simbus import SimBus
 
 
@@ -33,11 +33,13 @@ class Fleet:
         self.epoch = time.time()
         self.buses: dict[str, SimBus] = {}
         self.boards: dict[str, list[VirtualBoard]] = {}
-        self._drivers: list[RealtimeDriver] = []
+        self.clock = FleetClock()
+        """One time base for every bus and board of the fleet."""
+        self._driver: RealtimeDriver | None = None
         if state_dir is not None:
             _state_dir(state_dir)
         for spec in topology.buses:
-            sim = SimBus(spec.name, spec.bitrate)
+            sim = SimBus(spec.name, spec.bitrate, self.clock)
             boards = []
             for b in spec.boards:
                 board = VirtualBoard(sim, Identity(b.position, b.placement, b.board, b.serial,
@@ -57,10 +59,8 @@ class Fleet:
             self.buses[spec.name] = sim
             self.boards[spec.name] = boards
         if realtime:
-            t0 = time.monotonic()
-            self._drivers = [RealtimeDriver(sim, t0) for sim in self.buses.values()]
-            for d in self._drivers:
-                d.start()
+            self._driver = RealtimeDriver(self.clock, topology.name)
+            self._driver.start()
 
     @classmethod
     def load(cls, name_or_path: str, *, state_dir: Path | None = None,
@@ -84,16 +84,16 @@ class Fleet:
             raise UcomError(f"fleet {self.name!r} has no bus {name!r}; buses: "
                             + ", ".join(self.buses)) from None
 
-    def now_us(self, sim: SimBus) -> float:
-        for d in self._drivers:
-            if d.sim is sim:
-                return d.now_us()
-        return sim.now
+    def now_us(self, sim: SimBus | None = None) -> float:
+        """The fleet's time now: the wall clock's when paced, else the clock's."""
+        if self._driver is not None:
+            return self._driver.now_us()
+        return self.clock.now
 
     def close(self) -> None:
-        for d in self._drivers:
-            d.stop()
-        self._drivers = []
+        if self._driver is not None:
+            self._driver.stop()
+            self._driver = None
 
     def snapshot(self) -> dict[str, Any]:
         """The fleet as plain data (``ucom fleet show --json``)."""

@@ -8,8 +8,11 @@ bits (stuffing included, :mod:`ucom_tools.wire.canbits`) at the bus bitrate.  No
 virtual boards and host ports; the bus also carries the init line that runs from each
 board's init output to the next board's init input (dissertation B.2.2).
 
-The bus is driven either by its host (``run_until``: virtual time, as fast as the CPU
-allows) or by a real-time clock (:class:`~ucom_tools.virtual.clock.RealtimeDriver`).
+Every bus of a fleet runs on the fleet's :class:`~ucom_tools.virtual.clock.FleetClock`:
+a frame becomes ready, the bus arbitrates among the ready frames when it falls idle (after
+every frame ready at that instant), the winner ends ``bits / bitrate`` later and is then
+delivered.  The clock is driven by the host (virtual time, as fast as the CPU allows) or
+paced to the wall clock (:class:`~ucom_tools.virtual.clock.RealtimeDriver`).
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from ucom_tools.virtual.clock import FleetClock
 from ucom_tools.wire.canbits import frame_bits
 
 
@@ -55,24 +59,22 @@ class ChainMember(Protocol):
 
 
 class SimBus:
-    """One CAN bus of the fleet."""
+    """One CAN bus of a fleet, on the fleet's clock (its own when made alone)."""
 
-    def __init__(self, name: str, bitrate: int) -> None:
+    def __init__(self, name: str, bitrate: int, clock: FleetClock | None = None) -> None:
         if bitrate <= 0:
             raise ValueError("bitrate must be positive")
         self.name = name
         self.bitrate = bitrate
         self.us_per_bit = 1e6 / bitrate
-        self.now = 0.0
+        self.clock = clock or FleetClock()
         self.stats = BusStats()
-        self.lock = threading.RLock()
-        self.changed = threading.Condition(self.lock)
-        self._events: list[tuple[float, int, Callable[[float], None] | None,
-                                 tuple[int, bytes, object] | None]] = []
         self._contenders: list[tuple[int, int, bytes, object]] = []
         self._waiting: dict[int, deque[tuple[int, int, bytes, object]] | None] = {}
         """Per sender with a frame contending (by id(sender)): the ready frames behind it,
         in order (None: none yet), so each node sends FIFO."""
+        self._busy = False
+        self._arbitration_due = False
         self._seq = itertools.count()
         self.nodes: list[Node] = []
         self.chain: list[ChainMember] = []
@@ -85,6 +87,30 @@ class SimBus:
         self.drop: Callable[[object, int, bytes], bool] | None = None
         """Fault injection: ``drop(node, id, data)`` true = ``node`` misses that frame."""
 
+    # ---------------------------------------------------------------- the clock's
+    @property
+    def now(self) -> float:
+        return self.clock.now
+
+    @property
+    def lock(self) -> threading.RLock:
+        return self.clock.lock
+
+    @property
+    def changed(self) -> threading.Condition:
+        return self.clock.changed
+
+    def at(self, t: float, callback: Callable[[float], None]) -> None:
+        """Call ``callback(t)`` at virtual time ``t``."""
+        self.clock.at(t, callback)
+
+    def next_event_time(self) -> float | None:
+        return self.clock.next_event_time()
+
+    def run_until(self, limit: float, stop: Callable[[], bool] | None = None) -> None:
+        """Run the fleet (every bus of the clock) up to ``limit`` or until ``stop()``."""
+        self.clock.run_until(limit, stop)
+
     # ---------------------------------------------------------------- attaching
     def attach(self, node: Node) -> None:
         with self.lock:
@@ -95,7 +121,7 @@ class SimBus:
             if node in self.nodes:
                 self.nodes.remove(node)
 
-    # ---------------------------------------------------------------- scheduling
+    # ---------------------------------------------------------------- frames
     def send(self, sender: object, t_ready: float, arbitration_id: int, data: bytes,
              track: bool = False) -> int:
         """Queue a frame that may start at ``t_ready``; with ``track`` its end time can be
@@ -104,91 +130,88 @@ class SimBus:
         self.queued[sender] += 1
         if track:
             self._tracked.add(token)
-        heapq.heappush(self._events, (t_ready, token, None, (arbitration_id, bytes(data), sender)))
+        self.clock.at(t_ready, self._ready, arbitration_id, token, bytes(data), sender)
         return token
 
     def send_alone(self, sender: object, t_ready: float, arbitration_id: int,
                    data: bytes) -> float | None:
-        """Transmit a frame at once if nothing else can come first: no event is due by
-        ``t_ready`` and no frame waits for the bus (what :meth:`send` and
-        :meth:`run_until` would do, without their queues).  Returns the frame's end time,
-        or None when the frame must take the general way."""
-        events = self._events
-        if self._contenders or (events and events[0][0] <= t_ready):
+        """Transmit a frame at once if nothing can come first: the bus is idle, no frame
+        waits for it, and no event of the fleet is due before the frame would end (what
+        :meth:`send` and the clock would do, without their queues).  Returns the frame's
+        end time, or None when it must take the general way."""
+        if self._busy or self._contenders or self._arbitration_due:
             return None
-        if t_ready > self.now:
-            self.now = t_ready
+        clock = self.clock
+        start = t_ready if t_ready > clock.now else clock.now
+        bits = frame_bits(arbitration_id, data)
+        t_end = start + bits * self.us_per_bit
+        if not clock.quiet_until(t_end):
+            return None
+        clock.advance_to(t_end)
         self.queued[sender] += 1
-        self._transmit(arbitration_id, -1, data, sender)
-        return self.now
+        self._deliver(t_end, arbitration_id, -1, data, sender, bits)
+        return t_end
 
-    def at(self, t: float, callback: Callable[[float], None]) -> None:
-        """Call ``callback(t)`` at virtual time ``t``."""
-        heapq.heappush(self._events, (t, next(self._seq), callback, None))
+    def _ready(self, t: float, arbitration_id: int, token: int, data: bytes,
+               sender: object) -> None:
+        entry = (arbitration_id, token, data, sender)
+        key = id(sender)
+        waiting = self._waiting
+        if key not in waiting:
+            waiting[key] = None  # the sender's head contends
+            heapq.heappush(self._contenders, entry)
+        else:
+            queue = waiting[key]
+            if queue is None:
+                waiting[key] = queue = deque()
+            queue.append(entry)
+        self._want_arbitration(t)
 
-    def next_event_time(self) -> float | None:
-        if self._contenders:
-            return self.now
-        return self._events[0][0] if self._events else None
+    def _want_arbitration(self, t: float) -> None:
+        if not self._busy and not self._arbitration_due:
+            self._arbitration_due = True
+            self.clock.at(t, self._arbitrate, tier=1)  # after every frame ready at t
 
-    def run_until(self, limit: float, stop: Callable[[], bool] | None = None) -> None:
-        """Advance virtual time up to ``limit``, or until ``stop()`` turns true."""
-        events, contenders, waiting = self._events, self._contenders, self._waiting
-        while True:
-            while events and events[0][0] <= self.now:
-                t, seq, callback, frame = heapq.heappop(events)
-                if frame is None:
-                    assert callback is not None
-                    callback(t)
-                else:
-                    entry = (frame[0], seq, frame[1], frame[2])
-                    key = id(frame[2])
-                    if key not in waiting:
-                        waiting[key] = None  # the sender's head contends
-                        heapq.heappush(contenders, entry)
-                    else:
-                        queue = waiting[key]
-                        if queue is None:
-                            waiting[key] = queue = deque()
-                        queue.append(entry)
-            if contenders:
-                if self.now > limit:
-                    return
-                head = heapq.heappop(contenders)
-                key = id(head[3])
-                queue = waiting[key]
-                if queue:
-                    heapq.heappush(contenders, queue.popleft())
-                else:
-                    del waiting[key]
-                self._transmit(*head)
-                if stop is not None and stop():
-                    return
-                continue
-            if not events or events[0][0] > limit:
-                if self.now < limit != float("inf"):
-                    self.now = limit
-                return
-            self.now = events[0][0]
-
-    def _transmit(self, arbitration_id: int, seq: int, data: bytes, sender: object) -> None:
+    def _arbitrate(self, t: float) -> None:
+        self._arbitration_due = False
         contenders = self._contenders
+        if self._busy or not contenders:
+            return
+        head = heapq.heappop(contenders)
+        arbitration_id, token, data, sender = head
         if contenders and contenders[0][0] == arbitration_id and contenders[0][3] is not sender:
             self.stats.clashes += 1
+        key = id(sender)
+        queue = self._waiting[key]
+        if queue:
+            heapq.heappush(contenders, queue.popleft())
+        else:
+            del self._waiting[key]
         bits = frame_bits(arbitration_id, data)
+        self._busy = True
+        self.clock.at(t + bits * self.us_per_bit, self._end, arbitration_id, token, data,
+                      sender, bits)
+
+    def _end(self, t: float, arbitration_id: int, token: int, data: bytes, sender: object,
+             bits: int) -> None:
+        self._busy = False
+        self._deliver(t, arbitration_id, token, data, sender, bits)
+        if self._contenders:
+            self._want_arbitration(t)
+
+    def _deliver(self, t_end: float, arbitration_id: int, token: int, data: bytes,
+                 sender: object, bits: int) -> None:
         duration = bits * self.us_per_bit
-        t_end = self.now + duration
         stats = self.stats
         stats.frames += 1
         stats.bits += bits
         stats.payload_bits += 8 * len(data)
         stats.busy_us += duration
         stats.by_function[arbitration_id >> 6] += 1
-        self.now = t_end
         self.queued[sender] -= 1
-        if seq >= 0 and seq in self._tracked:
-            self._tracked.discard(seq)
-            self.sent_marks[seq] = t_end
+        if token >= 0 and token in self._tracked:
+            self._tracked.discard(token)
+            self.sent_marks[token] = t_end
         drop = self.drop
         for node in self.nodes:
             if node is not sender and (drop is None or not drop(node, arbitration_id, data)):
