@@ -74,3 +74,28 @@ def test_user_text_is_printed_verbatim_not_as_markup_or_emoji(tmp_path: Path) ->
     bad.write_text("root:x:0:0:[red]root\n")
     code, _, err = run("srec", "info", str(bad))
     assert code == 3 and "root:x:0:0:[red]root" in err
+
+
+def test_show_run_brings_up_autostart_programs_with_their_run_mode_leds(tmp_path: Path) -> None:
+    """A robot flashed with AutoStart: after --run the programs run (stopped exchange: no
+    PC yet), green blinks at 2 Hz (1 ms cycle / 500), yellow and red are dark."""
+    state = tmp_path / "state"
+    code, _, err = run("flash", "firmware_images/armar3.fl.S", "--virtual", "armar3",
+                       "--state", str(state), "--autostart", "--bus", "CAN0")
+    assert code == 0, err
+    code, out, _ = run("fleet", "show", "armar3", "--state", str(state), "--json")
+    neck = json.loads(out)["buses"][0]["boards"][0]
+    assert neck["runtime"] is None  # power-on: the program is not up yet
+    code, out, _ = run("fleet", "show", "armar3", "--state", str(state), "--run", "1500",
+                       "--json")
+    assert code == 0
+    can0, can1 = json.loads(out)["buses"][:2]
+    for b in can0["boards"]:
+        assert b["runtime"]["state"] == "STOPPED" and b["runtime"]["cycle_us"] == 1000
+        assert b["runtime"]["program"] == "armar3 cascaded PID"
+        assert 0.09 < b["runtime"]["load"] < 0.12  # 5.4.2: about 10 % with controllers off
+        assert (b["leds"]["red"], b["leds"]["yellow"], b["leds"]["green"],
+                b["leds"]["green_hz"]) == ("off", "off", "blink", "2.0")
+    assert all(b["runtime"] is None for b in can1["boards"])  # not flashed
+    code, out, _ = run("fleet", "show", "armar3", "--state", str(state), "--run", "1500")
+    assert "STOPPED 1 ms 10%" in out and "2.0 Hz" in out

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import sys
 from pathlib import Path
+from typing import Any
 
 import click
 from rich.markup import escape
@@ -33,14 +34,24 @@ def fleet() -> None:
 @click.argument("topology", metavar="TOPOLOGY")
 @click.option("--state", "state_dir", type=click.Path(path_type=Path),
               help="Directory with the boards' non-volatile memory (see 'fleet serve').")
+@click.option("--run", "run_ms", type=click.IntRange(0, 600_000), default=0,
+              metavar="MS", help="Let the fleet run MS milliseconds (virtual time) first: "
+                                 "programs with AutoStart come up and show their run-mode "
+                                 "LEDs.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of tables.")
-def show(topology: str, state_dir: Path | None, as_json: bool) -> None:
-    """Show the buses and boards of TOPOLOGY at power-on.
+def show(topology: str, state_dir: Path | None, run_ms: int, as_json: bool) -> None:
+    """Show the buses and boards of TOPOLOGY at power-on (or MS later, --run).
 
     TOPOLOGY is """ + TOPOLOGY_HELP + """.  Shows per board its chain position, plug-on
-    board, seq ID, firmware state, stored program and the three LEDs (red, yellow,
-    green) as they light right after power-on (dissertation B.2.3)."""
-    snap = Fleet.load(topology, state_dir=state_dir).snapshot()
+    board, seq ID, firmware state, stored program, the running program's exchange (state,
+    cycle time, load) and the three LEDs (red, yellow, green; dissertation B.2.3): in the
+    bootloader they show the init lines, once a program runs its status: green blinks at
+    a rate that shows the cycle time, yellow flashes after an overrun, red after a CAN
+    error and steadily while the watchdog holds the motors stopped."""
+    f = Fleet.load(topology, state_dir=state_dir)
+    if run_ms:
+        f.run_for(run_ms / 1000)
+    snap = f.snapshot()
     if as_json:
         emit_json(snap)
         return
@@ -50,7 +61,7 @@ def show(topology: str, state_dir: Path | None, as_json: bool) -> None:
     for bus in snap["buses"]:
         t = Table(title=f"{bus['name']} ({bus['bitrate'] // 1000} kbit/s)", title_justify="left")
         for col in ("pos", "placement", "board", "FPGA", "seq ID", "fixed ID", "state",
-                    "program", "LEDs r y g"):
+                    "program", "exchange", "LEDs r y g"):
             t.add_column(col, overflow="fold")
         for b in bus["boards"]:
             prog = b["program"]
@@ -62,13 +73,14 @@ def show(topology: str, state_dir: Path | None, as_json: bool) -> None:
                 str(b["seq_id"] or "-"),
                 str(b["fixed_id"] or "-"), b["state"],
                 f"{escape(prog['name'])} {prog['progid']}" if prog else "[dim]none[/]",
-                leds(b["leds"]))
+                _exchange(b["runtime"]), leds(b["leds"]))
         stdout().print(t)
         if bus["broken_init_links"]:
             stdout().print(f"  [yellow]init line cut before position(s) "
                       f"{', '.join(map(str, bus['broken_init_links']))}[/]")
-    stdout().print("[dim]LEDs at power-on: first board yellow only, every later board yellow+green"
-              " (B.2.3); 'ucom init' numbers the boards.[/]")
+    if not run_ms:
+        stdout().print("[dim]LEDs at power-on: first board yellow only, every later board "
+                       "yellow+green (B.2.3); 'ucom init' numbers the boards.[/]")
     if any(b["fpga"]["neutral"] for bus in snap["buses"] for b in bus["boards"]):
         stdout().print("[red]NEUTRAL[/]: the FPGA is made for another plug-on board than the one "
                   "plugged on; it ignores its inputs and keeps its outputs high impedance.")
@@ -116,3 +128,14 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     finally:
         f.close()
         sys.stdout.flush()
+
+
+def _exchange(rt: dict[str, Any] | None) -> str:
+    """A running program's exchange in a few words: 'RUNNING 1 ms 70%'."""
+    if rt is None:
+        return "[dim]-[/]"
+    style = {"RUNNING": "green", "LATCHED": "red"}.get(rt["state"], "yellow")
+    cycle = rt["cycle_us"]
+    cycle_text = f"{cycle / 1000:g} ms" if cycle >= 1000 else f"{cycle:g} us"
+    late = f" [yellow]{rt['overruns']} overruns[/]" if rt["overruns"] else ""
+    return f"[{style}]{rt['state']}[/] {cycle_text} {rt['load']:.0%}{late}"

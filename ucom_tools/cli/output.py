@@ -64,10 +64,13 @@ LED_STYLE = {"red": "red", "yellow": "yellow", "green": "green"}
 
 
 def leds(state: dict[str, str]) -> str:
-    """LEDs as coloured dots: ● on, ◐ blinking, · off."""
+    """LEDs as coloured dots: ● on, ◐ blinking (with its rate when known), · off."""
     parts = []
     for colour in ("red", "yellow", "green"):
         v = state.get(colour, "off")
         mark = {"on": "●", "blink": "◐"}.get(v, "·")
         parts.append(f"[{LED_STYLE[colour]}]{mark}[/]" if v != "off" else "[dim]·[/]")
-    return " ".join(parts)
+    text = " ".join(parts)
+    if state.get("green") == "blink" and "green_hz" in state:
+        text += f" {state['green_hz']} Hz"
+    return text

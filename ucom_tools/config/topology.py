@@ -11,7 +11,7 @@ from __future__ import annotations
 import re
 import tomllib
 import zlib
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -90,6 +90,13 @@ class Topology:
                 return b
         raise KeyError(name)
 
+    def with_program(self, program: Path, *, autostart: bool = False) -> Topology:
+        """The same robot with ``program`` already in every board's flash (as a robot
+        comes from its last flashing); boards that name their own program keep it."""
+        buses = tuple(replace(bus, boards=tuple(
+            b if b.program is not None else replace(b, program=program, autostart=autostart)
+            for b in bus.boards)) for bus in self.buses)
+        return replace(self, buses=buses)
 
 
 class _Lines:

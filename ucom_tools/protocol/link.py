@@ -1,8 +1,10 @@
 """A protocol link: sends and receives decoded messages over one python-can bus.
 
 Turns python-can exceptions into :class:`~ucom_tools.errors.BusError` and frames into
-``(Address, message)`` pairs; frames that are not bootloader-level messages (MCA traffic,
-other hosts' requests) are passed to ``on_other`` or dropped.
+``(Address, message)`` pairs.  The link is one subscriber of its bus's
+:class:`~ucom_tools.protocol.dispatch.Dispatcher` (the bus's one reader): it takes the
+bootloader-level answers of the boards; run-time traffic goes to other subscribers, and
+what nobody takes is counted there.
 
 Every wait of the host is derived from the work (``man/ucom-protocol.7``, TIMEOUTS): the
 link keeps a *wire horizon*, the time by which every frame it has handed to the bus has
@@ -21,9 +23,20 @@ from dataclasses import dataclass
 import can
 
 from ucom_tools.errors import BusError, FrameError
+from ucom_tools.protocol.dispatch import Dispatcher
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.canbits import worst_frame_bits
 from ucom_tools.wire.ids import Address, Direction
+
+_ANSWERS = frozenset(f.value for f in m.BOOTLOADER_FUNCTIONS
+                      if f.direction is Direction.BOARD_TO_HOST)
+
+
+def _bootloader_answer(msg: can.Message) -> bool:
+    """A board's bootloader-level frame (standard data frame of a board -> PC function)."""
+    return not (msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame) and \
+        (msg.arbitration_id >> 6) in _ANSWERS
+
 
 SEND_SLACK = 1.0
 """Seconds an interface may take to accept a frame beyond the frames ahead of it."""
@@ -46,16 +59,16 @@ class Link:
     a network bus such as socketcand)."""
 
     def __init__(self, bus: can.BusABC, name: str = "", *, bitrate: int = 1_000_000,
-                 margin: float = 0.0) -> None:
+                 margin: float = 0.0, dispatcher: Dispatcher | None = None) -> None:
         self.bus = bus
         self.name = name or str(getattr(bus, "channel_info", "bus"))
         self.bitrate = bitrate
         self.margin = margin
         self.malformed: list[tuple[can.Message, FrameError]] = []
-        self.on_other: Callable[[can.Message], None] | None = None
-        clock = getattr(bus, "clock", None)
-        self.clock: Callable[[], float] = clock if callable(clock) else time.monotonic
+        self.dispatcher = dispatcher or Dispatcher(bus, self.name)
+        self.clock: Callable[[], float] = self.dispatcher.clock
         """Seconds on the bus's own time base (virtual time on the in-process fleet)."""
+        self._sub = self.dispatcher.subscribe(_bootloader_answer, f"{self.name} bootloader")
         self._horizon = 0.0
         self._frame_time = [worst_frame_bits(dlc) / bitrate for dlc in range(9)]
         self.frames_sent = 0
@@ -93,7 +106,7 @@ class Link:
         deadline = 0.0
         while True:
             try:
-                self.bus.send(msg, timeout=limit)
+                self.dispatcher.send(msg, timeout=limit)
                 break
             except can.CanOperationError as err:
                 # an adapter whose queue is full may refuse at once (SocketCAN: ENOBUFS)
@@ -119,34 +132,19 @@ class Link:
     def recv_until(self, deadline: float) -> Received | None:
         """The next bootloader-level message from a board, or None at ``deadline``."""
         while True:
-            remaining = max(0.0, deadline - self.clock())
-            try:
-                raw = self.bus.recv(remaining)
-            except can.CanError as err:
-                raise BusError(f"{self.name}: cannot receive: {err}") from err
-            except OSError as err:
-                raise BusError(f"{self.name}: cannot receive: {err.strerror or err}") from err
+            raw = self.dispatcher.wait(self._sub, deadline)
             if raw is None:
                 return None
             got = self._decode(raw)
             if got is not None:
                 return got
-            if remaining <= 0.0:
-                return None
 
     def _decode(self, raw: can.Message) -> Received | None:
-        if raw.is_extended_id or raw.is_error_frame or raw.is_remote_frame:
-            return None
         try:
             address, msg = m.decode(raw.arbitration_id, bytes(raw.data),
                                     sender=Direction.BOARD_TO_HOST)
         except FrameError as err:
-            code = raw.arbitration_id >> 6
-            if code <= 27 and code in m.BOOTLOADER_FUNCTIONS and \
-                    m.Function(code).direction is Direction.BOARD_TO_HOST:
-                self.malformed.append((raw, err))
-            elif self.on_other is not None:
-                self.on_other(raw)
+            self.malformed.append((raw, err))
             return None
         return Received(address, msg, raw.timestamp)
 

@@ -10,8 +10,10 @@ the image descriptor it was built with (P:7DE0):
   resets (that reset does not honour AutoStart, so a board cannot loop);
 - minor version differs: a warning text report, the program runs normally.
 
-An image without a descriptor runs with a warning that nothing was checked.  The MCA
-run-time behaviour plugs in here in a later revision.
+An image without a descriptor runs with a warning that nothing was checked.  A program
+that passed runs its model (found by the descriptor's program name, see
+:mod:`ucom_tools.virtual.programs`) under an :class:`~ucom_tools.virtual.runtime.McaRuntime`:
+it announces itself with MCA Ready and serves the run-time protocol.
 """
 
 from __future__ import annotations
@@ -19,6 +21,8 @@ from __future__ import annotations
 from ucom_tools.boards import board_name
 from ucom_tools.errors import FrameError
 from ucom_tools.virtual.port import ProgramHost
+from ucom_tools.virtual.programs import make as make_model
+from ucom_tools.virtual.runtime import McaRuntime
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import CheckField, ErrorCode, Target
 from ucom_tools.wire.descriptor import ImageDescriptor
@@ -37,6 +41,7 @@ class DspProgram:
         self.target = target
         self.name = name
         self.progid = progid
+        self.runtime: McaRuntime | None = None
 
     def start(self, t: float) -> None:
         self.board.at(t + STARTUP_US, self._check)
@@ -80,15 +85,34 @@ class DspProgram:
             board.report_text(t, f"warning: program '{self.name}' was built for FPGA "
                                  f"{desc.fpga_major}.{desc.fpga_minor}, the FPGA is "
                                  f"{fpga.version}; running")
-        self._running(t)
+        self._running(t, desc.name)
 
-    def _running(self, t: float) -> None:
+    def _running(self, t: float, program: str = "") -> None:
         self.board.report_text(t, f"program '{self.name}' running (ProgID 0x{self.progid:08X})")
+        spec, model, plant = make_model(program, self.board, self.board.placement)
+        self.runtime = McaRuntime(self.board, spec, model, plant, t)
+
+    def end(self) -> None:
+        """The board leaves the program (reset, power loss, its own end)."""
+        if self.runtime is not None:
+            self.runtime.end()
 
     def on_frame(self, function: int, address: Address, data: bytes, t: float) -> None:
-        """MCA frames reach the running program here (run-time part: a later revision)."""
+        """A generic MCA frame for this board."""
+        if self.runtime is not None:
+            self.runtime.on_frame(function, data, t)
+        elif not address.is_broadcast:
+            self.board.error(t, ErrorCode.NOT_RUNNING, function)
 
+    def on_map(self, number: int, data: bytes, t: float) -> None:
+        """A CI process-data frame."""
+        if self.runtime is not None:
+            self.runtime.on_map(number, data, t)
 
+    def leds(self, t: float) -> dict[str, str]:
+        if self.runtime is not None:
+            return self.runtime.leds(t)
+        return {"red": "off", "yellow": "off", "green": "blink"}
 def _mismatch(desc: ImageDescriptor, fpga: FpgaVersion, measured: int
               ) -> tuple[CheckField, int, int] | None:
     if desc.board_id != fpga.board_id:

@@ -25,6 +25,7 @@ from ucom_tools.virtual.fpga import ExternalMemory, VirtualFpga
 from ucom_tools.virtual.nvmem import NonVolatile
 from ucom_tools.virtual.programming import BoardProgramming
 from ucom_tools.virtual.simbus import SimBus
+from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import (
     BoardState,
@@ -49,6 +50,7 @@ _FROM_BOARD = frozenset(f.value for f in Function if f.direction is Direction.BO
 _MCA_FROM_HOST = frozenset(f.value for f in Function if f.direction is Direction.HOST_TO_BOARD
                            and f not in m.BOOTLOADER_FUNCTIONS)
 _PROGRAM = int(Function.PROGRAM)
+_MCA_CI = int(Function.MCA_CONTROLLER_INPUT)
 
 
 @dataclass(frozen=True)
@@ -87,6 +89,10 @@ class VirtualBoard:
         plug = PLUG_ON_BOARDS[identity.board].board_id
         self.fpga = VirtualFpga(identity.fpga or FpgaVersion(plug, 1, 1, 0), plug)
         self.xmem = ExternalMemory(self.fpga)
+        self.adc = [0] * 8
+        self.can_errors = 0
+        """Error frames this board's CAN controller saw."""
+        """The DSP's 8 ADC channels (12 bit), set by the plant of a running program."""
         self._suppress_autostart = False
         if powered:
             self.power_on(bus.now)
@@ -134,7 +140,7 @@ class VirtualBoard:
     def _drop_volatile(self) -> None:
         """What a reset or a power loss takes away (the seq ID survives a reset)."""
         self.programming.drop()
-        self.application = None
+        self._end_application()
         self.chain_active = False
 
     def _boot(self, t: float) -> None:
@@ -150,8 +156,13 @@ class VirtualBoard:
         if clear_autostart and self.nv.record.autostart:
             self.nv.record.autostart = False
             self.persist(record_only=True)
-        self.application = None
+        self._end_application()
         self.bus.at(t + self.timing.reset_us, self._after_reset)
+
+    def _end_application(self) -> None:
+        if self.application is not None:
+            self.application.end()
+        self.application = None
 
     def running(self, program: object) -> bool:
         """Is ``program`` still the one this board runs (no reset or power loss since)?"""
@@ -159,7 +170,7 @@ class VirtualBoard:
 
     def end_program(self, t: float, *, reset: bool) -> None:
         """The program ended (incompatible) or aborted with a reset (FPGA major)."""
-        self.application = None
+        self._end_application()
         if reset:
             self._suppress_autostart = True
             self.bus.at(t + self.timing.reset_us, self._after_reset)
@@ -183,12 +194,16 @@ class VirtualBoard:
             return Address(IdType.FIXED, fid)
         return None
 
-    def send(self, t: float, msg: m.BootMessage, *, via_fixed: bool = False,
+    def send(self, t: float, msg: m.BootMessage | mca.McaMessage, *, via_fixed: bool = False,
              address: Address | None = None) -> None:
         addr = address or self.reply_address(via_fixed)
         if addr is None:
             return
         self.bus.send(self, t, encode_id(msg.FUNCTION, addr), msg.encode())
+
+    def send_raw(self, t: float, arbitration_id: int, data: bytes) -> None:
+        if self.seq_id or self.identity.fixed_id:
+            self.bus.send(self, t, arbitration_id, data)
 
     def report_text(self, t: float, text: str) -> None:
         for frame in m.text_reports(text):
@@ -199,6 +214,19 @@ class VirtualBoard:
         self.send(t + self.timing.reply_us, m.Error(code, function, detail), via_fixed=via_fixed)
 
     # ================================================================= receiving
+    @property
+    def placement(self) -> str:
+        return self.identity.placement
+
+    def on_bus_error(self, t: float) -> None:
+        """An error frame on the bus: the CAN controller's error counter (a running
+        program shows it on the red LED)."""
+        if not self._powered:
+            return
+        self.can_errors += 1
+        if self.application is not None and self.application.runtime is not None:
+            self.application.runtime.can_error(t)
+
     def on_frame(self, arbitration_id: int, data: bytes, t: float) -> None:
         if not self._powered:
             return
@@ -212,6 +240,12 @@ class VirtualBoard:
         if function in _FROM_BOARD:
             return  # another board's traffic
         id_type, number = (arbitration_id >> 5) & 1, arbitration_id & 0x1F
+        if function in _MCA_FROM_HOST and id_type == 1:
+            # run time: type 1 is process data, map ``number`` (only CI maps come from
+            # the PC); the program knows which maps it takes
+            if function == _MCA_CI and number and self.application is not None:
+                self.application.on_map(number, data, t)
+            return
         if id_type == 0:
             broadcast = number == 0
             mine = broadcast or number == self.seq_id
@@ -356,6 +390,9 @@ class VirtualBoard:
     def _report(self, msg: m.ReportRequest, t: float, via_fixed: bool) -> None:
         if msg.channel is ReportChannel.STATUS:
             self.send(t, self.status_report(), via_fixed=via_fixed)
+        elif msg.channel is ReportChannel.APPLICATION and self.application is not None \
+                and self.application.runtime is not None:
+            self.send(t, self.application.runtime.report(), via_fixed=via_fixed)
         elif msg.channel is ReportChannel.MEMORY:
             words = self.read_memory(msg.space, msg.address, msg.count)
             if words is None:
@@ -406,7 +443,7 @@ class VirtualBoard:
         if not self._powered:
             return {"red": "off", "yellow": "off", "green": "off"}
         if self.application is not None:
-            return {"red": "off", "yellow": "off", "green": "blink"}
+            return self.application.leds(self.bus.now)
         pins = self.pins()
         on = {True: "on", False: "off"}
         return {"red": on[pins["in_driven"]], "yellow": on[pins["out_driven"]],
@@ -419,7 +456,8 @@ class VirtualBoard:
                     | pins["out_set"] << 3)
         led_bits = ((leds["red"] == "on") | (leds["yellow"] == "on") << 1
                     | (leds["green"] != "off") << 2 | (leds["green"] == "blink") << 3)
-        return m.StatusReport(self.state, pin_bits, led_bits, 0, 0, self.seq_id,
+        return m.StatusReport(self.state, pin_bits, led_bits, 0, min(self.can_errors, 0xFF),
+                              self.seq_id,
                               min(self.overruns, 0xFFFF))
 
     def info(self) -> BoardInfo:

@@ -122,13 +122,12 @@ class VirtualUcomBus(can.BusABC):
                 wait_for_room(sim, port, timeout)
                 sim.send(port, self.fleet.now_us(sim), msg.arbitration_id, data)
                 sim.changed.notify_all()
-            else:  # the host's time is the fleet clock's: send now, run until it is out
-                t_end = sim.send_alone(port, sim.now, msg.arbitration_id, data)
-                if t_end is None:
-                    token = sim.send(port, sim.now, msg.arbitration_id, data, track=True)
-                    marks = sim.sent_marks
-                    sim.run_until(INF, stop=lambda: token in marks)
-                    t_end = sim.sent_at(token) or sim.now
+            elif sim.send_alone(port, sim.now, msg.arbitration_id, data) is None:
+                # virtual time: queue the frame like an adapter's TX queue; the clock
+                # runs on when the host waits (or here, while the queue is full)
+                if sim.queued[port] >= TX_QUEUE:
+                    sim.run_until(INF, stop=lambda: sim.queued[port] < TX_QUEUE)
+                sim.send(port, sim.now, msg.arbitration_id, data)
         if self.receive_own_messages:
             port.on_frame(msg.arbitration_id, data, sim.now)
 

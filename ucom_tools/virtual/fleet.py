@@ -90,6 +90,13 @@ class Fleet:
             return self._driver.now_us()
         return self.clock.now
 
+    def run_for(self, seconds: float) -> None:
+        """Let ``seconds`` of virtual time pass (a fleet not paced to real time)."""
+        if self.realtime:
+            raise RuntimeError("a paced fleet runs by itself")
+        with self.clock.lock:
+            self.clock.run_until(self.clock.now + seconds * 1e6)
+
     def close(self) -> None:
         if self._driver is not None:
             self._driver.stop()
@@ -122,6 +129,8 @@ class Fleet:
                              "ikl": b.fpga.config.ikl, "ikh": b.fpga.config.ikh,
                              "neutral": b.fpga.neutral},
                     "init_pins": b.pins(),
+                    "can_errors": b.can_errors,
+                    "runtime": _runtime(b),
                 } for b in self.boards[name]]
                 buses.append({
                     "name": name, "bitrate": sim.bitrate, "boards": boards,
@@ -132,6 +141,17 @@ class Fleet:
                 })
         return {"topology": self.topology.name, "description": self.topology.description,
                 "buses": buses}
+
+
+def _runtime(board: VirtualBoard) -> dict[str, Any] | None:
+    """The running program's exchange: state, cycle time, load, overruns."""
+    app = board.application
+    if app is None or app.runtime is None or not board.powered:
+        return None
+    rt = app.runtime
+    return {"program": rt.spec.name, "state": rt.state.name, "cycle_us": rt.model.loop_us(),
+            "load": round(rt.load(), 3), "cycles": rt.stats.cycles,
+            "overruns": rt.stats.overruns, "watchdog_ms": rt.alive_ms}
 
 
 def _program(board: VirtualBoard) -> dict[str, Any] | None:

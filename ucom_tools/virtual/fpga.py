@@ -7,6 +7,12 @@ with its own; on a mismatch it enters the neutral state: inputs from the plug-on
 are ignored, its outputs are high impedance, and DSP<->FPGA access keeps working.
 Six 16-bit quadrature decoders with prescalers count encoder edges and can be read and
 set by the DSP program.
+
+:meth:`VirtualFpga.read` and :meth:`VirtualFpga.write` decode every offset.  Code that runs
+every control cycle (the program models and plants) may take the short way to the same
+state: the quadrature counters are ``quad[n].count``, and every offset but the read-only
+ones (VERSION1/2, BOARD_ID, STATUS, DIGITAL_IN), the counters and the prescalers (so PWM0-2,
+OUTPUT_ENABLE, ...) is plain storage, ``registers[offset]``, holding 16-bit values.
 """
 
 from __future__ import annotations
@@ -15,6 +21,13 @@ from dataclasses import dataclass, field
 
 from ucom_tools.memory import is_fpga_address
 from ucom_tools.wire.fpga import QUAD_CHANNELS, FpgaVersion, Reg
+
+# the register map as plain ints (an IntEnum member costs a lookup on every use)
+_VERSION1, _VERSION2, _BOARD_ID, _STATUS = (int(Reg.VERSION1), int(Reg.VERSION2),
+                                            int(Reg.BOARD_ID), int(Reg.STATUS))
+_QUAD_COUNT0, _QUAD_PRESCALE0 = int(Reg.QUAD_COUNT0), int(Reg.QUAD_PRESCALE0)
+_DIGITAL_IN, _OUTPUT_ENABLE = int(Reg.DIGITAL_IN), int(Reg.OUTPUT_ENABLE)
+_READ_ONLY = frozenset((_VERSION1, _VERSION2, _BOARD_ID, _STATUS, _DIGITAL_IN))
 
 
 @dataclass
@@ -27,10 +40,13 @@ class QuadratureDecoder:
 
     def feed(self, edges: int) -> None:
         """Count ``edges`` encoder edges (negative = backwards), every ``prescale``-th."""
-        step = max(1, self.prescale)
         total = self._residue + edges
-        counted = int(total / step)  # toward zero, so the residue keeps the sign
-        self._residue = total - counted * step
+        step = self.prescale
+        if step > 1:
+            counted = int(total / step)  # toward zero, so the residue keeps the sign
+            self._residue = total - counted * step
+        else:  # 0 and 1: every edge
+            counted, self._residue = total, 0
         self.count = (self.count + counted) & 0xFFFF
 
     def set(self, value: int) -> None:
@@ -57,31 +73,31 @@ class VirtualFpga:
     # ------------------------------------------------------------------ DSP side
     def read(self, offset: int) -> int:
         offset &= 0x3F
-        if offset == Reg.VERSION1:
+        if _QUAD_COUNT0 <= offset < _QUAD_COUNT0 + QUAD_CHANNELS:
+            return self.quad[offset - _QUAD_COUNT0].count
+        if _QUAD_PRESCALE0 <= offset < _QUAD_PRESCALE0 + QUAD_CHANNELS:
+            return self.quad[offset - _QUAD_PRESCALE0].prescale
+        if offset == _VERSION1:
             return self.config.register1()
-        if offset == Reg.VERSION2:
+        if offset == _VERSION2:
             return self.config.register2()
-        if offset == Reg.BOARD_ID:
+        if offset == _BOARD_ID:
             return self.plug_board_id & 0x0F
-        if offset == Reg.STATUS:
+        if offset == _STATUS:
             return 1 if self.neutral else 0
-        if Reg.QUAD_COUNT0 <= offset < Reg.QUAD_COUNT0 + QUAD_CHANNELS:
-            return self.quad[offset - Reg.QUAD_COUNT0].count
-        if Reg.QUAD_PRESCALE0 <= offset < Reg.QUAD_PRESCALE0 + QUAD_CHANNELS:
-            return self.quad[offset - Reg.QUAD_PRESCALE0].prescale
-        if offset == Reg.DIGITAL_IN:
+        if offset == _DIGITAL_IN:
             return 0 if self.neutral else self.inputs & 0xFFFF
         return self.registers[offset]
 
     def write(self, offset: int, value: int) -> None:
         offset &= 0x3F
         value &= 0xFFFF
-        if offset in (Reg.VERSION1, Reg.VERSION2, Reg.BOARD_ID, Reg.STATUS, Reg.DIGITAL_IN):
-            return  # read-only
-        if Reg.QUAD_COUNT0 <= offset < Reg.QUAD_COUNT0 + QUAD_CHANNELS:
-            self.quad[offset - Reg.QUAD_COUNT0].set(value)
-        elif Reg.QUAD_PRESCALE0 <= offset < Reg.QUAD_PRESCALE0 + QUAD_CHANNELS:
-            self.quad[offset - Reg.QUAD_PRESCALE0].prescale = max(1, value)
+        if offset in _READ_ONLY:
+            return
+        if _QUAD_COUNT0 <= offset < _QUAD_COUNT0 + QUAD_CHANNELS:
+            self.quad[offset - _QUAD_COUNT0].set(value)
+        elif _QUAD_PRESCALE0 <= offset < _QUAD_PRESCALE0 + QUAD_CHANNELS:
+            self.quad[offset - _QUAD_PRESCALE0].prescale = max(1, value)
         else:
             self.registers[offset] = value
 
@@ -93,7 +109,7 @@ class VirtualFpga:
 
     def outputs_enabled(self) -> int:
         """Which output stages drive the plug-on board (none in the neutral state)."""
-        return 0 if self.neutral else self.registers[Reg.OUTPUT_ENABLE]
+        return 0 if self.neutral else self.registers[_OUTPUT_ENABLE]
 
 
 class ExternalMemory:

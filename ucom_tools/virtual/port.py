@@ -11,7 +11,8 @@ from collections.abc import Callable
 from typing import Protocol
 
 from ucom_tools.config.topology import Timing
-from ucom_tools.virtual.fpga import ExternalMemory
+from ucom_tools.virtual.fpga import ExternalMemory, VirtualFpga
+from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import ErrorCode, Target
 from ucom_tools.wire.descriptor import ImageDescriptor
@@ -28,8 +29,13 @@ class BoardPort(Protocol):
     def at(self, t: float, callback: Callable[[float], None]) -> None:
         """Call ``callback(t)`` at board time ``t`` (microseconds)."""
 
-    def send(self, t: float, msg: m.BootMessage, *, via_fixed: bool = False) -> None:
+    def send(self, t: float, msg: m.BootMessage | mca.McaMessage, *,
+             via_fixed: bool = False) -> None:
         """Send ``msg`` from this board at time ``t`` (if it has a number to send with)."""
+
+    def send_raw(self, t: float, arbitration_id: int, data: bytes) -> None:
+        """Send a frame with this identifier (process data, whose identifier is no board's
+        address)."""
 
     def error(self, t: float, code: ErrorCode, function: int, detail: int = 0,
               via_fixed: bool = False) -> None:
@@ -48,6 +54,13 @@ class ProgramHost(BoardPort, Protocol):
 
     @property
     def xmem(self) -> ExternalMemory: ...
+
+    fpga: VirtualFpga
+    adc: list[int]
+
+    @property
+    def placement(self) -> str:
+        """Where the board sits in its robot (the topology's placement)."""
 
     def descriptor(self, target: Target) -> ImageDescriptor | None:
         """The descriptor of the program stored in ``target`` (FrameError if corrupt)."""

@@ -44,6 +44,8 @@ class BusStats:
     payload_bits: int = 0
     busy_us: float = 0.0
     clashes: int = 0
+    errors: int = 0
+    """Error frames seen (:meth:`SimBus.error_frame`)."""
     by_function: Counter[int] = field(default_factory=Counter)
 
     def load(self, elapsed_us: float) -> float:
@@ -216,6 +218,22 @@ class SimBus:
         for node in self.nodes:
             if node is not sender and (drop is None or not drop(node, arbitration_id, data)):
                 node.on_frame(arbitration_id, data, t_end)
+
+    ERROR_FRAME_BITS = 20
+    """An error flag (6 dominant bits, up to 12 with superposition) and its delimiter (8)."""
+
+    def error_frame(self, t: float) -> None:
+        """Fault injection: an error frame at ``t`` (a node saw a bit, stuff, CRC or form
+        error).  It occupies the bus for :data:`ERROR_FRAME_BITS` and every node that
+        keeps error counters (``on_bus_error``) sees it."""
+        def signal(when: float) -> None:
+            self.stats.busy_us += self.ERROR_FRAME_BITS * self.us_per_bit
+            self.stats.errors += 1
+            for node in self.nodes:
+                hook = getattr(node, "on_bus_error", None)
+                if hook is not None:
+                    hook(when)
+        self.clock.at(t, signal)
 
     def sent_at(self, token: int) -> float | None:
         """End time of the frame queued with ``token`` once it went out (and forget it)."""

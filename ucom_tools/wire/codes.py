@@ -23,6 +23,11 @@ class ErrorCode(IntEnum):
     RUNNING = 0x0D
     INCOMPATIBLE = 0x0E
     VERSION_MISMATCH = 0x0F
+    WATCHDOG = 0x10
+    UNKNOWN_EDGE = 0x11
+    OUT_OF_RANGE = 0x12
+    LATCHED = 0x13
+    BAD_MAP = 0x14
 
     @property
     def text(self) -> str:
@@ -41,13 +46,20 @@ ERROR_TEXT = {
     ErrorCode.FLASH_FAILURE: "flash erase or program failed",
     ErrorCode.SEQUENCE: "message out of sequence (e.g. a block without Begin)",
     ErrorCode.BUSY: "board is busy (erasing) and cannot take this command now",
-    ErrorCode.OVERRUN: "receive buffer overrun: frames were lost",
+    ErrorCode.OVERRUN: "overrun: frames were lost, or a program cycle ran late",
     ErrorCode.NOT_RUNNING: "no application runs on this board",
     ErrorCode.RUNNING: "a program runs: reset the board into its bootloader first",
     ErrorCode.INCOMPATIBLE: "the DSP program does not fit this board (Board-ID or App-ID); "
                             "the program ended",
     ErrorCode.VERSION_MISMATCH: "the DSP program was built for another FPGA major version; "
                                 "the program aborted and the board reset",
+    ErrorCode.WATCHDOG: "no MCA Alive within the watchdog time: every motor stopped; "
+                        "latched until MCA Start",
+    ErrorCode.UNKNOWN_EDGE: "no such edge in this program (the frame was ignored)",
+    ErrorCode.OUT_OF_RANGE: "a value outside its edge's range (the frame was ignored)",
+    ErrorCode.LATCHED: "controller input refused: the watchdog stopped the board; "
+                       "MCA Start releases it",
+    ErrorCode.BAD_MAP: "a process-data map that cannot be used (edges, kinds, widths)",
 }
 
 

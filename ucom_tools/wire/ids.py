@@ -91,6 +91,11 @@ _LABELS = {
     Function.MCA_DSP_CI: "MCA DSP CI",
     Function.MCA_CONTROLLER_INPUT: "MCA Controller Input",
     Function.MCA_SENSOR_OUTPUT: "MCA Sensor Output",
+    Function.MCA_PARAMETER: "MCA Parameter",
+    Function.MCA_READY: "MCA Ready",
+    Function.MCA_START: "MCA Start",
+    Function.MCA_ADMIN_DATA: "MCA Admin Data",
+    Function.MCA_ALIVE: "MCA Alive",
 }
 
 

@@ -1,0 +1,150 @@
+#!/usr/bin/env python3
+"""The run-time exchange of the in-process ARMAR-III fleet: virtual-time speed-up and the
+bus load of the default SO rates, computed and counted.
+
+All 11 boards run the armar3 program at 1 kHz with all three axes in position control,
+every joint following its own sine (targets changed every 10 ms), on one fleet clock; the
+PC side is the product's BusExchange per bus (CI maps every cycle, MCA Alive every 10 ms,
+SO maps at the programs' default periods).
+
+1. Speed-up: virtual seconds per wall second over ``--seconds`` of virtual time (after
+   0.1 s to settle).  Baseline, measured in the same run: one board alone (the neck on
+   a one-board bus); ``scaling`` = wall time per virtual second of the fleet over that of
+   one board (11 = perfectly linear).
+2. Bus load per bus: computed by the planner from Tab. B.2's 47 + 8n bits per frame
+   (``nominal`` without stuff bits, ``worst`` with the most a frame can carry) and
+   counted on the simulated bus (stuff bits of the real values included).  The design
+   target is under 70 % on CAN0 (3 boards, 7 joints).
+
+``--json`` prints the figures as one JSON object (keys: speedup, one_board_speedup,
+scaling, board_cycle_us, bus_load).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from ucom_tools.config.attrtree.robot import bind  # noqa: E402
+from ucom_tools.config.topology import SOURCE_ROOT, Topology, load  # noqa: E402
+from ucom_tools.ops.exchange import BusExchange  # noqa: E402
+from ucom_tools.protocol.bootloader import BootloaderClient  # noqa: E402
+from ucom_tools.protocol.link import Link  # noqa: E402
+from ucom_tools.virtual.canbus import VirtualUcomBus  # noqa: E402
+from ucom_tools.virtual.fleet import Fleet  # noqa: E402
+
+IMAGE = SOURCE_ROOT / "firmware_images" / "armar3.fl.S"
+TARGET = 0.70
+
+
+def robot(topology: Topology) -> tuple[Fleet, list[BusExchange], list[VirtualUcomBus]]:
+    fleet = Fleet(topology.with_program(IMAGE))
+    trees = bind(fleet.topology)
+    exchanges, interfaces = [], []
+    for bus in fleet.topology.buses:
+        can_bus = VirtualUcomBus(bus.name, fleet=fleet)
+        link = Link(can_bus, bus.name)
+        numbers = BootloaderClient(link).init_chain().numbers
+        x = BusExchange(link, bus, trees)
+        x.start_programs(numbers)
+        x.configure_all(numbers)
+        exchanges.append(x)
+        interfaces.append(can_bus)
+    for x in exchanges:
+        x.start_exchange()
+    return fleet, exchanges, interfaces
+
+
+def run(exchanges: list[BusExchange], ms: int) -> None:
+    joints = [(x, n, a) for x in exchanges for n in x.configured for a in "ABC"
+              if x.bus.boards[n - 1].joints[ord(a) - 65:ord(a) - 64]]
+    t0 = exchanges[0].link.dispatcher.clock()
+    for k in range(ms):
+        if k % 10 == 0:
+            for j, (x, n, a) in enumerate(joints):
+                x.set_ci(n, f"Motor{a} Target",
+                         round(400 * math.sin(2 * math.pi * (0.3 + 0.05 * j) * k / 1000)))
+        until = t0 + (k + 1) / 1000
+        for x in exchanges:
+            x.pump(until)
+
+
+def measure(topology: Topology, seconds: float) -> dict[str, object]:
+    fleet, exchanges, interfaces = robot(topology)
+    try:
+        run(exchanges, 100)
+        busy = {name: sim.stats.busy_us for name, sim in fleet.buses.items()}
+        v0 = fleet.clock.now
+        wall = time.perf_counter()
+        run(exchanges, round(seconds * 1000))
+        wall = time.perf_counter() - wall
+        virtual = (fleet.clock.now - v0) / 1e6
+        runtimes = [b.application.runtime for bs in fleet.boards.values() for b in bs
+                    if b.application is not None and b.application.runtime is not None]
+        assert all(rt.stats.overruns == 0 for rt in runtimes), "a cycle overran"
+        load = {}
+        for x in exchanges:
+            sim = fleet.buses[x.bus.name]
+            load[x.bus.name] = {
+                "computed_nominal": round(x.plan.nominal, 4),
+                "computed_worst": round(x.plan.worst, 4),
+                "counted": round((sim.stats.busy_us - busy[x.bus.name]) / (virtual * 1e6), 4),
+            }
+        return {"boards": len(runtimes), "virtual_s": virtual, "wall_s": wall,
+                "speedup": virtual / wall, "bus_load": load}
+    finally:
+        for x in exchanges:
+            x.close()
+        for i in interfaces:
+            i.shutdown()
+
+
+def one_board(topology: Topology) -> Topology:
+    first = topology.buses[0]
+    return replace(topology, buses=(replace(first, boards=first.boards[:1]),))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=3.0, help="virtual seconds measured")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args()
+    armar3 = load("armar3")
+    single = measure(one_board(armar3), args.seconds)
+    fleet = measure(armar3, args.seconds)
+    wall_per_s = fleet["wall_s"] / fleet["virtual_s"]  # type: ignore[operator]
+    one_wall_per_s = single["wall_s"] / single["virtual_s"]  # type: ignore[operator]
+    figures = {
+        "speedup": round(float(fleet["speedup"]), 3),  # type: ignore[arg-type]
+        "one_board_speedup": round(float(single["speedup"]), 3),  # type: ignore[arg-type]
+        "scaling": round(wall_per_s / one_wall_per_s, 2),
+        "board_cycle_us": round(wall_per_s / int(fleet["boards"]) / 1000 * 1e6, 1),  # type: ignore[call-overload]
+        "bus_load": fleet["bus_load"],
+    }
+    if args.json:
+        print(json.dumps(figures, indent=2))
+        return
+    print(f"ARMAR-III in process, 11 boards x 3 axes at 1 kHz, {args.seconds:g} s virtual:")
+    print(f"  speed-up       {figures['speedup']:.2f} virtual s per wall s "
+          f"({'faster' if figures['speedup'] >= 1 else 'slower'} than real time)")
+    print(f"  one board      {figures['one_board_speedup']:.2f} virtual s per wall s "
+          f"(baseline, same run)")
+    print(f"  scaling        {figures['scaling']:.2f}x the baseline's wall time for 11 boards "
+          f"({figures['board_cycle_us']:.0f} us of wall time per board and cycle)")
+    print("  bus load       computed nominal / worst   counted")
+    for bus, f in fleet["bus_load"].items():  # type: ignore[attr-defined]
+        mark = "" if f["counted"] < TARGET else f"  (over the {TARGET:.0%} target)"
+        print(f"    {bus}          {f['computed_nominal']:6.1%} / {f['computed_worst']:6.1%}"
+              f"     {f['counted']:6.1%}{mark}")
+
+
+if __name__ == "__main__":
+    main()

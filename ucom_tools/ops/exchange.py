@@ -1,0 +1,305 @@
+"""Bringing a running board into the cyclic exchange: the start sequence of
+``man/ucom-protocol.7`` (RUN TIME, Start sequence), one board at a time.
+
+Start (bootloader) -> MCA Ready -> DumpIO Descr exchange -> mapping check against the
+board's attribute-tree block -> PAR and CI defaults of the tree -> Admin Data (watchdog
+time, SO maps, CI maps) -> MCA Start.  A board whose edges differ from its tree is not
+configured at all (nothing is written to it); a value of the tree that the board's edge
+cannot carry is refused before anything is sent.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import can
+
+from ucom_tools.config.attrtree.match import compare, program_of
+from ucom_tools.config.attrtree.model import Board, Kind
+from ucom_tools.config.attrtree.robot import RobotTrees
+from ucom_tools.config.topology import BusSpec
+from ucom_tools.errors import BoardError, InputError, UcomTimeoutError
+from ucom_tools.programs.model import EdgeKind, EdgeSpec
+from ucom_tools.protocol.bootloader import BootloaderClient
+from ucom_tools.protocol.dispatch import Periodic
+from ucom_tools.protocol.link import Link
+from ucom_tools.protocol.mca import BoardEdges, McaClient, values_of
+from ucom_tools.protocol.plan import BusPlan, CiMapPlan, needs_of, plan
+from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
+from ucom_tools.wire import mca
+from ucom_tools.wire.ids import ALL, Address, Function, seq
+
+_KIND = {Kind.CI: mca.Kind.CI, Kind.SO: mca.Kind.SO, Kind.PAR: mca.Kind.PAR}
+
+
+class ExchangeError(InputError):
+    """A board cannot join the exchange (its edges differ from its tree, a default does
+    not fit its edge); nothing was written to it."""
+
+
+def spec_of(kind: mca.Kind, record: mca.EdgeRecord) -> EdgeSpec:
+    """The edge a board described, as an :class:`EdgeSpec` (for value conversion)."""
+    return EdgeSpec(EdgeKind(kind), record.name, width=record.width, signed=record.signed,
+                    exponent=record.exponent, minimum=record.minimum,
+                    maximum=record.maximum, unit=record.unit,
+                    default=min(max(0, record.minimum), record.maximum))
+
+
+@dataclass(frozen=True)
+class Configured:
+    """A board ready for MCA Start: its described edges and what was written."""
+
+    address: Address
+    edges: BoardEdges
+    written: dict[str, int]
+    """Unique (tree) name -> raw value written."""
+
+
+def edge_list(edges: BoardEdges) -> list[tuple[EdgeKind, str]]:
+    return [(EdgeKind(k), r.name) for k in mca.Kind for r in edges.of(k)]
+
+
+def defaults_raw(tree: Board, edges: BoardEdges, where: str, tree_file: str | None = None,
+                 ) -> list[tuple[mca.Kind, int, int, str]]:
+    """(kind, per-kind index, raw value, unique name) of every default of ``tree``, in
+    tree order; ExchangeError naming the tree line when a value does not fit its edge."""
+    out = []
+    first = {k: sum(len(edges.of(j)) for j in mca.Kind if j < k) for k in mca.Kind}
+    for e in tree.edges:
+        if e.default is None:
+            continue
+        kind = _KIND[e.kind]
+        index = e.index - first[kind]
+        spec = spec_of(kind, edges.of(kind)[index])
+        try:
+            raw = spec.raw(e.default.text)
+        except ValueError as err:
+            raise ExchangeError(f"{where}: default of {e.unique} ({e.generic}) "
+                                f"{e.default.text}: {err}",
+                                file=tree_file, line=e.default_line or None) from None
+        out.append((kind, index, raw, e.unique))
+    return out
+
+
+def configure(client: McaClient, address: Address, where: str, tree: Board,
+              bus_plan: BusPlan, *, tree_file: str | None = None,
+              edges: BoardEdges | None = None) -> Configured:
+    """Describe, check and configure one STOPPED (or LATCHED) board; it is left stopped."""
+    if edges is None:
+        edges = client.describe(address)
+    mismatch = compare(tree, edge_list(edges))
+    if mismatch is not None:
+        raise ExchangeError(f"{where} runs a program whose edges differ from its tree: "
+                            f"{mismatch.message}", file=tree_file,
+                            line=mismatch.line or None)
+    values = defaults_raw(tree, edges, where, tree_file)
+    written: dict[str, int] = {}
+    for kind in (mca.Kind.PAR, mca.Kind.CI):
+        _write_runs(client, address, kind, [(i, raw) for k, i, raw, _ in values if k is kind],
+                    edges.of(kind))
+    for _kind, _i, raw, unique in values:
+        written[unique] = raw
+    board = address.number
+    client.admin(address, mca.AdminData(mca.AdminOp.CLEAR_MAPS))
+    client.admin(address, mca.AdminData.alive(bus_plan.alive_ms))
+    for m in bus_plan.maps_of(board):
+        client.admin(address, mca.AdminData.so_map(m.number, m.period, m.edges))
+    for c in bus_plan.ci_maps:
+        slots = c.slots_of(board)
+        if any(s != mca.NO_EDGE for s in slots):
+            client.admin(address, mca.AdminData.ci_map(c.number, slots))
+    return Configured(address, edges, written)
+
+
+def _write_runs(client: McaClient, address: Address, kind: mca.Kind,
+                values: Sequence[tuple[int, int]], records: Sequence[mca.EdgeRecord]) -> None:
+    """Write values, consecutive indices together (as few frames as fit)."""
+    values = sorted(values)
+    i = 0
+    while i < len(values):
+        j = i + 1
+        while j < len(values) and values[j][0] == values[j - 1][0] + 1:
+            j += 1
+        client.write(address, kind, values[i][0], [raw for _, raw in values[i:j]], records)
+        i = j
+
+
+def plan_bus(bus: BusSpec, trees: RobotTrees, *, alive_ms: int = mca.ALIVE_DEFAULT_MS,
+             periods: dict[str, int] | None = None) -> BusPlan:
+    """The default exchange of one bus of a robot: every board's program (recognised by
+    its tree's edges) with its default periods, for the joints the topology gives it
+    (seq ID = position in the init chain)."""
+    needs = []
+    for spec in bus.boards:
+        try:
+            board = trees.board(bus.name, spec.position)
+        except KeyError:
+            continue
+        program = program_of(board)
+        if program is None:
+            raise ExchangeError(f"{bus.name} board {spec.position + 1} ({spec.placement}): "
+                                "its tree maps no known program's edges",
+                                file=str(spec.tree) if spec.tree else None)
+        needs.append(needs_of(spec.position + 1, spec.placement, program,
+                              axes=len(spec.joints) or None, periods=periods))
+    return plan(bus.name, bus.bitrate, needs, alive_ms=alive_ms)
+
+
+class BusExchange:
+    """The PC side of one bus's cyclic exchange (``man/ucom-protocol.7``, RUN TIME):
+    brings its boards up (:meth:`bring_up`), then sends the CI maps at their periods and
+    MCA Alive at a fifth of the watchdog time as periodic tasks of the bus's dispatcher,
+    and keeps the latest SO values.  Whoever waits on the bus (:meth:`pump`, a console
+    command) keeps the periodic frames going."""
+
+    def __init__(self, link: Link, bus: BusSpec, trees: RobotTrees, *,
+                 alive_ms: int = mca.ALIVE_DEFAULT_MS, timeouts: Timeouts = DEFAULT,
+                 periods: dict[str, int] | None = None) -> None:
+        self.link = link
+        self.bus = bus
+        self.trees = trees
+        self.boot = BootloaderClient(link, timeouts)
+        self.mca = McaClient(link, timeouts)
+        self.plan = plan_bus(bus, trees, alive_ms=alive_ms, periods=periods)
+        self.configured: dict[int, Configured] = {}
+        self.ci: dict[tuple[int, int], int] = {}
+        """(board, CI index) -> the raw value the CI maps carry."""
+        self._tasks: list[Periodic] = []
+        self._ci_frames: list[tuple[CiMapPlan, list[tuple[int, int]], list[tuple[int, bool]]]] \
+            = []
+
+    # ------------------------------------------------------------------ start sequence
+    def where(self, n: int) -> str:
+        spec = self.bus.boards[n - 1] if 0 < n <= len(self.bus.boards) else None
+        return f"{self.bus.name} board {n}" + (f" ({spec.placement})" if spec else "")
+
+    def start_programs(self, numbers: Sequence[int]) -> dict[int, mca.McaReady]:
+        """Bootloader Start of each board; the MCA Ready its program sends when it is up
+        (boards that do not announce themselves are asked)."""
+        readies: dict[int, mca.McaReady] = {}
+        for n in numbers:
+            (started,) = self.boot.start(seq(n))
+            if not started.started:
+                why = "; ".join(e.describe() for e in started.errors) or "no answer"
+                raise BoardError(f"{self.where(n)}: its program did not start: {why}")
+            ready = self.mca.wait_ready(seq(n), self.mca.timeouts.reply)
+            if ready is None:
+                raise UcomTimeoutError(f"{self.where(n)}: its program does not answer MCA "
+                                       "requests (not a run-time program?)")
+            readies[n] = ready
+        return readies
+
+    def configure_all(self, numbers: Sequence[int]) -> None:
+        for n in numbers:
+            spec = self.bus.boards[n - 1]
+            block = self.trees.board(self.bus.name, spec.position)
+            c = configure(self.mca, seq(n), self.where(n), block, self.plan,
+                          tree_file=str(spec.tree) if spec.tree else None)
+            self.configured[n] = c
+            for index in range(len(c.edges.ci)):
+                self.ci.setdefault((n, index), 0)
+            for unique, raw in c.written.items():
+                e = block.edge(unique)
+                if e.kind is Kind.CI:
+                    self.ci[(n, e.index)] = raw
+
+    def start_exchange(self) -> None:
+        """Start the periodic frames, then MCA Start START on every configured board."""
+        self._start_tasks()
+        for n in self.configured:
+            state = self.mca.start(seq(n)).state
+            if state is not mca.RunState.RUNNING:
+                raise BoardError(f"{self.where(n)}: MCA Start left it {state.name}")
+
+    def bring_up(self, numbers: Sequence[int] | None = None) -> None:
+        numbers = list(numbers or [b.position + 1 for b in self.bus.boards])
+        self.start_programs(numbers)
+        self.configure_all(numbers)
+        self.start_exchange()
+
+    # ------------------------------------------------------------------ cyclic
+    def _start_tasks(self) -> None:
+        self.stop_tasks()
+        d = self.link.dispatcher
+        self._ci_frames = []
+        for c in self.plan.ci_maps:
+            used = [s for s in c.slots if s is not None]
+            signs = [(2, self.configured[b].edges.ci[i].signed) if b in self.configured
+                     else (2, True) for b, i in used]
+            self._ci_frames.append((c, used, signs))
+        by_interval: dict[float, list[int]] = {}
+        for k, (c, _, _) in enumerate(self._ci_frames):
+            by_interval.setdefault(c.interval_us, []).append(k)
+        for interval, indices in sorted(by_interval.items()):
+            self._tasks.append(d.every(interval / 1e6, self._ci_messages(indices),
+                                       f"{self.bus.name} CI maps every {interval:g} us"))
+        alive = can.Message(arbitration_id=mca.encode(mca.Alive(), ALL)[0], data=b"",
+                            is_extended_id=False)
+        self._tasks.append(d.every(self.plan.alive_interval_us / 1e6, lambda: [alive],
+                                   f"{self.bus.name} MCA Alive"))
+
+    def _ci_messages(self, indices: list[int]) -> Callable[[], list[can.Message]]:
+        def frames() -> list[can.Message]:
+            out = []
+            for k in indices:
+                c, used, signs = self._ci_frames[k]
+                data = mca.MapFrame(Function.MCA_CONTROLLER_INPUT, c.number, mca.pack_values(
+                    signs, [self.ci[s] for s in used]))
+                out.append(can.Message(arbitration_id=data.arbitration_id(),
+                                       data=data.encode(), is_extended_id=False))
+            return out
+        return frames
+
+    def stop_tasks(self) -> None:
+        for t in self._tasks:
+            self.link.dispatcher.cancel(t)
+        self._tasks = []
+
+    @property
+    def tasks(self) -> list[Periodic]:
+        return list(self._tasks)
+
+    def pump(self, until: float) -> None:
+        """Run the exchange (receive, send what is due) until ``until`` on the bus clock."""
+        self.link.dispatcher.pump(until)
+
+    def index(self, n: int, kind: mca.Kind, name: str) -> int:
+        records = self.configured[n].edges.of(kind)
+        for i, r in enumerate(records):
+            if r.name == name:
+                return i
+        raise KeyError(f"{self.where(n)} has no {kind.name} edge {name!r}")
+
+    def set_ci(self, n: int, name: str, raw: int) -> None:
+        """The raw value CI edge ``name`` (generic) of board ``n`` gets from now on: in its
+        CI map if it has one, else written with acknowledgement now."""
+        i = self.index(n, mca.Kind.CI, name)
+        self.ci[(n, i)] = raw
+        if not any((n, i) in c.slots for c in self.plan.ci_maps):
+            self.mca.write(seq(n), mca.Kind.CI, i, [raw], self.configured[n].edges.ci)
+
+    def so(self, n: int, name: str) -> int | None:
+        """The latest raw value of SO edge ``name`` (generic) of board ``n`` from its map
+        (None: not cyclic, or nothing arrived yet)."""
+        i = self.index(n, mca.Kind.SO, name)
+        records = self.configured[n].edges.so
+        for m in self.plan.maps_of(n):
+            if i in m.edges and m.number in self.mca.image.frames:
+                values = values_of(self.mca.image.frames[m.number],
+                                   [records[j] for j in m.edges])
+                return values[m.edges.index(i)]
+        return None
+
+    def stop(self) -> None:
+        """Stop every board's exchange (motors off) and the periodic frames: the orderly
+        end (a PC that just vanishes is caught by the boards' watchdogs)."""
+        try:
+            for n in self.configured:
+                self.mca.start(seq(n), mca.StartOp.STOP)
+        finally:
+            self.stop_tasks()
+
+    def close(self) -> None:
+        self.stop_tasks()
+        self.mca.close()

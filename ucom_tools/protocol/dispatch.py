@@ -1,0 +1,286 @@
+"""One reader per bus: the frames a bus receives, handed to whoever waits for them.
+
+A :class:`Dispatcher` is the only code that reads its ``can.BusABC`` (python-can's
+Notifier/Listener model).  Clients subscribe with a filter: the bootloader link takes the
+bootloader answers, the run-time client the MCA answers and process data; a frame goes to
+every subscriber whose filter takes it (an Error, say, to both), into a bounded queue or
+to a callback (latest-value data needs no queue).  A frame nobody takes is counted by
+function code, not lost silently.
+
+Reading happens in whichever thread waits (virtual time: the wait drives the fleet
+clock), one at a time: a second waiter sleeps until the reader has delivered, or its
+deadline passes; with :meth:`Dispatcher.start` a background thread reads instead (real
+buses shared by a console and a running exchange).  Sends from several threads are
+serialised.
+
+Periodic frames (:meth:`Dispatcher.every`: the cyclic exchange's CI maps, MCA Alive) are
+sent by the reader too, on their deadlines on the bus clock: whoever waits for a frame
+keeps them going, so a console command that waits for a board's answer never starves the
+watchdog of a running exchange.  A task that could not be sent within its period counts
+the occurrences it missed (``late``) and keeps its schedule.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable, Iterable
+
+import can
+
+from ucom_tools.errors import BusError
+
+QUEUE_LIMIT = 10_000
+"""Frames a subscriber may have waiting; older ones are dropped (and counted) beyond."""
+POLL_S = 0.05
+"""How long the background reader waits for a frame before it looks at its stop flag."""
+
+Accepts = Callable[[can.Message], bool]
+
+
+class Subscription:
+    """Frames a client takes: queued for :meth:`Dispatcher.wait`, or passed to ``on_frame``."""
+
+    def __init__(self, accepts: Accepts, name: str,
+                 on_frame: Callable[[can.Message], None] | None = None) -> None:
+        self.accepts = accepts
+        self.name = name
+        self.on_frame = on_frame
+        self.queue: deque[can.Message] = deque()
+        self.dropped = 0
+
+
+class Periodic:
+    """Frames sent every ``period`` seconds of the bus clock, due at ``start + k period``."""
+
+    def __init__(self, period: float, frames: Callable[[], Iterable[can.Message]],
+                 name: str, due: float) -> None:
+        if period <= 0:
+            raise ValueError("period must be positive")
+        self.period = period
+        self.frames = frames
+        self.name = name
+        self.due = due
+        self.sent = 0
+        """Occurrences sent."""
+        self.late = 0
+        """Occurrences missed: the reader came to the task a whole period or more after
+        it was due (the bus clock was not read in time)."""
+        self.max_delay = 0.0
+        """Longest time between an occurrence's due time and its sending (seconds)."""
+        self.cancelled = False
+
+
+class Dispatcher:
+    """The reader of one bus and the frames' subscribers."""
+
+    def __init__(self, bus: can.BusABC, name: str = "") -> None:
+        self.bus = bus
+        self.name = name or str(getattr(bus, "channel_info", "bus"))
+        clock = getattr(bus, "clock", None)
+        self.clock: Callable[[], float] = clock if callable(clock) else time.monotonic
+        """Seconds on the bus's time base (virtual time on the in-process fleet)."""
+        self.subscriptions: list[Subscription] = []
+        self.unclaimed: Counter[int] = Counter()
+        """Frames no subscriber took, by function code (identifier bits 10-6)."""
+        self.received = 0
+        self._cond = threading.Condition()
+        self._reading = False
+        self._send_lock = threading.Lock()
+        self._thread: threading.Thread | None = None
+        self._stop = False
+        self.failure: BusError | None = None
+        self._tasks: list[Periodic] = []
+        self._in_tasks = False
+        self._next_due: float | None = None
+        """When the next periodic task is due (None: look)."""
+
+    # ------------------------------------------------------------------ subscribers
+    def subscribe(self, accepts: Accepts, name: str,
+                  on_frame: Callable[[can.Message], None] | None = None) -> Subscription:
+        sub = Subscription(accepts, name, on_frame)
+        with self._cond:
+            self.subscriptions.append(sub)
+        return sub
+
+    def unsubscribe(self, sub: Subscription) -> None:
+        with self._cond:
+            if sub in self.subscriptions:
+                self.subscriptions.remove(sub)
+
+    # ------------------------------------------------------------------ sending
+    def send(self, msg: can.Message, timeout: float | None) -> None:
+        with self._send_lock:
+            self.bus.send(msg, timeout=timeout)
+
+    def every(self, period: float, frames: Callable[[], Iterable[can.Message]], name: str,
+              *, start: float | None = None) -> Periodic:
+        """Send ``frames()`` every ``period`` seconds of :attr:`clock`, the first time at
+        ``start`` (now when None)."""
+        task = Periodic(period, frames, name, self.clock() if start is None else start)
+        with self._cond:
+            self._tasks.append(task)
+            self._next_due = None  # look at the tasks again
+        return task
+
+    def cancel(self, task: Periodic) -> None:
+        with self._cond:
+            task.cancelled = True
+            if task in self._tasks:
+                self._tasks.remove(task)
+            self._next_due = None
+
+    def _run_due(self) -> float | None:
+        """Send every periodic task that is due; the time the next one is due."""
+        if not self._tasks:
+            return None
+        nxt = self._next_due
+        if nxt is not None and self.clock() < nxt:
+            return nxt  # nothing due (the common case: no lock taken)
+        with self._cond:
+            if self._in_tasks:
+                return min(t.due for t in self._tasks) if self._tasks else None
+            self._in_tasks = True
+            tasks = list(self._tasks)
+        try:
+            now = self.clock()
+            for task in tasks:
+                if task.cancelled or task.due > now:
+                    continue
+                delay = now - task.due
+                missed = int(delay // task.period)
+                task.late += missed
+                task.max_delay = max(task.max_delay, delay)
+                for msg in task.frames():
+                    self.send(msg, timeout=task.period)
+                task.sent += 1
+                task.due += (missed + 1) * task.period
+            self._next_due = min((t.due for t in tasks if not t.cancelled), default=None)
+            return self._next_due
+        finally:
+            with self._cond:
+                self._in_tasks = False
+
+    # ------------------------------------------------------------------ receiving
+    def wait(self, sub: Subscription, deadline: float) -> can.Message | None:
+        """The next frame for ``sub``, or None at ``deadline`` (on :attr:`clock`)."""
+        while True:
+            with self._cond:
+                if sub.queue:
+                    return sub.queue.popleft()
+                if self.failure is not None:
+                    raise self.failure
+                remaining = deadline - self.clock()
+                if self._reading or self._thread is not None:
+                    if remaining <= 0:
+                        return None
+                    self._cond.wait(min(remaining, POLL_S))
+                    continue
+                self._reading = True
+            try:
+                self._read_one(max(0.0, remaining))
+            finally:
+                with self._cond:
+                    self._reading = False
+                    self._cond.notify_all()
+            if remaining <= 0 and not sub.queue:
+                return None
+
+    def _read_one(self, timeout: float) -> bool:
+        """Send the periodic frames due, read one frame (waiting up to ``timeout``, or
+        until the next periodic frame is due) and dispatch it; False if none came."""
+        nxt = self._run_due()
+        if nxt is not None:
+            timeout = max(0.0, min(timeout, nxt - self.clock()))
+        try:
+            msg = self.bus.recv(timeout)
+        except can.CanError as err:
+            raise self._fail(f"{self.name}: cannot receive: {err}") from err
+        except OSError as err:
+            raise self._fail(f"{self.name}: cannot receive: {err.strerror or err}") from err
+        if msg is None:
+            return False
+        self.dispatch(msg)
+        return True
+
+    def _fail(self, text: str) -> BusError:
+        err = BusError(text)
+        with self._cond:
+            self.failure = err
+            self._cond.notify_all()
+        return err
+
+    def dispatch(self, msg: can.Message) -> None:
+        """Hand a received frame to every subscriber that takes it."""
+        self.received += 1
+        taken = False
+        with self._cond:
+            subs = list(self.subscriptions)
+        for sub in subs:
+            if not sub.accepts(msg):
+                continue
+            taken = True
+            if sub.on_frame is not None:
+                sub.on_frame(msg)
+                continue
+            with self._cond:
+                if len(sub.queue) >= QUEUE_LIMIT:
+                    sub.queue.popleft()
+                    sub.dropped += 1
+                sub.queue.append(msg)
+        if not taken:
+            self.unclaimed[msg.arbitration_id >> 6] += 1
+
+    def pump(self, deadline: float) -> int:
+        """Read and dispatch everything until ``deadline``; returns the frames read.
+        (For callers that only feed callback subscribers, e.g. a cyclic exchange.)"""
+        count = 0
+        while True:
+            remaining = deadline - self.clock()
+            with self._cond:
+                if self._thread is not None or self._reading:
+                    if remaining > 0:
+                        self._cond.wait(min(remaining, POLL_S))
+                        continue
+                    return count
+                self._reading = True
+            try:
+                got = self._read_one(max(0.0, remaining))
+            finally:
+                with self._cond:
+                    self._reading = False
+                    self._cond.notify_all()
+            if got:
+                count += 1
+            elif self.clock() >= deadline:
+                return count
+
+    # ------------------------------------------------------------------ background
+    def start(self) -> None:
+        """Read in a background thread from now on (for real-time buses)."""
+        if self._thread is not None:
+            return
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, name=f"ucom-reader-{self.name}",
+                                        daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        thread = self._thread
+        if thread is None:
+            return
+        self._stop = True
+        thread.join(timeout=2)
+        with self._cond:
+            self._thread = None
+            self._cond.notify_all()
+
+    def _run(self) -> None:
+        while not self._stop:
+            try:
+                self._read_one(POLL_S)
+            except BusError:
+                return
+            with self._cond:
+                self._cond.notify_all()

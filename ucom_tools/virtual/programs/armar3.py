@@ -1,0 +1,503 @@
+"""Model of ``armar3.fl.S``: three cascaded position-velocity controllers (dissertation 5.2.2,
+5.4.2, B.5) on a virtual UCoM, for :data:`ucom_tools.programs.armar3.SPEC`.
+
+The dissertation fixes the structure (a cascade with settable PID gains for both parts,
+1 kHz, Target = target position); everything below is our definition.
+
+Sensing, every cycle, axis k (Motor A/B/C = 0/1/2):
+
+- the FPGA's 16-bit counters 2k (joint sensor) and 2k+1 (motor encoder) are read; bit n of
+  ``Revert Encoder CountDir(BitMask)`` negates counter n.  The program extends each
+  counter to an unbounded position by adding the wrapped 16-bit difference every cycle,
+  so a counter may wrap around.  ``Encoder n`` reports the (negated) counter as signed
+  16 bit.  Positions, targets and limits are joint-sensor counts.
+- ``Encoder Prescaler(BitMask)``: bits 4k..4k+3 are motor k's prescaler, written to both
+  of its counters (QUAD_PRESCALE 2k and 2k+1) whenever the field changes; 0 and 1 = every
+  edge.
+- Velocity (counts/s) from the joint counter: the count difference over the time since the
+  last change of the count (plain differencing at speed, a period measurement at low
+  speed: at most one count per elapsed time while the count stands still), then a
+  first-order low-pass of :data:`VELOCITY_FILTER_US`.  ``Velocity X`` reports it.
+
+Control of axis k by ``MotorX Command`` (:class:`~ucom_tools.programs.armar3.Command`),
+gains = raw * 1e-6, sums and differences per cycle (discrete PID ``u = P e + I sum(e) +
+D (e - e_prev)``; so I / T_loop is the continuous integral gain):
+
+- POSITION: position error e = clamp(Target, Min, Max Position) - position [counts];
+  velocity command = P e + I sum(e) + D de + feedforward gain * TargetVel [counts/s],
+  clamped to +-v_max; v_max [counts/s] = ``Max Velocity (x1000)`` x 1000 (its unit is
+  1000 counts/s, whatever the cycle time).  Inner loop: PWM = VP ev + VI sum(ev)
+  + VD dev on ev = velocity command - velocity [counts/s], clamped to +-``Max PWM``
+  [1/16000].  Anti-windup: a sum does not grow while its loop saturates in the error's
+  direction; with I = 0 the sum is held at 0.
+- VELOCITY: velocity command = clamp(TargetVel, +-v_max), then bounded by the position
+  limits: at most max(0, g (Max - position)) and at least min(0, g (Min - position)),
+  g = min(P, :data:`LIMIT_APPROACH_PER_S`) (with P = 0: 0 at or beyond the limit), so the
+  axis brakes into a limit gently enough for the velocity loop to follow and never drives
+  beyond it; the inner loop as above.
+- HOMING (on entering it): drive open loop at ``Reset X PWM`` (clamped to Max PWM) until
+  the joint counter moves by at most :data:`STALL_COUNTS` for :data:`STALL_US` while the
+  current sense (ADC channel k) reads at least :data:`STALL_CURRENT_MV` (the end stop: a
+  motor that does not turn although current flows; a stage that does not drive, e.g. in
+  the FPGA's neutral state, is no stall); then counter 2k := Reset Offset, ``Reset
+  Answer`` 2, and hold that position (the position loop, targets not clamped) while
+  Command stays HOMING.  Reset Answer: 0 never homed, 1 homing, 2 homed, -1 failed (no
+  stall within :data:`HOMING_TIMEOUT_US`, Reset PWM 0, or aborted by another Command or
+  by stop(); the axis then holds where it is).  The motor counter is left alone.  To home
+  again, set another Command, then HOMING.
+- OFF: PWM 0, output stage disabled.
+
+stop() writes PWM 0 and OUTPUT_ENABLE 0 at once, clears every sum and aborts homing; until
+release() every cycle only senses and reports (the axes count as OFF, Settled 0).  After
+release() every axis enters its Command afresh; an axis whose Command is still HOMING holds
+its position instead of homing again.
+
+``Set Joint Moving Direction(BitMask)`` bit k negates the PWM written to PWM0+k (the
+program's positive PWM must raise its positive counts).  Every entered mode starts with
+cleared sums.  OUTPUT_ENABLE bit k is set in every mode but OFF.  PAR and CI values are
+read every cycle: a change acts in the next cycle.  ``Send Command via serial`` is ignored.
+
+``Motor X Settled`` is 1 while a position loop runs (POSITION, or HOMING once homed) and
+|target - position| <= :data:`SETTLED_COUNTS` and |velocity| <= :data:`SETTLED_SPEED` have
+held for :data:`SETTLED_US`; else 0.  ``Voltage X`` is ADC channel k in mV (the current
+sense, 0..3300), ``AD Channel 6/7`` the raw ADC channels 6 and 7.
+
+Load (:meth:`Armar3Model.step`): :data:`BASE_US` = 100 us per cycle (MCA loop,
+administration, communication: "circa 100 us", 10 % at 1 ms, 5.4.2) plus :data:`AXIS_US`
+= 200 us per axis whose mode is not OFF: three axes 700 us fit in 1 ms; one axis 300 us
+fits a 3 kHz cycle (333 us).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ucom_tools.programs.armar3 import AXES, SPEC, Command
+from ucom_tools.programs.model import EdgeKind, ProgramSpec
+from ucom_tools.virtual.fpga import QuadratureDecoder
+from ucom_tools.virtual.plant import ARMAR3_BOARD, AxisParams, ThreeAxisPlant
+from ucom_tools.virtual.programs.base import Hardware
+from ucom_tools.wire.fpga import Reg
+
+__all__ = ["SPEC", "Armar3Model", "make"]
+
+BASE_US = 100.0
+"""Execution time of a cycle with every controller off [us]."""
+AXIS_US = 200.0
+"""Additional execution time per active axis [us]."""
+VELOCITY_FILTER_US = 2000.0
+"""Time constant of the velocity low-pass [us]."""
+STANDSTILL_US = 200_000.0
+"""No count change for this long: velocity 0 [us]."""
+SETTLED_COUNTS = 5
+"""Position tolerance of Settled [counts]."""
+SETTLED_SPEED = 50.0
+"""Velocity threshold of Settled [counts/s]."""
+SETTLED_US = 20_000.0
+"""How long both must hold before Settled is 1 [us]."""
+LIMIT_APPROACH_PER_S = 20.0
+"""In VELOCITY mode the speed towards a position limit is at most this gain [1/s] times the
+distance left: braking starts 50 counts before the limit at 1000 counts/s."""
+STALL_COUNTS = 2
+"""Homing: the end stop is reached when the joint counter moves by at most this ..."""
+STALL_US = 20_000.0
+"""... for this long [us] while driving ..."""
+STALL_CURRENT_MV = 100.0
+"""... and the current sense reads at least this [mV] (0.2 A at 0.5 V/A)."""
+HOMING_TIMEOUT_US = 20_000_000.0
+"""Homing fails (Reset Answer -1) without a stall within this time [us]."""
+
+NEVER_HOMED, HOMING, HOMED, HOMING_FAILED = 0, 1, 2, -1
+"""Values of ``MotorX Reset Answer``."""
+
+
+def _indices(kind: EdgeKind) -> dict[str, int]:
+    return {e.name: i for i, e in enumerate(SPEC.of(kind))}
+
+
+_CI, _SO, _PAR = (_indices(k) for k in (EdgeKind.CI, EdgeKind.SO, EdgeKind.PAR))
+
+
+def _per_axis(table: dict[str, int], pattern: str) -> tuple[int, ...]:
+    """Index of the edge ``pattern`` names for each axis k ({a}: A, B, C; {j} and {m}: its
+    joint and motor counter, 2k and 2k+1)."""
+    return tuple(table[pattern.format(a=a, j=2 * k, m=2 * k + 1)] for k, a in enumerate(AXES))
+
+
+_COMMAND = _per_axis(_CI, "Motor{a} Command")
+_TARGET = _per_axis(_CI, "Motor{a} Target")
+_TARGET_VEL = _per_axis(_CI, "Motor{a} TargetVel")
+_RESET_OFFSET = _per_axis(_CI, "Motor{a} Reset Offset")
+_JOINT_ENCODER = _per_axis(_SO, "Encoder {j}")
+_MOTOR_ENCODER = _per_axis(_SO, "Encoder {m}")
+_VOLTAGE = _per_axis(_SO, "Voltage {a}")
+_RESET_ANSWER = _per_axis(_SO, "Motor{a} Reset Answer")
+_VELOCITY = _per_axis(_SO, "Velocity {a}")
+_SETTLED = _per_axis(_SO, "Motor {a} Settled")
+_AD_CHANNEL6, _AD_CHANNEL7 = _SO["AD Channel 6"], _SO["AD Channel 7"]
+
+_CONTROLLED = (Command.POSITION, Command.VELOCITY, Command.HOMING)
+"""The Commands that run a controller (any other value is OFF)."""
+_QUAD_COUNT0, _QUAD_PRESCALE0 = int(Reg.QUAD_COUNT0), int(Reg.QUAD_PRESCALE0)
+_PWM0, _OUTPUT_ENABLE = int(Reg.PWM0), int(Reg.OUTPUT_ENABLE)
+
+
+def _signed16(value: int) -> int:
+    value &= 0xFFFF
+    return value - 0x10000 if value & 0x8000 else value
+
+
+def _clamp(value: float, low: float, high: float) -> float:
+    return low if value < low else high if value > high else value
+
+
+@dataclass(frozen=True)
+class _Config:
+    """One axis's parameters in controller units, derived from PAR (anew whenever a PAR
+    value changes)."""
+
+    p: float
+    i: float
+    d: float
+    feedforward: float
+    vp: float
+    vi: float
+    vd: float
+    v_max: float
+    """counts/s"""
+    max_position: int
+    min_position: int
+    reset_pwm: int
+    max_pwm: float
+    invert_pwm: bool
+    """Set Joint Moving Direction bit k."""
+    invert_joint: bool
+    """Revert Encoder CountDir bit 2k ..."""
+    invert_motor: bool
+    """... and 2k+1."""
+
+
+class _Counter:
+    """One FPGA quadrature counter as the program sees it: direction, extension, view."""
+
+    def __init__(self, channel: int) -> None:
+        self.channel = channel
+        self.view = 0
+        """Counter value after the direction bit, signed 16 bit."""
+        self.position = 0
+        """The extended count."""
+        self._started = False
+
+    def read(self, counters: list[QuadratureDecoder], invert: bool) -> None:
+        """Read the FPGA's counter (``counters``: its decoders)."""
+        raw = counters[self.channel].count
+        view = _signed16(-raw if invert else raw)
+        if self._started:
+            self.position += _signed16(view - self.view)
+        else:
+            self.position, self._started = view, True
+        self.view = view
+
+    def set(self, hw: Hardware, invert: bool, value: int) -> None:
+        hw.fpga.write(_QUAD_COUNT0 + self.channel, -value if invert else value)
+        self.view = _signed16(value)
+        self.position = value
+
+
+class _VelocityEstimator:
+    """Counts/s from a counter: difference over the time since the count last changed."""
+
+    def __init__(self) -> None:
+        self.reset(0)
+
+    def reset(self, position: int) -> None:
+        self.anchor = position
+        self.since_us = 0.0
+        self.raw = 0.0
+        self.value = 0.0
+
+    def update(self, position: int, dt_us: float) -> None:
+        self.since_us += dt_us
+        if self.since_us <= 0:
+            return
+        if position != self.anchor:
+            self.raw = (position - self.anchor) * 1e6 / self.since_us
+            self.anchor, self.since_us = position, 0.0
+        elif self.since_us >= STANDSTILL_US:
+            self.raw = 0.0
+        elif abs(self.raw) * self.since_us > 1e6:  # slower than one count since the change
+            self.raw = math.copysign(1e6 / self.since_us, self.raw)
+        self.value += dt_us / (VELOCITY_FILTER_US + dt_us) * (self.raw - self.value)
+
+
+class _Pid:
+    """A discrete PID with per-cycle sum and difference and conditional integration."""
+
+    def __init__(self) -> None:
+        self.reset()
+
+    def reset(self) -> None:
+        self.sum = 0.0
+        self.previous: float | None = None
+
+    def update(self, error: float, p: float, i: float, d: float, limit: float,
+               offset: float = 0.0) -> float:
+        difference = 0.0 if self.previous is None else error - self.previous
+        self.previous = error
+        total = self.sum + error if i else 0.0
+        out = offset + p * error + i * total + d * difference
+        if abs(out) > limit and (out > 0) == (error > 0):
+            total = self.sum if i else 0.0  # anti-windup: hold the sum
+            out = offset + p * error + i * total + d * difference
+        self.sum = total
+        return _clamp(out, -limit, limit)
+
+
+class _Axis:
+    """Motor k's controller: mode, counters, loops, homing and Settled."""
+
+    def __init__(self, k: int) -> None:
+        self.k = k
+        self.joint = _Counter(2 * k)
+        self.motor = _Counter(2 * k + 1)
+        self.velocity = _VelocityEstimator()
+        self.sensed = False
+        self.position_loop = _Pid()
+        self.velocity_loop = _Pid()
+        self.command: int | None = None
+        self.hold: int | None = None
+        """Target of the position loop in HOMING (after the stall), else None."""
+        self.reset_answer = NEVER_HOMED
+        self.homing_us = 0.0
+        self.stall_anchor = 0
+        self.stall_us = 0.0
+        self.settled_us = 0.0
+        self.settled = False
+        self.active = False
+        self.pwm = 0.0
+        """The program's PWM (before the direction bit)."""
+
+    def sense(self, counters: list[QuadratureDecoder], c: _Config, dt_us: float) -> None:
+        self.joint.read(counters, c.invert_joint)
+        self.motor.read(counters, c.invert_motor)
+        if not self.sensed:  # the first reading: no motion yet
+            self.velocity.reset(self.joint.position)
+            self.sensed = True
+        self.velocity.update(self.joint.position, dt_us)
+
+    def stop(self) -> None:
+        if self.reset_answer == HOMING:
+            self.reset_answer = HOMING_FAILED
+        self.command = None
+        self.hold = None
+        self.position_loop.reset()
+        self.velocity_loop.reset()
+        self.pwm, self.active, self.settled, self.settled_us = 0.0, False, False, 0.0
+
+    def _enter(self, command: int, resumed: bool) -> None:
+        self.position_loop.reset()
+        self.velocity_loop.reset()
+        self.settled_us = 0.0
+        if self.reset_answer == HOMING:  # left HOMING before the stall
+            self.reset_answer = HOMING_FAILED
+        self.hold = None
+        if command == Command.HOMING:
+            if resumed:
+                self.hold = self.joint.position
+            else:
+                self.reset_answer = HOMING
+                self.homing_us = 0.0
+                self.stall_anchor, self.stall_us = self.joint.position, 0.0
+
+    def control(self, hw: Hardware, command: int, target: int, target_vel: int,
+                reset_offset: int, c: _Config, dt_us: float, resumed: bool) -> None:
+        if command not in _CONTROLLED:
+            command = Command.OFF
+        if command != self.command or resumed:
+            self._enter(command, resumed)
+            self.command = command
+        position = self.joint.position
+        self.active = command != Command.OFF
+        goal: int | None = None
+        if command == Command.OFF:
+            self.pwm = 0.0
+        elif command == Command.HOMING and self.hold is None:
+            self._home(hw, c, reset_offset, dt_us)
+        elif command == Command.VELOCITY:
+            v_cmd = _clamp(target_vel, -c.v_max, c.v_max)
+            if c.p > 0:
+                gain = min(c.p, LIMIT_APPROACH_PER_S)
+                high = max(0.0, gain * (c.max_position - position))
+                low = min(0.0, gain * (c.min_position - position))
+            else:
+                high = math.inf if position < c.max_position else 0.0
+                low = -math.inf if position > c.min_position else 0.0
+            self.pwm = self._velocity(_clamp(v_cmd, low, high), c)
+        else:
+            if self.hold is not None:
+                goal, feedforward = self.hold, 0.0
+            else:
+                goal = int(_clamp(target, c.min_position, c.max_position))
+                feedforward = c.feedforward * target_vel
+            v_cmd = self.position_loop.update(goal - position, c.p, c.i, c.d, c.v_max,
+                                              feedforward)
+            self.pwm = self._velocity(v_cmd, c)
+        self._settle(goal, dt_us)
+
+    def _velocity(self, v_cmd: float, c: _Config) -> float:
+        return self.velocity_loop.update(v_cmd - self.velocity.value, c.vp, c.vi, c.vd,
+                                         c.max_pwm)
+
+    def _home(self, hw: Hardware, c: _Config, offset: int, dt_us: float) -> None:
+        position = self.joint.position
+        self.homing_us += dt_us
+        if abs(position - self.stall_anchor) > STALL_COUNTS:
+            self.stall_anchor, self.stall_us = position, 0.0
+        elif hw.adc[self.k] * 3300 / 4095 >= STALL_CURRENT_MV:
+            self.stall_us += dt_us
+        else:  # no current: the stage does not drive (e.g. the FPGA is neutral)
+            self.stall_us = 0.0
+        if c.reset_pwm == 0 or self.homing_us > HOMING_TIMEOUT_US:
+            self.reset_answer, self.hold = HOMING_FAILED, position
+            self.pwm = 0.0
+        elif self.stall_us >= STALL_US:
+            self.joint.set(hw, c.invert_joint, offset)
+            self.velocity.reset(offset)
+            self.reset_answer, self.hold = HOMED, offset
+            self.pwm = 0.0
+        else:
+            self.pwm = _clamp(c.reset_pwm, -c.max_pwm, c.max_pwm)
+
+    def _settle(self, goal: int | None, dt_us: float) -> None:
+        if (goal is not None and abs(goal - self.joint.position) <= SETTLED_COUNTS
+                and abs(self.velocity.value) <= SETTLED_SPEED):
+            self.settled_us += dt_us
+        else:
+            self.settled_us = 0.0
+        self.settled = self.settled_us >= SETTLED_US
+
+
+class Armar3Model:
+    """``armar3.fl.S`` on a virtual board: implements
+    :class:`~ucom_tools.virtual.programs.base.ProgramModel` for
+    :data:`ucom_tools.programs.armar3.SPEC`."""
+
+    def __init__(self, hardware: Hardware) -> None:
+        self.spec: ProgramSpec = SPEC
+        self.hw = hardware
+        self.ci = [e.default for e in SPEC.of(EdgeKind.CI)]
+        self.so = [e.default for e in SPEC.of(EdgeKind.SO)]
+        self.par = [e.default for e in SPEC.of(EdgeKind.PAR)]
+        self.axes = [_Axis(k) for k in range(len(AXES))]
+        self._prescalers: list[int | None] = [None] * len(AXES)
+        self._par_seen: list[int] | None = None
+        """The PAR values the configuration was derived from."""
+        self._configs: list[_Config] = []
+        self._stopped = False
+        self._resumed = False
+
+    # ------------------------------------------------------------------ ProgramModel
+    def loop_us(self) -> float:
+        return float(self.par[_PAR["LoopTime(ms)"]])  # exponent -3 ms: raw = us
+
+    def step(self, dt_us: float) -> float:
+        if self.par != self._par_seen:
+            self._configure()
+        counters = self.hw.fpga.quad
+        for a, c in zip(self.axes, self._configs, strict=True):
+            a.sense(counters, c, dt_us)
+        if self._stopped:
+            self._outputs_off()
+        else:
+            self._control(dt_us)
+        self._report()
+        return BASE_US + AXIS_US * sum([a.active for a in self.axes])
+
+    def stop(self) -> None:
+        self._stopped = True
+        for a in self.axes:
+            a.stop()
+        self._outputs_off()
+
+    def release(self) -> None:
+        if self._stopped:
+            self._stopped, self._resumed = False, True
+
+    # ------------------------------------------------------------------ one cycle
+    def _configure(self) -> None:
+        """Derive every axis's :class:`_Config` from PAR and set the prescalers (in the
+        first cycle and whenever a PAR value differs from the last cycle's)."""
+        self._par_seen = list(self.par)
+        self._configs = [self._config(name, k) for k, name in enumerate(AXES)]
+        self._write_prescalers()
+
+    def _control(self, dt_us: float) -> None:
+        ci, registers = self.ci, self.hw.fpga.registers
+        enable = 0
+        for a, c in zip(self.axes, self._configs, strict=True):
+            k = a.k
+            a.control(self.hw, ci[_COMMAND[k]], ci[_TARGET[k]], ci[_TARGET_VEL[k]],
+                      ci[_RESET_OFFSET[k]], c, dt_us, self._resumed)
+            pwm = round(-a.pwm if c.invert_pwm else a.pwm)
+            registers[_PWM0 + k] = pwm & 0xFFFF  # as VirtualFpga.write(PWM0 + k, pwm)
+            if a.command != Command.OFF:
+                enable |= 1 << k
+        registers[_OUTPUT_ENABLE] = enable
+        self._resumed = False
+
+    def _config(self, name: str, k: int) -> _Config:
+        par = self.par
+
+        def gain(edge: str) -> float:
+            return par[_PAR[edge]] * 1e-6
+
+        revert = par[_PAR["Revert Encoder CountDir(BitMask)"]]
+        return _Config(
+            p=gain(f"Motor{name} P"), i=gain(f"Motor{name} I"), d=gain(f"Motor{name} D"),
+            feedforward=gain(f"Motor{name} feedforward gain"),
+            vp=gain(f"Motor{name} Velocity P"), vi=gain(f"Motor{name} Velocity I"),
+            vd=gain(f"Motor{name} Velocity D"),
+            v_max=par[_PAR[f"Motor{name} Max Velocity (x1000)"]] * 1000.0,
+            max_position=par[_PAR[f"Motor{name} Max Position"]],
+            min_position=par[_PAR[f"Motor{name} Min Position"]],
+            reset_pwm=par[_PAR[f"Reset {name} PWM"]],
+            max_pwm=float(par[_PAR["Max PWM"]]),
+            invert_pwm=bool(par[_PAR["Set Joint Moving Direction(BitMask)"]] >> k & 1),
+            invert_joint=bool(revert >> 2 * k & 1), invert_motor=bool(revert >> 2 * k + 1 & 1))
+
+    def _write_prescalers(self) -> None:
+        mask = self.par[_PAR["Encoder Prescaler(BitMask)"]]
+        for k in range(len(AXES)):
+            field = mask >> 4 * k & 0xF
+            if field != self._prescalers[k]:
+                for channel in (2 * k, 2 * k + 1):
+                    self.hw.fpga.write(_QUAD_PRESCALE0 + channel, max(1, field))
+                self._prescalers[k] = field
+
+    def _outputs_off(self) -> None:
+        registers = self.hw.fpga.registers  # as VirtualFpga.write(PWM0 + k, 0) ...
+        for k in range(len(AXES)):
+            registers[_PWM0 + k] = 0
+        registers[_OUTPUT_ENABLE] = 0
+
+    def _report(self) -> None:
+        so, adc = self.so, self.hw.adc
+        for a in self.axes:
+            k = a.k
+            so[_JOINT_ENCODER[k]] = a.joint.view
+            so[_MOTOR_ENCODER[k]] = a.motor.view
+            so[_VOLTAGE[k]] = min(3300, round(adc[k] * 3300 / 4095))
+            so[_RESET_ANSWER[k]] = a.reset_answer
+            so[_VELOCITY[k]] = int(_clamp(round(a.velocity.value), -32768, 32767))
+            so[_SETTLED[k]] = int(a.settled)
+        so[_AD_CHANNEL6] = adc[6] & 0xFFF
+        so[_AD_CHANNEL7] = adc[7] & 0xFFF
+
+
+def make(hardware: Hardware, placement: str = "", *,
+         params: tuple[AxisParams, ...] = ARMAR3_BOARD) -> tuple[Armar3Model, ThreeAxisPlant]:
+    """The program on ``hardware`` with its plant (:data:`~ucom_tools.virtual.plant.
+    ARMAR3_BOARD` unless given: every ARMAR-III board drives the same kind of joints in
+    this model, whatever its ``placement``)."""
+    return Armar3Model(hardware), ThreeAxisPlant(hardware.fpga, hardware.adc, params=params)

@@ -1,0 +1,816 @@
+"""Model of ``lauron4.fl.S``, the LAURON-IV leg program (dissertation 5.5.1; design in
+``attribute_trees/lauron4/README.md``), for :data:`ucom_tools.programs.lauron4.SPEC`, and
+:class:`LegPlant`, the leg (or camera head) it drives.
+
+The dissertation names only "the velocity cascade of every leg and of the head"; all
+figures below are ours.
+
+The drive (the same on all 20 joints, so the program's constants describe every board):
+a 24 V motor, R = :data:`MOTOR_RESISTANCE` 2 ohm, Ke = Kt = :data:`MOTOR_KE` 0.03 V s/rad,
+a 180:1 gear (:data:`GEAR_RATIO`), a 2048-edge motor encoder on channel 2k+1 and a joint
+sensor of 1000 edges/degree on channel 2k, which the program counts through prescaler 10
+(:data:`JOINT_PRESCALER`): one count is 0.01 deg, the unit of positions.
+
+Sensing, every cycle, axis k:
+
+- position = joint counter 2k as signed 16 bit (negated if bit 2k of
+  ``Encoder Direction(BitMask)``); before a reference run it counts from power-up;
+- velocity [0.01 deg/s] = the wrapped difference of motor counter 2k+1 (negated if bit
+  2k+1) over the cycle (one count per 1 ms cycle is 0.98 deg/s; no filter, whose lag
+  would let the velocity overshoot its limit);
+- motor current [mA] = ADC channel k (the 3M board's current sense, magnitude, 0.5 V/A),
+  signed with the current command; foot force X/Y/Z [0.1 N] = (ADC 3/4/5 - 2048) x 2
+  (a strain-gauge amplifier, 0.2 N per LSB), low-passed with ``Foot Force Filter(ms)``
+  (0: unfiltered); supply [mV] = ADC 6 x 10 (a divider on the board's analog input 1);
+- reference switch of axis k = digital input bit k (closed above the reference mark).
+
+Control of axis k (``Leg Mode``, :class:`~ucom_tools.programs.lauron4.LegMode`), gains as
+the spec's units, limits read every cycle (a PAR or CI change acts in the next cycle):
+
+- velocity command: POSITION and COMPLIANT ``Kp (clamp(set point, lower, upper) - pos)
+  + velocity set point``; VELOCITY the velocity set point; then bounded by the joint
+  limits (at most ``Kp (upper - pos)``, at least ``Kp (lower - pos)``: it brakes into a
+  limit and returns into the limits; with Kp = 0 it stops at a limit), then to
+  +-``Velocity Limit``;
+- current command = ``Velocity Kp e + Velocity Ki sum(e)`` on e = command - velocity,
+  limited to +-``Current Limit(mA)`` x ``Torque Limit(%)`` / 100; the sum does not grow
+  while the output saturates in the error's direction, and is 0 in COMPLIANT (the joint is
+  a spring-damper about its set point and gives way to a load above its torque limit);
+- PWM = (R i + Ke w_motor) / supply x 16000 (the motor's voltage for that current at the
+  measured speed), limited to +-``PWM Limit``, negated by bit k of
+  ``Motor Direction(BitMask)``, written to PWM0+k as signed 16 bit; OUTPUT_ENABLE bit k
+  while the axis is driven.  OFF, a stopped program or a neutral FPGA drive nothing.
+- An axis is in use while its current limit x torque limit and velocity limit are > 0
+  (the head's axis 3 is not).
+
+Reference run: a ``Reference Run`` value greater than the last one starts homing of every
+axis in use, in any mode (ignored while stopped): an axis below its mark (switch open)
+runs up to it at :data:`HOMING_FAST`, then every axis backs off below the mark at
+:data:`HOMING_FAST` and runs onto it at :data:`HOMING_SLOW`; the cycle the switch closes,
+counter 2k := ``Reference Offset`` (the joint position of the mark), the axis is referenced
+and holds there until every axis is done; then ``Leg Mode`` rules again.
+:data:`HOMING_TIMEOUT_US` without the switch leaves an axis unreferenced.  Homing ignores
+the joint limits (the positions are not yet known).
+
+``Leg Status(BitMask)`` per axis: referenced; settled (a position loop runs, |target -
+position| <= :data:`SETTLED_COUNTS` and |velocity| <= :data:`SETTLED_SPEED` for
+:data:`SETTLED_US`, or in VELOCITY |command - velocity| <= :data:`SETTLED_SPEED` as long);
+limit hit (a set point was clamped, the command bounded by a limit, or the position
+outside the limits); over current (measured current above ``Current Limit(mA)``).
+``Ground Contact`` = 1 while the filtered Z force exceeds ``Ground Contact
+Threshold(N)``; a threshold of 0 means no foot: forces read 0, no contact.
+
+Load (:meth:`Lauron4Model.step`): :data:`BASE_US` = 100 us per cycle (as ``armar3.fl.S``:
+MCA loop, administration, communication) plus :data:`FOOT_US` = 30 us with a foot sensor
+plus :data:`AXIS_US` = 200 us per driven axis: a leg in control 730 us of 1 ms, a head
+500 us, everything off 130 us.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import replace
+
+from ucom_tools.programs.lauron4 import AXES, PWM_FULL, SPEC, LegMode, Status
+from ucom_tools.programs.model import EdgeKind
+from ucom_tools.virtual.fpga import QuadratureDecoder, VirtualFpga
+from ucom_tools.virtual.plant import (
+    ADC_FULL_SCALE_V,
+    ADC_MAX,
+    CURRENT_LIMIT_A,
+    CURRENT_SENSE_V_PER_A,
+    JOINT_SENSOR_EDGES,
+    MOTOR_ENCODER_EDGES,
+    SUBSTEP_US,
+    SUPPLY_V,
+    AxisParams,
+)
+from ucom_tools.virtual.programs.base import Hardware
+from ucom_tools.wire.fpga import Reg
+
+# ---------------------------------------------------------------- the drive and the board
+MOTOR_RESISTANCE = 2.0
+"""Armature resistance of every joint motor [ohm] (the program's motor model)."""
+MOTOR_KE = 0.03
+"""Back-EMF constant = torque constant [V s/rad = N m/A]."""
+GEAR_RATIO = 180.0
+JOINT_PRESCALER = 10
+"""1000 joint-sensor edges per degree / 10 = one count per 0.01 deg."""
+UNIT_RAD = math.pi / 18000
+"""0.01 deg in rad."""
+MOTOR_COUNTS_PER_UNIT = MOTOR_ENCODER_EDGES * GEAR_RATIO / 36000
+"""Motor-encoder counts per 0.01 deg of the joint (10.24)."""
+ADC_MID = 2048
+"""ADC reading of 0 N at the foot sensor."""
+FORCE_DECI_N_PER_LSB = 2
+"""Foot sensor: 0.2 N per LSB."""
+SUPPLY_MV_PER_LSB = 10
+CURRENT_MA_PER_LSB = ADC_FULL_SCALE_V / ADC_MAX / CURRENT_SENSE_V_PER_A * 1000
+"""mA per LSB of the current sense (1.61)."""
+ADC_FORCE = (3, 4, 5)
+ADC_SUPPLY = 6
+
+_SUBSTEP_S = SUBSTEP_US * 1e-6
+_TWO_PI = 2 * math.pi
+
+# ---------------------------------------------------------------- the program's constants
+SETTLED_COUNTS = 10
+"""Position tolerance of Settled [0.01 deg]."""
+SETTLED_SPEED = 200.0
+"""Velocity tolerance of Settled [0.01 deg/s]: two motor-encoder counts per 1 ms cycle
+(one count is 98)."""
+SETTLED_US = 20_000.0
+"""How long the tolerances must hold [us]."""
+HOMING_FAST = 2000.0
+"""Homing speed up to the reference mark and back off it [0.01 deg/s]."""
+HOMING_SLOW = 200.0
+"""Homing speed onto the mark [0.01 deg/s]: the mark is found to 0.002 deg at 1 ms."""
+HOMING_TIMEOUT_US = 30_000_000.0
+BASE_US = 100.0
+"""Execution time of a cycle with nothing driven and no foot [us]."""
+FOOT_US = 30.0
+"""Foot-force filtering and contact, when a foot sensor is configured [us]."""
+AXIS_US = 200.0
+"""Per driven axis (control or homing) [us]."""
+
+class _Homing:
+    """Where an axis is in a reference run (plain ints: compared every cycle)."""
+
+    IDLE = 0
+    """Not homing."""
+    SEEK = 1
+    """Below the mark: fast up to it."""
+    LEAVE = 2
+    """On the mark: fast back below it."""
+    APPROACH = 3
+    """Slowly onto the mark."""
+    DONE = 4
+    """Referenced, holding at the mark until every axis is done."""
+
+
+_SEARCHING = (_Homing.SEEK, _Homing.LEAVE, _Homing.APPROACH)
+
+
+def _indices(kind: EdgeKind) -> dict[str, int]:
+    return {e.name: i for i, e in enumerate(SPEC.of(kind))}
+
+
+_CI, _SO, _PAR = (_indices(k) for k in (EdgeKind.CI, EdgeKind.SO, EdgeKind.PAR))
+
+
+def _axis_indices(table: dict[str, int], pattern: str) -> tuple[int, ...]:
+    return tuple(table[pattern.format(n=n + 1)] for n in range(AXES))
+
+
+_SETPOINT = _axis_indices(_CI, "Axis{n} Position Setpoint")
+_VEL_SETPOINT = _axis_indices(_CI, "Axis{n} Velocity Setpoint")
+_TORQUE = _axis_indices(_CI, "Axis{n} Torque Limit(%)")
+_POSITION = _axis_indices(_SO, "Axis{n} Position")
+_VELOCITY = _axis_indices(_SO, "Axis{n} Velocity")
+_CURRENT = _axis_indices(_SO, "Axis{n} Motor Current")
+_FORCE = tuple(_SO[f"Foot Force {a}"] for a in "XYZ")
+_KP = _axis_indices(_PAR, "Axis{n} Position Kp")
+_VKP = _axis_indices(_PAR, "Axis{n} Velocity Kp")
+_VKI = _axis_indices(_PAR, "Axis{n} Velocity Ki")
+_VLIMIT = _axis_indices(_PAR, "Axis{n} Velocity Limit")
+_ILIMIT = _axis_indices(_PAR, "Axis{n} Current Limit(mA)")
+_UPPER = _axis_indices(_PAR, "Axis{n} Upper Limit")
+_LOWER = _axis_indices(_PAR, "Axis{n} Lower Limit")
+_OFFSET = _axis_indices(_PAR, "Axis{n} Reference Offset")
+_LEG_MODE, _REFERENCE_RUN = _CI["Leg Mode"], _CI["Reference Run"]
+_GROUND_CONTACT, _LEG_STATUS = _SO["Ground Contact"], _SO["Leg Status(BitMask)"]
+_SUPPLY_VOLTAGE = _SO["Supply Voltage(mV)"]
+_PWM_LIMIT, _ENCODER_DIRECTION = _PAR["PWM Limit"], _PAR["Encoder Direction(BitMask)"]
+_MOTOR_DIRECTION = _PAR["Motor Direction(BitMask)"]
+_CONTACT_THRESHOLD = _PAR["Ground Contact Threshold(N)"]
+_FOOT_FILTER = _PAR["Foot Force Filter(ms)"]
+
+# the enums' members as plain ints for the code that runs every cycle (an IntEnum member
+# costs a lookup on every use)
+_OFF, _VELOCITY_MODE = int(LegMode.OFF), int(LegMode.VELOCITY)
+_COMPLIANT = int(LegMode.COMPLIANT)
+_REFERENCED, _SETTLED = int(Status.REFERENCED), int(Status.SETTLED)
+_LIMIT_HIT, _OVER_CURRENT = int(Status.LIMIT_HIT), int(Status.OVER_CURRENT)
+_QUAD_COUNT0, _QUAD_PRESCALE0 = int(Reg.QUAD_COUNT0), int(Reg.QUAD_PRESCALE0)
+_PWM0, _OUTPUT_ENABLE, _DIGITAL_IN = int(Reg.PWM0), int(Reg.OUTPUT_ENABLE), int(Reg.DIGITAL_IN)
+
+
+def _signed16(value: int) -> int:
+    value &= 0xFFFF
+    return value - 0x10000 if value & 0x8000 else value
+
+
+def _clamp(value: float, low: float, high: float) -> float:
+    return low if value < low else high if value > high else value
+
+
+class _Axis:
+    """The controller state of one axis."""
+
+    def __init__(self, k: int) -> None:
+        self.k = k
+        self.position = 0
+        self.motor_count = 0
+        self.velocity = 0.0
+        self.current = 0
+        """Measured motor current [mA], signed with the command."""
+        self.integral = 0.0
+        self.command = 0.0
+        """Current command [mA]."""
+        self.driven = False
+        self.referenced = False
+        self.homing = _Homing.IDLE
+        self.hold = 0
+        self.settled_us = 0.0
+        self.settled = False
+        self.limit_hit = False
+
+    def reset_control(self) -> None:
+        self.integral = self.command = 0.0
+        self.driven = self.settled = False
+        self.settled_us = 0.0
+
+
+class Lauron4Model:
+    """``lauron4.fl.S`` on a virtual board: implements
+    :class:`~ucom_tools.virtual.programs.base.ProgramModel` for
+    :data:`ucom_tools.programs.lauron4.SPEC`."""
+
+    spec = SPEC
+
+    def __init__(self, hardware: Hardware) -> None:
+        self.hw = hardware
+        self.ci = [e.default for e in SPEC.of(EdgeKind.CI)]
+        self.so = [e.default for e in SPEC.of(EdgeKind.SO)]
+        self.par = [e.default for e in SPEC.of(EdgeKind.PAR)]
+        self.axes = [_Axis(k) for k in range(AXES)]
+        self.forces = [0.0, 0.0, 0.0]
+        """Filtered foot force X, Y, Z [0.1 N]."""
+        self._stopped = False
+        self._last_reference_run = self.ci[_REFERENCE_RUN]
+        self._homing_us = 0.0
+        fpga = hardware.fpga
+        for k in range(AXES):
+            fpga.write(_QUAD_PRESCALE0 + 2 * k, JOINT_PRESCALER)
+            fpga.write(_QUAD_PRESCALE0 + 2 * k + 1, 1)
+        self._outputs_off()
+        for a in self.axes:
+            a.motor_count = fpga.read(_QUAD_COUNT0 + 2 * a.k + 1)
+
+    # ------------------------------------------------------------------ ProgramModel
+    def loop_us(self) -> float:
+        return float(self.par[_PAR["Cycle Time(us)"]])
+
+    def step(self, dt_us: float) -> float:
+        dt_us = max(0.0, dt_us)
+        neutral = self.hw.fpga.neutral  # STATUS bit 0
+        self._sense(dt_us)
+        run = self.ci[_REFERENCE_RUN]
+        if run > self._last_reference_run and not (self._stopped or neutral):
+            self._start_homing()
+        self._last_reference_run = run
+        if self._stopped or neutral:
+            for a in self.axes:
+                a.reset_control()
+            self._outputs_off()
+        else:
+            self._control(dt_us)
+        self._report()
+        foot = FOOT_US if self.par[_CONTACT_THRESHOLD] else 0.0
+        return BASE_US + foot + AXIS_US * sum(a.driven for a in self.axes)
+
+    def stop(self) -> None:
+        self._stopped = True
+        for a in self.axes:
+            a.reset_control()
+            a.homing = _Homing.IDLE  # an unfinished reference run is aborted
+        self._outputs_off()
+
+    def release(self) -> None:
+        self._stopped = False
+
+    # ------------------------------------------------------------------ sensing
+    def _sense(self, dt_us: float) -> None:
+        direction = self.par[_ENCODER_DIRECTION]
+        adc = self.hw.adc
+        counters = self.hw.fpga.quad  # as VirtualFpga.read(QUAD_COUNT0 + n)
+        for a in self.axes:
+            joint, motor = 2 * a.k, 2 * a.k + 1
+            count = counters[joint].count
+            a.position = _signed16(-count if direction >> joint & 1 else count)
+            count = counters[motor].count
+            moved = _signed16(count - a.motor_count)
+            a.motor_count = count
+            if dt_us > 0:
+                sign = -1 if direction >> motor & 1 else 1
+                a.velocity = sign * moved / MOTOR_COUNTS_PER_UNIT * 1e6 / dt_us
+            a.current = round(math.copysign(adc[a.k] * CURRENT_MA_PER_LSB, a.command))
+        tau_us = self.par[_FOOT_FILTER] * 1000.0
+        blend = 1.0 if tau_us == 0 else 1.0 - math.exp(-dt_us / tau_us)
+        for i, channel in enumerate(ADC_FORCE):
+            raw_force = (adc[channel] - ADC_MID) * FORCE_DECI_N_PER_LSB
+            self.forces[i] += blend * (raw_force - self.forces[i])
+
+    # ------------------------------------------------------------------ control
+    def _in_use(self, k: int) -> bool:
+        par = self.par
+        return (par[_ILIMIT[k]] * self.ci[_TORQUE[k]] > 0 and par[_VLIMIT[k]] > 0)
+
+    def _start_homing(self) -> None:
+        self._homing_us = 0.0
+        for a in self.axes:
+            a.reset_control()
+            if self._in_use(a.k):
+                a.referenced = False
+                a.homing = _Homing.SEEK
+            else:
+                a.homing = _Homing.IDLE
+
+    def _home(self, a: _Axis, switches: int, kp: float) -> float | None:
+        """The velocity command of a homing axis, None when it is not homing."""
+        if a.homing == _Homing.IDLE:
+            return None
+        closed = bool(switches >> a.k & 1)
+        if a.homing == _Homing.SEEK:
+            if not closed:
+                return HOMING_FAST
+            a.homing = _Homing.LEAVE
+        if a.homing == _Homing.LEAVE:
+            if closed:
+                return -HOMING_FAST
+            a.homing = _Homing.APPROACH
+        if a.homing == _Homing.APPROACH:
+            if not closed:
+                return HOMING_SLOW
+            offset = self.par[_OFFSET[a.k]]
+            direction = self.par[_ENCODER_DIRECTION]
+            channel = 2 * a.k
+            self.hw.fpga.write(_QUAD_COUNT0 + channel,
+                               -offset if direction >> channel & 1 else offset)
+            a.position = a.hold = offset
+            a.referenced = True
+            a.homing = _Homing.DONE
+        return kp * (a.hold - a.position)
+
+    def _control(self, dt_us: float) -> None:
+        ci, par = self.ci, self.par
+        mode = ci[_LEG_MODE]
+        fpga = self.hw.fpga
+        registers = fpga.registers  # PWM0 + k and OUTPUT_ENABLE, as VirtualFpga.write
+        switches = fpga.read(_DIGITAL_IN)
+        homing = any(a.homing in _SEARCHING for a in self.axes)
+        if homing:
+            self._homing_us += dt_us
+            if self._homing_us > HOMING_TIMEOUT_US:
+                homing = False
+        if not homing:
+            for a in self.axes:
+                a.homing = _Homing.IDLE
+        supply = max(1.0, self.hw.adc[ADC_SUPPLY] * SUPPLY_MV_PER_LSB / 1000.0)
+        pwm_limit = par[_PWM_LIMIT]
+        motor_direction = par[_MOTOR_DIRECTION]
+        enable = 0
+        for a in self.axes:
+            k = a.k
+            kp = par[_KP[k]] * 1e-2
+            i_max = par[_ILIMIT[k]] * ci[_TORQUE[k]] / 100.0
+            v_max = float(par[_VLIMIT[k]])
+            upper, lower = par[_UPPER[k]], par[_LOWER[k]]
+            upper = max(upper, lower)
+            v_cmd = self._home(a, switches, kp) if homing else None
+            target: float | None = None
+            # before its mark is found an axis's position says nothing about its limits
+            a.limit_hit = a.homing not in _SEARCHING and not lower <= a.position <= upper
+            if v_cmd is None:
+                if mode == _OFF or not self._in_use(k):
+                    a.reset_control()
+                    registers[_PWM0 + k] = 0
+                    continue
+                if mode == _VELOCITY_MODE:
+                    v_cmd = float(ci[_VEL_SETPOINT[k]])
+                else:
+                    setpoint = ci[_SETPOINT[k]]
+                    target = _clamp(setpoint, lower, upper)
+                    a.limit_hit |= target != setpoint
+                    v_cmd = kp * (target - a.position) + ci[_VEL_SETPOINT[k]]
+                if kp > 0:
+                    low, high = kp * (lower - a.position), kp * (upper - a.position)
+                else:  # no position loop: stop at a limit
+                    low = -math.inf if a.position > lower else 0.0
+                    high = math.inf if a.position < upper else 0.0
+                bounded = _clamp(v_cmd, low, high)
+                a.limit_hit |= bounded != v_cmd
+                v_cmd = bounded
+            elif a.homing == _Homing.DONE:
+                target = a.hold
+            v_cmd = _clamp(v_cmd, -v_max, v_max)
+            error = v_cmd - a.velocity
+            compliant = mode == _COMPLIANT and a.homing == _Homing.IDLE
+            a.command = self._current(a, error, i_max, compliant, par)
+            a.driven = True
+            self._settle(a, target, error, dt_us)
+            w_motor = a.velocity * UNIT_RAD * GEAR_RATIO
+            volts = MOTOR_RESISTANCE * a.command / 1000.0 + MOTOR_KE * w_motor
+            pwm = round(_clamp(volts / supply * PWM_FULL, -pwm_limit, pwm_limit))
+            if motor_direction >> k & 1:
+                pwm = -pwm
+            registers[_PWM0 + k] = pwm & 0xFFFF
+            enable |= 1 << k
+        registers[_OUTPUT_ENABLE] = enable
+
+    def _current(self, a: _Axis, error: float, i_max: float, compliant: bool,
+                 par: list[int]) -> float:
+        vkp, vki = par[_VKP[a.k]] * 1e-3, par[_VKI[a.k]] * 1e-4
+        if compliant or not vki:
+            a.integral = 0.0
+            return _clamp(vkp * error, -i_max, i_max)
+        integral = a.integral + vki * error
+        out = vkp * error + integral
+        if abs(out) > i_max and (out > 0) == (error > 0):
+            integral = a.integral  # anti-windup: hold the sum
+            out = vkp * error + integral
+        a.integral = _clamp(integral, -i_max, i_max)
+        return _clamp(out, -i_max, i_max)
+
+    def _settle(self, a: _Axis, target: float | None, error: float, dt_us: float) -> None:
+        if a.homing in _SEARCHING:
+            ok = False  # searching the mark
+        elif target is None:
+            ok = abs(error) <= SETTLED_SPEED
+        else:
+            ok = (abs(target - a.position) <= SETTLED_COUNTS
+                  and abs(a.velocity) <= SETTLED_SPEED)
+        a.settled_us = a.settled_us + dt_us if ok else 0.0
+        a.settled = a.settled_us >= SETTLED_US
+
+    def _outputs_off(self) -> None:
+        registers = self.hw.fpga.registers  # as VirtualFpga.write(PWM0 + k, 0) ...
+        for k in range(AXES):
+            registers[_PWM0 + k] = 0
+        registers[_OUTPUT_ENABLE] = 0
+
+    # ------------------------------------------------------------------ reporting
+    def _report(self) -> None:
+        so, par = self.so, self.par
+        status = 0
+        for a in self.axes:
+            k = a.k
+            so[_POSITION[k]] = a.position
+            so[_VELOCITY[k]] = int(_clamp(round(a.velocity), -32768, 32767))
+            so[_CURRENT[k]] = int(_clamp(a.current, -10000, 10000))
+            limit = par[_ILIMIT[k]]
+            flags = ((_REFERENCED if a.referenced else 0)
+                     | (_SETTLED if a.settled and a.driven else 0)
+                     | (_LIMIT_HIT if a.limit_hit and a.driven else 0)
+                     | (_OVER_CURRENT if abs(a.current) > limit else 0))
+            status |= flags << 4 * k
+        threshold = par[_CONTACT_THRESHOLD]
+        for i, index in enumerate(_FORCE):
+            so[index] = int(_clamp(round(self.forces[i]), -5000, 5000)) if threshold else 0
+        so[_GROUND_CONTACT] = int(bool(threshold) and self.forces[2] > threshold)
+        so[_LEG_STATUS] = status
+        so[_SUPPLY_VOLTAGE] = min(40950, self.hw.adc[ADC_SUPPLY] * SUPPLY_MV_PER_LSB)
+
+
+# ================================================================ the leg behind the board
+COXA, FEMUR, TIBIA = 0.10, 0.20, 0.25
+"""Segment lengths [m]: alpha axis to beta axis, beta to gamma, gamma to the foot."""
+GROUND_Z = -0.26
+"""Ground height below the beta axis [m] (the body held at a fixed height): at alpha =
+beta = gamma = 0 the foot is 1 cm above it."""
+GROUND_STIFFNESS = 20_000.0
+"""Normal stiffness of the ground contact [N/m]."""
+GROUND_DAMPING = 150.0
+"""Normal damping [N s/m] (only while pressing, the ground never pulls)."""
+TANGENT_STIFFNESS = 10_000.0
+"""Stiffness of the foot's grip on the ground [N/m]."""
+TANGENT_DAMPING = 100.0
+FRICTION = 0.6
+"""Coulomb friction coefficient: the foot slips when the grip exceeds FRICTION x Fz."""
+
+_DRIVE = AxisParams(resistance=MOTOR_RESISTANCE, torque_constant=MOTOR_KE,
+                    rotor_inertia=3.0e-6, viscous_friction=1.0e-5, coulomb_friction=1.0e-3,
+                    gear_ratio=GEAR_RATIO)
+_DEG = math.pi / 180
+LEG_JOINTS = (
+    replace(_DRIVE, load_inertia=0.04, end_stops=(-100 * _DEG, 100 * _DEG)),
+    replace(_DRIVE, load_inertia=0.03, end_stops=(-70 * _DEG, 130 * _DEG)),
+    replace(_DRIVE, load_inertia=0.01, end_stops=(-150 * _DEG, 50 * _DEG)),
+)
+"""Alpha, beta, gamma of a left leg (joint inertia with the rotor: 0.137, 0.127, 0.107
+kg m^2; peak torque at 4 A: 21.6 N m).  A right leg: alpha with ``motor_polarity`` -1."""
+HEAD_JOINTS = (
+    replace(_DRIVE, load_inertia=0.01, end_stops=(-170 * _DEG, 170 * _DEG)),
+    replace(_DRIVE, load_inertia=0.005, end_stops=(-70 * _DEG, 70 * _DEG)),
+    replace(_DRIVE, load_inertia=0.0, end_stops=None),
+)
+"""Pan, tilt, and the unused axis 3 of the camera head."""
+_NO_TORQUES = (0.0,) * AXES
+"""The ground's torques on the joints out of contact."""
+
+
+def _foot_z(beta: float, gamma: float) -> float:
+    """The foot's height above the beta axis [m], as :meth:`LegPlant.foot` computes it."""
+    return FEMUR * math.sin(beta) + TIBIA * math.sin(beta + gamma - math.pi / 2)
+
+
+def _adc(volts: float) -> int:
+    return round(_clamp(volts, 0.0, ADC_FULL_SCALE_V) / ADC_FULL_SCALE_V * ADC_MAX)
+
+
+class _Joint:
+    """Motor, gear and joint of one axis (motor-side speed, joint angle), as
+    :class:`~ucom_tools.virtual.plant.ThreeAxisPlant` models them, plus a torque from
+    outside (the ground, a load)."""
+
+    def __init__(self, p: AxisParams) -> None:
+        self.p = p
+        self.inertia = p.rotor_inertia + p.load_inertia / p.gear_ratio ** 2
+        self.angle = p.start_angle
+        self.speed = 0.0
+        """Motor speed [rad/s]."""
+        self.current = 0.0
+        self.edges = self._edge_indices()
+        self._fixed = (self.inertia, p.torque_constant, p.resistance, p.gear_ratio,
+                       *(p.end_stops if p.end_stops is not None else (-math.inf, math.inf)))
+        """J, Kt, R, N and the end stops (none: never reached)."""
+        self._substep_terms = self._terms(_SUBSTEP_S)
+
+    def _edge_indices(self) -> tuple[int, int]:
+        """The joint sensor's and the motor encoder's edge count at the current angle."""
+        p = self.p
+        return (math.floor(p.joint_sensor_polarity * self.angle * JOINT_SENSOR_EDGES / _TWO_PI),
+                math.floor(p.motor_encoder_polarity * self.angle * p.gear_ratio
+                           * MOTOR_ENCODER_EDGES / _TWO_PI))
+
+    def _terms(self, h: float) -> tuple[float, float, float, float]:
+        """The denominators of a substep of ``h`` seconds, J + h (b + Kt^2 / R) (driven) and
+        J + h b (not driven, or the current limited), and Coulomb friction's share
+        h T_c / (denominator) of each."""
+        p = self.p
+        damped = self.inertia + h * (p.viscous_friction + p.torque_constant ** 2 / p.resistance)
+        free = self.inertia + h * p.viscous_friction
+        return damped, h * p.coulomb_friction / damped, free, h * p.coulomb_friction / free
+
+    @property
+    def velocity(self) -> float:
+        """Joint velocity [rad/s]."""
+        return self.speed / self.p.gear_ratio
+
+    def integrate(self, volts: float | None, torque: float, h: float, steps: int = 1,
+                  angles: list[float] | None = None) -> None:
+        """``steps`` substeps of ``h`` seconds with ``volts`` at the terminals (None: stage
+        off) and a constant ``torque`` [N m] from outside at the joint, each as
+        :meth:`ucom_tools.virtual.plant._Axis.integrate` does it with the outside torque / N
+        added to the drive; ``angles`` (if given) gets the angle after every substep."""
+        inertia, kt, resistance, gear, low, high = self._fixed
+        damped, damped_coulomb, free, free_coulomb = (
+            self._substep_terms if h == _SUBSTEP_S else self._terms(h))
+        outside = torque / gear
+        if volts is None:
+            push, damped, damped_coulomb = h * outside, free, free_coulomb
+        else:
+            push = h * (outside + kt * volts / resistance)
+        limit = CURRENT_LIMIT_A
+        angle, speed, current = self.angle, self.speed, 0.0
+        # abs() and math.copysign() written out as comparisons, as in ThreeAxisPlant
+        for _ in range(steps):
+            base = inertia * speed
+            speed = (base + push) / damped
+            coulomb = damped_coulomb
+            if volts is not None:
+                current = (volts - kt * speed) / resistance
+                if current > limit or current < -limit:  # the stage limits; no back-EMF
+                    current = limit if current > 0.0 else -limit
+                    speed = (base + h * (kt * current + outside)) / free
+                    coulomb = free_coulomb
+            if -coulomb <= speed <= coulomb:
+                speed = 0.0  # sticks
+            else:
+                speed = speed - coulomb if speed > 0.0 else speed + coulomb
+            angle += h * speed / gear
+            if angle <= low:
+                angle, speed = low, max(speed, 0.0)
+            elif angle >= high:
+                angle, speed = high, min(speed, 0.0)
+            if angles is not None:
+                angles.append(angle)
+        self.angle, self.speed = angle, speed
+        if volts is not None and -limit < current < limit:
+            current = (volts - kt * speed) / resistance
+        self.current = current
+
+    def sense(self, counters: list[QuadratureDecoder] | None, k: int) -> None:
+        """Feed the edges since the last call to quadrature ``counters`` 2k and 2k+1 (the
+        FPGA's; None in its neutral state, which counts nothing)."""
+        joint, motor = edges = self._edge_indices()
+        if counters is not None:
+            if joint != self.edges[0]:
+                counters[2 * k].feed(joint - self.edges[0])
+            if motor != self.edges[1]:
+                counters[2 * k + 1].feed(motor - self.edges[1])
+        self.edges = edges
+
+
+class LegPlant:
+    """A LAURON-IV leg (or the camera head) behind a UCoM@3M: three coupled joints, the
+    foot's three-axis force sensor and the ground; implements
+    :class:`~ucom_tools.virtual.programs.base.Plant`.
+
+    The drives follow :class:`~ucom_tools.virtual.plant.ThreeAxisPlant` (PWM0+k signed
+    duty of 16000, OUTPUT_ENABLE, 5 A stages, current sense |i| x 0.5 V/A on ADC k,
+    joint sensor 2k, motor encoder 2k+1) with :data:`LEG_JOINTS` or :data:`HEAD_JOINTS`.
+    The foot is at the end of :data:`COXA`, :data:`FEMUR`, :data:`TIBIA`: alpha turns the
+    leg about the vertical (positive forwards), beta lifts the femur (0 horizontal),
+    gamma bends the knee (0: tibia at right angles to the femur, pointing down; negative
+    folds it).  Below ``ground_z`` the ground pushes (a spring-damper) and grips (a spring
+    anchored where the foot touched down, slipping above :data:`FRICTION` x Fz); the forces
+    act back on the joints.  No gravity.  ``load`` adds a torque [N m] per joint.
+    Sensors also: foot force (X forwards, Y outwards, Z up) on ADC 3-5 at 0.2 N/LSB about
+    2048 (0 when ``foot_sensor`` is False), supply on ADC 6 at 10 mV/LSB, reference
+    switch k on digital input k, closed while joint k is at or above ``marks[k]`` [rad]
+    (None: no switch).
+
+    Integration as :class:`~ucom_tools.virtual.plant.ThreeAxisPlant`, 100 us substeps with
+    the ground's forces from the start of each; while the foot is off the ground the joints
+    do not act on each other, and each is integrated over a whole call on its own (the same
+    result, bit for bit).
+    """
+
+    def __init__(self, fpga: VirtualFpga, adc: list[int],
+                 params: Sequence[AxisParams] = LEG_JOINTS, *,
+                 ground_z: float | None = GROUND_Z, foot_sensor: bool = True,
+                 marks: Sequence[float | None] = (0.0, 0.0, 0.0),
+                 supply_v: float = SUPPLY_V) -> None:
+        if len(params) != AXES or len(marks) != AXES:
+            raise ValueError(f"a leg has {AXES} joints")
+        if len(adc) < 8:
+            raise ValueError("the ADC has 8 channels")
+        self.fpga = fpga
+        self.adc = adc
+        self.joints = [_Joint(p) for p in params]
+        self.ground_z = ground_z
+        self.foot_sensor = foot_sensor
+        self.marks = tuple(marks)
+        self.supply_v = supply_v
+        self.load = [0.0] * AXES
+        """Torque from outside on each joint [N m] (what a test pushes with)."""
+        self.force = (0.0, 0.0, 0.0)
+        """The ground's force on the foot [N] (X, Y, Z)."""
+        self._anchor: tuple[float, float] | None = None
+        self._write_sensors()
+
+    # ------------------------------------------------------------------ Plant protocol
+    def advance(self, dt_us: float) -> None:
+        if dt_us < 0:
+            raise ValueError("time runs forward")
+        fpga = self.fpga
+        enabled = fpga.outputs_enabled()
+        volts: list[float | None] = []
+        for k, joint in enumerate(self.joints):
+            if enabled >> k & 1:
+                duty = _clamp(_signed16(fpga.registers[_PWM0 + k]) / PWM_FULL, -1.0, 1.0)
+                volts.append(joint.p.motor_polarity * duty * self.supply_v)
+            else:
+                volts.append(None)
+        # SUBSTEP_US each, the last one shortened to what remains
+        full = int(dt_us // SUBSTEP_US)
+        rest = dt_us - full * SUBSTEP_US
+        substeps = [(_SUBSTEP_S, full)] if full else []
+        if rest > 1e-9:
+            substeps.append((rest * 1e-6, 1))
+        if not self._advance_apart(volts, substeps):
+            self._advance_coupled(volts, substeps)
+        counters = None if fpga.neutral else fpga.quad
+        for k, joint in enumerate(self.joints):
+            joint.sense(counters, k)
+        self._write_sensors()
+
+    def _advance_apart(self, volts: list[float | None],
+                       substeps: list[tuple[float, int]]) -> bool:
+        """Out of contact with the ground the joints do not act on each other: integrate each
+        one over all ``substeps`` ((length [s], how many), in turn) on its own.  Then the
+        foot's height at the start of every substep tells whether that held; if the foot
+        touched the ground, undo it all and return False."""
+        ground_z, joints = self.ground_z, self.joints
+        if ground_z is not None and not ground_z - _foot_z(joints[1].angle, joints[2].angle) <= 0:
+            return False  # in contact already
+        before = [(j.angle, j.speed, j.current) for j in joints]
+        watch = ground_z is not None and bool(substeps)
+        traces: list[list[float] | None] = [None, [], []] if watch else [None] * AXES
+        for joint, v, extra, trace in zip(joints, volts, self.load, traces, strict=True):
+            for h, n in substeps:
+                joint.integrate(v, 0.0 + extra, h, n, trace)
+        if watch:
+            assert ground_z is not None and traces[1] is not None and traces[2] is not None
+            for beta, gamma in zip(traces[1][:-1], traces[2][:-1], strict=True):
+                if not ground_z - _foot_z(beta, gamma) <= 0:
+                    for j, (angle, speed, current) in zip(joints, before, strict=True):
+                        j.angle, j.speed, j.current = angle, speed, current
+                    return False
+            self._anchor, self.force = None, (0.0, 0.0, 0.0)
+        return True
+
+    def _advance_coupled(self, volts: list[float | None],
+                         substeps: list[tuple[float, int]]) -> None:
+        """Substep by substep, the ground's forces (:meth:`_ground_torques`) on every joint."""
+        drives = list(zip(self.joints, volts, self.load, strict=True))
+        for h, n in substeps:
+            for _ in range(n):
+                torques = self._ground_torques()
+                for (joint, v, extra), t in zip(drives, torques, strict=True):
+                    joint.integrate(v, t + extra, h)
+
+    # ------------------------------------------------------------------ the foot
+    def foot(self) -> tuple[tuple[float, float, float], list[tuple[float, float, float]]]:
+        """Foot position (x forwards, y outwards, z up from the beta axis) [m] and its
+        derivative by alpha, beta and gamma."""
+        alpha, beta, gamma = self.joints
+        a, b, g = alpha.angle, beta.angle, gamma.angle
+        tibia = b + g - math.pi / 2
+        sa, ca, sb, cb = math.sin(a), math.cos(a), math.sin(b), math.cos(b)
+        st, ct = math.sin(tibia), math.cos(tibia)
+        r = COXA + FEMUR * cb + TIBIA * ct
+        z = FEMUR * sb + TIBIA * st
+        dr_db, dz_db = -FEMUR * sb - TIBIA * st, FEMUR * cb + TIBIA * ct
+        dr_dg, dz_dg = -TIBIA * st, TIBIA * ct
+        return (r * sa, r * ca, z), [(r * ca, -r * sa, 0.0), (dr_db * sa, dr_db * ca, dz_db),
+                                     (dr_dg * sa, dr_dg * ca, dz_dg)]
+
+    def _ground_torques(self) -> Sequence[float]:
+        if self.ground_z is None:
+            return _NO_TORQUES
+        (x, y, z), jacobian = self.foot()
+        depth = self.ground_z - z
+        if depth <= 0:
+            self._anchor, self.force = None, (0.0, 0.0, 0.0)
+            return _NO_TORQUES
+        (dx_da, dy_da, dz_da), (dx_db, dy_db, dz_db), (dx_dg, dy_dg, dz_dg) = jacobian
+        wa, wb, wg = [j.speed / j.p.gear_ratio for j in self.joints]  # their .velocity
+        vx = sum((dx_da * wa, dx_db * wb, dx_dg * wg))
+        vy = sum((dy_da * wa, dy_db * wb, dy_dg * wg))
+        vz = sum((dz_da * wa, dz_db * wb, dz_dg * wg))
+        fz = max(0.0, GROUND_STIFFNESS * depth - GROUND_DAMPING * vz)
+        if self._anchor is None:
+            self._anchor = (x, y)
+        ax, ay = self._anchor
+        sx, sy = -TANGENT_STIFFNESS * (x - ax), -TANGENT_STIFFNESS * (y - ay)
+        grip = math.hypot(sx, sy)
+        if grip > FRICTION * fz:  # slip: the anchor follows the foot
+            scale = FRICTION * fz / grip
+            sx, sy = sx * scale, sy * scale
+            self._anchor = (x + sx / TANGENT_STIFFNESS, y + sy / TANGENT_STIFFNESS)
+        fx, fy = sx - TANGENT_DAMPING * vx, sy - TANGENT_DAMPING * vy
+        grip = math.hypot(fx, fy)
+        if grip > FRICTION * fz:
+            fx, fy = fx * FRICTION * fz / grip, fy * FRICTION * fz / grip
+        self.force = (fx, fy, fz)
+        return (fx * dx_da + fy * dy_da + fz * dz_da, fx * dx_db + fy * dy_db + fz * dz_db,
+                fx * dx_dg + fy * dy_dg + fz * dz_dg)
+
+    # ------------------------------------------------------------------ sensors
+    def _write_sensors(self) -> None:
+        adc = self.adc
+        for k, joint in enumerate(self.joints):
+            adc[k] = _adc(abs(joint.current) * CURRENT_SENSE_V_PER_A)
+        for channel, f in zip(ADC_FORCE, self.force, strict=True):
+            reading = ADC_MID + round(f * 10 / FORCE_DECI_N_PER_LSB)
+            adc[channel] = int(_clamp(reading, 0, ADC_MAX)) if self.foot_sensor else 0
+        adc[ADC_SUPPLY] = int(_clamp(round(self.supply_v * 1000 / SUPPLY_MV_PER_LSB),
+                                     0, ADC_MAX))
+        inputs = 0
+        for k, (joint, mark) in enumerate(zip(self.joints, self.marks, strict=True)):
+            if mark is not None and joint.angle >= mark:
+                inputs |= 1 << k
+        self.fpga.inputs = inputs
+
+    # ------------------------------------------------------------------ for tests
+    def joint_angle(self, k: int) -> float:
+        """True angle of joint k [rad]."""
+        return self.joints[k].angle
+
+    def joint_velocity(self, k: int) -> float:
+        """True velocity of joint k [rad/s]."""
+        return self.joints[k].velocity
+
+    def motor_current(self, k: int) -> float:
+        """Motor current of axis k [A] (signed)."""
+        return self.joints[k].current
+
+
+def make(hardware: Hardware, placement: str = "") -> tuple[Lauron4Model, LegPlant]:
+    """The program on ``hardware`` with the plant its board drives, chosen by the board's
+    ``placement`` in the topology (the program cannot tell, the robot's mechanics can): a
+    camera head ("head": pan, tilt, no foot, no ground), a right leg ("right": alpha's
+    motor mounted the other way round, which the right legs' trees undo with Motor
+    Direction bit 0), else a left leg on the ground."""
+    text = placement.lower()
+    if "head" in text:
+        return Lauron4Model(hardware), LegPlant(hardware.fpga, hardware.adc, HEAD_JOINTS,
+                                                ground_z=None, foot_sensor=False,
+                                                marks=(0.0, 0.0, None))
+    params = LEG_JOINTS
+    if "right" in text:
+        params = (replace(LEG_JOINTS[0], motor_polarity=-1), *LEG_JOINTS[1:])
+    return Lauron4Model(hardware), LegPlant(hardware.fpga, hardware.adc, params)

@@ -1,0 +1,418 @@
+"""A running program's side of the run-time protocol (``man/ucom-protocol.7``, RUN TIME).
+
+:class:`McaRuntime` sits between the board's CAN interface and a program model
+(:mod:`ucom_tools.virtual.programs.base`): it takes the generic MCA messages (edge writes,
+MCA Start, descriptions, dumps, Admin Data, Alive) and the CI process-data maps, range
+checks every value before it reaches the model, sends the SO maps at their periods, runs
+the control loop at the program's LoopTime on the fleet clock, accounts the load, keeps
+the watchdog and drives the run-mode LEDs (B.2.3).
+
+Safety: after Start the exchange is STOPPED and every motor off; only MCA Start START
+lets the program drive.  While RUNNING, no MCA Alive for the watchdog time stops every
+motor at once (PWM 0, controllers off) and LATCHES: CI is refused, the motors stay off,
+until the PC sends MCA Start START again.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, field
+
+from ucom_tools.errors import FrameError
+from ucom_tools.programs.model import EdgeKind, EdgeSpec, ProgramSpec
+from ucom_tools.virtual.port import BoardPort
+from ucom_tools.virtual.programs.base import Plant, ProgramModel
+from ucom_tools.wire import mca
+from ucom_tools.wire.answers import AppReport
+from ucom_tools.wire.codes import ErrorCode
+from ucom_tools.wire.ids import Function
+
+_FORMAT = {(2, True): "h", (2, False): "H", (4, True): "i", (4, False): "I"}
+
+FRAME_COST_US = 4.0
+"""Execution time the program spends per CAN frame it handles (added to the load)."""
+BLINK_CYCLES = 250
+"""The green LED toggles every 250 cycles: 2 Hz at 1 ms, 6 Hz at 333 us."""
+OVERRUN_FLASH_US = 50_000.0
+"""The yellow LED lights this long after a cycle overran."""
+CAN_ERROR_FLASH_US = 50_000.0
+"""The red LED lights this long after a CAN error (an error frame, or a frame the program
+could not take)."""
+NO_FUNCTION = 0xFF
+"""Error byte 1 when an error answers no frame (an overrun)."""
+LOAD_WINDOW = 100
+"""The load figure is the share of the last completed window of this many cycles."""
+REPORT_EVERY = 1000
+"""Errors that could repeat every cycle (an overrun, refused CI, a bad CI map frame) are
+sent for the first occurrence and then for every 1000th."""
+
+
+@dataclass
+class SoMap:
+    number: int
+    period: int
+    edges: tuple[int, ...]
+    layout: struct.Struct
+    """The values' big-endian layout (built once, when the map is defined)."""
+    arbitration_id: int
+    countdown: int = 0
+
+
+@dataclass
+class CiMap:
+    number: int
+    slots: tuple[int, ...]
+    layout: struct.Struct
+    """Four 16-bit slots, each signed as its edge (an unused slot unsigned)."""
+    needs: int
+    """Bytes a frame of this map must have: up to its last used slot."""
+
+
+@dataclass
+class LoopStats:
+    cycles: int = 0
+    overruns: int = 0
+    last_work_us: float = 0.0
+    last_late_us: float = 0.0
+    work_us: float = 0.0
+    """Work since the last load figure."""
+    span_us: float = 0.0
+    load: float = 0.0
+    """Share of the cycle time the program used over the last window of cycles."""
+    refused_ci: int = 0
+    map_errors: int = 0
+    frames: int = 0
+    history: list[float] = field(default_factory=list)
+
+
+class McaRuntime:
+    """The run-time exchange of one running program."""
+
+    def __init__(self, port: BoardPort, spec: ProgramSpec, model: ProgramModel,
+                 plant: Plant | None, t: float) -> None:
+        self.port = port
+        self.spec = spec
+        self.model = model
+        self.plant = plant
+        self.state = mca.RunState.STOPPED
+        self.alive_ms = mca.ALIVE_DEFAULT_MS
+        self.last_alive = t
+        self.so_maps: dict[int, SoMap] = {}
+        self.ci_maps: dict[int, CiMap] = {}
+        self.stats = LoopStats()
+        self.overrun_at = -1e18
+        self.can_error_at = -1e18
+        self.can_errors = 0
+        self.overrun_depth = 0.0
+        self.flags = 0
+        self.latched_by_watchdog = False
+        self.latched_at: float | None = None
+        """Fleet time (us) of the last watchdog latch."""
+        self.stopped = False
+        self._last_tick = t
+        self._kinds = {k: spec.of(EdgeKind(k)) for k in mca.Kind}
+        self._values = {mca.Kind.CI: model.ci, mca.Kind.SO: model.so, mca.Kind.PAR: model.par}
+        model.stop()
+        port.at(t + model.loop_us(), self._tick)
+        self._ready(t, Function.MCA_READY, b"\0\0")
+
+    # ------------------------------------------------------------------ life
+    def end(self) -> None:
+        """The program ends (reset, power loss): the loop stops scheduling itself."""
+        self.stopped = True
+        self.model.stop()
+
+    def _tick(self, t: float) -> None:
+        if self.stopped:
+            return
+        dt = t - self._last_tick
+        self._last_tick = t
+        if self.plant is not None:
+            self.plant.advance(dt)
+        if self.state is mca.RunState.RUNNING and \
+                t - self.last_alive > self.alive_ms * 1000.0:
+            self._latch(t)
+        work = self.model.step(dt) + FRAME_COST_US * self.stats.frames
+        self.stats.frames = 0
+        loop = self.model.loop_us()
+        self._account(t, work, loop)
+        if self.state is mca.RunState.RUNNING:
+            self._send_maps(t + min(work, loop))
+        self.port.at(t + max(loop, work), self._tick)
+
+    def _account(self, t: float, work: float, loop: float) -> None:
+        s = self.stats
+        s.cycles += 1
+        s.last_work_us = work
+        s.work_us += work
+        s.span_us += max(loop, work)
+        if s.cycles % LOAD_WINDOW == 0:
+            s.load = s.work_us / s.span_us if s.span_us else 0.0
+            s.work_us = s.span_us = 0.0
+        if work > loop:
+            s.overruns += 1
+            s.last_late_us = work - loop
+            self.overrun_at = t
+            self.overrun_depth = min(1.0, (work - loop) / loop)
+            self.flags |= mca.FLAG_OVERRUN
+            if s.overruns == 1 or s.overruns % REPORT_EVERY == 0:
+                self.port.error(t, ErrorCode.OVERRUN, NO_FUNCTION,
+                                min(int(work - loop), 0xFFFFFFFF))
+
+    def load(self) -> float:
+        """The load over the last :data:`LOAD_WINDOW` cycles, or so far if fewer."""
+        s = self.stats
+        if s.load:
+            return s.load
+        return s.work_us / s.span_us if s.span_us else 0.0
+
+    def can_error(self, t: float) -> None:
+        """A CAN error: an error frame on the bus, or a frame that could not be taken."""
+        self.can_errors += 1
+        self.can_error_at = t
+
+    def _latch(self, t: float) -> None:
+        self.model.stop()
+        self.state = mca.RunState.LATCHED
+        self.latched_by_watchdog = True
+        self.latched_at = t
+        self.flags |= mca.FLAG_LATCHED_BY_WATCHDOG
+        since = int((t - self.last_alive) / 1000.0)
+        self.port.error(t, ErrorCode.WATCHDOG, Function.MCA_ALIVE, since)
+        self.port.report_text(t, f"watchdog: no MCA Alive for {since} ms; every motor "
+                                 "stopped until MCA Start")
+
+    # ------------------------------------------------------------------ SO maps
+    def _send_maps(self, t: float) -> None:
+        so = self.model.so
+        for m in self.so_maps.values():
+            m.countdown -= 1
+            if m.countdown > 0:
+                continue
+            m.countdown = m.period
+            data = m.layout.pack(*[so[i] for i in m.edges])
+            self.port.send_raw(t, m.arbitration_id, mca.mask(data))
+
+    # ------------------------------------------------------------------ frames
+    def on_map(self, number: int, data: bytes, t: float) -> None:
+        """A CI process-data frame (map ``number``) on the bus."""
+        m = self.ci_maps.get(number)
+        if m is None:
+            return
+        self.stats.frames += 1
+        if self.state is mca.RunState.LATCHED:
+            self._refuse_ci(t)
+            return
+        if len(data) < m.needs:
+            self.can_error(t)
+            self._map_error(t, ErrorCode.BAD_LENGTH, number << 8 | len(data))
+            return
+        raws = m.layout.unpack(mca.mask(data[:8].ljust(8, b"\x55")))
+        edges = self._kinds[mca.Kind.CI]
+        for slot, (index, raw) in enumerate(zip(m.slots, raws, strict=True)):
+            if index != mca.NO_EDGE and not edges[index].minimum <= raw <= edges[index].maximum:
+                # nothing of the frame is taken (a value cannot be trusted, its neighbours
+                # neither)
+                self._map_error(t, ErrorCode.OUT_OF_RANGE, number << 8 | slot)
+                return
+        ci = self.model.ci
+        for index, raw in zip(m.slots, raws, strict=True):
+            if index != mca.NO_EDGE:
+                ci[index] = raw
+
+    def _map_error(self, t: float, code: ErrorCode, detail: int) -> None:
+        """An Error about a CI map frame (function byte 0x80 | 13: process data), the
+        first and every :data:`REPORT_EVERY`-th."""
+        s = self.stats
+        if s.map_errors % REPORT_EVERY == 0:
+            self.port.error(t, code, mca.PROCESS_DATA | Function.MCA_CONTROLLER_INPUT, detail)
+        s.map_errors += 1
+
+    def on_frame(self, function: int, data: bytes, t: float) -> None:
+        """A generic MCA frame addressed to this board (or broadcast)."""
+        self.stats.frames += 1
+        try:
+            _, msg = mca.decode(function << 6, data)
+        except FrameError as err:  # wrong length or reserved value
+            code = ErrorCode.BAD_LENGTH if "length" in err.field else ErrorCode.BAD_VALUE
+            self.can_error(t)
+            self.port.error(t, code, function)
+            return
+        if isinstance(msg, mca.Alive):
+            self.last_alive = t
+        elif isinstance(msg, mca.EdgeWrite):
+            self._write(msg, t)
+        elif isinstance(msg, mca.McaStart):
+            self._start(msg, t)
+        elif isinstance(msg, mca.DescrRequest):
+            self._describe(msg, t)
+        elif isinstance(msg, mca.DumpRequest):
+            self._dump(msg, t)
+        elif isinstance(msg, mca.AdminData):
+            self._admin(msg, t)
+        else:  # a board -> PC message sent to us
+            self.port.error(t, ErrorCode.UNKNOWN_FUNCTION, function)
+
+    def _ready(self, t: float, answers: int, echo: bytes) -> None:
+        k = self._kinds
+        self.port.send(t + self.port.timing.reply_us, mca.McaReady(
+            self.state, answers, echo, len(k[mca.Kind.CI]), len(k[mca.Kind.SO]),
+            len(k[mca.Kind.PAR]), self.flags))
+        self.flags &= ~mca.FLAG_OVERRUN
+
+    def _edges(self, kind: mca.Kind, index: int, count: int, t: float,
+               function: int) -> tuple[EdgeSpec, ...] | None:
+        edges = self._kinds[kind]
+        if index + count > len(edges):
+            self.port.error(t, ErrorCode.UNKNOWN_EDGE, function, kind << 8 | index)
+            return None
+        return edges[index:index + count]
+
+    def _write(self, msg: mca.EdgeWrite, t: float) -> None:
+        function = int(msg.FUNCTION)
+        if msg.kind is mca.Kind.CI and self.state is mca.RunState.LATCHED:
+            self._refuse_ci(t)
+            return
+        edges = self._kinds[msg.kind]
+        if msg.index >= len(edges):
+            self.port.error(t, ErrorCode.UNKNOWN_EDGE, function, msg.kind << 8 | msg.index)
+            return
+        specs, size = [], 0
+        for e in edges[msg.index:]:
+            if size >= len(msg.data):
+                break
+            specs.append(e)
+            size += e.width
+        if size != len(msg.data):
+            self.port.error(t, ErrorCode.BAD_LENGTH, function, msg.kind << 8 | msg.index)
+            return
+        raws = mca.unpack_values([(e.width, e.signed) for e in specs], msg.data)
+        for i, (e, raw) in enumerate(zip(specs, raws, strict=True)):
+            if not e.minimum <= raw <= e.maximum:
+                self.port.error(t, ErrorCode.OUT_OF_RANGE, function,
+                                msg.kind << 8 | (msg.index + i))
+                return  # nothing of the frame is taken
+        values = self._values[msg.kind]
+        values[msg.index:msg.index + len(raws)] = raws
+        self._ready(t, function, bytes((msg.index, msg.data[0])))
+
+    def _refuse_ci(self, t: float) -> None:
+        s = self.stats
+        if s.refused_ci % REPORT_EVERY == 0:
+            self.port.error(t, ErrorCode.LATCHED, Function.MCA_CONTROLLER_INPUT, s.refused_ci)
+        s.refused_ci += 1
+
+    def _start(self, msg: mca.McaStart, t: float) -> None:
+        if msg.op is mca.StartOp.START:
+            self.state = mca.RunState.RUNNING
+            self.latched_by_watchdog = False
+            self.flags &= ~mca.FLAG_LATCHED_BY_WATCHDOG
+            self.last_alive = t
+            self.stats.refused_ci = 0
+            for m in self.so_maps.values():
+                m.countdown = 0
+            self.model.release()
+        elif msg.op is mca.StartOp.STOP:
+            self.model.stop()
+            self.state = mca.RunState.STOPPED
+            self.flags &= ~mca.FLAG_LATCHED_BY_WATCHDOG
+        self._ready(t, Function.MCA_START, bytes((msg.op, 0)))
+
+    def _describe(self, msg: mca.DescrRequest, t: float) -> None:
+        if msg.kind is None:
+            wanted = [(k, i) for k in mca.Kind for i in range(len(self._kinds[k]))]
+        elif self._edges(msg.kind, msg.index, 1, t, Function.MCA_DUMPIO_DESCR_REQUEST) is None:
+            return
+        else:
+            wanted = [(msg.kind, msg.index)]
+        when = t + self.port.timing.reply_us
+        for kind, index in wanted:
+            e = self._kinds[kind][index]
+            record = mca.EdgeRecord(e.width, e.signed, e.exponent, e.minimum, e.maximum,
+                                    e.name, e.unit)
+            for segment in record.segments(kind, index):
+                self.port.send(when, segment)
+
+    def _dump(self, msg: mca.DumpRequest, t: float) -> None:
+        edges = self._edges(msg.kind, msg.index, msg.count, t, Function.MCA_DUMP_CI)
+        if edges is None:
+            return
+        values = self._values[msg.kind]
+        when = t + self.port.timing.reply_us
+        first, size = msg.index, 0
+        chunk: list[EdgeSpec] = []
+        for i, e in enumerate(edges, msg.index):
+            if size + e.width > 6 and chunk:
+                self._send_dump(when, msg.kind, first, chunk, values)
+                first, chunk, size = i, [], 0
+            chunk.append(e)
+            size += e.width
+        if chunk:
+            self._send_dump(when, msg.kind, first, chunk, values)
+
+    def _send_dump(self, t: float, kind: mca.Kind, first: int, edges: list[EdgeSpec],
+                   values: list[int]) -> None:
+        data = mca.pack_values([(e.width, e.signed) for e in edges],
+                               values[first:first + len(edges)])
+        self.port.send(t, mca.DumpValues(kind, first, data))
+
+    def _admin(self, msg: mca.AdminData, t: float) -> None:
+        function = int(Function.MCA_ADMIN_DATA)
+        if msg.op is mca.AdminOp.ALIVE:
+            self.alive_ms = msg.alive_ms
+        elif msg.op is mca.AdminOp.CLEAR_MAPS:
+            self.so_maps.clear()
+            self.ci_maps.clear()
+        elif msg.op is mca.AdminOp.SO_MAP:
+            so = self._kinds[mca.Kind.SO]
+            used = [i for i in msg.edges if i != mca.NO_EDGE]
+            if msg.period == 0:
+                self.so_maps.pop(msg.map_no, None)
+            elif not used or any(i >= len(so) for i in used) or \
+                    sum(so[i].width for i in used) > 8:
+                self.port.error(t, ErrorCode.BAD_MAP, function, msg.map_no)
+                return
+            else:
+                layout = struct.Struct(">" + "".join(_FORMAT[so[i].width, so[i].signed]
+                                                     for i in used))
+                frame = mca.MapFrame(Function.MCA_SENSOR_OUTPUT, msg.map_no,
+                                     bytes(layout.size))
+                self.so_maps[msg.map_no] = SoMap(msg.map_no, msg.period, tuple(used), layout,
+                                                 frame.arbitration_id())
+        elif msg.op is mca.AdminOp.CI_MAP:
+            ci = self._kinds[mca.Kind.CI]
+            slots = msg.edges
+            if any(i != mca.NO_EDGE and (i >= len(ci) or ci[i].width != 2) for i in slots):
+                self.port.error(t, ErrorCode.BAD_MAP, function, msg.map_no)
+                return
+            if all(i == mca.NO_EDGE for i in slots):
+                self.ci_maps.pop(msg.map_no, None)
+            else:
+                layout = struct.Struct(">" + "".join(
+                    "H" if i == mca.NO_EDGE else _FORMAT[2, ci[i].signed] for i in slots))
+                needs = 2 * (max(n for n, i in enumerate(slots) if i != mca.NO_EDGE) + 1)
+                self.ci_maps[msg.map_no] = CiMap(msg.map_no, tuple(slots), layout, needs)
+        self._ready(t, function, bytes((msg.op, msg.args[0] if msg.args else 0)))
+
+    # ------------------------------------------------------------------ shown
+    def leds(self, t: float) -> dict[str, str]:
+        """Run-mode LEDs (B.2.3): green blinks (the rate shows the cycle time), yellow
+        flashes after an overrun (brightness in ``yellow_level``), red flashes after a CAN
+        error and is steady while the watchdog latch holds (the PC was lost)."""
+        blink = (self.stats.cycles // BLINK_CYCLES) % 2 == 0
+        yellow = t - self.overrun_at < OVERRUN_FLASH_US
+        red = self.state is mca.RunState.LATCHED or t - self.can_error_at < CAN_ERROR_FLASH_US
+        return {"red": "on" if red else "off",
+                "yellow": "on" if yellow else "off",
+                "green": "blink",
+                "green_phase": "on" if blink else "off",
+                "green_hz": f"{1e6 / (2 * BLINK_CYCLES * self.model.loop_us()):.1f}",
+                "yellow_level": f"{self.overrun_depth:.2f}" if yellow else "0"}
+
+    def report(self) -> AppReport:
+        """Report channel 3 (APPLICATION): :class:`~ucom_tools.wire.mca.AppStatus`."""
+        s = self.stats
+        status = mca.AppStatus(self.state, min(int(self.load() * 1000), 0xFFFF),
+                               min(int(self.model.loop_us()), 0xFFFF),
+                               min(s.overruns, 0xFFFF), self.flags & 0xFF)
+        return AppReport(status.encode())
