@@ -10,14 +10,15 @@ SO maps at the programs' default periods).
 1. Speed-up: virtual seconds per wall second over ``--seconds`` of virtual time (after
    0.1 s to settle).  Baseline, measured in the same run: one board alone (the neck on
    a one-board bus); ``scaling`` = wall time per virtual second of the fleet over that of
-   one board (11 = perfectly linear).
+   one board (11 = perfectly linear); ``fleet_alone_speedup``: the boards and buses
+   without the PC side (what ``fleet serve`` has to do).
 2. Bus load per bus: computed by the planner from Tab. B.2's 47 + 8n bits per frame
    (``nominal`` without stuff bits, ``worst`` with the most a frame can carry) and
    counted on the simulated bus (stuff bits of the real values included).  The design
    target is under 70 % on CAN0 (3 boards, 7 joints).
 
 ``--json`` prints the figures as one JSON object (keys: speedup, one_board_speedup,
-scaling, board_cycle_us, bus_load).
+fleet_alone_speedup, scaling, board_cycle_us, bus_load).
 """
 
 from __future__ import annotations
@@ -45,7 +46,8 @@ IMAGE = SOURCE_ROOT / "firmware_images" / "armar3.fl.S"
 TARGET = 0.70
 
 
-def robot(topology: Topology) -> tuple[Fleet, list[BusExchange], list[VirtualUcomBus]]:
+def robot(topology: Topology, alive_ms: int = 50,
+          ) -> tuple[Fleet, list[BusExchange], list[VirtualUcomBus]]:
     fleet = Fleet(topology.with_program(IMAGE))
     trees = bind(fleet.topology)
     exchanges, interfaces = [], []
@@ -53,7 +55,7 @@ def robot(topology: Topology) -> tuple[Fleet, list[BusExchange], list[VirtualUco
         can_bus = VirtualUcomBus(bus.name, fleet=fleet)
         link = Link(can_bus, bus.name)
         numbers = BootloaderClient(link).init_chain().numbers
-        x = BusExchange(link, bus, trees)
+        x = BusExchange(link, bus, trees, alive_ms=alive_ms)
         x.start_programs(numbers)
         x.configure_all(numbers)
         exchanges.append(x)
@@ -107,6 +109,24 @@ def measure(topology: Topology, seconds: float) -> dict[str, object]:
             i.shutdown()
 
 
+def fleet_alone(topology: Topology, seconds: float) -> float:
+    """Speed-up of the boards and buses alone: the exchange is started (watchdog 60 s),
+    then the PC neither sends nor reads; the fleet clock runs on its own."""
+    fleet, exchanges, interfaces = robot(topology, alive_ms=60_000)
+    try:
+        for x in exchanges:
+            x.stop_tasks()
+        wall = time.perf_counter()
+        with fleet.clock.lock:
+            fleet.clock.run_until(fleet.clock.now + seconds * 1e6)
+        return seconds / (time.perf_counter() - wall)
+    finally:
+        for x in exchanges:
+            x.close()
+        for i in interfaces:
+            i.shutdown()
+
+
 def one_board(topology: Topology) -> Topology:
     first = topology.buses[0]
     return replace(topology, buses=(replace(first, boards=first.boards[:1]),))
@@ -120,12 +140,14 @@ def main() -> None:
     armar3 = load("armar3")
     single = measure(one_board(armar3), args.seconds)
     fleet = measure(armar3, args.seconds)
+    alone = fleet_alone(armar3, args.seconds)
     wall_per_s = fleet["wall_s"] / fleet["virtual_s"]  # type: ignore[operator]
     one_wall_per_s = single["wall_s"] / single["virtual_s"]  # type: ignore[operator]
     figures = {
         "speedup": round(float(fleet["speedup"]), 3),  # type: ignore[arg-type]
         "one_board_speedup": round(float(single["speedup"]), 3),  # type: ignore[arg-type]
         "scaling": round(wall_per_s / one_wall_per_s, 2),
+        "fleet_alone_speedup": round(alone, 3),
         "board_cycle_us": round(wall_per_s / int(fleet["boards"]) / 1000 * 1e6, 1),  # type: ignore[call-overload]
         "bus_load": fleet["bus_load"],
     }
@@ -137,6 +159,8 @@ def main() -> None:
           f"({'faster' if figures['speedup'] >= 1 else 'slower'} than real time)")
     print(f"  one board      {figures['one_board_speedup']:.2f} virtual s per wall s "
           f"(baseline, same run)")
+    print(f"  fleet alone    {figures['fleet_alone_speedup']:.2f} virtual s per wall s "
+          "(the boards and buses without the PC side)")
     print(f"  scaling        {figures['scaling']:.2f}x the baseline's wall time for 11 boards "
           f"({figures['board_cycle_us']:.0f} us of wall time per board and cycle)")
     print("  bus load       computed nominal / worst   counted")
