@@ -6,9 +6,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import can
+
 from ucom_tools.config.attrtree.robot import RobotTrees, bind
 from ucom_tools.config.topology import SOURCE_ROOT, load
 from ucom_tools.ops.exchange import BusExchange
+from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot
+from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.plan import BusPlan
 from ucom_tools.virtual.board import VirtualBoard
@@ -128,3 +132,18 @@ def run_robot(hosts: list[RunHost], ms: int, *,
         until = t0 + (k + 1) * 0.001
         for h in hosts:
             h.exchange.pump(until)
+
+
+def robot_of(fleet: Fleet, *, wrap: Callable[[can.BusABC], can.BusABC] | None = None,
+             ) -> Robot:
+    """An ops-level Robot on ``fleet``'s buses (``wrap`` puts e.g. a LossyBus around
+    each), as ``open_robot`` makes for ``--virtual``."""
+    buses = {}
+    for spec in fleet.topology.buses:
+        bus: can.BusABC = VirtualUcomBus(spec.name, fleet=fleet)
+        if wrap is not None:
+            bus = wrap(bus)
+        link = Link(bus, spec.name, bitrate=spec.bitrate)
+        buses[spec.name] = BusHandle(spec.name, bus, link, BootloaderClient(link), spec,
+                                     virtual=True)
+    return Robot(ConnectSpec(virtual=fleet.topology.name), buses, fleet.topology)

@@ -11,7 +11,9 @@ from __future__ import annotations
 from typing import Any
 
 import click
+from rich.markup import escape
 
+from ucom_tools.cli import params as params_cli
 from ucom_tools.cli import render
 from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
 from ucom_tools.cli.flashrun import run_flash
@@ -24,12 +26,13 @@ from ucom_tools.cli.options import (
     robot,
 )
 from ucom_tools.cli.output import emit_json, stderr, stdout
-from ucom_tools.errors import InputError
+from ucom_tools.errors import InputError, UcomError
 from ucom_tools.image import load_image
 from ucom_tools.ops import boards as ops
+from ucom_tools.ops import params as params_ops
 from ucom_tools.ops.enumerate import enumerate_bus
 from ucom_tools.ops.flash import FlashResult, Selection
-from ucom_tools.ops.robot import ConnectSpec
+from ucom_tools.ops.robot import ConnectSpec, Robot
 from ucom_tools.protocol.programmer import Cancelled
 from ucom_tools.wire.codes import StatusOp, Target
 from ucom_tools.wire.ids import IdType
@@ -312,11 +315,17 @@ last_cmd = _probe_command("last", 15, True, "Found through its init output, the 
 
 # ----------------------------------------------------------------------------- 5, 6, flash
 def _flash_out(ctx: click.Context, spec: ConnectSpec, result: FlashResult,
-               as_json: bool) -> None:
+               as_json: bool, kept: params_ops.KeepResult | None = None) -> None:
     if as_json:
-        _json(spec, render.flash_json(result))
+        extra = {"keep_params": params_cli.kept_json(kept)} if kept is not None else {}
+        _json(spec, {**render.flash_json(result), **extra})
     else:
         render.print_flash(stdout(), result)
+        if kept is not None:
+            params_cli.print_kept(stdout(), kept)
+    if kept is not None and not kept.ok:
+        names = ", ".join(b.where for b in kept.failed)
+        stderr().print(f"[red]params not kept: {escape(names)}[/]", soft_wrap=True)
     if not result.all_verified or result.failed:
         names = ", ".join(
             (f"{b.bus}:{b.seq_id}" if b.seq_id else f"{b.bus}:{b.placement}")
@@ -325,6 +334,8 @@ def _flash_out(ctx: click.Context, spec: ConnectSpec, result: FlashResult,
             + (" (did not start)" if b.verified and b.started is False else "")
             for b in result.failed) or "no board found"
         stderr().print(f"[red]failed: {names}[/]", soft_wrap=True)
+        ctx.exit(EXIT_FAILED)
+    if kept is not None and not kept.ok:
         ctx.exit(EXIT_FAILED)
 
 
@@ -344,13 +355,21 @@ def _cancelled(ctx: click.Context) -> None:
               help="Skip reading back each board's Info after its verified transfer.")
 @click.option("--force", is_flag=True,
               help="Program boards whose Board-ID, App-ID or FPGA major version do not fit "
-                   "the image (with a warning).")
+                   "the image (with a warning); with --keep-params, also program when some "
+                   "board's values could not be read.")
+@click.option("--keep-params", is_flag=True,
+              help="Keep the live PAR and CI values: before programming, read them from "
+                   "every board that runs a program (checked against its attribute tree in "
+                   "the topology); afterwards start the programs (implies --start) and load "
+                   "the values back, read back to verify.  A board whose values cannot be "
+                   "read (its program's edges differ from its tree, no answer) stops the job "
+                   "before anything is programmed (exit code 1) unless --force.")
 @connection_options
 @json_option
 @click.pass_context
 def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
-              start_after: bool, no_verify: bool, force: bool, spec: ConnectSpec,
-              bus_name: str | None, as_json: bool) -> None:
+              start_after: bool, no_verify: bool, force: bool, keep_params: bool,
+              spec: ConnectSpec, bus_name: str | None, as_json: bool) -> None:
     """Program IMAGE (S-record) into the boards of every bus, verified.
 
     Resets, runs the init chain with wiring checks, brings boards that run a program back
@@ -360,20 +379,62 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
     Option 20 (ProgAll) is 'flash --boards all'.  Boards the image does not fit (plug-on
     board, FPGA Board-ID, App-ID, FPGA major version) are refused unless --force.  Exit
     code 0 only when every selected board verified; with a topology, an expected board
-    that never answered fails the job too."""
+    that never answered fails the job too.
+
+    With --keep-params the PAR and CI values of the boards that run a program are read
+    first (into a temporary directory, as 'ucom params dump' writes them) and loaded back
+    afterwards into the programs, started again (also on boards that were not
+    programmed: the reset stopped them); the directory is left, and named, when a board
+    did not get its values back.  Boards in their bootloader have nothing to keep."""
     img = load_image(image)
     selection = Selection.parse(boards)
     with robot(spec) as r:
+        r.select(bus_name)  # an unknown --bus is exit code 3 before anything is sent
+        kept = params_ops.keep_before(r, bus=bus_name) if keep_params else None
+        if kept is not None and not kept.readout.ok and not force:
+            _keep_refused(ctx, spec, kept, as_json)
+            return
         for h in r.select(bus_name):
             h.client.reset()
         try:
             result = run_flash(r, img, selection=selection, bus=bus_name, autostart=autostart,
-                               start=start_after, verify=not no_verify, force=force,
-                               verbose=_verbose(ctx))
+                               start=start_after or keep_params, verify=not no_verify,
+                               force=force, verbose=_verbose(ctx))
         except (KeyboardInterrupt, Cancelled):
+            if kept is not None and kept.directory is not None:
+                stderr().print(f"[yellow]the values read before programming are in "
+                               f"{escape(str(kept.directory))}[/]", soft_wrap=True)
             _cancelled(ctx)
             return
-    _flash_out(ctx, spec, result, as_json)
+        restored = _keep_after(r, kept, result) if kept is not None else None
+    _flash_out(ctx, spec, result, as_json, restored)
+
+
+def _keep_after(r: Robot, kept: params_ops.Kept, result: FlashResult) -> params_ops.KeepResult:
+    """Load the kept values back; when that fails altogether, say where they are."""
+    try:
+        return params_ops.keep_after(r, kept, {(b.bus, b.seq_id): b.outcome
+                                               for b in result.boards})
+    except (UcomError, KeyboardInterrupt):
+        if kept.directory is not None:
+            stderr().print(f"[yellow]the values read before programming are in "
+                           f"{escape(str(kept.directory))}[/]", soft_wrap=True)
+        raise
+
+
+def _keep_refused(ctx: click.Context, spec: ConnectSpec, kept: params_ops.Kept,
+                  as_json: bool) -> None:
+    """flash --keep-params without --force when some board's values could not be read:
+    nothing programmed, exit code 1."""
+    report = params_ops.keep_refused(kept)
+    if as_json:
+        _json(spec, {"programmed": False, "keep_params": params_cli.kept_json(report)})
+    else:
+        params_cli.print_kept(stdout(), report)
+    names = ", ".join(b.where for b in report.failed)
+    stderr().print(f"[red]nothing programmed: the values of {escape(names)} could not be "
+                   "read (--force programs anyway)[/]", soft_wrap=True)
+    ctx.exit(EXIT_FAILED)
 
 
 def _program_command(name: str, option: int, target: Target, detail: str) -> click.Command:

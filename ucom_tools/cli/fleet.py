@@ -22,6 +22,8 @@ from ucom_tools.virtual.socketcand import (
     serve_until_interrupted,
 )
 
+SWITCH_INTERVAL_S = 0.0005
+"""Python's thread switch interval while serving (its default is 5 ms)."""
 TOPOLOGY_HELP = f"a bundled topology ({', '.join(BUNDLED)}) or a topology file (TOML)"
 
 
@@ -112,6 +114,9 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     verbose = int((ctx.find_root().obj or {}).get("verbose", 0))
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING,
                         format="ucom fleet serve: %(message)s", stream=sys.stderr)
+    # the fleet's driver thread is busy most of the time: switch threads often, so
+    # that clients' readers and writers get their turn within a cycle
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     f = Fleet.load(topology, state_dir=state_dir, realtime=True)
     try:
         server = FleetServer(f, host, port, max_clients=max_clients)

@@ -15,7 +15,7 @@ import click
 from rich.markup import escape
 
 from ucom_tools import __version__
-from ucom_tools.cli import commands, console, fleet, output, srec, tree
+from ucom_tools.cli import commands, console, fleet, output, params, remote, srec, tree
 from ucom_tools.cli.exitcodes import (
     EXIT_BAD_INPUT,
     EXIT_BUS,
@@ -76,6 +76,8 @@ cli.add_command(console.console)
 cli.add_command(srec.srec)
 cli.add_command(fleet.fleet)
 cli.add_command(tree.tree)
+cli.add_command(remote.remote)
+cli.add_command(params.params)
 
 
 def main() -> None:

@@ -20,7 +20,8 @@ from ucom_tools.config.attrtree.model import Board, Kind
 from ucom_tools.config.attrtree.robot import RobotTrees
 from ucom_tools.config.topology import BusSpec
 from ucom_tools.errors import BoardError, InputError, UcomTimeoutError
-from ucom_tools.programs.model import EdgeKind, EdgeSpec
+from ucom_tools.ops.edges import spec_of
+from ucom_tools.programs.model import EdgeKind
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.dispatch import Periodic
 from ucom_tools.protocol.link import Link
@@ -36,14 +37,6 @@ _KIND = {Kind.CI: mca.Kind.CI, Kind.SO: mca.Kind.SO, Kind.PAR: mca.Kind.PAR}
 class ExchangeError(InputError):
     """A board cannot join the exchange (its edges differ from its tree, a default does
     not fit its edge); nothing was written to it."""
-
-
-def spec_of(kind: mca.Kind, record: mca.EdgeRecord) -> EdgeSpec:
-    """The edge a board described, as an :class:`EdgeSpec` (for value conversion)."""
-    return EdgeSpec(EdgeKind(kind), record.name, width=record.width, signed=record.signed,
-                    exponent=record.exponent, minimum=record.minimum,
-                    maximum=record.maximum, unit=record.unit,
-                    default=min(max(0, record.minimum), record.maximum))
 
 
 @dataclass(frozen=True)
@@ -129,7 +122,8 @@ def plan_bus(bus: BusSpec, trees: RobotTrees, *, alive_ms: int = mca.ALIVE_DEFAU
              periods: dict[str, int] | None = None) -> BusPlan:
     """The default exchange of one bus of a robot: every board's program (recognised by
     its tree's edges) with its default periods, for the joints the topology gives it
-    (seq ID = position in the init chain)."""
+    (seq ID = position in the init chain).  A board whose tree maps no known program has
+    no maps (the mapping check keeps it from starting)."""
     needs = []
     for spec in bus.boards:
         try:
@@ -138,9 +132,7 @@ def plan_bus(bus: BusSpec, trees: RobotTrees, *, alive_ms: int = mca.ALIVE_DEFAU
             continue
         program = program_of(board)
         if program is None:
-            raise ExchangeError(f"{bus.name} board {spec.position + 1} ({spec.placement}): "
-                                "its tree maps no known program's edges",
-                                file=str(spec.tree) if spec.tree else None)
+            continue  # the mapping check will name its differences; it does not start
         needs.append(needs_of(spec.position + 1, spec.placement, program,
                               axes=len(spec.joints) or None, periods=periods))
     return plan(bus.name, bus.bitrate, needs, alive_ms=alive_ms)
@@ -168,6 +160,8 @@ class BusExchange:
         self._tasks: list[Periodic] = []
         self._ci_frames: list[tuple[CiMapPlan, list[tuple[int, int]], list[tuple[int, bool]]]] \
             = []
+        self._alive = can.Message(arbitration_id=mca.encode(mca.Alive(), ALL)[0], data=b"",
+                                  is_extended_id=False)
 
     # ------------------------------------------------------------------ start sequence
     def where(self, n: int) -> str:
@@ -204,9 +198,13 @@ class BusExchange:
                 if e.kind is Kind.CI:
                     self.ci[(n, e.index)] = raw
 
-    def start_exchange(self) -> None:
-        """Start the periodic frames, then MCA Start START on every configured board."""
-        self._start_tasks()
+    def start_exchange(self, *, periodic: bool = True) -> None:
+        """Start the periodic frames (``periodic``: as tasks of the dispatcher; otherwise
+        the caller sends them with :meth:`send_cycle`), then MCA Start START on every
+        configured board."""
+        self._prepare_ci()
+        if periodic:
+            self._start_tasks()
         for n in self.configured:
             state = self.mca.start(seq(n)).state
             if state is not mca.RunState.RUNNING:
@@ -219,25 +217,53 @@ class BusExchange:
         self.start_exchange()
 
     # ------------------------------------------------------------------ cyclic
-    def _start_tasks(self) -> None:
-        self.stop_tasks()
-        d = self.link.dispatcher
+    def _prepare_ci(self) -> None:
         self._ci_frames = []
         for c in self.plan.ci_maps:
             used = [s for s in c.slots if s is not None]
             signs = [(2, self.configured[b].edges.ci[i].signed) if b in self.configured
                      else (2, True) for b, i in used]
             self._ci_frames.append((c, used, signs))
+        self._alive = can.Message(arbitration_id=mca.encode(mca.Alive(), ALL)[0], data=b"",
+                                  is_extended_id=False)
+        self._ci_sent: dict[int, float] = {}
+        self._alive_sent = -1e9
+
+    def send_cycle(self, now: float) -> int:
+        """One cycle of a PC loop at ``now`` (bus clock, seconds): every CI map whose
+        interval has passed since it was last sent, and MCA Alive likewise; frames sent.
+        Due by time, not by cycle count, so a loop that skips cycles still keeps them."""
+        sent = 0
+        margin = 1e-4  # a cycle that comes a little early still counts
+        for k, (c, used, signs) in enumerate(self._ci_frames):
+            if now - self._ci_sent.get(k, -1e9) + margin >= c.interval_us / 1e6:
+                frame = mca.MapFrame(Function.MCA_CONTROLLER_INPUT, c.number, mca.pack_values(
+                    signs, [self.ci[s] for s in used]))
+                self.link.send_raw(frame.arbitration_id(), frame.encode())
+                self._ci_sent[k] = now
+                sent += 1
+        if now - self._alive_sent + margin >= self.plan.alive_interval_us / 1e6:
+            self.link.send_raw(self._alive.arbitration_id, b"")
+            self._alive_sent = now
+            sent += 1
+        return sent
+
+    def start_alive(self) -> None:
+        """MCA Alive as a periodic task of the dispatcher (until :meth:`stop_tasks`)."""
+        alive = self._alive
+        self._tasks.append(self.link.dispatcher.every(
+            self.plan.alive_interval_us / 1e6, lambda: [alive], f"{self.bus.name} MCA Alive"))
+
+    def _start_tasks(self) -> None:
+        self.stop_tasks()
+        d = self.link.dispatcher
         by_interval: dict[float, list[int]] = {}
         for k, (c, _, _) in enumerate(self._ci_frames):
             by_interval.setdefault(c.interval_us, []).append(k)
         for interval, indices in sorted(by_interval.items()):
             self._tasks.append(d.every(interval / 1e6, self._ci_messages(indices),
                                        f"{self.bus.name} CI maps every {interval:g} us"))
-        alive = can.Message(arbitration_id=mca.encode(mca.Alive(), ALL)[0], data=b"",
-                            is_extended_id=False)
-        self._tasks.append(d.every(self.plan.alive_interval_us / 1e6, lambda: [alive],
-                                   f"{self.bus.name} MCA Alive"))
+        self.start_alive()
 
     def _ci_messages(self, indices: list[int]) -> Callable[[], list[can.Message]]:
         def frames() -> list[can.Message]:

@@ -30,6 +30,7 @@ from collections.abc import Callable, Iterable
 import can
 
 from ucom_tools.errors import BusError
+from ucom_tools.wire.canbits import frame_bits
 
 QUEUE_LIMIT = 10_000
 """Frames a subscriber may have waiting; older ones are dropped (and counted) beyond."""
@@ -85,6 +86,13 @@ class Dispatcher:
         self.unclaimed: Counter[int] = Counter()
         """Frames no subscriber took, by function code (identifier bits 10-6)."""
         self.received = 0
+        self.sent = 0
+        self.bits = 0
+        """Bits of every frame seen on the bus (received and sent, stuff bits included):
+        the bus load this PC measures."""
+        self.taps: list[Callable[[can.Message], None]] = []
+        """Called with every frame received and sent (recorders), in the reading or
+        sending thread."""
         self._cond = threading.Condition()
         self._reading = False
         self._send_lock = threading.Lock()
@@ -93,6 +101,10 @@ class Dispatcher:
         self.failure: BusError | None = None
         self._tasks: list[Periodic] = []
         self._in_tasks = False
+        self.group: list[Dispatcher] = [self]
+        """Dispatchers whose periodic frames this one sends too while it waits: the buses
+        of one in-process fleet, whose clock whichever of them waits drives
+        (:func:`share_clock`)."""
         self._next_due: float | None = None
         """When the next periodic task is due (None: look)."""
 
@@ -113,6 +125,14 @@ class Dispatcher:
     def send(self, msg: can.Message, timeout: float | None) -> None:
         with self._send_lock:
             self.bus.send(msg, timeout=timeout)
+        self.sent += 1
+        self.bits += frame_bits(msg.arbitration_id, bytes(msg.data))
+        if self.taps:
+            out = can.Message(timestamp=self.clock(), arbitration_id=msg.arbitration_id,
+                              data=msg.data, is_extended_id=False, is_rx=False,
+                              channel=self.name)
+            for tap in self.taps:
+                tap(out)
 
     def every(self, period: float, frames: Callable[[], Iterable[can.Message]], name: str,
               *, start: float | None = None) -> Periodic:
@@ -190,7 +210,8 @@ class Dispatcher:
     def _read_one(self, timeout: float) -> bool:
         """Send the periodic frames due, read one frame (waiting up to ``timeout``, or
         until the next periodic frame is due) and dispatch it; False if none came."""
-        nxt = self._run_due()
+        dues = [d._run_due() for d in self.group]
+        nxt = min((t for t in dues if t is not None), default=None)
         if nxt is not None:
             timeout = max(0.0, min(timeout, nxt - self.clock()))
         try:
@@ -214,6 +235,10 @@ class Dispatcher:
     def dispatch(self, msg: can.Message) -> None:
         """Hand a received frame to every subscriber that takes it."""
         self.received += 1
+        if not msg.is_error_frame and not msg.is_remote_frame and not msg.is_extended_id:
+            self.bits += frame_bits(msg.arbitration_id, bytes(msg.data))
+        for tap in self.taps:
+            tap(msg)
         taken = False
         with self._cond:
             subs = list(self.subscriptions)
@@ -256,6 +281,23 @@ class Dispatcher:
             elif self.clock() >= deadline:
                 return count
 
+    def drain(self, limit: int = 1000) -> int:
+        """Read and dispatch what has arrived, without waiting (at most ``limit`` frames);
+        0 at once when another thread is reading.  For a loop that polls several buses."""
+        with self._cond:
+            if self._thread is not None or self._reading:
+                return 0
+            self._reading = True
+        count = 0
+        try:
+            while count < limit and self._read_one(0.0):
+                count += 1
+        finally:
+            with self._cond:
+                self._reading = False
+                self._cond.notify_all()
+        return count
+
     # ------------------------------------------------------------------ background
     def start(self) -> None:
         """Read in a background thread from now on (for real-time buses)."""
@@ -284,3 +326,11 @@ class Dispatcher:
                 return
             with self._cond:
                 self._cond.notify_all()
+
+
+def share_clock(dispatchers: list[Dispatcher]) -> None:
+    """Dispatchers of buses on one virtual clock (one in-process fleet, one thread): a wait
+    on any of them drives the clock for all, so each sends the others' periodic frames too
+    (a wait on one bus must not starve another bus's MCA Alive)."""
+    for d in dispatchers:
+        d.group = list(dispatchers)

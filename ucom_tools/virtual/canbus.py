@@ -51,16 +51,6 @@ class HostPort:
             self.inbox.append((msg, t_end))
 
 
-def wait_for_room(sim: SimBus, sender: object, timeout: float | None) -> None:
-    """Block while ``sender`` has :data:`TX_QUEUE` frames waiting (hold ``sim.lock``)."""
-    deadline = None if timeout is None else time.monotonic() + timeout
-    while sim.queued[sender] >= TX_QUEUE:
-        remaining = None if deadline is None else deadline - time.monotonic()
-        if remaining is not None and remaining <= 0:
-            raise can.CanOperationError("transmit buffer full")
-        sim.changed.wait(remaining if remaining is not None else 0.5)
-
-
 class VirtualUcomBus(can.BusABC):
     """A python-can bus whose peers are the virtual UCoMs of a fleet."""
 
@@ -117,12 +107,13 @@ class VirtualUcomBus(can.BusABC):
             raise can.CanOperationError("identifier must be 11 bit and DLC at most 8")
         data = bytes(msg.data[:msg.dlc])
         sim, port = self.sim, self.port
+        if self.realtime:
+            self.fleet.send_paced(sim, port, msg.arbitration_id, data, timeout=timeout)
+            if self.receive_own_messages:
+                port.on_frame(msg.arbitration_id, data, self.fleet.now_us(sim))
+            return
         with sim.lock:
-            if self.realtime:
-                wait_for_room(sim, port, timeout)
-                sim.send(port, self.fleet.now_us(sim), msg.arbitration_id, data)
-                sim.changed.notify_all()
-            elif sim.send_alone(port, sim.now, msg.arbitration_id, data) is None:
+            if sim.send_alone(port, sim.now, msg.arbitration_id, data) is None:
                 # virtual time: queue the frame like an adapter's TX queue; the clock
                 # runs on when the host waits (or here, while the queue is full)
                 if sim.queued[port] >= TX_QUEUE:

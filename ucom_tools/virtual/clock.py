@@ -21,6 +21,7 @@ import itertools
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -78,12 +79,18 @@ class FleetClock:
 
 
 class RealtimeDriver:
-    """A thread that runs a fleet clock at the pace of the wall clock."""
+    """A thread that runs a fleet clock at the pace of the wall clock.
+
+    Other threads (a socketcand client's, a paced in-process host's) hand it work with
+    :meth:`submit` instead of taking the fleet's lock: the driver runs it at the start of
+    its next step, so a busy fleet never keeps a client's frame waiting for the lock."""
 
     def __init__(self, clock: FleetClock, name: str = "fleet") -> None:
         self.clock = clock
         self.t0 = time.monotonic() - clock.now / 1e6
         self._stop = False
+        self._pending: deque[Callable[[], None]] = deque()
+        self._wake = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"ucom-clock-{name}",
                                         daemon=True)
 
@@ -95,21 +102,33 @@ class RealtimeDriver:
         self._thread.start()
 
     def stop(self) -> None:
-        with self.clock.changed:
-            self._stop = True
-            self.clock.changed.notify_all()
+        self._stop = True
+        self._wake.set()
         self._thread.join(timeout=2)
+
+    def submit(self, work: Callable[[], None]) -> None:
+        """Run ``work()`` in the driver thread, holding the fleet's lock, as soon as it can
+        (before the fleet's next step)."""
+        self._pending.append(work)
+        self._wake.set()
 
     def _run(self) -> None:
         clock = self.clock
-        with clock.changed:
-            while not self._stop:
+        pending = self._pending
+        while not self._stop:
+            self._wake.clear()
+            with clock.lock:
+                while pending:
+                    try:
+                        pending.popleft()()
+                    except Exception:
+                        log.exception("work handed to the fleet failed")
                 now = self.now_us()
                 self._advance(now)
                 nxt = clock.next_event_time()
-                wait = 0.5 if nxt is None else min(0.5, max(0.0, (nxt - now) / 1e6))
-                if wait > 0:
-                    clock.changed.wait(timeout=wait)
+            wait = 0.5 if nxt is None else min(0.5, max(0.0, (nxt - now) / 1e6))
+            if wait > 0 and not pending:
+                self._wake.wait(timeout=wait)
 
     def _advance(self, now: float) -> None:
         """Run the fleet up to ``now`` (holding the lock); a node or callback that raises

@@ -10,8 +10,11 @@ import os
 import re
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
+
+import can
 
 from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.config import topology as topo
@@ -20,6 +23,9 @@ from ucom_tools.errors import InputError, TopologyError, UcomError
 from ucom_tools.virtual.board import Identity, VirtualBoard
 from ucom_tools.virtual.clock import FleetClock, RealtimeDriver
 from ucom_tools.virtual.simbus import SimBus
+
+ROOM_POLL_S = 0.0002
+"""How often a host waiting for room in its transmit queue looks again."""
 
 
 class Fleet:
@@ -36,6 +42,9 @@ class Fleet:
         self.clock = FleetClock()
         """One time base for every bus and board of the fleet."""
         self._driver: RealtimeDriver | None = None
+        self._pending: dict[int, int] = {}
+        """Frames per host handed to the driver and not yet on a bus's queue."""
+        self._pending_lock = threading.Lock()
         if state_dir is not None:
             _state_dir(state_dir)
         for spec in topology.buses:
@@ -89,6 +98,40 @@ class Fleet:
         if self._driver is not None:
             return self._driver.now_us()
         return self.clock.now
+
+    def send_paced(self, sim: SimBus, sender: object, arbitration_id: int, data: bytes,
+                   *, timeout: float | None, alive: Callable[[], bool] | None = None,
+                   ) -> None:
+        """A frame from a host of a paced fleet (a socketcand client, ``--pace``), ready
+        now: handed to the driver thread, which queues it at its next step, so a busy
+        fleet never keeps the host waiting for its lock.  Blocks while the host has
+        :data:`~ucom_tools.virtual.canbus.TX_QUEUE` frames waiting (its transmit queue);
+        ``can.CanOperationError`` after ``timeout`` seconds of that, or when ``alive()``
+        turns false."""
+        from ucom_tools.virtual.canbus import TX_QUEUE
+
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while sim.queued.get(sender, 0) + self._pending.get(id(sender), 0) >= TX_QUEUE:
+            if (alive is not None and not alive()) or \
+                    (deadline is not None and time.monotonic() >= deadline):
+                raise can.CanOperationError("transmit buffer full")
+            time.sleep(ROOM_POLL_S)
+        driver = self._driver
+        if driver is None:  # stopped (closing): the frame waits on its bus for ever
+            with sim.lock:
+                sim.send(sender, sim.now, arbitration_id, data)
+            return
+        t = driver.now_us()
+        key = id(sender)
+        with self._pending_lock:
+            self._pending[key] = self._pending.get(key, 0) + 1
+
+        def queue() -> None:
+            with self._pending_lock:
+                self._pending[key] -= 1
+            sim.send(sender, t, arbitration_id, data)
+
+        driver.submit(queue)
 
     def run_for(self, seconds: float) -> None:
         """Let ``seconds`` of virtual time pass (a fleet not paced to real time)."""

@@ -57,7 +57,6 @@ from typing import Any
 
 import can
 
-from ucom_tools.virtual.canbus import wait_for_room
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.virtual.simbus import SimBus
 
@@ -389,11 +388,12 @@ class Connection:
         client's socket is not read (back-pressure); the wait releases the bus lock."""
         sim = port.sim
         while self.alive:
-            with sim.changed:
-                if _room_on_bus(sim, port):
-                    sim.send(port, self.fleet.now_us(sim), arbitration_id, data)
-                    sim.changed.notify_all()
-                    return
+            try:
+                self.fleet.send_paced(sim, port, arbitration_id, data, timeout=ROOM_POLL_S,
+                                      alive=lambda: self.alive)
+                return
+            except can.CanOperationError:
+                pass  # no room yet: still there?
             if _peer_gone(self.sock):
                 self._end("disconnected while waiting for the bus", dropped=False)
 
@@ -438,16 +438,6 @@ class Connection:
             log.warning("dropped client %s: %s", self.peer, self._reason)
         else:
             log.info("client %s left: %s", self.peer, self._reason or "disconnected")
-
-
-def _room_on_bus(sim: SimBus, sender: ClientPort) -> bool:
-    """Wait up to :data:`ROOM_POLL_S` for room in ``sender``'s transmit queue (hold
-    ``sim.lock``)."""
-    try:
-        wait_for_room(sim, sender, ROOM_POLL_S)
-    except can.CanOperationError:
-        return False
-    return True
 
 
 def _peer_gone(sock: socket.socket) -> bool:

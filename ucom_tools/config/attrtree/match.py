@@ -28,24 +28,39 @@ class Mismatch:
     """Line of the tree's mapping (0: the block as a whole)."""
 
 
+def differences(board: Board, edges: Sequence[tuple[EdgeKind, str]]) -> list[Mismatch]:
+    """Every difference between a tree block and a program's edges (kind, generic name),
+    index by index: a different edge (named, or of another kind, or moved: the order
+    differs), an edge the tree lacks, an edge the board lacks."""
+    out: list[Mismatch] = []
+    where = {name: n for n, (_, name) in enumerate(edges)}
+    for n in range(max(len(board.edges), len(edges))):
+        e = board.edges[n] if n < len(board.edges) else None
+        if n >= len(edges):
+            assert e is not None
+            out.append(Mismatch(f"index {n}: the tree maps {e.kind.value} '{e.generic}'; the "
+                                "board has no such edge (its program has "
+                                f"{len(edges)} edges)", e.line))
+            continue
+        kind, name = edges[n]
+        if e is None:
+            out.append(Mismatch(f"index {n}: the board has {kind.name} '{name}'; the tree "
+                                f"does not map it (it has {len(board.edges)} edges)",
+                                board.line))
+        elif e.generic != name or e.kind is not _KIND[kind]:
+            moved = where.get(e.generic)
+            why = f" ('{e.generic}' is index {moved} on the board: the order differs)" \
+                if moved is not None and moved != n else ""
+            out.append(Mismatch(f"index {n}: the tree maps {e.kind.value} '{e.generic}', the "
+                                f"board has {kind.name} '{name}' there{why}", e.line))
+    return out
+
+
 def compare(board: Board, edges: Sequence[tuple[EdgeKind, str]]) -> Mismatch | None:
-    """Compare a tree block with a program's edges (kind, generic name) in tree order;
-    None when they agree."""
-    for n, (kind, name) in enumerate(edges):
-        if n >= len(board.edges):
-            return Mismatch(f"the tree has {len(board.edges)} edges; the program has "
-                            f"{len(edges)} (index {n}, {kind.name} '{name}', is missing)",
-                            board.line)
-        e = board.edges[n]
-        if e.generic != name or e.kind is not _KIND[kind]:
-            return Mismatch(f"index {n}: the tree maps {e.kind.value} '{e.generic}', the "
-                            f"program has {kind.name} '{name}' there", e.line)
-    if len(board.edges) > len(edges):
-        extra = board.edges[len(edges)]
-        return Mismatch(f"the tree has {len(board.edges)} edges; the program has "
-                        f"{len(edges)} (index {extra.index}, '{extra.generic}', is extra)",
-                        extra.line)
-    return None
+    """The first difference between a tree block and a program's edges (kind, generic
+    name) in tree order; None when they agree."""
+    found = differences(board, edges)
+    return found[0] if found else None
 
 
 def spec_edges(spec: ProgramSpec) -> list[tuple[EdgeKind, str]]:

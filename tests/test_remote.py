@@ -1,0 +1,284 @@
+"""The run-time part (RemotePart, ``ucom remote``) against the virtual fleet, over the
+real code path: the mapping check, defaults on the boards, values by robot-wide name,
+the safe end, loss, recording."""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import can
+import pytest
+from click.testing import CliRunner
+
+from tests.runtime_rig import programmed, robot_of
+from ucom_tools.cli.main import cli
+from ucom_tools.config.attrtree.robot import bind
+from ucom_tools.errors import InputError
+from ucom_tools.ops.remote import MappingError, RemotePart
+from ucom_tools.programs.armar3 import SPEC
+from ucom_tools.programs.model import EdgeKind
+from ucom_tools.virtual.faults import LossyBus
+from ucom_tools.wire import mca
+from ucom_tools.wire.fpga import Reg
+from ucom_tools.wire.ids import seq
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture
+def part() -> Iterator[RemotePart]:
+    fleet = programmed("armar3")
+    robot = robot_of(fleet)
+    p = RemotePart(robot, bind(robot.topology))
+    yield p
+    p.close()
+    robot.close()
+
+
+def _runtime(part: RemotePart, bus: str, n: int):
+    fleet = part.robot.buses[bus].bus.fleet  # type: ignore[attr-defined]
+    return fleet.boards[bus][n - 1].application.runtime
+
+
+# ---------------------------------------------------------------------- the API
+def test_start_writes_the_tree_defaults_and_they_read_back(part) -> None:
+    report = part.start()
+    assert report.ok and len(report.boards) == 11
+    trees = bind(part.robot.topology)
+    eyes = trees.board("CAN0", 2)
+    x = part.exchanges["CAN0"]
+    records = x.configured[3].edges.par
+    live = x.mca.dump(seq(3), mca.Kind.PAR, 0, len(records), records)
+    for e in eyes.edges:
+        if e.kind.value == "PAR" and e.default is not None:
+            spec = SPEC.of(EdgeKind.PAR)[e.index - 33]
+            assert live[e.index - 33] == spec.raw(e.default.text), e.unique
+    # PAR values by name: what was written, in the edge's unit
+    gain = SPEC.of(EdgeKind.PAR)[5]
+    assert part["RightEye P"] == gain.value(gain.raw(eyes.edge("RightEye P").default.text))
+
+
+def test_a_value_set_by_name_moves_the_right_axis_of_the_right_board(part) -> None:
+    part.start()
+    part["Right Eye Target"] = 1000
+    part.run(0.6)
+    assert abs(part["Right Eye Joint Sensor"] - 1000) <= 5
+    assert part["Left Eye Joint Sensor"] == 0
+    assert part["Neck Pitch Joint Sensor"] == 0
+    eyes = part.robot.buses["CAN0"].bus.fleet.boards["CAN0"][2]  # type: ignore[attr-defined]
+    assert eyes.fpga.registers[Reg.OUTPUT_ENABLE] != 0
+    assert part.stats.missed == 0 and part.stats.cycles >= 600
+
+
+def test_names_are_checked_before_anything_is_sent(part) -> None:
+    part.start()
+    with pytest.raises(InputError, match="did you mean 'Right Eye Target'"):
+        part["Right Eye Targt"] = 1
+    with pytest.raises(InputError, match="Eyes/AD Channel 6"):
+        part["AD Channel 6"]
+    with pytest.raises(InputError, match="outside"):
+        part["Right Eye Target"] = 40000
+    with pytest.raises(InputError, match="decimal places"):
+        part["RightEye P"] = 0.0000001
+    with pytest.raises(InputError, match="is SO; only CI/PAR edges"):
+        part["Right Eye Joint Sensor"] = 3
+    assert part.exchanges["CAN0"].ci[(3, 3)] == 0
+
+
+def test_a_tree_with_a_renamed_edge_or_for_another_program_starts_nothing(tmp_path) -> None:
+    fleet = programmed("armar3")
+    robot = robot_of(fleet)
+    trees = bind(robot.topology)
+    text = (ROOT / "attribute_trees/armar3/head_right.tree").read_text()
+    renamed = tmp_path / "head_right.tree"
+    renamed.write_text(text.replace("3:MotorA Target ==>", "3:MotorA Targets ==>"))
+    from ucom_tools.cli.remote import robot_trees
+    own = robot_trees(robot, [str(renamed)])
+    part = RemotePart(robot, own)
+    try:
+        report = part.check()
+        bad = [b for b in report.boards if not b.ok]
+        assert [(b.bus, b.board) for b in bad] == [("CAN0", 3)]
+        assert bad[0].differences[0].line == text.splitlines().index(
+            "      3:MotorA Target ==> Right Eye Target") + 1
+        with pytest.raises(MappingError):
+            part.start()
+        assert all(rt.state is mca.RunState.STOPPED for b in fleet.boards.values() for rt in
+                   [x.application.runtime for x in b])
+        # --force starts the ten others
+        part.start(force=True)
+        part.run(0.05)
+        states = {(bus, n + 1): b.application.runtime.state
+                  for bus, bs in fleet.boards.items() for n, b in enumerate(bs)}
+        assert states.pop(("CAN0", 3)) is mca.RunState.STOPPED
+        assert set(states.values()) == {mca.RunState.RUNNING}
+    finally:
+        part.close()
+        robot.close()
+    assert trees.ok
+
+
+def test_stop_and_a_vanished_pc_leave_no_joint_driving(part) -> None:
+    part.start()
+    part["Neck Yaw Target"] = 3000
+    part.run(0.05)
+    neck = part.robot.buses["CAN0"].bus.fleet.boards["CAN0"][0]  # type: ignore[attr-defined]
+    assert neck.fpga.registers[Reg.OUTPUT_ENABLE] == 0b111
+    assert part.stop() == []
+    assert neck.application.runtime.state is mca.RunState.STOPPED
+    assert neck.fpga.registers[Reg.OUTPUT_ENABLE] == 0
+    # start again, then the PC stops calling cycle(): the watchdog stops every board
+    part.report = None
+    part.start()
+    part.run(0.05)
+    fleet = neck.bus.clock
+    with fleet.lock:
+        fleet.run_until(fleet.now + 100_000)
+    for bs in part.robot.buses["CAN0"].bus.fleet.boards.values():  # type: ignore[attr-defined]
+        for b in bs:
+            assert b.application.runtime.state is mca.RunState.LATCHED
+            assert b.fpga.registers[Reg.OUTPUT_ENABLE] == 0
+
+
+def test_one_percent_frame_loss_does_not_stop_the_exchange() -> None:
+    fleet = programmed("armar3")
+    seeds = iter(range(100))
+    robot = robot_of(fleet, wrap=lambda bus: LossyBus(bus, loss=0.01, seed=next(seeds)))
+    part = RemotePart(robot, bind(robot.topology))
+    try:
+        assert part.start().ok
+        part["Right Eye Target"] = 800
+        part["Left Eye Target"] = -800
+        part.run(1.0)
+        assert abs(part["Right Eye Joint Sensor"] - 800) <= 5
+        assert abs(part["Left Eye Joint Sensor"] + 800) <= 5
+        states = {b.application.runtime.state for bs in fleet.boards.values() for b in bs}
+        assert states == {mca.RunState.RUNNING}
+        lost = sum(sum(h.bus.dropped.values()) for h in robot.buses.values())  # type: ignore[attr-defined]
+        assert lost > 100  # it did lose frames
+    finally:
+        part.close()
+        robot.close()
+
+
+def test_values_are_reported_as_they_change(part) -> None:
+    seen: list[tuple[float, str, object]] = []
+    part.on_values = lambda t, ref, v: seen.append((t, ref.qualified, v))
+    part.start()
+    part["Right Eye Target"] = 300
+    part.run(0.3)
+    sensor = [v for _, name, v in seen if name == "Eyes/Right Eye Joint Sensor"]
+    assert sensor[0] == 0 and abs(sensor[-1] - 300) <= 5
+    assert ("Eyes/Right Eye Target", 300) in [(n, v) for _, n, v in seen]
+    times = [t for t, name, _ in seen if name == "Eyes/Right Eye Joint Sensor"]
+    assert times == sorted(times)
+
+
+# ---------------------------------------------------------------------- the command
+@pytest.fixture(scope="module")
+def flashed(tmp_path_factory) -> Path:
+    state = tmp_path_factory.mktemp("armar3")
+    r = CliRunner().invoke(cli, ["flash", str(ROOT / "firmware_images/armar3.fl.S"),
+                                 "--virtual", "armar3", "--state", str(state)])
+    assert r.exit_code == 0, r.stderr
+    return state
+
+
+def ucom(*args: str) -> tuple[int, str, str]:
+    r = CliRunner().invoke(cli, list(args))
+    return r.exit_code, r.stdout, r.stderr
+
+
+def test_run_for_json_has_every_edge_and_the_loop_figures(flashed) -> None:
+    code, out, err = ucom("remote", "run", "armar3", "--virtual", "armar3", "--state",
+                          str(flashed), "--for", "0.4", "--set", "Right Eye Target=700",
+                          "--set", "Eyes/RightEye I=0.0004", "--json")
+    assert code == 0, err
+    data = json.loads(out)
+    assert data["started"] and not data["interrupted"] and data["not_stopped"] == []
+    assert len(data["boards"]) == 11
+    eyes = next(b for b in data["boards"] if b["prefix"] == "Eyes")
+    values = {e["name"]: (e["kind"], e["value"]) for e in eyes["edges"]}
+    assert len(values) == 71
+    assert values["Right Eye Target"] == ("CI", "700")
+    assert values["RightEye I"] == ("PAR", "0.000400")
+    assert abs(int(values["Right Eye Joint Sensor"][1]) - 700) <= 20
+    run = data["run"]
+    assert run["cycles"] >= 400 and run["missed"] == 0 and run["virtual_time"]
+    assert 0.6 < run["bus_load"]["CAN0"] < 0.7
+    assert run["planned_load"]["CAN0"]["nominal"] == pytest.approx(0.6328, abs=1e-4)
+
+
+def test_run_text_says_what_the_joints_did(flashed) -> None:
+    code, out, err = ucom("remote", "run", "armar3", "--virtual", "armar3", "--state",
+                          str(flashed), "--for", "0.5", "--set", "Neck Yaw Target=-400")
+    assert code == 0, err
+    line = next(x for x in out.splitlines() if "Neck Yaw Joint Sensor" in x)
+    last = int(line.split("│")[4])
+    assert abs(last + 400) <= 5
+    assert "cycles at" in out and "0 missed" in out
+    assert "63.3% of the bus" in err  # the estimate before the start
+
+
+def test_run_refuses_bad_names_values_and_periods_before_anything_runs(flashed) -> None:
+    base = ("remote", "run", "armar3", "--virtual", "armar3", "--state", str(flashed),
+            "--for", "0.1")
+    code, _, err = ucom(*base, "--set", "Rigth Eye Target=1")
+    assert code == 3 and "did you mean 'Right Eye Target'" in err
+    code, _, err = ucom(*base, "--set", "Right Eye Target=99999")
+    assert code == 3 and "outside" in err and "-32768..32767" in err
+    code, _, err = ucom(*base, "--set", "Right Eye Target")
+    assert code == 3 and "NAME=VALUE" in err
+    code, _, err = ucom(*base, "--period", "Voltag A=1")
+    assert code == 3 and "Voltage A" in err
+    # every SO value every cycle: more than the bus can carry
+    everything = [f"--period=Encoder {i}=1" for i in range(6)] + [
+        f"--period=Voltage {a}=1" for a in "ABC"] + [
+        f"--period=Motor{a} Reset Answer=1" for a in "ABC"] + [
+        f"--period=Motor {a} Settled=1" for a in "ABC"]
+    code, _, err = ucom(*base, *everything)
+    assert code == 3 and "of the bus" in err
+
+
+def test_check_lists_every_difference_of_a_tree_for_another_program(flashed, tmp_path) -> None:
+    # a robot whose eyes board is given a LAURON-IV leg's tree
+    topo = (ROOT / "ucom_tools/config/topologies/armar3.toml").read_text()
+    topo = topo.replace('tree = "attribute_trees/armar3/head_right.tree"',
+                        f'tree = "{ROOT}/attribute_trees/lauron4/front_left_leg.tree"')
+    topo = topo.replace('tree = "attribute_trees/', f'tree = "{ROOT}/attribute_trees/')
+    path = tmp_path / "armar3_wrong.toml"
+    path.write_text(topo)
+    code, out, err = ucom("remote", "check", "--virtual", str(path), "--state", str(flashed),
+                          "--json")
+    # the state directory was made for the bundled armar3: same boards (serials), so the
+    # flashed programs are there
+    data = json.loads(out)
+    assert code == 1
+    bad = [b for b in data["boards"] if not b["ok"]]
+    assert [b["board"] for b in bad] == [3] and bad[0]["bus"] == "CAN0"
+    assert len(bad[0]["differences"]) > 10  # every index listed
+    assert all(d["line"] for d in bad[0]["differences"][:5])
+    code, out, err = ucom("remote", "run", "--virtual", str(path), "--state", str(flashed),
+                          "--for", "0.1")
+    assert code == 1 and "do not match their trees" in err
+
+
+def test_record_writes_a_log_python_can_reads_and_a_values_csv(flashed, tmp_path) -> None:
+    log = tmp_path / "run.asc"
+    code, _, err = ucom("remote", "run", "armar3", "--virtual", "armar3", "--state",
+                        str(flashed), "--for", "0.2", "--set", "Right Eye Target=200",
+                        "--record", str(log))
+    assert code == 0, err
+    frames = list(can.LogReader(str(log)))
+    assert len(frames) > 1000
+    functions = {f.arbitration_id >> 6 for f in frames}
+    assert {13, 14, 20, 21, 23, 25, 26} <= functions  # CI maps and SO maps, the set-up
+    with (tmp_path / "run.asc.values.csv").open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    sensor = [r for r in rows if r["name"] == "Right Eye Joint Sensor"]
+    assert sensor and sensor[0]["prefix"] == "Eyes" and sensor[0]["kind"] == "SO"
+    assert abs(int(sensor[-1]["value"]) - 200) <= 20
+    assert any(r["name"] == "Right Eye Target" and r["value"] == "200" for r in rows)

@@ -1,0 +1,397 @@
+"""``ucom remote``: the run-time part (dsp_remote_part) on the command line: ``check`` the
+boards against their trees, ``run`` the cyclic exchange (a live view on a terminal, or
+``--for N`` seconds and a summary), ``plot`` a recorded run."""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import ExitStack, contextmanager
+from dataclasses import replace
+from decimal import Decimal
+from pathlib import Path
+from typing import Any
+
+import click
+from rich.markup import escape
+from rich.table import Table
+
+from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
+from ucom_tools.cli.options import connection_json, connection_options, json_option
+from ucom_tools.cli.output import emit_json, stderr, stdout
+from ucom_tools.config import topology as topo
+from ucom_tools.config.attrtree.parser import load as load_tree
+from ucom_tools.config.attrtree.robot import RobotTrees, bind
+from ucom_tools.errors import InputError, TreeError
+from ucom_tools.ops.remote import CheckReport, MappingError, RemotePart, Summary
+from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot
+from ucom_tools.wire import mca
+
+ROBOT_HELP = ("ROBOT_OR_TREES is the robot: a bundled topology (armar3, lauron4, ...) or a "
+              "topology file whose boards name their attribute trees (not needed with "
+              "--virtual or --topology, which name it); and/or attribute tree files, which "
+              "replace the robot's trees of the same Prefix.")
+WARN_LOAD = 0.70
+
+
+@click.group("remote")
+def remote() -> None:
+    """The run time: boards in the cyclic exchange, values by robot-wide name.
+
+    See ucom-protocol(7), RUN TIME, for what goes over the bus."""
+
+
+# ---------------------------------------------------------------------- the robot
+def _is_tree(arg: str) -> bool:
+    return arg.endswith(".tree")
+
+
+def robot_spec(args: tuple[str, ...], spec: ConnectSpec) -> tuple[ConnectSpec, list[str]]:
+    """The connection (with the robot's topology) and the tree files given."""
+    trees = [a for a in args if _is_tree(a)]
+    robots = [a for a in args if not _is_tree(a)]
+    if len(robots) > 1:
+        raise InputError(f"one robot, not {len(robots)}: {', '.join(robots)}",
+                         key="ROBOT_OR_TREES")
+    robot = robots[0] if robots else None
+    if spec.virtual:
+        if robot is not None and topo.load(robot).name != topo.load(spec.virtual).name:
+            raise InputError(f"the robot is {robot!r} but --virtual runs {spec.virtual!r}",
+                             key="ROBOT_OR_TREES")
+        return spec, trees
+    if robot is not None:
+        if spec.topology and topo.load(spec.topology).name != topo.load(robot).name:
+            raise InputError(f"the robot is {robot!r} but --topology is {spec.topology!r}",
+                             key="ROBOT_OR_TREES")
+        return replace(spec, topology=spec.topology or robot), trees
+    if not spec.topology:
+        raise InputError("which robot? give it (e.g. 'armar3'), --topology FILE or --virtual "
+                         "ROBOT (tree files alone do not say which board runs which)",
+                         key="ROBOT_OR_TREES")
+    return spec, trees
+
+
+def robot_trees(robot: Robot, files: list[str]) -> RobotTrees:
+    """The robot's trees, with the blocks of ``files`` in place of the robot's blocks of
+    the same Prefix."""
+    assert robot.topology is not None
+    trees = bind(robot.topology)
+    if not files:
+        return trees
+    by_prefix = {b.board.prefix: i for i, b in enumerate(trees.boards)}
+    boards = list(trees.boards)
+    for f in files:
+        tree = load_tree(f)
+        for block in tree.boards:
+            if block.prefix not in by_prefix:
+                raise TreeError(f"Prefix '{block.prefix}' is no board of robot "
+                                f"{robot.topology.name!r} (its prefixes: "
+                                f"{', '.join(sorted(by_prefix))})", file=f,
+                                line=block.prefix_line or None)
+            i = by_prefix[block.prefix]
+            boards[i] = replace(boards[i], file=Path(f), board=block)
+    return replace(trees, boards=tuple(boards))
+
+
+@contextmanager
+def _part(args: tuple[str, ...], spec: ConnectSpec, **kwargs: Any) -> Iterator[RemotePart]:
+    spec, files = robot_spec(args, spec)
+    r = open_robot(spec)
+    try:
+        part = RemotePart(r, robot_trees(r, files), **kwargs)
+        try:
+            yield part
+        finally:
+            part.close()
+    finally:
+        r.close()
+
+
+# ---------------------------------------------------------------------- check
+def _check_json(report: CheckReport) -> list[dict[str, Any]]:
+    return [{"bus": b.bus, "board": b.board, "where": b.where, "prefix": b.prefix,
+             "tree": b.tree_file, "program": b.program, "ok": b.ok, "error": b.error or None,
+             "differences": [{"line": d.line, "message": d.message}
+                             for d in b.differences]} for b in report.boards]
+
+
+def _print_check(report: CheckReport) -> None:
+    t = Table(title="boards against their trees", title_justify="left")
+    for col in ("board", "prefix", "tree", "edges CI/SO/PAR", "result"):
+        t.add_column(col, overflow="fold")
+    for b in report.boards:
+        result = "[green]matches[/]" if b.ok else f"[red]{escape(b.summary())}[/]"
+        t.add_row(escape(b.where), escape(b.prefix), escape(b.tree_file), b.program or "-",
+                  result)
+    stdout().print(t)
+    for b in report.boards:
+        if b.differences and len(b.differences) > 1:
+            stdout().print(f"[bold]{escape(b.where)}[/] ({escape(b.tree_file)}):")
+            for d in b.differences:
+                where = f"{b.tree_file}:{d.line}: " if d.line else ""
+                stdout().print(f"  {escape(where)}{escape(d.message)}", soft_wrap=True)
+
+
+@remote.command("check")
+@click.argument("robot_or_trees", nargs=-1)
+@connection_options
+@json_option
+@click.pass_context
+def check(ctx: click.Context, robot_or_trees: tuple[str, ...], spec: ConnectSpec,
+          bus_name: str | None, as_json: bool) -> None:
+    """Check the running boards against their attribute trees (the mapping check).
+
+    """ + ROBOT_HELP + """  Starts each board's program if it is not running, fetches
+    its edge descriptions and compares them with its tree's mapping table: every edge the
+    tree names must be the board's, in the same order and of the same kind.  Writes
+    nothing.  Exit 1 when a board differs or does not answer."""
+    with _part(robot_or_trees, _one_bus(spec, bus_name)) as part:
+        report = part.check()
+    if as_json:
+        emit_json({"connection": connection_json(spec), "ok": report.ok,
+                   "boards": _check_json(report)})
+    else:
+        _print_check(report)
+    if not report.ok:
+        ctx.exit(EXIT_FAILED)
+
+
+def _one_bus(spec: ConnectSpec, bus_name: str | None) -> ConnectSpec:
+    if bus_name is None:
+        return spec
+    if spec.virtual:
+        raise InputError("--bus with --virtual: the run time takes the whole robot",
+                         key="--bus")
+    return replace(spec, channels=(bus_name,))
+
+
+# ---------------------------------------------------------------------- run
+def _parse_sets(sets: tuple[str, ...]) -> list[tuple[str, str]]:
+    out = []
+    for s in sets:
+        name, sep, value = s.partition("=")
+        if not sep or not name.strip() or not value.strip():
+            raise InputError(f"{s!r}: expected NAME=VALUE (e.g. 'Right Eye Target=1000')",
+                             key="--set")
+        out.append((name.strip(), value.strip()))
+    return out
+
+
+def _parse_periods(periods: tuple[str, ...]) -> dict[str, int]:
+    out = {}
+    for p in periods:
+        name, sep, value = p.partition("=")
+        try:
+            n = int(value)
+        except ValueError:
+            n = -1
+        if not sep or not name.strip() or not 0 <= n <= 0xFFFF:
+            raise InputError(f"{p!r}: expected EDGE=CYCLES with CYCLES 0..65535 (e.g. "
+                             "'Voltage A=10')", key="--period")
+        out[name.strip()] = n
+    return out
+
+
+def _plan_notes(part: RemotePart) -> None:
+    for name, x in part.exchanges.items():
+        p = x.plan
+        line = (f"{name}: the exchange needs {p.nominal:.1%} of the bus "
+                f"({p.worst:.1%} with the most stuff bits), {len(p.so_maps)} SO and "
+                f"{len(p.ci_maps)} CI maps")
+        if p.nominal > WARN_LOAD:
+            stderr().print(f"[yellow]ucom: {escape(line)}: over {WARN_LOAD:.0%}, frames may "
+                           "be late[/]", soft_wrap=True)
+        else:
+            stderr().print(f"[dim]{escape(line)}[/]", soft_wrap=True)
+
+
+def _value_text(v: object) -> str:
+    if isinstance(v, Decimal):
+        return format(v, "f")
+    return str(v)
+
+
+def _stats_json(part: RemotePart, loads: dict[str, float]) -> dict[str, Any]:
+    s = part.stats
+    return {"cycles": s.cycles, "rate_hz": round(s.rate(part._clock()), 1),
+            "missed": s.missed, "jitter_ms": {
+                "p50": round(s.percentile(50) * 1e3, 3),
+                "p99": round(s.percentile(99) * 1e3, 3),
+                "max": round(max(s.late, default=0.0) * 1e3, 3)},
+            "bus_load": {n: round(v, 4) for n, v in loads.items()},
+            "planned_load": {n: {"nominal": round(x.plan.nominal, 4),
+                                 "worst": round(x.plan.worst, 4)}
+                             for n, x in part.exchanges.items()},
+            "virtual_time": part.virtual}
+
+
+def _boards_json(part: RemotePart) -> list[dict[str, Any]]:
+    out: list[dict[str, Any]] = []
+    current: dict[str, Any] | None = None
+    for ref in part.names:
+        if current is None or (current["bus"], current["board"]) != (ref.bus, ref.board):
+            current = {"bus": ref.bus, "board": ref.board, "where": ref.where,
+                       "prefix": ref.prefix, "edges": []}
+            out.append(current)
+        raw = part.raw(ref)
+        current["edges"].append({"name": ref.unique, "kind": ref.kind.name,
+                                 "value": None if raw is None else _value_text(
+                                     ref.value(raw))})
+    return out
+
+
+def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) -> None:
+    moved = [(r, summary.traces[r]) for r in part.names
+             if r.kind is mca.Kind.SO and r in summary.traces and summary.traces[r].changes]
+    t = Table(title="what the boards reported (values that changed)", title_justify="left")
+    for col in ("board", "name", "first", "last", "range", "unit"):
+        t.add_column(col, overflow="fold")
+    for ref, tr in moved:
+        t.add_row(escape(ref.where), escape(ref.unique), _value_text(tr.first),
+                  _value_text(tr.last), f"{_value_text(tr.low)} .. {_value_text(tr.high)}",
+                  escape(ref.spec.unit))
+    if moved:
+        stdout().print(t)
+    else:
+        stdout().print("no sensor value changed")
+    s = part.stats
+    clock = "virtual time" if part.virtual else "wall clock"
+    stdout().print(
+        f"{s.cycles} cycles at {s.rate(part._clock()):.0f} Hz ({clock}), {s.missed} missed, "
+        f"lateness p50 {s.percentile(50) * 1e3:.3f} ms, p99 {s.percentile(99) * 1e3:.3f} "
+        f"ms; bus load " + ", ".join(f"{n} {v:.1%}" for n, v in loads.items()))
+
+
+@remote.command("run")
+@click.argument("robot_or_trees", nargs=-1)
+@click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
+              help="Set a CI or PAR edge by its robot-wide name after the start "
+                   "(repeatable), e.g. --set 'Right Eye Target=1000'.")
+@click.option("--for", "seconds", type=click.FloatRange(0, min_open=True), metavar="SECONDS",
+              help="Run this long, then stop the boards and print what they did.")
+@click.option("--rate", type=click.FloatRange(1, 10_000), default=1000.0, show_default=True,
+              metavar="HZ", help="Cycles per second of the PC's loop.")
+@click.option("--watchdog", "alive_ms", type=click.IntRange(mca.ALIVE_MIN_MS,
+                                                            mca.ALIVE_MAX_MS),
+              default=mca.ALIVE_DEFAULT_MS, show_default=True, metavar="MS",
+              help="The boards stop their motors when no MCA Alive came for this long.")
+@click.option("--record", "record", type=click.Path(dir_okay=False), metavar="FILE",
+              help="Record every frame (format by extension: .asc .blf .log .csv ...) and "
+                   "every value change to FILE.values.csv.")
+@click.option("--period", "periods", multiple=True, metavar="EDGE=CYCLES",
+              help="Exchange a program edge (its generic name, on every board that runs "
+                   "the program) every CYCLES cycles instead of its default (0: not "
+                   "cyclic), e.g. --period 'Voltage A=10'.")
+@click.option("--force", is_flag=True,
+              help="Start the boards that match their trees even when others do not.")
+@connection_options
+@json_option
+@click.pass_context
+def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ...],
+        seconds: float | None, rate: float, alive_ms: int, record: str | None,
+        periods: tuple[str, ...], force: bool, spec: ConnectSpec, bus_name: str | None,
+        as_json: bool) -> None:
+    """Run the robot's boards in the cyclic exchange.
+
+    """ + ROBOT_HELP + """  Starts each board's program if needed, checks its edges
+    against its tree (a difference: every one is listed, nothing starts, exit 1, unless
+    --force), writes the trees' PAR and CI defaults, sets up the SO maps at the programs'
+    default rates (the bus load is estimated first: over 100 % is refused, over 70 %
+    warned), starts the exchange on every bus and runs the PC's loop: CI maps and MCA
+    Alive every cycle.  On a terminal a live view shows every value; 'set NAME VALUE'
+    changes a CI or PAR while running.  With --for it runs N seconds and prints what the
+    joints did (--json: every edge's last value and the loop's figures).  Ctrl-C or the
+    end stops every board (motors off); a PC that dies leaves them to their watchdog."""
+    wanted = _parse_sets(sets)
+    cycles = _parse_periods(periods)
+    summary = Summary()
+    interrupted = False
+    with ExitStack() as stack:
+        recorder = None
+        if record is not None:  # checked up front; discarded if the run is refused
+            from ucom_tools.ops.record import RunRecorder
+            recorder = stack.enter_context(RunRecorder(record))
+        with _part(robot_or_trees, _one_bus(spec, bus_name), rate_hz=rate,
+                   alive_ms=alive_ms, periods=cycles or None) as part:
+            if not as_json:
+                _plan_notes(part)
+            if recorder is not None:
+                for h in part.robot.buses.values():
+                    h.link.dispatcher.taps.append(recorder.on_message_received)
+            report = part.check()
+            if not report.ok:
+                if as_json and not force:
+                    emit_json({"connection": connection_json(spec), "started": False,
+                               "boards": _check_json(report)})
+                elif not as_json:
+                    _print_check(report)
+                if not force:
+                    raise MappingError(report)
+                stderr().print("[yellow]ucom: --force: starting only the boards that match "
+                               "their trees[/]")
+            refs = [(part.names.resolve(n, key="--set", kinds=(mca.Kind.CI, mca.Kind.PAR)),
+                     v) for n, v in wanted]
+            raws = [(ref, ref.raw(v, what="--set")) for ref, v in refs]
+            part.on_values = _hooks(summary, recorder)
+            part.start(force=force)
+            for ref, raw in raws:
+                part.set(ref, ref.value(raw))
+            before = part.traffic()
+            try:
+                if seconds is not None:
+                    part.run(seconds)
+                elif sys.stdout.isatty() and not as_json:
+                    from ucom_tools.cli.live import live_view
+                    live_view(part)
+                else:
+                    _run_plain(part)
+            except KeyboardInterrupt:
+                interrupted = True
+            loads = part.load_between(before, part.traffic())
+            problems = part.stop()
+            if as_json:
+                emit_json({"connection": connection_json(spec), "started": True,
+                           "interrupted": interrupted, "boards": _boards_json(part),
+                           "run": _stats_json(part, loads), "not_stopped": problems})
+            else:
+                _print_summary(part, summary, loads)
+                for p in problems:
+                    stderr().print(f"[red]ucom: could not stop {escape(p)}: its watchdog "
+                                   "stops it[/]", soft_wrap=True)
+    if interrupted:
+        ctx.exit(EXIT_INTERRUPTED)
+
+
+def _hooks(summary: Summary, recorder: Any) -> Any:
+    if recorder is None:
+        return summary
+
+    def both(t: float, ref: Any, value: Any) -> None:
+        summary(t, ref, value)
+        recorder.value(t, ref.bus, ref.board, ref.prefix, ref.unique, ref.kind.name, value)
+    return both
+
+
+def _run_plain(part: RemotePart) -> None:
+    """Not a terminal, no --for: run until interrupted, a status line every second."""
+    last = time.monotonic()
+    before = part.traffic()
+    while True:
+        part.cycle()
+        now = time.monotonic()
+        if now - last >= 1.0:
+            after = part.traffic()
+            loads = part.load_between(before, after)
+            before, last = after, now
+            s = part.stats
+            stderr().print(f"{s.cycles} cycles, {s.rate(part._clock()):.0f} Hz, {s.missed} "
+                           f"missed, p99 {s.percentile(99) * 1e3:.3f} ms; "
+                           + ", ".join(f"{n} {v:.1%}" for n, v in loads.items()))
+
+
+try:
+    from ucom_tools.cli.plot import plot as _plot
+    remote.add_command(_plot)
+except ImportError:  # pragma: no cover - while plot.py is written
+    pass

@@ -1,0 +1,474 @@
+"""Recording a run (``ucom remote run --record FILE``): every frame of every bus into a
+python-can log, every value change of the exchanged edges into ``FILE.values.csv``.
+
+:class:`RunRecorder` is a :class:`can.Listener`: the bus readers hand it each frame
+(from several threads at once; one lock keeps the files whole).  The log format follows
+FILE's extension (:data:`FORMATS`, written by :func:`can.Logger`); the extension and the
+directory are checked before anything is written.  Both files are written under
+temporary names beside their targets and renamed into place by :meth:`RunRecorder.close`,
+so FILE and FILE.values.csv are complete recordings or absent, never half-written.
+
+The values file (``man/ucom.1``, ``remote plot``) is a CSV with the header
+:data:`VALUES_HEADER`, one row per change of a value: ``timestamp`` (seconds, 6
+decimals, the bus clock of the frame that carried it), ``bus``, ``board`` (seq ID),
+``prefix`` (the board's attribute-tree prefix), ``name`` (the edge's robot-wide unique
+name), ``kind`` (CI, SO or PAR) and ``value`` (exact decimal text).  :func:`read_values`
+reads it back (for ``ucom remote plot``), naming FILE:LINE of what does not fit.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import csv
+import importlib.util
+import math
+import os
+import stat
+import tempfile
+import threading
+from dataclasses import dataclass, field
+from decimal import Decimal, InvalidOperation
+from enum import Enum
+from pathlib import Path
+from types import TracebackType
+from typing import IO
+
+import can
+from can.io.generic import MessageWriter
+from can.util import channel2int
+
+from ucom_tools.errors import InputError, UcomError
+
+VALUES_SUFFIX = ".values.csv"
+"""Appended to the full name of the frame log: run.blf -> run.blf.values.csv."""
+
+VALUES_HEADER = ("timestamp", "bus", "board", "prefix", "name", "kind", "value")
+"""The columns of the values file, in this order."""
+
+KINDS = ("CI", "SO", "PAR")
+"""The edge kinds of the ``kind`` column."""
+
+FORMATS: dict[str, str] = {
+    ".asc": "Vector ASCII log",
+    ".blf": "Vector binary log",
+    ".csv": "python-can CSV (no channel column)",
+    ".db": "SQLite database (no channel column)",
+    ".log": "can-utils candump -l log",
+    ".trc": "PEAK trace",
+    ".txt": "text, one frame a line (not readable back)",
+}
+"""Extensions python-can writes (via :func:`can.Logger`) and what they are; the text
+formats also gzip-compressed (``.asc.gz``, ...).  ``.mf4`` when asammdf is installed."""
+
+INT_CHANNELS = frozenset({".asc", ".blf", ".trc", ".mf4"})
+"""Formats whose channel is a number: a bus name is stored as its number (CAN0 -> 0,
+i.e. channel 1 in Vector's and PEAK's counting), see :attr:`RunRecorder.channels`."""
+
+_GZIP_OK = frozenset({".asc", ".csv", ".log", ".trc", ".txt"})
+
+
+def supported_extensions() -> list[str]:
+    """Every extension :class:`RunRecorder` accepts, as shown in messages."""
+    exts = list(FORMATS)
+    if importlib.util.find_spec("asammdf") is not None:
+        exts.append(".mf4")
+    return sorted(exts) + sorted(f"{e}.gz" for e in _GZIP_OK)
+
+
+def log_extension(path: str | os.PathLike[str]) -> str:
+    """The format extension of ``path`` (lower case, ``.asc.gz`` for compressed ones);
+    InputError (key ``--record``) naming the supported ones when python-can cannot write
+    it."""
+    suffixes = [s.lower() for s in Path(path).suffixes]
+    ext = "".join(suffixes[-2:]) if suffixes[-1:] == [".gz"] else "".join(suffixes[-1:])
+    supported = supported_extensions()
+    if ext not in supported:
+        shown = f"'{ext}'" if ext else "no extension"
+        raise InputError(f"{os.fspath(path)}: {shown} is not a CAN log format python-can "
+                         f"writes; use one of {', '.join(supported)}", key="--record")
+    return ext
+
+
+def values_path(path: str | os.PathLike[str]) -> Path:
+    """The values file recorded beside the frame log ``path``."""
+    p = Path(path)
+    return p.with_name(p.name + VALUES_SUFFIX)
+
+
+def value_text(value: int | float | Decimal) -> str:
+    """``value`` as exact decimal text: ints as ints, Decimals in positional notation,
+    floats as the shortest text that reads back as the same float (never 1e-05)."""
+    if isinstance(value, bool):
+        return str(int(value))
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ValueError(f"not a finite value: {value!r}")
+        value = Decimal(repr(value))
+    if isinstance(value, Decimal):
+        if not value.is_finite():
+            raise ValueError(f"not a finite value: {value!r}")
+        return format(value, "f")
+    raise TypeError(f"a value must be int, float or Decimal, not {type(value).__name__}")
+
+
+def kind_text(kind: str | Enum) -> str:
+    """CI, SO or PAR from a string, ``attrtree.Kind``, ``mca.Kind`` or ``EdgeKind``."""
+    text = kind.name if isinstance(kind, Enum) else str(kind)
+    if text not in KINDS:
+        raise ValueError(f"kind must be one of {', '.join(KINDS)}, not {kind!r}")
+    return text
+
+
+def _mode(target: Path) -> int:
+    """The permissions a replaced file keeps; 0644 for a new one (a temporary file is
+    0600)."""
+    try:
+        return stat.S_IMODE(target.stat().st_mode)
+    except OSError:
+        return 0o644
+
+
+class RecordError(UcomError):
+    """Writing the recording failed (a full disk, a lost directory); the partial files
+    were removed."""
+
+
+class RunRecorder(can.Listener):
+    """Records a run: frames into a python-can log at ``path``, value changes into
+    ``path.values.csv`` (see the module docstring).
+
+    Thread-safe: :meth:`on_message_received` and :meth:`value` may be called from any
+    thread.  Frames arriving after :meth:`close` are ignored (bus readers may still be
+    delivering); a :meth:`value` after close is a ValueError.  As a context manager the
+    files are kept when the block ends, also by an exception (the recording of a failed
+    run is what one wants to look at), except after an :class:`InputError` (exit code 3
+    promises that nothing was written), which discards them.
+    """
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        self.values_path = values_path(self.path)
+        self.extension = log_extension(self.path)
+        self.channels: dict[str, int] = {}
+        """Bus name -> channel number stored in the formats of :data:`INT_CHANNELS`."""
+        self._int_channels = self.extension.removesuffix(".gz") in INT_CHANNELS
+        self._lock = threading.Lock()
+        self._frames = 0
+        self._rows = 0
+        self._last: dict[tuple[str, int, str], Decimal] = {}
+        self._closed = False
+        self._failure: BaseException | None = None
+        self._tmp: list[str] = []
+        parent = self.path.parent
+        if not parent.is_dir():
+            raise InputError(f"{os.fspath(self.path)}: directory {os.fspath(parent)} does "
+                             "not exist", key="--record")
+        for target in (self.path, self.values_path):
+            if target.is_dir():
+                raise InputError(f"{os.fspath(target)} is a directory", key="--record")
+        self._writer: MessageWriter | None = None
+        self._values_file: IO[str] | None = None
+        try:
+            log_tmp = self._temp(self.path, self.extension)
+            self._writer = can.Logger(log_tmp)
+            values_tmp = self._temp(self.values_path, VALUES_SUFFIX)
+            self._values_file = open(values_tmp, "w", encoding="utf-8", newline="")  # noqa: SIM115
+            self._csv = csv.writer(self._values_file, lineterminator="\n")
+            self._csv.writerow(VALUES_HEADER)
+        except OSError as err:
+            self._discard()
+            raise InputError(f"cannot write {os.fspath(self.path)}: {err.strerror or err}",
+                             key="--record") from None
+        except BaseException:
+            self._discard()
+            raise
+
+    def _temp(self, target: Path, suffix: str) -> str:
+        """A new empty file beside ``target`` whose name ends in ``suffix`` (python-can
+        picks the format by it) and has no other dot."""
+        stem = target.name[:-len(suffix)].replace(".", "_") if suffix else target.name
+        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{stem}-", suffix=suffix)
+        os.close(fd)
+        self._tmp.append(tmp)
+        return tmp
+
+    # --------------------------------------------------------------------- counters
+    @property
+    def frames(self) -> int:
+        """Frames recorded so far."""
+        with self._lock:
+            return self._frames
+
+    @property
+    def rows(self) -> int:
+        """Value rows written so far (changes, the first value of each edge included)."""
+        with self._lock:
+            return self._rows
+
+    @property
+    def closed(self) -> bool:
+        return self._closed
+
+    # --------------------------------------------------------------------- frames
+    def _channel(self, name: str) -> int:
+        number = self.channels.get(name)
+        if number is None:
+            taken = set(self.channels.values())
+            number = channel2int(name)
+            if number is None or number in taken:
+                number = next(n for n in range(len(taken) + 1) if n not in taken)
+            self.channels[name] = number
+        return number
+
+    def on_message_received(self, msg: can.Message) -> None:
+        """Record one frame (its ``channel``, the bus name, is kept: verbatim in the
+        text formats, as the bus's number in :data:`INT_CHANNELS`)."""
+        with self._lock:
+            if self._closed or self._failure is not None or self._writer is None:
+                return
+            try:
+                channel = msg.channel
+                if self._int_channels and isinstance(channel, str):
+                    msg = copy.copy(msg)
+                    msg.channel = self._channel(channel)
+                self._writer.on_message_received(msg)
+                self._frames += 1
+            except Exception as err:  # a bus reader thread must not die of the recording
+                self._failure = err
+
+    def on_error(self, exc: Exception) -> None:
+        """A bus reader's error is the reader's business; the recording goes on."""
+
+    def stop(self) -> None:
+        """:class:`can.Notifier` ends its listeners with this: same as :meth:`close`."""
+        self.close()
+
+    # --------------------------------------------------------------------- values
+    def value(self, timestamp: float, bus: str, board: int, prefix: str, name: str,
+              kind: str | Enum, value: int | float | Decimal) -> bool:
+        """Record ``value`` of edge ``name`` (unique name) of board ``board`` (seq ID,
+        tree prefix ``prefix``) on ``bus`` at ``timestamp`` (seconds, bus clock) when it
+        differs (numerically) from the last one recorded for (bus, board, name); the
+        first is always written.  True when a row was written."""
+        text = value_text(value)
+        kind_ = kind_text(kind)
+        number = Decimal(text)
+        key = (bus, int(board), name)
+        with self._lock:
+            if self._closed:
+                raise ValueError(f"{self.values_path}: the recorder is closed")
+            self._raise_failure()
+            if self._last.get(key) == number:
+                return False
+            try:
+                self._csv.writerow((f"{float(timestamp):.6f}", bus, int(board), prefix,
+                                    name, kind_, text))
+            except Exception as err:
+                self._failure = err
+                self._raise_failure()
+            self._last[key] = number
+            self._rows += 1
+            return True
+
+    def _raise_failure(self) -> None:
+        if self._failure is not None:
+            err = self._failure
+            raise RecordError(f"recording to {self.path} failed: "
+                              f"{getattr(err, 'strerror', None) or err}") from err
+
+    # --------------------------------------------------------------------- end
+    def close(self) -> None:
+        """Flush both files and rename them into place (idempotent).  RecordError, and
+        no files, when writing failed."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            try:
+                if self._writer is not None:
+                    self._writer.stop()
+                if self._values_file is not None:
+                    self._values_file.flush()
+                    os.fsync(self._values_file.fileno())
+                    self._values_file.close()
+            except Exception as err:
+                if self._failure is None:
+                    self._failure = err
+            if self._failure is not None:
+                self._discard()
+                self._raise_failure()
+            log_tmp, values_tmp = self._tmp
+            replaced = False
+            try:
+                with open(log_tmp, "rb") as f:  # python-can closed it unsynced
+                    os.fsync(f.fileno())
+                for tmp, target in ((log_tmp, self.path), (values_tmp, self.values_path)):
+                    os.chmod(tmp, _mode(target))
+                os.replace(log_tmp, self.path)
+                replaced = True
+                os.replace(values_tmp, self.values_path)
+            except OSError as err:
+                self._failure = err
+                self._discard()
+                if replaced:  # not a log without its values
+                    with contextlib.suppress(OSError):
+                        self.path.unlink()
+                self._raise_failure()
+            self._tmp.clear()
+
+    def discard(self) -> None:
+        """End the recording without keeping anything (idempotent; after :meth:`close`
+        the files stay)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            self._discard()
+
+    def _discard(self) -> None:
+        with contextlib.suppress(Exception):
+            if self._writer is not None:
+                self._writer.stop()
+        with contextlib.suppress(Exception):
+            if self._values_file is not None:
+                self._values_file.close()
+        for tmp in self._tmp:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        self._tmp.clear()
+
+    def __enter__(self) -> RunRecorder:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        if isinstance(exc, InputError):
+            self.discard()
+        else:
+            self.close()
+
+    def __repr__(self) -> str:
+        return (f"RunRecorder({os.fspath(self.path)!r}, frames={self._frames}, "
+                f"rows={self._rows}{', closed' if self._closed else ''})")
+
+
+# ------------------------------------------------------------------------- reading
+@dataclass
+class Series:
+    """One edge's recorded values: (timestamp, value) per change, in time order."""
+
+    prefix: str
+    name: str
+    kind: str
+    bus: str
+    board: int
+    points: list[tuple[float, Decimal]] = field(default_factory=list)
+
+    @property
+    def qualified(self) -> str:
+        """``Prefix/Unique name``, as the plot and its NAME arguments call it."""
+        return f"{self.prefix}/{self.name}"
+
+
+@dataclass(frozen=True)
+class Values:
+    """A values file read back: its series by qualified name (in order of first
+    appearance) and the time span of all its rows (None when it has no rows)."""
+
+    file: str
+    series: dict[str, Series]
+    start: float | None
+    end: float | None
+
+
+def read_values(path: str | os.PathLike[str]) -> Values:
+    """Read a values file written by :class:`RunRecorder`; InputError naming FILE:LINE
+    when it is not one (missing header column, bad number or kind, short row)."""
+    file = os.fspath(path)
+    series: dict[str, Series] = {}
+    start: float | None = None
+    end: float | None = None
+    line = 1
+    try:
+        with open(file, encoding="utf-8", newline="") as f:
+            reader = csv.reader(f)
+            header = next(reader, None)
+            if header is None:
+                raise InputError("empty file: not a values file (header "
+                                 f"{','.join(VALUES_HEADER)})", file=file, line=1)
+            missing = [c for c in VALUES_HEADER if c not in header]
+            if missing:
+                raise InputError(f"not a values file: the header lacks {', '.join(missing)} "
+                                 f"(expected {','.join(VALUES_HEADER)})", file=file, line=1)
+            col = {c: header.index(c) for c in VALUES_HEADER}
+            width = max(col.values()) + 1
+            for row in reader:
+                line = reader.line_num
+                if not row:
+                    continue
+                if len(row) < width:
+                    raise InputError(f"{len(row)} fields, expected {len(header)}", file=file,
+                                     line=line)
+                t = _number(row[col["timestamp"]], "timestamp", file, line)
+                board = _board(row[col["board"]], file, line)
+                value = _decimal(row[col["value"]], file, line)
+                kind, prefix, name = (row[col[c]] for c in ("kind", "prefix", "name"))
+                if kind not in KINDS:
+                    raise InputError(f"kind: {kind!r} is not one of {', '.join(KINDS)}",
+                                     file=file, line=line)
+                if not name:
+                    raise InputError("name: empty", file=file, line=line)
+                key = f"{prefix}/{name}"
+                s = series.get(key)
+                if s is None:
+                    s = series[key] = Series(prefix, name, kind, row[col["bus"]], board)
+                s.points.append((t, value))
+                start = t if start is None else min(start, t)
+                end = t if end is None else max(end, t)
+    except OSError as err:
+        raise InputError(f"cannot read: {err.strerror or err}", file=file) from None
+    except UnicodeDecodeError:
+        raise InputError("not UTF-8 text: not a values file", file=file, line=line) from None
+    except csv.Error as err:
+        raise InputError(f"not a CSV file: {err}", file=file, line=line) from None
+    for s in series.values():
+        s.points.sort(key=lambda p: p[0])
+    return Values(file, series, start, end)
+
+
+def _number(text: str, column: str, file: str, line: int) -> float:
+    try:
+        t = float(text)
+    except ValueError:
+        raise InputError(f"{column}: {text!r} is not a number", file=file,
+                         line=line) from None
+    if not math.isfinite(t):
+        raise InputError(f"{column}: {text!r} is not a finite number", file=file, line=line)
+    return t
+
+
+def _board(text: str, file: str, line: int) -> int:
+    try:
+        return int(text)
+    except ValueError:
+        raise InputError(f"board: {text!r} is not a seq ID", file=file, line=line) from None
+
+
+def _decimal(text: str, file: str, line: int) -> Decimal:
+    try:
+        d = Decimal(text.strip())
+    except InvalidOperation:
+        d = None
+    if d is None or not d.is_finite():
+        raise InputError(f"value: {text!r} is not a decimal number", file=file, line=line)
+    return d
+
+
+
+__all__ = ["FORMATS", "KINDS", "VALUES_HEADER", "VALUES_SUFFIX", "RecordError",
+           "RunRecorder", "Series", "Values", "log_extension", "read_values",
+           "supported_extensions", "value_text", "values_path"]
+

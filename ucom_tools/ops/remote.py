@@ -1,0 +1,594 @@
+"""The run-time part of the PC (``dsp_remote_part``, dissertation 5.2.2): a robot's boards
+in the cyclic exchange, their edges under robot-wide names.
+
+``RemotePart`` brings every board of the robot's trees up (``man/ucom-protocol.7``, RUN
+TIME, Start sequence: program started if needed, descriptions checked against the
+mapping tables, PAR and CI defaults, SO maps, MCA Start), then runs the PC's loop:
+:meth:`RemotePart.cycle` waits for the next period, sends the CI maps due and MCA Alive on
+every bus, and returns the latest SO values (latest-value semantics, as MCA2: nothing
+queues).  ``part["Right Eye Target"] = 1000`` sets a value (a CI in a map goes out with
+the next cycle, another CI or a PAR is written at once and acknowledged);
+``part["Right Eye Joint Sensor"]`` reads one.  :meth:`RemotePart.stop` (and leaving the
+``with`` block, whatever happened) stops every board: motors off.  A PC that stops
+calling :meth:`cycle` stops sending MCA Alive, and the boards' watchdogs stop them.
+
+Real buses: one reader thread per bus takes the answers and SO maps; the loop waits on
+the wall clock (sleep, then a short spin for the last fraction of a millisecond).  The
+in-process fleet in virtual time: the loop drives the fleet clock, nothing waits.
+"""
+
+from __future__ import annotations
+
+import difflib
+import sys
+import time
+from collections import deque
+from collections.abc import Callable, Iterator, Mapping
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field, replace
+from decimal import Decimal
+from types import TracebackType
+
+from ucom_tools.config.attrtree.match import Mismatch, differences
+from ucom_tools.config.attrtree.model import Board, Kind
+from ucom_tools.config.attrtree.robot import RobotTrees
+from ucom_tools.errors import BoardError, InputError, UcomError, UcomTimeoutError
+from ucom_tools.ops.edges import EdgeRef, Names, spec_of
+from ucom_tools.ops.exchange import BusExchange, configure, edge_list
+from ucom_tools.ops.robot import BusHandle, Robot
+from ucom_tools.protocol.dispatch import share_clock
+from ucom_tools.protocol.mca import BoardEdges, values_of
+from ucom_tools.wire import mca
+from ucom_tools.wire.ids import seq
+
+SPIN_S = 0.0003
+"""The loop sleeps until this long before a deadline, then spins (sleep wakes late)."""
+POLL_S = 0.0002
+"""While it waits, the loop looks at the buses this often."""
+SWITCH_INTERVAL_S = 0.0005
+"""While the loop runs, Python switches threads this often (default 5 ms: a second
+thread, a live view say, could keep the loop from its deadline that long)."""
+JITTER_SAMPLES = 100_000
+"""Lateness samples kept for the percentiles (the last 100 s at 1 kHz)."""
+_KIND = {Kind.CI: mca.Kind.CI, Kind.SO: mca.Kind.SO, Kind.PAR: mca.Kind.PAR}
+
+Value = int | Decimal
+
+
+class MappingError(UcomError):
+    """Boards whose edges differ from their trees (or that did not come up): nothing was
+    started.  ``report`` lists every difference."""
+
+    def __init__(self, report: CheckReport) -> None:
+        bad = [b for b in report.boards if not b.ok]
+        super().__init__(f"{len(bad)} board(s) do not match their trees: "
+                         + "; ".join(f"{b.where}: {b.summary()}" for b in bad))
+        self.report = report
+
+
+@dataclass(frozen=True)
+class BoardCheck:
+    """One board of the robot against its tree block."""
+
+    bus: str
+    board: int
+    where: str
+    prefix: str
+    tree_file: str
+    program: str = ""
+    """The program's edge counts, 'CI/SO/PAR' (empty when it did not answer)."""
+    differences: tuple[Mismatch, ...] = ()
+    error: str = ""
+    """Why the board could not be checked (did not start, did not answer)."""
+
+    @property
+    def ok(self) -> bool:
+        return not self.error and not self.differences
+
+    def summary(self) -> str:
+        if self.error:
+            return self.error
+        if self.differences:
+            n = len(self.differences)
+            return f"{n} difference{'s' * (n != 1)}, first: {self.differences[0].message}"
+        return "matches"
+
+
+@dataclass(frozen=True)
+class CheckReport:
+    boards: tuple[BoardCheck, ...]
+
+    @property
+    def ok(self) -> bool:
+        return all(b.ok for b in self.boards)
+
+
+@dataclass
+class LoopStats:
+    """The PC loop: cycles, lateness (how long after its deadline a cycle sent), misses."""
+
+    period_s: float
+    cycles: int = 0
+    missed: int = 0
+    """Cycles that could not be sent at all: the loop came more than a period late."""
+    late: deque[float] = field(default_factory=lambda: deque(maxlen=JITTER_SAMPLES))
+    started_wall: float = 0.0
+    started_clock: float = 0.0
+
+    def percentile(self, p: float) -> float:
+        """Lateness in seconds that ``p`` % of the cycles stayed under."""
+        if not self.late:
+            return 0.0
+        ordered = sorted(self.late)
+        return ordered[min(len(ordered) - 1, int(p / 100 * len(ordered)))]
+
+    def rate(self, now: float) -> float:
+        """Cycles per second of the bus clock since the start."""
+        span = now - self.started_clock
+        return self.cycles / span if span > 0 else 0.0
+
+
+class RemotePart:
+    """A robot's run time from the PC (see the module docstring)."""
+
+    def __init__(self, robot: Robot, trees: RobotTrees, *, rate_hz: float = 1000.0,
+                 alive_ms: int = mca.ALIVE_DEFAULT_MS,
+                 periods: dict[str, int] | None = None) -> None:
+        if robot.topology is None:
+            raise InputError("the run time needs the robot's topology (which board runs "
+                             "which tree): give --topology FILE or a robot name",
+                             key="--topology")
+        if not 1 <= rate_hz <= 10_000:
+            raise InputError(f"rate must be 1..10000 Hz, not {rate_hz:g}", key="--rate")
+        self.robot = robot
+        self.trees = trees
+        self.period_s = 1.0 / rate_hz
+        self.virtual = robot.virtual_time
+        if periods:
+            _check_periods(periods, trees)
+        self.exchanges: dict[str, BusExchange] = {}
+        for name, h in robot.buses.items():
+            spec = h.expected or robot.topology.bus(name)
+            self.exchanges[name] = BusExchange(h.link, spec, trees, alive_ms=alive_ms,
+                                               timeouts=robot.timeouts, periods=periods)
+        self.names = Names(())
+        self.stats = LoopStats(self.period_s)
+        self.report: CheckReport | None = None
+        self._described: dict[tuple[str, int], BoardEdges] = {}
+        self._numbers: dict[str, list[int]] = {}
+        self._running = False
+        self._k = 0
+        self._deadline = 0.0
+        self._so_cache: dict[tuple[str, int], tuple[int, list[int]]] = {}
+        self._par: dict[EdgeRef, int] = {}
+        self._map_refs: dict[tuple[str, int], list[EdgeRef | None]] = {}
+        self._seen: dict[tuple[str, int], int] = {}
+        self._switch: float | None = None
+        self.on_values: Callable[[float, EdgeRef, Value], None] | None = None
+        """Called with (time, edge, value) for every SO value a cycle saw change, and for
+        every CI or PAR value set (recorders)."""
+
+    # ------------------------------------------------------------------ buses
+    def _handles(self) -> list[tuple[BusHandle, BusExchange]]:
+        return [(self.robot.buses[n], x) for n, x in self.exchanges.items()]
+
+    def _each_bus(self, work: Callable[[BusHandle, BusExchange], object]) -> list[object]:
+        """``work`` on every bus: in parallel on real buses, one after the other in
+        virtual time (one clock)."""
+        pairs = self._handles()
+        if self.virtual or len(pairs) == 1:
+            return [work(h, x) for h, x in pairs]
+        with ThreadPoolExecutor(max_workers=len(pairs), thread_name_prefix="ucom-bus") as pool:
+            return list(pool.map(lambda p: work(*p), pairs))
+
+    # ------------------------------------------------------------------ check
+    def check(self) -> CheckReport:
+        """Init every bus, start each board's program if needed, fetch its descriptions
+        and compare them with its tree block: every difference, nothing written."""
+        refs: list[EdgeRef] = []
+
+        def one_bus(h: BusHandle, x: BusExchange) -> list[BoardCheck]:
+            out = []
+            init = h.client.init_chain()
+            self._numbers[h.name] = init.numbers
+            for spec in x.bus.boards:
+                n = spec.position + 1
+                where = x.where(n)
+                try:
+                    block = self.trees.board(h.name, spec.position)
+                except KeyError:
+                    continue  # no tree: not part of the run time
+                base = BoardCheck(h.name, n, where, block.prefix, str(spec.tree or ""))
+                if n not in init.numbers:
+                    out.append(_with(base, error="did not answer the init chain"))
+                    continue
+                try:
+                    ready = x.start_programs([n])[n]
+                    edges = x.mca.describe(seq(n), (ready.ci, ready.so, ready.par))
+                except (BoardError, UcomTimeoutError) as err:
+                    out.append(_with(base, error=str(err)))
+                    continue
+                self._described[(h.name, n)] = edges
+                found = tuple(differences(block, edge_list(edges)))
+                if not found:
+                    refs.extend(_refs_of(h.name, n, x.where(n), block, edges))
+                out.append(_with(base, program=f"{ready.ci}/{ready.so}/{ready.par}",
+                                 differences=found))
+            return out
+
+        boards: list[BoardCheck] = []
+        for part in self._each_bus(one_bus):
+            assert isinstance(part, list)
+            boards += part
+        self.report = CheckReport(tuple(boards))
+        order = {(b.bus, b.board): i for i, b in enumerate(boards)}
+        self.names = Names(sorted(refs, key=lambda r: order[(r.bus, r.board)]))
+        return self.report
+
+    def described(self, bus: str, board: int) -> BoardEdges | None:
+        """The edges board ``board`` of ``bus`` described in :meth:`check`."""
+        return self._described.get((bus, board))
+
+    # ------------------------------------------------------------------ start
+    def start(self, *, force: bool = False) -> CheckReport:
+        """Check, then configure every matching board (tree defaults, maps) and start the
+        exchange on every bus.  A mismatch raises :class:`MappingError` and starts
+        nothing, unless ``force``: then only the matching boards run."""
+        report = self.report or self.check()
+        if not report.ok and not force:
+            raise MappingError(report)
+        good = {(b.bus, b.board) for b in report.boards if b.ok}
+        if not good:
+            raise MappingError(report)
+
+        def configure_bus(h: BusHandle, x: BusExchange) -> None:
+            for spec in x.bus.boards:
+                n = spec.position + 1
+                if (h.name, n) not in good:
+                    continue
+                block = self.trees.board(h.name, spec.position)
+                c = configure(x.mca, seq(n), x.where(n), block, x.plan,
+                              tree_file=str(spec.tree) if spec.tree else None,
+                              edges=self._described[(h.name, n)])
+                x.configured[n] = c
+                for index in range(len(c.edges.ci)):
+                    x.ci.setdefault((n, index), 0)
+                for unique, raw in c.written.items():
+                    e = block.edge(unique)
+                    if e.kind is Kind.CI:
+                        x.ci[(n, e.index)] = raw
+
+        self._each_bus(configure_bus)
+        self.names = Names(r for r in self.names if (r.bus, r.board) in good)
+        self._par = {}
+        self._map_refs = {}
+        by_slot = {(r.bus, r.board, r.index): r for r in self.names if r.kind is mca.Kind.SO}
+        for bus, x in self.exchanges.items():
+            for m in x.plan.so_maps:
+                if m.board in x.configured:
+                    self._map_refs[(bus, m.number)] = [by_slot.get((bus, m.board, i))
+                                                       for i in m.edges]
+        for ref in self.names:
+            if ref.kind is mca.Kind.PAR:
+                written = self.exchanges[ref.bus].configured[ref.board].written
+                if ref.unique in written:
+                    self._par[ref] = written[ref.unique]
+        # MCA Alive as periodic frames while the boards are started one by one (an answer
+        # that has to be asked for again must not let the first ones' watchdogs fire);
+        # from the first cycle on, the loop sends it
+        if self.virtual:
+            share_clock([h.link.dispatcher for h, _ in self._handles()])
+        else:
+            for h, _ in self._handles():  # until the loop polls them itself
+                h.link.dispatcher.start()
+        for _, x in self._handles():
+            x.start_alive()
+        for _, x in self._handles():
+            x.start_exchange(periodic=False)
+        self._running = True
+        clock = self._clock()
+        self.stats = LoopStats(self.period_s, started_wall=time.perf_counter(),
+                               started_clock=clock)
+        self._deadline = clock
+        self._k = 0
+        if not self.virtual:
+            for h, _ in self._handles():
+                h.link.dispatcher.stop()
+            self._switch = sys.getswitchinterval()
+            sys.setswitchinterval(SWITCH_INTERVAL_S)
+        self.cycle()
+        for _, x in self._handles():
+            x.stop_tasks()
+        return report
+
+    # ------------------------------------------------------------------ the loop
+    def _clock(self) -> float:
+        first = next(iter(self.robot.buses.values()))
+        return first.link.clock()
+
+    def cycle(self) -> Mapping[str, Value | None]:
+        """Wait for the next period, send the CI maps due and MCA Alive on every bus, and
+        return the latest SO values by name."""
+        if not self._running:
+            raise UcomError("the exchange is not running (start() it first)")
+        self._wait(self._deadline)
+        now = self._clock()
+        late = now - self._deadline
+        if late >= self.period_s:  # the loop came a whole period late or more
+            skipped = int(late // self.period_s)
+            self.stats.missed += skipped
+            self._deadline += skipped * self.period_s
+            self._k += skipped
+            late -= skipped * self.period_s
+        self.stats.late.append(late)
+        for x in self.exchanges.values():
+            x.send_cycle(self._deadline)
+        self.stats.cycles += 1
+        self._k += 1
+        self._deadline += self.period_s
+        if self.on_values is not None:
+            self._report_so()
+        return self.so
+
+    def _wait(self, deadline: float) -> None:
+        """Until ``deadline``, take what the buses deliver: in virtual time by driving the
+        fleet clock; on real buses by polling every bus (no reader threads: one thread
+        does everything, so the GIL never keeps the loop from its deadline), sleeping in
+        short steps, spinning the last :data:`SPIN_S`."""
+        dispatchers = [h.link.dispatcher for h, _ in self._handles()]
+        if self.virtual:
+            for d in dispatchers:
+                d.pump(deadline)
+            return
+        while True:
+            got = sum(d.drain() for d in dispatchers)
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return
+            if not got and remaining > SPIN_S:
+                time.sleep(min(POLL_S, remaining - SPIN_S))
+
+    def run(self, seconds: float, each: Callable[[RemotePart], None] | None = None) -> None:
+        """Cycle for ``seconds`` (of the bus clock), calling ``each(self)`` every cycle."""
+        end = self._clock() + seconds
+        while self._clock() < end:
+            self.cycle()
+            if each is not None:
+                each(self)
+
+    # ------------------------------------------------------------------ values
+    def _map_values(self, bus: str, number: int) -> list[int] | None:
+        """The decoded values of SO map ``number`` of ``bus`` (decoded once per frame)."""
+        x = self.exchanges[bus]
+        frame = x.mca.image.frames.get(number)
+        if frame is None:
+            return None
+        count = x.mca.image.counts[number]
+        cached = self._so_cache.get((bus, number))
+        if cached is None or cached[0] != count:
+            m = next(m for m in x.plan.so_maps if m.number == number)
+            records = x.configured[m.board].edges.so
+            cached = (count, values_of(frame, [records[i] for i in m.edges]))
+            self._so_cache[(bus, number)] = cached
+        return cached[1]
+
+    def _so(self, ref: EdgeRef) -> int | None:
+        for m in self.exchanges[ref.bus].plan.maps_of(ref.board):
+            if ref.index in m.edges:
+                values = self._map_values(ref.bus, m.number)
+                return None if values is None else values[m.edges.index(ref.index)]
+        return None
+
+    def _report_so(self) -> None:
+        """Hand every SO value of the maps that came since the last cycle to on_values."""
+        assert self.on_values is not None
+        for (bus, number), refs in self._map_refs.items():
+            image = self.exchanges[bus].mca.image
+            count = image.counts.get(number, 0)
+            if count == self._seen.get((bus, number), 0):
+                continue
+            self._seen[(bus, number)] = count
+            values = self._map_values(bus, number)
+            if values is None:
+                continue
+            stamp = image.stamps[number]
+            for ref, raw in zip(refs, values, strict=True):
+                if ref is not None:
+                    self.on_values(stamp, ref, ref.value(raw))
+
+    def raw(self, name: str | EdgeRef) -> int | None:
+        """The raw value of an edge: SO the latest from its map (None before the first,
+        or when it is not cyclic), CI what the PC sends, PAR what the PC wrote."""
+        ref = name if isinstance(name, EdgeRef) else self.names.resolve(name)
+        if ref.kind is mca.Kind.SO:
+            return self._so(ref)
+        if ref.kind is mca.Kind.CI:
+            return self.exchanges[ref.bus].ci.get((ref.board, ref.index))
+        return self._par.get(ref)
+
+    def __getitem__(self, name: str) -> Value | None:
+        ref = self.names.resolve(name)
+        raw = self.raw(ref)
+        return None if raw is None else ref.value(raw)
+
+    def __setitem__(self, name: str, value: object) -> None:
+        self.set(name, value)
+
+    def set(self, name: str | EdgeRef, value: object, *, key: str | None = None) -> EdgeRef:
+        """Set a CI or PAR by name, in the edge's unit; range-checked before anything is
+        sent (InputError)."""
+        ref = name if isinstance(name, EdgeRef) else self.names.resolve(
+            name, key=key, kinds=(mca.Kind.CI, mca.Kind.PAR))
+        if ref.kind is mca.Kind.SO:
+            raise InputError(f"{ref.qualified} is a sensor output; only CI and PAR edges "
+                             "can be set", key=key)
+        raw = ref.raw(value, what=key)
+        x = self.exchanges[ref.bus]
+        if ref.kind is mca.Kind.CI:
+            x.set_ci(ref.board, ref.generic, raw)
+        else:
+            x.mca.write(seq(ref.board), mca.Kind.PAR, ref.index, [raw],
+                        x.configured[ref.board].edges.par)
+            self._par[ref] = raw
+        if self.on_values is not None:
+            self.on_values(self._clock(), ref, ref.value(raw))
+        return ref
+
+    @property
+    def so(self) -> Mapping[str, Value | None]:
+        """The latest SO values by name, looked up when read (nothing is copied)."""
+        return _SoView(self)
+
+    def values(self, kinds: tuple[mca.Kind, ...] = tuple(mca.Kind)) -> dict[str, Value]:
+        """Every known value of the given kinds by name (SO: the latest that arrived)."""
+        out: dict[str, Value] = {}
+        for ref in self.names:
+            if ref.kind in kinds:
+                raw = self.raw(ref)
+                if raw is not None:
+                    out[self.names.name_of(ref)] = ref.value(raw)
+        return out
+
+    # ------------------------------------------------------------------ figures
+    def traffic(self) -> dict[str, tuple[float, int]]:
+        """(bus clock, bits seen so far) per bus: two of them give the load between."""
+        return {n: (h.link.clock(), h.link.dispatcher.bits)
+                for n, h in self.robot.buses.items()}
+
+    def load_between(self, a: dict[str, tuple[float, int]], b: dict[str, tuple[float, int]],
+                     ) -> dict[str, float]:
+        """The measured load of each bus between two :meth:`traffic` snapshots."""
+        out = {}
+        for n, h in self.robot.buses.items():
+            t0, bits0 = a[n]
+            t1, bits1 = b[n]
+            out[n] = (bits1 - bits0) / ((t1 - t0) * h.link.bitrate) if t1 > t0 else 0.0
+        return out
+
+    # ------------------------------------------------------------------ the end
+    def stop(self) -> list[str]:
+        """Stop every board's exchange (MCA Start STOP: motors off) and the readers;
+        returns what could not be stopped (those boards stop by their watchdog)."""
+        if not self._running:
+            return []
+        self._running = False
+        problems: list[str] = []
+
+        def stop_bus(h: BusHandle, x: BusExchange) -> list[str]:
+            out = []
+            for n in list(x.configured):
+                try:
+                    x.mca.start(seq(n), mca.StartOp.STOP)
+                except UcomError as err:
+                    out.append(f"{x.where(n)}: {err}")
+            return out
+
+        try:
+            for part in self._each_bus(stop_bus):
+                assert isinstance(part, list)
+                problems += part
+        finally:
+            for _, x in self._handles():
+                x.stop_tasks()
+            if self._switch is not None:
+                sys.setswitchinterval(self._switch)
+                self._switch = None
+        return problems
+
+    def close(self) -> None:
+        try:
+            self.stop()
+        finally:
+            for x in self.exchanges.values():
+                x.close()
+
+    def __enter__(self) -> RemotePart:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+def _with(base: BoardCheck, **changes: object) -> BoardCheck:
+    return replace(base, **changes)  # type: ignore[arg-type]
+
+
+def _refs_of(bus: str, n: int, where: str, block: Board, edges: BoardEdges,
+             ) -> Iterator[EdgeRef]:
+    """The edges of one board whose tree block matches its description."""
+    first = {k: sum(len(edges.of(j)) for j in mca.Kind if j < k) for k in mca.Kind}
+    for e in block.edges:
+        kind = _KIND[e.kind]
+        index = e.index - first[kind]
+        yield EdgeRef(bus, n, where, block.prefix, e.unique, e.generic, kind, index,
+                      spec_of(kind, edges.of(kind)[index]))
+
+
+@dataclass
+class Trace:
+    """What one value did during a run: first, last, smallest, largest, changes."""
+
+    first: Value
+    last: Value
+    low: Value
+    high: Value
+    changes: int = 0
+
+
+class Summary:
+    """Follows every value a :class:`RemotePart` reports (``on_values``): what the
+    joints did, for the end of a run."""
+
+    def __init__(self) -> None:
+        self.traces: dict[EdgeRef, Trace] = {}
+
+    def __call__(self, t: float, ref: EdgeRef, value: Value) -> None:
+        tr = self.traces.get(ref)
+        if tr is None:
+            self.traces[ref] = Trace(value, value, value, value)
+            return
+        if value != tr.last:
+            tr.changes += 1
+            tr.last = value
+            tr.low = min(tr.low, value)
+            tr.high = max(tr.high, value)
+
+
+def _check_periods(periods: dict[str, int], trees: RobotTrees) -> None:
+    """Every name of ``periods`` must be an edge of a program the robot's trees map."""
+    from ucom_tools.config.attrtree.match import program_of
+
+    names: set[str] = set()
+    for b in trees.boards:
+        program = program_of(b.board)
+        if program is not None:
+            names |= {e.name for e in program.edges}
+    for name in periods:
+        if name not in names:
+            close = difflib.get_close_matches(name, sorted(names), n=3)
+            hint = f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
+            raise InputError(f"no program edge called {name!r} (periods name the programs' "
+                             f"generic edges, as in the trees' mapping tables){hint}",
+                             key="--period")
+
+
+class _SoView(Mapping[str, "Value | None"]):
+    """:attr:`RemotePart.so`: a read-only view of the latest SO values by name."""
+
+    def __init__(self, part: RemotePart) -> None:
+        self._part = part
+
+    def __getitem__(self, name: str) -> Value | None:
+        ref = self._part.names.resolve(name)
+        if ref.kind is not mca.Kind.SO:
+            raise KeyError(name)
+        raw = self._part.raw(ref)
+        return None if raw is None else ref.value(raw)
+
+    def __iter__(self) -> Iterator[str]:
+        names = self._part.names
+        return (names.name_of(r) for r in names if r.kind is mca.Kind.SO)
+
+    def __len__(self) -> int:
+        return sum(1 for r in self._part.names if r.kind is mca.Kind.SO)
