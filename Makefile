@@ -13,8 +13,13 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[test,plot]'
 	@touch $(STAMP)
 
+DEMO_STATE := $(VENV)/demo-state
+
 demo: $(STAMP)
-	$(BIN)/ucom flash firmware_images/armar3.fl.S --virtual armar3 --start
+	$(BIN)/ucom flash firmware_images/armar3.fl.S --virtual armar3 --state $(DEMO_STATE)
+	$(BIN)/ucom remote run armar3 --virtual armar3 --state $(DEMO_STATE) --for 3 \
+	    --set 'Right Eye Target=1000' --set 'Left Eye Target=-1000' \
+	    --set 'Neck Yaw Target=-2000' --set 'Right Elbow Target=1500'
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

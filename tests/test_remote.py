@@ -95,7 +95,7 @@ def test_a_tree_with_a_renamed_edge_or_for_another_program_starts_nothing(tmp_pa
     text = (ROOT / "attribute_trees/armar3/head_right.tree").read_text()
     renamed = tmp_path / "head_right.tree"
     renamed.write_text(text.replace("3:MotorA Target ==>", "3:MotorA Targets ==>"))
-    from ucom_tools.cli.remote import robot_trees
+    from ucom_tools.ops.remote import robot_trees
     own = robot_trees(robot, [str(renamed)])
     part = RemotePart(robot, own)
     try:
@@ -282,3 +282,53 @@ def test_record_writes_a_log_python_can_reads_and_a_values_csv(flashed, tmp_path
     assert sensor and sensor[0]["prefix"] == "Eyes" and sensor[0]["kind"] == "SO"
     assert abs(int(sensor[-1]["value"]) - 200) <= 20
     assert any(r["name"] == "Right Eye Target" and r["value"] == "200" for r in rows)
+
+
+def test_the_readme_example_moves_an_eye(flashed, capsys) -> None:
+    readme = (ROOT / "README.md").read_text()
+    block = next(b.split("```", 1)[0] for b in readme.split("```python\n")[1:]
+                 if "RemotePart.open" in b)
+    exec(compile(block.replace('"/tmp/a3"', repr(str(flashed))), "README.md", "exec"), {})
+    printed = capsys.readouterr().out.strip()
+    assert abs(int(printed) - 1000) <= 2
+
+
+# ---------------------------------------------------------------------- the live view
+def test_the_live_view_sets_values_by_name_and_quits(part) -> None:
+    from prompt_toolkit.input import create_pipe_input
+    from prompt_toolkit.output import DummyOutput
+
+    from ucom_tools.cli.live import LiveView
+
+    part.start()
+    with create_pipe_input() as pipe:
+        view = LiveView(part, pt_input=pipe, pt_output=DummyOutput())
+        pipe.send_text("Right Eye Target 500\r")
+        pipe.send_text("set Eyes/RightEye I=0.0004\r")
+        pipe.send_text("Right Eye Targt 1\r")  # a typo: a message, nothing set
+        pipe.send_text("q\r")
+        view.run()
+    assert part["Right Eye Target"] == 500
+    assert str(part["RightEye I"]) == "0.000400"
+    assert view.message.startswith("! no edge called 'Right Eye Targt'")
+    assert part.stats.cycles > 0  # the loop ran beside the view
+    text = view.render(200)
+    assert "Right Eye Joint Sensor" in text and "Eyes - CAN0 board 3" in text
+
+
+def test_names_complete_and_commands_parse() -> None:
+    from prompt_toolkit.completion import CompleteEvent
+    from prompt_toolkit.document import Document
+
+    from ucom_tools.cli.live import NameCompleter, parse_command
+
+    c = NameCompleter(["Right Eye Target", "Right Eye Target Vel", "Eyes/AD Channel 6"])
+    got = [x.text for x in c.get_completions(Document("set right eye t"), CompleteEvent())]
+    assert got == ["Right Eye Target ", "Right Eye Target Vel "]
+    assert [x.text for x in c.get_completions(Document("chan"), CompleteEvent())] == [
+        "Eyes/AD Channel 6 "]
+    assert parse_command("set Right Eye Target 1000") == ("Right Eye Target", "1000")
+    assert parse_command("Right Eye Target=-5") == ("Right Eye Target", "-5")
+    assert parse_command("  ") is None
+    with pytest.raises(ValueError):
+        parse_command("Target")

@@ -20,9 +20,11 @@ from prompt_toolkit.buffer import Buffer
 from prompt_toolkit.completion import CompleteEvent, Completer, Completion
 from prompt_toolkit.document import Document
 from prompt_toolkit.formatted_text import ANSI, StyleAndTextTuples
+from prompt_toolkit.input import Input
 from prompt_toolkit.key_binding import KeyBindings, KeyPressEvent
 from prompt_toolkit.layout import HSplit, Layout, Window
 from prompt_toolkit.layout.controls import BufferControl, FormattedTextControl
+from prompt_toolkit.output import Output
 from rich.columns import Columns
 from rich.console import Console, Group
 from rich.markup import escape
@@ -80,8 +82,11 @@ class NameCompleter(Completer):
 
 
 class LiveView:
-    def __init__(self, part: RemotePart) -> None:
+    def __init__(self, part: RemotePart, *, pt_input: Input | None = None,
+                 pt_output: Output | None = None) -> None:
         self.part = part
+        self.pt_input = pt_input
+        self.pt_output = pt_output
         self.message = HELP
         self.scroll = 0
         self.error: BaseException | None = None
@@ -168,7 +173,7 @@ class LiveView:
                        get_line_prefix=lambda n, w: [("bold", "> ")]),
             ]), focused_element=out),
             key_bindings=keys, full_screen=True, refresh_interval=REFRESH_S,
-            mouse_support=False)
+            mouse_support=False, input=self.pt_input, output=self.pt_output)
         thread = threading.Thread(target=self.loop, args=(app,), name="ucom-loop",
                                   daemon=True)
         thread.start()

@@ -10,7 +10,6 @@ from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import replace
 from decimal import Decimal
-from pathlib import Path
 from typing import Any
 
 import click
@@ -21,11 +20,9 @@ from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
 from ucom_tools.cli.options import connection_json, connection_options, json_option
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.config import topology as topo
-from ucom_tools.config.attrtree.parser import load as load_tree
-from ucom_tools.config.attrtree.robot import RobotTrees, bind
-from ucom_tools.errors import InputError, TreeError
-from ucom_tools.ops.remote import CheckReport, MappingError, RemotePart, Summary
-from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot
+from ucom_tools.errors import InputError
+from ucom_tools.ops.remote import CheckReport, MappingError, RemotePart, Summary, robot_trees
+from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.wire import mca
 
 ROBOT_HELP = ("ROBOT_OR_TREES is the robot: a bundled topology (armar3, lauron4, ...) or a "
@@ -70,28 +67,6 @@ def robot_spec(args: tuple[str, ...], spec: ConnectSpec) -> tuple[ConnectSpec, l
                          "ROBOT (tree files alone do not say which board runs which)",
                          key="ROBOT_OR_TREES")
     return spec, trees
-
-
-def robot_trees(robot: Robot, files: list[str]) -> RobotTrees:
-    """The robot's trees, with the blocks of ``files`` in place of the robot's blocks of
-    the same Prefix."""
-    assert robot.topology is not None
-    trees = bind(robot.topology)
-    if not files:
-        return trees
-    by_prefix = {b.board.prefix: i for i, b in enumerate(trees.boards)}
-    boards = list(trees.boards)
-    for f in files:
-        tree = load_tree(f)
-        for block in tree.boards:
-            if block.prefix not in by_prefix:
-                raise TreeError(f"Prefix '{block.prefix}' is no board of robot "
-                                f"{robot.topology.name!r} (its prefixes: "
-                                f"{', '.join(sorted(by_prefix))})", file=f,
-                                line=block.prefix_line or None)
-            i = by_prefix[block.prefix]
-            boards[i] = replace(boards[i], file=Path(f), board=block)
-    return replace(trees, boards=tuple(boards))
 
 
 @contextmanager
@@ -242,9 +217,11 @@ def _boards_json(part: RemotePart) -> list[dict[str, Any]]:
 
 
 def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) -> None:
-    moved = [(r, summary.traces[r]) for r in part.names
-             if r.kind is mca.Kind.SO and r in summary.traces and summary.traces[r].changes]
-    t = Table(title="what the boards reported (values that changed)", title_justify="left")
+    changed = [(r, summary.traces[r]) for r in part.names
+               if r.kind is mca.Kind.SO and r in summary.traces and summary.traces[r].changes]
+    # flags and one-count jitter (Settled 0 -> 1, an encoder's last count) say little here
+    moved = [(r, t) for r, t in changed if r.raw(t.high) - r.raw(t.low) > 1]
+    t = Table(title="what the joints did (sensor values that moved)", title_justify="left")
     for col in ("board", "name", "first", "last", "range", "unit"):
         t.add_column(col, overflow="fold")
     for ref, tr in moved:
@@ -254,7 +231,10 @@ def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) 
     if moved:
         stdout().print(t)
     else:
-        stdout().print("no sensor value changed")
+        stdout().print("no sensor value moved")
+    if len(changed) > len(moved):
+        stdout().print(f"[dim]{len(changed) - len(moved)} more changed by one count or "
+                       "flag (--json lists every value)[/]")
     s = part.stats
     clock = "virtual time" if part.virtual else "wall clock"
     stdout().print(

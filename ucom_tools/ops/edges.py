@@ -20,7 +20,7 @@ from ucom_tools.programs.model import EdgeKind, EdgeSpec
 from ucom_tools.wire import mca
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class EdgeRef:
     """One edge of one board of the robot."""
 
@@ -37,6 +37,14 @@ class EdgeRef:
     """Per-kind index on the board."""
     spec: EdgeSpec
     """Encoding and range (from the board's description)."""
+
+    def __hash__(self) -> int:  # the identity, not every field (a run hashes it often)
+        return hash((self.bus, self.board, self.kind, self.index))
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, EdgeRef) and (self.bus, self.board, self.kind,
+                                               self.index) == (other.bus, other.board,
+                                                               other.kind, other.index)
 
     @property
     def qualified(self) -> str:

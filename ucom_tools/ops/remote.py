@@ -23,20 +23,28 @@ import difflib
 import sys
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from decimal import Decimal
+from pathlib import Path
 from types import TracebackType
+from typing import Any
 
+import can
+
+from ucom_tools.config import topology as topo_mod
 from ucom_tools.config.attrtree.match import Mismatch, differences
 from ucom_tools.config.attrtree.model import Board, Kind
-from ucom_tools.config.attrtree.robot import RobotTrees
-from ucom_tools.errors import BoardError, InputError, UcomError, UcomTimeoutError
+from ucom_tools.config.attrtree.parser import load as load_tree
+from ucom_tools.config.attrtree.robot import RobotTrees, bind
+from ucom_tools.errors import BoardError, InputError, TreeError, UcomError, UcomTimeoutError
 from ucom_tools.ops.edges import EdgeRef, Names, spec_of
 from ucom_tools.ops.exchange import BusExchange, configure, edge_list
-from ucom_tools.ops.robot import BusHandle, Robot
+from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot, open_robot
+from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.dispatch import share_clock
+from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import BoardEdges, values_of
 from ucom_tools.wire import mca
 from ucom_tools.wire.ids import seq
@@ -163,10 +171,64 @@ class RemotePart:
         self._par: dict[EdgeRef, int] = {}
         self._map_refs: dict[tuple[str, int], list[EdgeRef | None]] = {}
         self._seen: dict[tuple[str, int], int] = {}
+        self._last_raw: dict[EdgeRef, int] = {}
         self._switch: float | None = None
+        self._owns_robot = False
         self.on_values: Callable[[float, EdgeRef, Value], None] | None = None
-        """Called with (time, edge, value) for every SO value a cycle saw change, and for
-        every CI or PAR value set (recorders)."""
+        """Called with (time, edge, value) for every SO value a cycle saw change (and its
+        first), and for every CI or PAR value set (recorders)."""
+
+    @classmethod
+    def open(cls, robot: str, *, virtual: bool = False, state_dir: str | Path | None = None,
+             interface: str | None = None, channels: Sequence[str] = (),
+             host: str | None = None, port: int | None = None, bitrate: int | None = None,
+             trees: Sequence[str | Path] = (), start: bool = True, force: bool = False,
+             **kwargs: Any) -> RemotePart:
+        """The run-time part of ``robot`` (a bundled topology or a topology file) on its
+        buses: the in-process virtual fleet (``virtual``, flash kept in ``state_dir``),
+        or a python-can ``interface`` with ``channels`` (or a socketcand ``host`` and
+        ``port``).  ``trees`` replace the robot's trees of the same Prefix.  Started
+        (:meth:`start`, with ``force``) unless ``start`` is false; as a context manager
+        it always stops the boards and closes the buses at the end."""
+        if virtual:
+            spec = ConnectSpec(virtual=robot,
+                               state_dir=Path(state_dir) if state_dir is not None else None)
+        else:
+            spec = ConnectSpec(interface, tuple(channels), bitrate, host, port,
+                               topology=robot)
+        r = open_robot(spec)
+        try:
+            part = cls(r, robot_trees(r, trees), **kwargs)
+        except BaseException:
+            r.close()
+            raise
+        part._owns_robot = True
+        if start:
+            try:
+                part.start(force=force)
+            except BaseException:
+                part.close()
+                raise
+        return part
+
+    @classmethod
+    def on_buses(cls, robot: str, buses: Mapping[str, can.BusABC], **kwargs: Any,
+                 ) -> RemotePart:
+        """The run-time part of ``robot`` on python-can buses you opened yourself, by
+        the topology's bus names (``{"CAN0": can.Bus(...)}``); you shut them down."""
+        topology = topo_mod.load(robot)
+        handles = {}
+        for name, bus in buses.items():
+            try:
+                spec = topology.bus(name)
+            except KeyError:
+                raise InputError(f"robot {topology.name!r} has no bus {name!r}; its buses: "
+                                 + ", ".join(b.name for b in topology.buses)) from None
+            link = Link(bus, name, bitrate=spec.bitrate)
+            handles[name] = BusHandle(name, bus, link, BootloaderClient(link), spec,
+                                      virtual=False)
+        r = Robot(ConnectSpec(topology=robot), handles, topology)
+        return cls(r, robot_trees(r), **kwargs)
 
     # ------------------------------------------------------------------ buses
     def _handles(self) -> list[tuple[BusHandle, BusExchange]]:
@@ -392,8 +454,10 @@ class RemotePart:
             if values is None:
                 continue
             stamp = image.stamps[number]
+            last = self._last_raw
             for ref, raw in zip(refs, values, strict=True):
-                if ref is not None:
+                if ref is not None and last.get(ref) != raw:
+                    last[ref] = raw
                     self.on_values(stamp, ref, ref.value(raw))
 
     def raw(self, name: str | EdgeRef) -> int | None:
@@ -405,6 +469,17 @@ class RemotePart:
         if ref.kind is mca.Kind.CI:
             return self.exchanges[ref.bus].ci.get((ref.board, ref.index))
         return self._par.get(ref)
+
+    def cyclic(self, name: str | EdgeRef) -> bool:
+        """Does the edge travel in a process-data map (a CI the loop sends every period,
+        an SO the board sends)?  Others are written, or read, on request."""
+        ref = name if isinstance(name, EdgeRef) else self.names.resolve(name)
+        plan = self.exchanges[ref.bus].plan
+        if ref.kind is mca.Kind.CI:
+            return any((ref.board, ref.index) in c.slots for c in plan.ci_maps)
+        if ref.kind is mca.Kind.SO:
+            return any(ref.index in m.edges for m in plan.maps_of(ref.board))
+        return False
 
     def __getitem__(self, name: str) -> Value | None:
         ref = self.names.resolve(name)
@@ -496,13 +571,19 @@ class RemotePart:
         return problems
 
     def close(self) -> None:
+        """Stop the boards (see :meth:`stop`) and let go of the buses (closing them if
+        :meth:`open` opened them)."""
         try:
             self.stop()
         finally:
             for x in self.exchanges.values():
                 x.close()
+            if self._owns_robot:
+                self._owns_robot = False
+                self.robot.close()
 
     def __enter__(self) -> RemotePart:
+        """The ``with`` block's end always stops the boards and lets go of the buses."""
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
@@ -592,3 +673,27 @@ class _SoView(Mapping[str, "Value | None"]):
 
     def __len__(self) -> int:
         return sum(1 for r in self._part.names if r.kind is mca.Kind.SO)
+
+
+def robot_trees(robot: Robot, files: Sequence[str | Path] = ()) -> RobotTrees:
+    """The robot's trees (its topology names them), with the blocks of ``files`` in place
+    of the robot's blocks of the same Prefix."""
+    if robot.topology is None:
+        raise InputError("the run time needs the robot's topology (which board runs which "
+                         "tree)", key="--topology")
+    trees = bind(robot.topology)
+    if not files:
+        return trees
+    by_prefix = {b.board.prefix: i for i, b in enumerate(trees.boards)}
+    boards = list(trees.boards)
+    for f in files:
+        tree = load_tree(f)
+        for block in tree.boards:
+            if block.prefix not in by_prefix:
+                raise TreeError(f"Prefix '{block.prefix}' is no board of robot "
+                                f"{robot.topology.name!r} (its prefixes: "
+                                f"{', '.join(sorted(by_prefix))})", file=str(f),
+                                line=block.prefix_line or None)
+            i = by_prefix[block.prefix]
+            boards[i] = replace(boards[i], file=Path(f), board=block)
+    return replace(trees, boards=tuple(boards))

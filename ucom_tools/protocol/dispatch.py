@@ -32,12 +32,16 @@ import can
 from ucom_tools.errors import BusError
 from ucom_tools.wire.canbits import frame_bits
 
+STUFF_SAMPLE = 16
+"""The stuff bits of one frame in this many are computed (for the measured bus load)."""
 QUEUE_LIMIT = 10_000
 """Frames a subscriber may have waiting; older ones are dropped (and counted) beyond."""
 POLL_S = 0.05
 """How long the background reader waits for a frame before it looks at its stop flag."""
 
 Accepts = Callable[[can.Message], bool]
+"""A subscriber's filter.  It must look only at the identifier and the frame's type
+(extended, remote, error): its answer is kept per identifier."""
 
 
 class Subscription:
@@ -87,9 +91,11 @@ class Dispatcher:
         """Frames no subscriber took, by function code (identifier bits 10-6)."""
         self.received = 0
         self.sent = 0
-        self.bits = 0
-        """Bits of every frame seen on the bus (received and sent, stuff bits included):
-        the bus load this PC measures."""
+        self._nominal = 0
+        self._frames_counted = 0
+        self._sample_nominal = 0
+        self._sample_exact = 0
+        self._routes: dict[tuple[int, bool, bool, bool], list[Subscription]] = {}
         self.taps: list[Callable[[can.Message], None]] = []
         """Called with every frame received and sent (recorders), in the reading or
         sending thread."""
@@ -114,19 +120,21 @@ class Dispatcher:
         sub = Subscription(accepts, name, on_frame)
         with self._cond:
             self.subscriptions.append(sub)
+            self._routes = {}
         return sub
 
     def unsubscribe(self, sub: Subscription) -> None:
         with self._cond:
             if sub in self.subscriptions:
                 self.subscriptions.remove(sub)
+            self._routes = {}
 
     # ------------------------------------------------------------------ sending
     def send(self, msg: can.Message, timeout: float | None) -> None:
         with self._send_lock:
             self.bus.send(msg, timeout=timeout)
         self.sent += 1
-        self.bits += frame_bits(msg.arbitration_id, bytes(msg.data))
+        self._count(msg)
         if self.taps:
             out = can.Message(timestamp=self.clock(), arbitration_id=msg.arbitration_id,
                               data=msg.data, is_extended_id=False, is_rx=False,
@@ -232,20 +240,48 @@ class Dispatcher:
             self._cond.notify_all()
         return err
 
+    def _count(self, msg: can.Message) -> None:
+        """Bits on the bus: 47 + 8n per frame (Tab. B.2), scaled by the stuff bits of
+        every 16th frame (computing them for every frame would cost more than the rest
+        of the frame's handling)."""
+        n = len(msg.data)
+        nominal = 47 + 8 * n
+        self._nominal += nominal
+        self._frames_counted += 1
+        if self._frames_counted % STUFF_SAMPLE == 1:
+            self._sample_nominal += nominal
+            self._sample_exact += frame_bits(msg.arbitration_id, bytes(msg.data))
+
+    @property
+    def bits(self) -> int:
+        """Bits of every frame seen on the bus (received and sent), stuff bits included
+        as sampled: the bus load this PC measures."""
+        if not self._sample_nominal:
+            return self._nominal
+        return round(self._nominal * self._sample_exact / self._sample_nominal)
+
+    def _route(self, msg: can.Message) -> list[Subscription]:
+        """The subscribers of frames with this identifier and type (a filter looks only
+        at those: its answer is kept per identifier until the subscribers change)."""
+        key = (msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame,
+               msg.is_error_frame)
+        subs = self._routes.get(key)
+        if subs is None:
+            with self._cond:
+                subs = [s for s in self.subscriptions if s.accepts(msg)]
+                self._routes[key] = subs
+        return subs
+
     def dispatch(self, msg: can.Message) -> None:
         """Hand a received frame to every subscriber that takes it."""
         self.received += 1
         if not msg.is_error_frame and not msg.is_remote_frame and not msg.is_extended_id:
-            self.bits += frame_bits(msg.arbitration_id, bytes(msg.data))
+            self._count(msg)
         for tap in self.taps:
             tap(msg)
-        taken = False
-        with self._cond:
-            subs = list(self.subscriptions)
+        subs = self._route(msg)
+        taken = bool(subs)
         for sub in subs:
-            if not sub.accepts(msg):
-                continue
-            taken = True
             if sub.on_frame is not None:
                 sub.on_frame(msg)
                 continue

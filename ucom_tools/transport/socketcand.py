@@ -70,40 +70,62 @@ class ElementSplitter:
 
     def __init__(self, limit: int = MAX_ELEMENT) -> None:
         self._buffer = bytearray()
+        self._pos = 0
+        """Where the unread part of the buffer starts (consumed bytes are dropped in
+        :meth:`feed`, not one element at a time: a burst of frames is cut in linear time)."""
         self._limit = limit
 
     def feed(self, chunk: bytes) -> None:
+        if self._pos:
+            del self._buffer[:self._pos]
+            self._pos = 0
         self._buffer += chunk
 
     def pop(self) -> str | None:
         """The next complete element with its brackets, or None until more data arrives."""
         buf = self._buffer
         while True:
-            start = buf.find(b"<")
-            if start != 0:
-                self._skip(len(buf) if start < 0 else start)
+            pos = self._pos
+            start = buf.find(b"<", pos)
+            if start != pos:
+                self._skip((len(buf) if start < 0 else start) - pos)
                 if start < 0:
                     return None
-            end = buf.find(b">", 1)
+            end = buf.find(b">", start + 1)
             if end < 0:
-                if len(buf) > self._limit:
+                if len(buf) - start > self._limit:
                     raise ValueError(f"an element is longer than {self._limit} bytes")
                 return None
-            inner = buf.find(b"<", 1, end)
+            inner = buf.find(b"<", start + 1, end)
             if inner > 0:  # an unfinished element followed by a new one: drop the first
-                self._skip(inner)
+                self._skip(inner - start)
                 continue
-            if end + 1 > self._limit:
+            if end + 1 - start > self._limit:
                 raise ValueError(f"an element is longer than {self._limit} bytes")
-            element = bytes(buf[:end + 1]).decode("ascii", "replace")
-            del buf[:end + 1]
+            element = buf[start:end + 1].decode("ascii", "replace")
+            self._pos = end + 1
             return element
 
     def _skip(self, count: int) -> None:
-        junk = bytes(self._buffer[:count])
-        del self._buffer[:count]
+        pos = self._pos
+        junk = bytes(self._buffer[pos:pos + count])
+        self._pos = pos + count
         if junk.strip():
             log.warning("socketcand: skipped %r outside an element", junk[:80])
+
+
+_FRAME = re.compile(r"< frame ([0-9A-Fa-f]{3}) (\d+\.\d+) ([0-9A-Fa-f]{0,16}) ?>\Z", re.ASCII)
+"""The common case, a standard frame with contiguous data, parsed in one match."""
+
+
+def parse_element_frame(element: str, channel: str) -> can.Message | None:
+    """A standard frame element in the usual form, or None (then :func:`parse_frame`)."""
+    m = _FRAME.match(element)
+    if m is None or len(m.group(3)) % 2:
+        return None
+    return can.Message(timestamp=float(m.group(2)), arbitration_id=int(m.group(1), 16),
+                       data=bytes.fromhex(m.group(3)), is_extended_id=False, is_rx=True,
+                       channel=channel)
 
 
 def parse_frame(words: list[str], channel: str) -> can.Message:
@@ -263,6 +285,10 @@ class SocketcandBus(can.BusABC):
                 return None, False
 
     def _take(self, element: str) -> None:
+        fast = parse_element_frame(element, self.channel)
+        if fast is not None:
+            self._pending.append(fast)
+            return
         words = element[1:-1].split()
         kind = words[0] if words else ""
         if kind == "frame":
