@@ -332,3 +332,19 @@ def test_names_complete_and_commands_parse() -> None:
     assert parse_command("  ") is None
     with pytest.raises(ValueError):
         parse_command("Target")
+
+
+def test_check_with_a_tree_file_of_ones_own_names_its_line(flashed, tmp_path) -> None:
+    text = (ROOT / "attribute_trees/armar3/head_right.tree").read_text()
+    mine = tmp_path / "eyes.tree"
+    mine.write_text(text.replace("22:AD Channel 6 ==>", "22:AD Channel 5 ==>"))
+    code, out, err = ucom("remote", "check", str(mine), "--virtual", "armar3", "--state",
+                          str(flashed))
+    assert code == 1
+    line = text.splitlines().index("      22:AD Channel 6 ==> AD Channel 6") + 1
+    assert f"{mine}:{line}: index 22: the tree maps SO 'AD Channel 5'" in "".join(
+        out.splitlines())
+    code, _, err = ucom("remote", "check", str(ROOT / "attribute_trees/lauron4/camera_head"
+                                                      ".tree"), "--virtual", "armar3",
+                        "--state", str(flashed))
+    assert code == 3 and "CameraHead" in err and "no board of robot" in err

@@ -101,7 +101,7 @@ def _print_check(report: CheckReport) -> None:
                   result)
     stdout().print(t)
     for b in report.boards:
-        if b.differences and len(b.differences) > 1:
+        if b.differences:
             stdout().print(f"[bold]{escape(b.where)}[/] ({escape(b.tree_file)}):")
             for d in b.differences:
                 where = f"{b.tree_file}:{d.line}: " if d.line else ""

@@ -260,7 +260,8 @@ class RemotePart:
                     block = self.trees.board(h.name, spec.position)
                 except KeyError:
                     continue  # no tree: not part of the run time
-                base = BoardCheck(h.name, n, where, block.prefix, str(spec.tree or ""))
+                base = BoardCheck(h.name, n, where, block.prefix,
+                                  str(self._tree_file(h.name, spec.position)))
                 if n not in init.numbers:
                     out.append(_with(base, error="did not answer the init chain"))
                     continue
@@ -287,6 +288,14 @@ class RemotePart:
         self.names = Names(sorted(refs, key=lambda r: order[(r.bus, r.board)]))
         return self.report
 
+    def _tree_file(self, bus: str, position: int) -> Path | str:
+        """The file the tree block of a board comes from (a replacing file, or the
+        topology's)."""
+        for b in self.trees.boards:
+            if b.bus == bus and b.spec.position == position:
+                return b.file
+        return ""
+
     def described(self, bus: str, board: int) -> BoardEdges | None:
         """The edges board ``board`` of ``bus`` described in :meth:`check`."""
         return self._described.get((bus, board))
@@ -310,7 +319,7 @@ class RemotePart:
                     continue
                 block = self.trees.board(h.name, spec.position)
                 c = configure(x.mca, seq(n), x.where(n), block, x.plan,
-                              tree_file=str(spec.tree) if spec.tree else None,
+                              tree_file=str(self._tree_file(h.name, spec.position)),
                               edges=self._described[(h.name, n)])
                 x.configured[n] = c
                 for index in range(len(c.edges.ci)):
