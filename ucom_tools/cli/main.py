@@ -15,7 +15,17 @@ import click
 from rich.markup import escape
 
 from ucom_tools import __version__
-from ucom_tools.cli import commands, console, fleet, output, params, remote, srec, tree
+from ucom_tools.cli import (
+    commands,
+    conformance,
+    console,
+    fleet,
+    output,
+    params,
+    remote,
+    srec,
+    tree,
+)
 from ucom_tools.cli.exitcodes import (
     EXIT_BAD_INPUT,
     EXIT_BUS,
@@ -78,6 +88,7 @@ cli.add_command(fleet.fleet)
 cli.add_command(tree.tree)
 cli.add_command(remote.remote)
 cli.add_command(params.params)
+cli.add_command(conformance.conformance)
 
 
 def main() -> None:

@@ -1,0 +1,125 @@
+"""``ucom conformance``: the protocol conformance suite against the boards of a bus, for
+CI (JUnit report, a trace per case) and by hand (a table, decoded frames of failures)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import click
+from rich.markup import escape
+from rich.table import Table
+
+from ucom_tools.cli.exitcodes import EXIT_BUS, EXIT_FAILED
+from ucom_tools.cli.options import connection_json, connection_options, json_option, robot
+from ucom_tools.cli.output import emit_json, stderr, stdout
+from ucom_tools.conformance import junit
+from ucom_tools.conformance.bench import RUNTIME_IMAGE
+from ucom_tools.conformance.runner import Outcome, SuiteResult, run_suite, select
+from ucom_tools.errors import InputError
+from ucom_tools.ops.robot import ConnectSpec
+
+STYLE = {"passed": "green", "failed": "red", "skipped": "yellow", "error": "red"}
+
+
+def _list(pattern: str | None, as_json: bool) -> None:
+    cases = select(pattern)
+    if as_json:
+        emit_json({"cases": [{"id": c.id, "group": c.group, "title": c.title,
+                              "section": c.section, "writes": c.writes} for c in cases]})
+        return
+    t = Table(title=f"{len(cases)} cases", title_justify="left")
+    for col in ("case", "group", "checks", "section", "writes"):
+        t.add_column(col, overflow="fold")
+    for c in cases:
+        t.add_row(c.id, c.group, escape(c.title), escape(c.section),
+                  escape(c.writes) or "[dim]nothing[/]")
+    stdout().print(t)
+
+
+def _json(result: SuiteResult, spec: ConnectSpec) -> dict[str, Any]:
+    return {"connection": connection_json(spec), "ok": result.ok,
+            "counts": result.counts(), "bus_failure": result.bus_failure,
+            "left_as_found": not result.not_restored, "not_restored": result.not_restored,
+            "cases": [{"id": o.case.id, "group": o.case.group, "bus": o.bus,
+                       "section": o.case.section, "status": o.status,
+                       "message": o.message or None, "seconds": round(o.seconds, 3),
+                       "trace": o.trace, "frames": o.frames or None}
+                      for o in result.outcomes]}
+
+
+def _print(result: SuiteResult) -> None:
+    t = Table(title="conformance", title_justify="left")
+    for col in ("bus", "case", "result", "detail"):
+        t.add_column(col, overflow="fold")
+    for o in result.outcomes:
+        t.add_row(o.bus, o.case.id, f"[{STYLE[o.status]}]{o.status}[/]",
+                  escape(o.message) or "")
+    stdout().print(t)
+    for o in result.failed:
+        stdout().print(f"\n[bold red]{escape(o.case.id)}[/] on {o.bus} "
+                       f"({escape(o.case.section)}): {escape(o.message)}")
+        if o.frames:
+            stdout().print(escape(o.frames), highlight=False)
+    c = result.counts()
+    stdout().print(f"\n{c['passed']} passed, {c['failed']} failed, {c['skipped']} skipped"
+                   + (f", {c['error']} errors" if c["error"] else "")
+                   + ("" if not result.not_restored else
+                      f"; [red]not left as found:[/] {escape('; '.join(result.not_restored))}"))
+
+
+@click.command("conformance")
+@click.option("--junit", "junit_file", type=click.Path(dir_okay=False, path_type=Path),
+              metavar="FILE", help="Write a JUnit XML report (one testcase per case and bus).")
+@click.option("--trace-dir", type=click.Path(file_okay=False, path_type=Path), metavar="DIR",
+              help="Write each case's frames to DIR/BUS/CASE.log (python-can format).")
+@click.option("--only", "pattern", metavar="PATTERN",
+              help="Only the cases whose id or group matches (glob, e.g. 'init.*', "
+                   "'run time').")
+@click.option("--list", "list_only", is_flag=True,
+              help="List the cases (and what each writes to the boards); run nothing.")
+@click.option("--runtime-image", type=click.Path(dir_okay=False, path_type=Path),
+              default=RUNTIME_IMAGE, show_default=True, metavar="FILE",
+              help="The run-time program the run-time cases load into external RAM.")
+@connection_options
+@json_option
+@click.pass_context
+def conformance(ctx: click.Context, junit_file: Path | None, trace_dir: Path | None,
+                pattern: str | None, list_only: bool, runtime_image: Path,
+                spec: ConnectSpec, bus_name: str | None, as_json: bool) -> None:
+    """Check that the boards speak the protocol (ucom-protocol(7)), content and timing.
+
+    Runs every case on every bus (or --bus): identifiers, reset, init chain, Info,
+    program enable, programming (into external RAM), AutoStart and XReset, FPGA
+    registers, the run time (MCA Ready, descriptions, parameters, Dump CI, SO period
+    accuracy, watchdog reaction, Report 3) and bad input.  Each case cites the page's
+    section.  The boards are reset between cases and left as found.  Exit 0 when every
+    case passed or was skipped, 1 when one failed, 4 when the bus failed."""
+    if list_only:
+        _list(pattern, as_json)
+        return
+    cases = select(pattern)
+    if not runtime_image.is_file():
+        raise InputError(f"{runtime_image}: no such file", key="--runtime-image")
+    if junit_file is not None and not junit_file.parent.is_dir():
+        raise InputError(f"{junit_file.parent}: no such directory", key="--junit")
+
+    def progress(o: Outcome) -> None:
+        if not as_json and o.status != "passed":
+            stderr().print(f"[{STYLE[o.status]}]{o.status}[/] {o.bus} {escape(o.case.id)}: "
+                           f"{escape(o.message)}", soft_wrap=True)
+
+    with robot(spec) as r:
+        result = run_suite(r, cases, trace_dir=trace_dir, runtime_image=runtime_image,
+                           progress=progress, buses=[h.name for h in r.select(bus_name)])
+    if junit_file is not None:
+        junit.write(result, junit_file)
+    if as_json:
+        emit_json(_json(result, spec))
+    else:
+        _print(result)
+    if result.bus_failure is not None:
+        stderr().print(f"[bold red]ucom: bus error:[/] {escape(result.bus_failure)}")
+        ctx.exit(EXIT_BUS)
+    if not result.ok or result.not_restored:
+        ctx.exit(EXIT_FAILED)
