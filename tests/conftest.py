@@ -62,3 +62,18 @@ def chain_topology(n: int, *, extra: dict[int, str] | None = None, timing: str =
     for i in range(n):
         text += f'\n[[bus.board]]\nplacement = "slot {i + 1}"\nboard = "3M"\n{extra.get(i, "")}\n'
     return Fleet(parse(text, f"<chain{n}>"))
+
+
+def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
+    """The conformance suite's mutation score, when its mutants ran."""
+    try:
+        from tests.test_conformance_mutants import CATCHES, SCORE
+    except ImportError:
+        return
+    if SCORE:
+        caught = sum(SCORE.values())
+        missed = sorted(f for f, ok in SCORE.items() if not ok)
+        terminalreporter.write_line(
+            f"conformance mutation score: {caught}/{len(SCORE)} mutants caught "
+            f"({len(CATCHES)} documented)" + (f"; missed: {', '.join(missed)}" if missed
+                                              else ""))

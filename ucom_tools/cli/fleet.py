@@ -13,8 +13,11 @@ from rich.table import Table
 
 from ucom_tools.boards import board_name
 from ucom_tools.cli.output import emit_json, leds, stderr, stdout
-from ucom_tools.config.topology import BUNDLED
+from ucom_tools.config import topology as topo
+from ucom_tools.config.topology import BUNDLED, Topology
+from ucom_tools.errors import BusError
 from ucom_tools.virtual.fleet import Fleet
+from ucom_tools.virtual.multiserve import LOG_FORMAT, MultiServer, sigterm_interrupts
 from ucom_tools.virtual.socketcand import (
     DEFAULT_PORT,
     MAX_CLIENTS,
@@ -88,6 +91,24 @@ def show(topology: str, state_dir: Path | None, run_ms: int, as_json: bool) -> N
                   "plugged on; it ignores its inputs and keeps its outputs high impedance.")
 
 
+class _Processes(click.ParamType):
+    """``--processes``: ``auto`` (None) or a number of processes, 1 or more."""
+
+    name = "auto|N"
+
+    def convert(self, value: Any, param: click.Parameter | None,
+                ctx: click.Context | None) -> int | None:
+        if value is None or isinstance(value, int):
+            return value
+        text = str(value).strip().lower()
+        if text == "auto":
+            return None
+        if text.isdigit() and int(text) >= 1:
+            return int(text)
+        self.fail(f"{value!r} is neither 'auto' nor a number of processes (1 or more)", param,
+                  ctx)
+
+
 @fleet.command("serve")
 @click.argument("topology", metavar="TOPOLOGY")
 @click.option("--state", "state_dir", type=click.Path(path_type=Path),
@@ -97,11 +118,15 @@ def show(topology: str, state_dir: Path | None, run_ms: int, as_json: bool) -> N
               help="TCP port (0 = any free port; the chosen one is printed).")
 @click.option("--max-clients", default=MAX_CLIENTS, show_default=True,
               type=click.IntRange(1, None),
-              help="Clients served at once; one more is told '< error too many clients (N) >' "
-                   "and closed.")
+              help="Clients served at once (on all buses together); one more is told "
+                   "'< error too many clients (N) >' and closed.")
+@click.option("--processes", type=_Processes(), default="auto", show_default=True,
+              help="auto: serve each bus from a process of its own when TOPOLOGY has more "
+                   "than one bus (a fleet at 1 kHz needs more than one core); 1: the whole "
+                   "fleet in this process; N: the buses shared out among N processes.")
 @click.pass_context
 def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, port: int,
-          max_clients: int) -> None:
+          max_clients: int, processes: int | None) -> None:
     """Serve TOPOLOGY's buses with the socketcand protocol, in real time.
 
     Other processes reach the boards through a socketcand client: 'ucom ... -i socketcand
@@ -110,29 +135,64 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     No client can stop the bus for the others: a malformed element gets
     '< error ... >', a client that stops reading is dropped, connections are limited.
     Clients dropped or refused are logged on stderr (-v: every connection).  Runs until
-    interrupted (Ctrl-C)."""
+    interrupted (Ctrl-C or SIGTERM).
+
+    With --processes auto (the default) a topology with several buses is served from one
+    process per bus behind the one port: the buses share nothing but the wall clock, to
+    which each is paced.  A bus process that dies stops the whole serve (exit code 4,
+    naming the bus)."""
     verbose = int((ctx.find_root().obj or {}).get("verbose", 0))
-    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING,
-                        format="ucom fleet serve: %(message)s", stream=sys.stderr)
+    log_level = logging.INFO if verbose else logging.WARNING
+    logging.basicConfig(level=log_level, format=LOG_FORMAT, stream=sys.stderr)
     # the fleet's driver thread is busy most of the time: switch threads often, so
     # that clients' readers and writers get their turn within a cycle
     sys.setswitchinterval(SWITCH_INTERVAL_S)
-    f = Fleet.load(topology, state_dir=state_dir, realtime=True)
+    robot = topo.load(topology)
+    if processes != 1 and len(robot.buses) > 1:
+        _serve_per_bus(robot, state_dir, host, port, max_clients, log_level, processes)
+        return
+    f = Fleet(robot, state_dir=state_dir, realtime=True)
     try:
         server = FleetServer(f, host, port, max_clients=max_clients)
     except OSError as e:
         f.close()
-        from ucom_tools.errors import BusError
         raise BusError(f"cannot listen on {host}:{port}: {e.strerror}") from None
     h, p = server.address
     print(f"listening on {h}:{p}", flush=True)
     stderr().print(f"serving {f.name} ({', '.join(f.buses)}) with socketcand on {h}:{p}; "
               f"state: {state_dir or 'not kept'}; Ctrl-C stops")
     try:
-        serve_until_interrupted(server)
+        with sigterm_interrupts():
+            serve_until_interrupted(server)
     finally:
         f.close()
         sys.stdout.flush()
+
+
+def _serve_per_bus(robot: Topology, state_dir: Path | None, host: str, port: int,
+                   max_clients: int, log_level: int, processes: int | None) -> None:
+    """``fleet serve --processes auto``: one process per bus (or N processes for the
+    buses) behind one port."""
+    try:
+        server = MultiServer(robot, host, port, state_dir=state_dir, max_clients=max_clients,
+                             log_level=log_level, switch_interval=SWITCH_INTERVAL_S,
+                             processes=processes)
+    except OSError as e:
+        raise BusError(f"cannot listen on {host}:{port}: {e.strerror}") from None
+    with server:
+        with sigterm_interrupts():
+            server.start()
+        h, p = server.address
+        print(f"listening on {h}:{p}", flush=True)
+        shares = ("one process per bus" if len(server.processes) == len(server.buses) else
+                  f"{len(server.processes)} processes: " + "; ".join(
+                      worker.label for worker in server.processes))
+        stderr().print(f"serving {robot.name} ({', '.join(server.buses)}) with socketcand on "
+                       f"{h}:{p}, {shares}; state: {state_dir or 'not kept'}; Ctrl-C stops")
+        try:
+            server.serve_until_interrupted()
+        finally:
+            sys.stdout.flush()
 
 
 def _exchange(rt: dict[str, Any] | None) -> str:

@@ -19,6 +19,8 @@ from ucom_tools.cli import (
     commands,
     conformance,
     console,
+    dbc,
+    decode,
     fleet,
     output,
     params,
@@ -89,6 +91,8 @@ cli.add_command(tree.tree)
 cli.add_command(remote.remote)
 cli.add_command(params.params)
 cli.add_command(conformance.conformance)
+cli.add_command(decode.decode)
+cli.add_command(dbc.dbc)
 
 
 def main() -> None:

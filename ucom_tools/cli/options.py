@@ -23,7 +23,7 @@ from rich.markup import escape
 from ucom_tools.cli.output import stderr
 from ucom_tools.config.topology import BUNDLED
 from ucom_tools.errors import InputError
-from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot
+from ucom_tools.ops.robot import ConnectSpec, Robot, check_log, open_robot
 
 ENVIRONMENT = {
     "interface": "UCOM_INTERFACE", "channels": "UCOM_CHANNEL", "bitrate": "UCOM_BITRATE",
@@ -38,7 +38,8 @@ FLAGS = {"interface": "-i", "channels": "-c", "host": "--host", "port": "--port"
 
 
 def connection_options(f: Callable[..., Any]) -> Callable[..., Any]:
-    """Add -i/-c/-b/--host/--port/--virtual/--topology/--state/--pace/--bus to a command."""
+    """Add -i/-c/-b/--host/--port/--virtual/--topology/--state/--pace/--bus/--log to a
+    command."""
     env = ENVIRONMENT
     options = [
         click.option("-i", "--interface", envvar=env["interface"], metavar="NAME",
@@ -61,6 +62,11 @@ def connection_options(f: Callable[..., Any]) -> Callable[..., Any]:
         click.option("--pace", is_flag=True, envvar=env["pace"],
                      help="With --virtual: run the buses at their real bitrate."),
         click.option("--bus", "bus_name", metavar="NAME", help="Only this bus."),
+        click.option("--log", "log_file", metavar="FILE", type=click.Path(path_type=Path),
+                     help="Record every frame of every bus opened, received and sent, into "
+                          "FILE, a python-can log whose format follows the extension (.asc, "
+                          ".blf, .log, .trc, .csv, .db, .txt; .gz for the text ones); "
+                          "'ucom decode FILE' reads it back."),
     ]
     for opt in reversed(options):
         f = opt(f)
@@ -68,14 +74,17 @@ def connection_options(f: Callable[..., Any]) -> Callable[..., Any]:
     @functools.wraps(f)
     def wrapper(*args: Any, interface: str | None, channels: tuple[str, ...],
                 bitrate: int | None, host: str | None, port: int | None, virtual: str | None,
-                topology: str | None, state_dir: Path | None, pace: bool, **kwargs: Any) -> Any:
+                topology: str | None, state_dir: Path | None, pace: bool,
+                log_file: Path | None, **kwargs: Any) -> Any:
+        if log_file is not None:
+            check_log(log_file)  # before anything is read, opened or sent
         values: dict[str, Any] = {"interface": interface, "channels": channels, "host": host,
                                   "port": port, "virtual": virtual, "topology": topology}
         origin, ignored = _resolve(click.get_current_context(), values)
         spec = ConnectSpec(values["interface"], tuple(values["channels"]), bitrate,
                            values["host"], values["port"], values["virtual"],
                            values["topology"], state_dir, pace, origin=origin,
-                           ignored=tuple(ignored))
+                           ignored=tuple(ignored), log=log_file)
         if ignored:
             stderr().print(f"[yellow]ucom: using {escape(spec.describe())} from the "
                            f"{origin}; ignored from the environment: "
@@ -151,6 +160,9 @@ def robot(spec: ConnectSpec, *, run_init: bool = False, bus: str | None = None
             for h in r.select(bus):
                 h.client.init_chain()
         yield r
+    except InputError:
+        r.close(keep_log=False)  # bad input: nothing is written, --log neither
+        raise
     finally:
         r.close()
 

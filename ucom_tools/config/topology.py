@@ -3,7 +3,8 @@
 TOML, bundled ones are package data (``armar3``, ``lauron4``, ``kairo2``, ``odete``,
 ``puma200``, ``rosi``).  Every mistake is reported with file, line and key.  A topology
 can describe wiring faults: ``init_link = "broken"`` (the init line into this board is
-cut), ``powered = false``, and two boards with the same ``fixed_id``.
+cut), ``powered = false``, and two boards with the same ``fixed_id``; and mutant boards,
+``fault = "NAME"``, a documented protocol fault of :mod:`ucom_tools.virtual.mutants`.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from typing import Any
 
 from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.errors import TopologyError
+from ucom_tools.virtual import mutants
 from ucom_tools.wire.fpga import FpgaVersion
 
 BUNDLED = ("armar3", "lauron4", "kairo2", "odete", "puma200", "rosi")
@@ -67,6 +69,9 @@ class BoardSpec:
     tree_block: int | None = None
     """Which ``DSP{ <n>{ }<n> }DSP`` block of :attr:`tree` is this board's; None = the
     file's only block."""
+    fault: str | None = None
+    """The documented fault of a mutant board (:mod:`ucom_tools.virtual.mutants`); None =
+    the board conforms (or takes its fleet's fault)."""
 
 
 @dataclass(frozen=True)
@@ -309,7 +314,8 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
     if not isinstance(raw, dict):
         raise c.fail(path[:2], "board", "must be [[bus.board]] tables")
     c.no_extra(raw, path, {"placement", "board", "fixed_id", "serial", "program", "autostart",
-                           "powered", "init_link", "joints", "fpga", "tree", "tree_block"})
+                           "powered", "init_link", "joints", "fpga", "tree", "tree_block",
+                           "fault"})
     placement = c.take(raw, path, "placement", str)
     board = c.take(raw, path, "board", str)
     if board not in PLUG_ON_BOARDS:
@@ -342,9 +348,12 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
     if not all(isinstance(x, str) for x in joints):
         raise c.fail(path, "joints", "expected a list of strings")
     fpga = _fpga(c, path, c.take(raw, path, "fpga", dict, {}), PLUG_ON_BOARDS[board].board_id)
+    fault = c.take(raw, path, "fault", str, None)
+    if fault is not None and fault not in mutants.BY_NAME:
+        raise c.fail(path, "fault", mutants.unknown(fault))
     return BoardSpec(
         position=j, fpga=fpga, placement=placement, board=board, fixed_id=fixed_id, serial=serial,
         program=program, autostart=c.take(raw, path, "autostart", bool, False),
         powered=c.take(raw, path, "powered", bool, True), init_link_broken=link == "broken",
         joints=tuple(joints), line=c.lines.of(*path) or 0, serial_explicit="serial" in raw,
-        tree=tree, tree_block=tree_block)
+        tree=tree, tree_block=tree_block, fault=fault)

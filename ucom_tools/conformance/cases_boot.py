@@ -233,8 +233,11 @@ def program_wrong_progid(b: Bench) -> None:
     outcome = result.outcomes[seq(n)]
     b.expect(not outcome.verified, "transfer with a wrong ProgID", "refused (not VERIFIED)",
              outcome.status)
-    b.boot.reset(seq(n))  # the board keeps answering the transfer until a reset
-    b.wait(b.timeouts.reset)
+    info = b.boot.info(seq(n))
+    b.expect(not info.extram_valid, "Info after the refused transfer",
+             "no valid program in external RAM", "external RAM program valid")
+    b.link.send(m.ProgramAbort(), seq(n))  # close the transfer (a reset would too)
+    b.wait(b.timeouts.reply)
     (started,) = b.boot.start(seq(n), Target.EXTRAM)
     codes = [e.code for e in started.errors]
     b.expect(not started.started and ErrorCode.NO_PROGRAM in codes,

@@ -13,7 +13,7 @@ import can
 
 from ucom_tools.conformance.bench import Bench
 from ucom_tools.conformance.case import case
-from ucom_tools.errors import BoardError
+from ucom_tools.errors import BoardError, UcomTimeoutError
 from ucom_tools.programs import by_name
 from ucom_tools.programs.model import EdgeKind
 from ucom_tools.protocol.dispatch import Periodic
@@ -33,7 +33,12 @@ time of arbitration."""
 def _running(b: Bench) -> tuple[int, mca.McaReady, BoardEdges]:
     n = b.boards()[0]
     ready = b.runtime_program(n)
-    edges = b.mca.describe(seq(n), (ready.ci, ready.so, ready.par))
+    try:
+        edges = b.mca.describe(seq(n), (ready.ci, ready.so, ready.par))
+    except (BoardError, UcomTimeoutError) as err:
+        b.expect(False, "descriptions of the edges MCA Ready counts",
+                 f"{ready.ci} CI, {ready.so} SO, {ready.par} PAR edges described", str(err))
+        raise
     return n, ready, edges
 
 

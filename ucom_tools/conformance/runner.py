@@ -7,7 +7,8 @@ bootloader with XReset (a plain reset would start an AutoStart program again); c
 restore what they change themselves, programs under test run from external RAM (a
 reset ends them; flash is written only to give AutoStart a program where no board had
 one, and made invalid again); at the end the AutoStart flags are set again and the
-programs that ran are started again.  What is then not as it was is reported (``left_as_found`` false).
+programs that ran are started again.  What is then not as it was is reported
+(``left_as_found`` false).
 """
 
 from __future__ import annotations
@@ -107,6 +108,8 @@ def render(frames: Sequence[can.Message]) -> str:
 def _found(bench: Bench) -> list[Found]:
     out = []
     for n in bench.boards():
+        if not 1 <= n <= 31:
+            raise UcomError(f"a board answered the init chain as number {n}")
         info = bench.boot.info(seq(n))
         out.append(Found(bench.name, n, info.serial, info.flash_valid, info.progid,
                          info.autostart, info.state in (BoardState.RUNNING_FLASH,
@@ -151,14 +154,22 @@ def run_suite(robot: Robot, cases: Sequence[Case], *, trace_dir: Path | None = N
             bench = Bench(handle, robot.timeouts, runtime_image)
             try:
                 bench.init()  # as found: no reset yet (it would end running programs)
-                found = _found(bench)
+                try:
+                    found = _found(bench)
+                except (UcomError, CaseFailed, Skipped) as err:
+                    found = []
+                    result.not_restored.append(f"{bench.name}: the boards could not be "
+                                               f"read as found ({err}); nothing restored")
                 result.found += found
                 for c in cases:
                     outcome = _run_case(bench, c, trace_dir)
                     result.outcomes.append(outcome)
                     if progress is not None:
                         progress(outcome)
-                result.not_restored += _restore(bench, found)
+                try:
+                    result.not_restored += _restore(bench, found)
+                except (UcomError, CaseFailed, Skipped) as err:
+                    result.not_restored.append(f"{bench.name}: restoring failed: {err}")
             finally:
                 bench.close()
     except BusError as err:

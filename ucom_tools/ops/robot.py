@@ -1,15 +1,27 @@
 """Opening a robot: one python-can bus per CAN channel, real or virtual, with the boards
-its topology expects on each."""
+its topology expects on each.
+
+With ``ConnectSpec.log`` (``--log FILE``) every frame received and sent on every bus the
+robot opened is recorded into a python-can log (:class:`FrameLog`) until the robot is
+closed; the format follows the file's extension, which is checked, like the directory,
+before any bus is opened.
+"""
 
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
+import copy
+import os
+import tempfile
+import threading
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import can
+from can.io.generic import MessageWriter
+from can.util import channel2int
 
 from ucom_tools.config import topology as topo_mod
 from ucom_tools.config.topology import BusSpec, Topology
@@ -37,6 +49,8 @@ class ConnectSpec:
     """Where the bus was named: "command line" or "environment"."""
     ignored: tuple[str, ...] = ()
     """Environment settings that named another bus and were ignored (``UCOM_X=value``)."""
+    log: Path | None = None
+    """Record every frame of every bus opened into this python-can log (``--log``)."""
 
     def describe(self) -> str:
         if self.virtual:
@@ -83,6 +97,8 @@ class Robot:
     buses: dict[str, BusHandle]
     topology: Topology | None
     timeouts: Timeouts = field(default=DEFAULT)
+    log: FrameLog | None = None
+    """The ``--log`` recording of every bus, closed (kept) by :meth:`close`."""
 
     @property
     def virtual_time(self) -> bool:
@@ -97,14 +113,197 @@ class Robot:
             raise InputError(f"no bus {name!r}; buses: {', '.join(self.buses)}", key="--bus")
         return [self.buses[name]]
 
-    def close(self) -> None:
+    def close(self, *, keep_log: bool = True) -> None:
+        """Shut every bus down, then end the ``--log`` recording: renamed into place
+        (``keep_log``), or discarded (after bad input: nothing is written).  Raises
+        :class:`LogError` (no file left) when the recording could not be written."""
         for h in self.buses.values():
+            if self.log is not None:
+                self.log.detach(h)
             with contextlib.suppress(Exception):
                 h.bus.shutdown()
+        log, self.log = self.log, None
+        if log is not None:
+            if keep_log:
+                log.close()
+            else:
+                log.discard()
+
+
+# ------------------------------------------------------------------------ --log
+INT_CHANNELS = frozenset({".asc", ".blf", ".trc", ".mf4"})
+"""Log formats whose channel is a number: bus CANn is stored as n (channel n + 1 in
+Vector's and PEAK's counting); other buses get the lowest free number."""
+
+
+class LogError(UcomError):
+    """The ``--log`` recording could not be written (a full disk, a lost directory); the
+    partial file was removed."""
+
+
+def log_extension(path: str | os.PathLike[str]) -> str:
+    """The format extension of ``path`` (``.asc``, ``.log.gz``, ...); InputError (key
+    ``--log``) naming the supported ones when python-can cannot write it."""
+    from ucom_tools.ops.record import supported_extensions
+
+    suffixes = [x.lower() for x in Path(path).suffixes]
+    ext = "".join(suffixes[-2:]) if suffixes[-1:] == [".gz"] else "".join(suffixes[-1:])
+    supported = supported_extensions()
+    if ext not in supported:
+        shown = f"'{ext}'" if ext else "no extension"
+        raise InputError(f"{os.fspath(path)}: {shown} is not a CAN log format python-can "
+                         f"writes; use one of {', '.join(supported)}", key="--log")
+    return ext
+
+
+def check_log(path: str | os.PathLike[str]) -> str:
+    """Check ``--log FILE`` before anything is opened: a format python-can writes, in a
+    directory that exists, not a directory itself.  Returns the extension."""
+    ext = log_extension(path)
+    p = Path(path)
+    if not p.parent.is_dir():
+        raise InputError(f"{os.fspath(p)}: directory {os.fspath(p.parent)} does not exist",
+                         key="--log")
+    if p.is_dir():
+        raise InputError(f"{os.fspath(p)} is a directory", key="--log")
+    return ext
+
+
+class FrameLog:
+    """``--log FILE``: every frame of the robot's buses, received and sent, into a
+    python-can log (:func:`can.Logger`, the format by the extension).
+
+    Written under a temporary name beside FILE and renamed into place by :meth:`close`,
+    so FILE is a complete recording or absent (an existing FILE keeps its permissions).
+    Each frame carries its bus name as channel (as the bus's number in the formats of
+    :data:`INT_CHANNELS`) and its time on the bus's time base: a received frame its own
+    timestamp, a sent frame the time it was handed to the bus, on the same base (the
+    virtual fleet's virtual time in virtual time).  Thread-safe: the bus readers record from
+    their threads."""
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        self.extension = check_log(self.path)
+        self._int_channels = self.extension.removesuffix(".gz") in INT_CHANNELS
+        self.channels: dict[str, int] = {}
+        self._taps: dict[str, Callable[[can.Message], None]] = {}
+        self._lock = threading.Lock()
+        self._closed = False
+        self._failure: BaseException | None = None
+        self.frames = 0
+        stem = self.path.name[:-len(self.extension)].replace(".", "_")
+        fd, self._tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{stem}-",
+                                         suffix=self.extension)
+        os.close(fd)
+        try:
+            self._writer: MessageWriter = can.Logger(self._tmp)
+        except Exception as err:
+            with contextlib.suppress(OSError):
+                os.unlink(self._tmp)
+            raise InputError(f"cannot write {os.fspath(self.path)}: "
+                             f"{getattr(err, 'strerror', None) or err}", key="--log") from None
+
+    def attach(self, handle: BusHandle) -> None:
+        """Record every frame ``handle``'s dispatcher receives or sends from now on, with
+        the bus's name as its channel."""
+        dispatcher = handle.link.dispatcher
+        name = handle.name
+
+        def tap(msg: can.Message) -> None:  # sent frames come stamped on the same base
+            self._record(msg, name)
+
+        self._taps[name] = tap
+        dispatcher.taps.append(tap)
+
+    def detach(self, handle: BusHandle) -> None:
+        """Stop recording ``handle``'s frames."""
+        tap = self._taps.pop(handle.name, None)
+        if tap is not None:
+            with contextlib.suppress(ValueError):
+                handle.link.dispatcher.taps.remove(tap)
+
+    def _channel(self, name: str) -> int:
+        number = self.channels.get(name)
+        if number is None:
+            taken = set(self.channels.values())
+            number = channel2int(name)
+            if number is None or number in taken:
+                number = next(n for n in range(len(taken) + 1) if n not in taken)
+            self.channels[name] = number
+        return number
+
+    def _record(self, msg: can.Message, bus: str) -> None:
+        """Record one frame of ``bus`` (sent frames have ``is_rx`` False)."""
+        with self._lock:
+            if self._closed or self._failure is not None:
+                return
+            try:
+                out = copy.copy(msg)
+                out.channel = self._channel(bus) if self._int_channels else bus
+                self._writer.on_message_received(out)
+                self.frames += 1
+            except Exception as err:  # a bus reader must not die of the recording
+                self._failure = err
+
+    def close(self) -> None:
+        """Flush the log and rename it into place (idempotent); :class:`LogError`, and no
+        file, when writing failed."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            try:
+                self._writer.stop()
+                with open(self._tmp, "rb") as f:  # python-can closed it unsynced
+                    os.fsync(f.fileno())
+                if self._failure is None:
+                    try:
+                        mode = self.path.stat().st_mode & 0o7777
+                    except OSError:
+                        mode = 0o644
+                    os.chmod(self._tmp, mode)
+                    os.replace(self._tmp, self.path)
+                    return
+            except OSError as err:
+                self._failure = self._failure or err
+            with contextlib.suppress(OSError):
+                os.unlink(self._tmp)
+            failure = self._failure
+            raise LogError(f"--log: writing {os.fspath(self.path)} failed: "
+                           f"{getattr(failure, 'strerror', None) or failure}; nothing was kept")
+
+    def discard(self) -> None:
+        """End the recording and keep nothing (idempotent; after :meth:`close` the file
+        stays)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            with contextlib.suppress(Exception):
+                self._writer.stop()
+            with contextlib.suppress(OSError):
+                os.unlink(self._tmp)
 
 
 def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:
-    """Open every bus of ``spec``; raises :class:`BusError` with one clear line."""
+    """Open every bus of ``spec``; raises :class:`BusError` with one clear line.  With
+    ``spec.log`` every frame of every bus is recorded until :meth:`Robot.close` (the file
+    is checked before any bus is opened: InputError, key ``--log``)."""
+    log = FrameLog(spec.log) if spec.log is not None else None
+    try:
+        robot = _open(spec, timeouts)
+    except BaseException:
+        if log is not None:
+            log.discard()
+        raise
+    if log is not None:
+        robot.log = log
+        for h in robot.buses.values():
+            log.attach(h)
+    return robot
+
+
+def _open(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
     if spec.virtual:
         return _open_virtual(spec, timeouts)
     topology = topo_mod.load(spec.topology) if spec.topology else None

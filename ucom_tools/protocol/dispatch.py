@@ -86,6 +86,10 @@ class Dispatcher:
         clock = getattr(bus, "clock", None)
         self.clock: Callable[[], float] = clock if callable(clock) else time.monotonic
         """Seconds on the bus's time base (virtual time on the in-process fleet)."""
+        stamp = getattr(bus, "stamp", None)
+        self._stamp: Callable[[], float] = stamp if callable(stamp) else time.time
+        """A timestamp on the base of the received frames' (the wall clock, or the
+        virtual fleet's epoch plus its time): for the sent frames the taps see."""
         self.subscriptions: list[Subscription] = []
         self.unclaimed: Counter[int] = Counter()
         """Frames no subscriber took, by function code (identifier bits 10-6)."""
@@ -136,7 +140,7 @@ class Dispatcher:
         self.sent += 1
         self._count(msg)
         if self.taps:
-            out = can.Message(timestamp=self.clock(), arbitration_id=msg.arbitration_id,
+            out = can.Message(timestamp=self._stamp(), arbitration_id=msg.arbitration_id,
                               data=msg.data, is_extended_id=False, is_rx=False,
                               channel=self.name)
             for tap in self.taps:

@@ -36,11 +36,14 @@ STARTUP_US = 200.0
 class DspProgram:
     """A started program: checks compatibility, then runs (announcing itself)."""
 
-    def __init__(self, board: ProgramHost, target: Target, name: str, progid: int) -> None:
+    def __init__(self, board: ProgramHost, target: Target, name: str, progid: int, *,
+                 fault: str | None = None) -> None:
         self.board = board
         self.target = target
         self.name = name
         self.progid = progid
+        self.fault = fault
+        """The board's fault (:mod:`~ucom_tools.virtual.mutants`), handed to the run time."""
         self.runtime: McaRuntime | None = None
 
     def start(self, t: float) -> None:
@@ -90,7 +93,7 @@ class DspProgram:
     def _running(self, t: float, program: str = "") -> None:
         self.board.report_text(t, f"program '{self.name}' running (ProgID 0x{self.progid:08X})")
         spec, model, plant = make_model(program, self.board, self.board.placement)
-        self.runtime = McaRuntime(self.board, spec, model, plant, t)
+        self.runtime = McaRuntime(self.board, spec, model, plant, t, fault=self.fault)
 
     def end(self) -> None:
         """The board leaves the program (reset, power loss, its own end)."""

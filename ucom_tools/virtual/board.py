@@ -20,6 +20,7 @@ from pathlib import Path
 from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.config.topology import Timing
 from ucom_tools.errors import FrameError
+from ucom_tools.virtual import mutants
 from ucom_tools.virtual.application import DspProgram
 from ucom_tools.virtual.fpga import ExternalMemory, VirtualFpga
 from ucom_tools.virtual.nvmem import NonVolatile
@@ -51,6 +52,7 @@ _MCA_FROM_HOST = frozenset(f.value for f in Function if f.direction is Direction
                            and f not in m.BOOTLOADER_FUNCTIONS)
 _PROGRAM = int(Function.PROGRAM)
 _MCA_CI = int(Function.MCA_CONTROLLER_INPUT)
+_SET_STATUS = int(Function.SET_STATUS)
 
 
 @dataclass(frozen=True)
@@ -67,12 +69,20 @@ class Identity:
 
 
 class VirtualBoard:
-    """One UCoM with its bootloader, on one bus, at one position of the init chain."""
+    """One UCoM with its bootloader, on one bus, at one position of the init chain.
+
+    ``fault`` makes it a mutant board: a fault of :mod:`~ucom_tools.virtual.mutants`
+    (InputError for an unknown name), fixed for the board's life."""
 
     def __init__(self, bus: SimBus, identity: Identity, *, timing: Timing | None = None,
-                 powered: bool = True, state_file: Path | None = None) -> None:
+                 powered: bool = True, state_file: Path | None = None,
+                 fault: str | None = None) -> None:
         self.bus = bus
         self.identity = identity
+        self.fault = mutants.check(fault)
+        """The documented fault this board has (None: it conforms)."""
+        self._claimed = False
+        """seq-from-zero: the board took a number in this chain (its seq ID is one less)."""
         self.timing = timing or Timing()
         self.nv = NonVolatile()
         self.state_file = state_file
@@ -83,7 +93,7 @@ class VirtualBoard:
         self.out_drive = False
         self.seq_id = 0
         self.chain_active = False
-        self.programming = BoardProgramming(self, self.nv)
+        self.programming = BoardProgramming(self, self.nv, fault=self.fault)
         self.application: DspProgram | None = None
         self.stagger_us = (identity.serial & 0x3F) * bus.us_per_bit
         plug = PLUG_ON_BOARDS[identity.board].board_id
@@ -127,6 +137,10 @@ class VirtualBoard:
         """Power-on: volatile state cleared, init outputs set (B.2.2 (b))."""
         self._powered = True
         self.seq_id = 0
+        self._claimed = False
+        if self.fault == mutants.AUTOSTART_LOST and self.nv.record.autostart:
+            self.nv.record.autostart = False  # the flag did not survive the power cycle
+            self.persist(record_only=True)
         self._boot(t)
 
     def power_off(self) -> None:
@@ -153,7 +167,9 @@ class VirtualBoard:
         self._suppress_autostart = False
 
     def _reset(self, t: float, clear_autostart: bool) -> None:
-        if clear_autostart and self.nv.record.autostart:
+        lost = self.fault == mutants.AUTOSTART_LOST  # the flag does not survive a reset
+        if (clear_autostart or lost) and self.nv.record.autostart and \
+                (self.fault != mutants.XRESET_KEEPS_AUTOSTART or lost):
             self.nv.record.autostart = False
             self.persist(record_only=True)
         self._end_application()
@@ -254,12 +270,13 @@ class VirtualBoard:
             broadcast = False
             mine = bool(self.identity.fixed_id) and number == self.identity.fixed_id
             via_fixed = True
-        if not mine:
+        if not mine and not (function == _SET_STATUS and id_type == 0
+                             and self.fault == mutants.PROMISCUOUS):
             if function == _PROGRAM and data and data[0] == ProgramOp.BLOCK:
                 self.programming.other_block()
             return
         if function > 27:
-            if not broadcast:
+            if not broadcast and self.fault != mutants.UNKNOWN_FUNCTION_SILENT:
                 self.error(t, ErrorCode.UNKNOWN_FUNCTION, function, via_fixed=via_fixed)
             return
         if function in _MCA_FROM_HOST:
@@ -289,7 +306,12 @@ class VirtualBoard:
             case m.InitRequest():
                 self._init(msg, t)
             case m.InfoRequest():
-                for frame in self.info().to_frames():
+                info = self.info()
+                if self.fault == mutants.INFO_SWAPPED:
+                    info = replace(info, serial=info.progid, progid=info.serial)
+                if self.fault == mutants.LATE_ANSWER:
+                    reply_t += mutants.LATE_US
+                for frame in info.to_frames():
                     self.send(reply_t, frame, via_fixed=via_fixed)
             case m.ReportRequest():
                 self._report(msg, reply_t, via_fixed)
@@ -310,16 +332,18 @@ class VirtualBoard:
         settle = t + self.timing.settle_us
         if msg.op is InitOp.BEGIN:
             self.seq_id = 0
+            self._claimed = False
             self.chain_active = True
             self.in_drive = False
             self.out_drive = True
             self.bus.at(settle, self._claim_if_first(1))
         elif msg.op is InitOp.NEXT:
-            if self.seq_id == msg.number - 1 and self.chain_active:
+            held = self._chain_number()
+            if held == msg.number - 1 and self.chain_active:
                 self.out_drive = False
-            if self.chain_active and self.seq_id == msg.number:
+            if self.chain_active and held == msg.number:
                 self._init_ack(InitAckKind.ASSIGNED, settle)  # asked again: its ack was lost
-            if self.chain_active and not self.seq_id:
+            if self.chain_active and not held:
                 self.bus.at(settle, self._claim_if_first(msg.number))
         elif msg.op is InitOp.END:
             self.chain_active = False
@@ -334,13 +358,22 @@ class VirtualBoard:
 
     def _claim_if_first(self, number: int) -> Callable[[float], None]:
         def sample(t: float) -> None:
-            if not self._powered or not self.chain_active or self.seq_id:
+            if not self._powered or not self.chain_active or self._chain_number():
                 return
             if self.bus.init_in_set(self.identity.position):
                 return
             self.seq_id = number
+            if self.fault == mutants.SEQ_FROM_ZERO:
+                self.seq_id, self._claimed = number - 1, True
             self._init_ack(InitAckKind.ASSIGNED, t)
         return sample
+
+    def _chain_number(self) -> int:
+        """The number this board holds in the init chain: its seq ID (seq-from-zero:
+        one more, once it has claimed one)."""
+        if self.fault == mutants.SEQ_FROM_ZERO and self._claimed:
+            return self.seq_id + 1
+        return self.seq_id
 
     def _probe(self, kind: InitAckKind) -> Callable[[float], None]:
         def sample(t: float) -> None:
@@ -363,10 +396,14 @@ class VirtualBoard:
                         | BOOTLOADER_VERSION[1], self.identity.serial)
         addr = self.reply_address() or Address(IdType.SEQUENTIAL, 0)
         self.send(t + self.stagger_us, ack, address=addr)
+        if self.fault == mutants.INIT_TWICE and kind is InitAckKind.ASSIGNED:
+            self.send(t + self.stagger_us, ack, address=addr)
 
     # ================================================================= status & reports
     def _set_status(self, msg: m.SetStatus, t: float, via_fixed: bool) -> None:
         op, value = msg.op, msg.value
+        if self.fault == mutants.LATE_ANSWER:
+            t += mutants.LATE_US  # done at once, answered late (t only times the answers)
         if op is StatusOp.PROG_ENABLE:
             if self.application is not None:
                 self.error(t, ErrorCode.RUNNING, Function.SET_STATUS, op, via_fixed)
@@ -381,7 +418,8 @@ class VirtualBoard:
         elif op is StatusOp.INIT_IN:
             self.in_drive = bool(value)
         elif op is StatusOp.INIT_OUT:
-            self.out_drive = bool(value)
+            if self.fault != mutants.IGNORE_INITOUT:
+                self.out_drive = bool(value)
         elif op is StatusOp.SEQ_ID:
             self.seq_id = value
         self.send(t + self.timing.reply_us, m.Ready(ReadyReason.STATUS, self.state,
@@ -515,7 +553,7 @@ class VirtualBoard:
             ext = self.programming.extram
             assert ext is not None
             name, progid = ext.name, ext.progid
-        self.application = DspProgram(self, target, name, progid)
+        self.application = DspProgram(self, target, name, progid, fault=self.fault)
         if announce:
             self.send(t, m.Ready(ReadyReason.STARTED, self.state, target), via_fixed=via_fixed)
         self.application.start(t)

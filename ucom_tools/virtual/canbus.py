@@ -98,6 +98,11 @@ class VirtualUcomBus(can.BusABC):
             return time.monotonic()
         return self.sim.now / 1e6
 
+    def stamp(self) -> float:
+        """A timestamp on the base of this bus's received frames: the fleet's epoch plus
+        its time (virtual, or paced to the wall clock)."""
+        return self.fleet.epoch + self.fleet.now_us(self.sim) / 1e6
+
     # ------------------------------------------------------------------ send
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         if msg.is_extended_id or msg.is_fd or msg.is_remote_frame or msg.is_error_frame:

@@ -42,6 +42,11 @@ class LossyBus(can.BusABC):
         """The inner bus's time base (virtual time on the in-process fleet)."""
         return self._clock()
 
+    def stamp(self) -> float:
+        """Timestamps of sent frames on the inner bus's base of received ones."""
+        stamp = getattr(self.inner, "stamp", None)
+        return stamp() if callable(stamp) else time.time()
+
     def _lost(self, direction: Direction, msg: can.Message) -> bool:
         if self.drop is not None and self.drop(direction, msg):
             lost = True

@@ -1,7 +1,9 @@
 """A fleet: every bus and board of one topology, built and (optionally) persisted.
 
 ``state_dir`` keeps each board's non-volatile memory (flash, bootloader record with the
-AutoStart flag) across restarts, like power cycles of the real robot.
+AutoStart flag) across restarts, like power cycles of the real robot.  ``fault`` makes
+every board that does not name its own fault in the topology a mutant board
+(:mod:`~ucom_tools.virtual.mutants`).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.config import topology as topo
 from ucom_tools.config.topology import BoardSpec, Topology
 from ucom_tools.errors import InputError, TopologyError, UcomError
+from ucom_tools.virtual import mutants
 from ucom_tools.virtual.board import Identity, VirtualBoard
 from ucom_tools.virtual.clock import FleetClock, RealtimeDriver
 from ucom_tools.virtual.simbus import SimBus
@@ -32,7 +35,9 @@ class Fleet:
     """The virtual boards and buses of one topology."""
 
     def __init__(self, topology: Topology, *, state_dir: Path | None = None,
-                 realtime: bool = False) -> None:
+                 realtime: bool = False, fault: str | None = None) -> None:
+        self.fault = mutants.check(fault)
+        """The fault of every board whose topology entry names none (None: they conform)."""
         self.topology = topology
         self.state_dir = state_dir
         self.realtime = realtime
@@ -54,7 +59,8 @@ class Fleet:
                 board = VirtualBoard(sim, Identity(b.position, b.placement, b.board, b.serial,
                                                    b.fixed_id, b.fpga),
                                      timing=topology.timing, powered=False,
-                                     state_file=self._state_file(spec.name, b))
+                                     state_file=self._state_file(spec.name, b),
+                                     fault=b.fault or fault)
                 if b.program is not None and not board.nv.record.flash_valid:
                     install_program(board, b, topology.source, spec.name)
                 sim.attach(board)
@@ -73,8 +79,10 @@ class Fleet:
 
     @classmethod
     def load(cls, name_or_path: str, *, state_dir: Path | None = None,
-             realtime: bool = False) -> Fleet:
-        return cls(topo.load(name_or_path), state_dir=state_dir, realtime=realtime)
+             realtime: bool = False, fault: str | None = None) -> Fleet:
+        mutants.check(fault)  # before the topology: a wrong name is the caller's mistake
+        return cls(topo.load(name_or_path), state_dir=state_dir, realtime=realtime,
+                   fault=fault)
 
     def _state_file(self, bus: str, spec: BoardSpec) -> Path | None:
         if self.state_dir is None:
@@ -174,6 +182,7 @@ class Fleet:
                     "init_pins": b.pins(),
                     "can_errors": b.can_errors,
                     "runtime": _runtime(b),
+                    **({"fault": b.fault} if b.fault else {}),
                 } for b in self.boards[name]]
                 buses.append({
                     "name": name, "bitrate": sim.bitrate, "boards": boards,

@@ -12,7 +12,9 @@ Program Finished with what is missing, committing the program only when it verif
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
+from ucom_tools.virtual import mutants
 from ucom_tools.virtual.nvmem import ExtRamProgram, NonVolatile, external_ram
 from ucom_tools.virtual.port import BoardPort
 from ucom_tools.virtual.receiver import BlockState, Reception, RejectedBlock
@@ -37,9 +39,11 @@ _PROGRAM = int(Function.PROGRAM)
 class BoardProgramming:
     """The programming part of one virtual board's bootloader."""
 
-    def __init__(self, port: BoardPort, nv: NonVolatile) -> None:
+    def __init__(self, port: BoardPort, nv: NonVolatile, *, fault: str | None = None) -> None:
         self.port = port
         self.nv = nv
+        self.fault = fault
+        """The board's fault (:mod:`~ucom_tools.virtual.mutants`), None if it conforms."""
         self.enabled = False
         """ProgEnable (SetStatus): broadcast Program frames are taken only when set."""
         self.reception: Reception | None = None
@@ -220,7 +224,11 @@ class BoardProgramming:
             result, reports = rx.result(memory)
             self.overruns += rx.overruns
             rx.overruns = 0
-            if result.status is ResultStatus.VERIFIED:
+            if self.fault == mutants.WRONG_PROGID and result.status is ResultStatus.VERIFIED:
+                result = replace(result, progid=(result.progid + 1) & 0xFFFFFFFF)
+            if result.status is ResultStatus.VERIFIED or (
+                    self.fault == mutants.ACCEPT_BAD_PROGID
+                    and result.status is ResultStatus.PROGID_MISMATCH):
                 self._commit(rx)
                 self.finished = result
             self.port.send(t, result, via_fixed=via_fixed)
@@ -235,6 +243,8 @@ class BoardProgramming:
         name = b"".join(meta.get(MetaField.NAME_0 + i, b"") for i in range(7))
         name_s = name.rstrip(b"\0").decode("latin-1")
         progid = rx.expected_progid()
+        if self.fault == mutants.WRONG_PROGID:
+            progid = (progid + 1) & 0xFFFFFFFF
         if rx.target is Target.FLASH:
             rec = self.nv.record
             rec.flash_valid = True

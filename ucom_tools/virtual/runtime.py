@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 from ucom_tools.errors import FrameError
 from ucom_tools.programs.model import EdgeKind, EdgeSpec, ProgramSpec
+from ucom_tools.virtual import mutants
 from ucom_tools.virtual.port import BoardPort
 from ucom_tools.virtual.programs.base import Plant, ProgramModel
 from ucom_tools.wire import mca
@@ -89,8 +90,15 @@ class McaRuntime:
     """The run-time exchange of one running program."""
 
     def __init__(self, port: BoardPort, spec: ProgramSpec, model: ProgramModel,
-                 plant: Plant | None, t: float) -> None:
+                 plant: Plant | None, t: float, *, fault: str | None = None) -> None:
         self.port = port
+        self.fault = fault
+        """The board's fault (:mod:`~ucom_tools.virtual.mutants`), None if it conforms."""
+        self._watchdog = fault != mutants.IGNORE_ALIVE
+        self._range_check = fault != mutants.NO_RANGE_CHECK
+        self._refuse_latched = fault != mutants.CI_WHILE_LATCHED
+        if fault == mutants.SO_SLOW:
+            self._send_maps = self._send_maps_slow  # type: ignore[method-assign]
         self.spec = spec
         self.model = model
         self.plant = plant
@@ -130,7 +138,7 @@ class McaRuntime:
         if self.plant is not None:
             self.plant.advance(dt)
         if self.state is mca.RunState.RUNNING and \
-                t - self.last_alive > self.alive_ms * 1000.0:
+                t - self.last_alive > self.alive_ms * 1000.0 and self._watchdog:
             self._latch(t)
         work = self.model.step(dt) + FRAME_COST_US * self.stats.frames
         self.stats.frames = 0
@@ -153,7 +161,9 @@ class McaRuntime:
             s.overruns += 1
             s.last_late_us = work - loop
             self.overrun_at = t
-            self.overrun_depth = min(1.0, (work - loop) / loop)
+            # a cycle time of 0 or less only reaches a board that does not range-check
+            # (mutants.NO_RANGE_CHECK): then every cycle overruns in full
+            self.overrun_depth = min(1.0, (work - loop) / loop) if loop > 0 else 1.0
             self.flags |= mca.FLAG_OVERRUN
             if s.overruns == 1 or s.overruns % REPORT_EVERY == 0:
                 self.port.error(t, ErrorCode.OVERRUN, NO_FUNCTION,
@@ -193,6 +203,16 @@ class McaRuntime:
             data = m.layout.pack(*[so[i] for i in m.edges])
             self.port.send_raw(t, m.arbitration_id, mca.mask(data))
 
+    def _send_maps_slow(self, t: float) -> None:
+        """so-slow: :meth:`_send_maps` with each map's countdown in tenths of a cycle, so
+        that a map goes out every 1.1 x its period (on average, on the cycle grid)."""
+        so = self.model.so
+        for m in self.so_maps.values():
+            due, m.countdown = mutants.so_slow_step(m.countdown, m.period)
+            if due:
+                data = m.layout.pack(*[so[i] for i in m.edges])
+                self.port.send_raw(t, m.arbitration_id, mca.mask(data))
+
     # ------------------------------------------------------------------ frames
     def on_map(self, number: int, data: bytes, t: float) -> None:
         """A CI process-data frame (map ``number``) on the bus."""
@@ -200,7 +220,7 @@ class McaRuntime:
         if m is None:
             return
         self.stats.frames += 1
-        if self.state is mca.RunState.LATCHED:
+        if self.state is mca.RunState.LATCHED and self._refuse_latched:
             self._refuse_ci(t)
             return
         if len(data) < m.needs:
@@ -210,7 +230,8 @@ class McaRuntime:
         raws = m.layout.unpack(mca.mask(data[:8].ljust(8, b"\x55")))
         edges = self._kinds[mca.Kind.CI]
         for slot, (index, raw) in enumerate(zip(m.slots, raws, strict=True)):
-            if index != mca.NO_EDGE and not edges[index].minimum <= raw <= edges[index].maximum:
+            if index != mca.NO_EDGE and not edges[index].minimum <= raw <= edges[index].maximum \
+                    and self._range_check:
                 # nothing of the frame is taken (a value cannot be trusted, its neighbours
                 # neither)
                 self._map_error(t, ErrorCode.OUT_OF_RANGE, number << 8 | slot)
@@ -255,8 +276,9 @@ class McaRuntime:
 
     def _ready(self, t: float, answers: int, echo: bytes) -> None:
         k = self._kinds
+        so = len(k[mca.Kind.SO]) + (1 if self.fault == mutants.READY_COUNTS_WRONG else 0)
         self.port.send(t + self.port.timing.reply_us, mca.McaReady(
-            self.state, answers, echo, len(k[mca.Kind.CI]), len(k[mca.Kind.SO]),
+            self.state, answers, echo, len(k[mca.Kind.CI]), so,
             len(k[mca.Kind.PAR]), self.flags))
         self.flags &= ~mca.FLAG_OVERRUN
 
@@ -270,7 +292,8 @@ class McaRuntime:
 
     def _write(self, msg: mca.EdgeWrite, t: float) -> None:
         function = int(msg.FUNCTION)
-        if msg.kind is mca.Kind.CI and self.state is mca.RunState.LATCHED:
+        if msg.kind is mca.Kind.CI and self.state is mca.RunState.LATCHED and \
+                self._refuse_latched:
             self._refuse_ci(t)
             return
         edges = self._kinds[msg.kind]
@@ -288,7 +311,7 @@ class McaRuntime:
             return
         raws = mca.unpack_values([(e.width, e.signed) for e in specs], msg.data)
         for i, (e, raw) in enumerate(zip(specs, raws, strict=True)):
-            if not e.minimum <= raw <= e.maximum:
+            if not e.minimum <= raw <= e.maximum and self._range_check:
                 self.port.error(t, ErrorCode.OUT_OF_RANGE, function,
                                 msg.kind << 8 | (msg.index + i))
                 return  # nothing of the frame is taken
@@ -328,8 +351,10 @@ class McaRuntime:
         when = t + self.port.timing.reply_us
         for kind, index in wanted:
             e = self._kinds[kind][index]
+            name = e.name[:mutants.DESCR_NAME_CHARS] \
+                if self.fault == mutants.DESCR_TRUNCATED else e.name
             record = mca.EdgeRecord(e.width, e.signed, e.exponent, e.minimum, e.maximum,
-                                    e.name, e.unit)
+                                    name, e.unit)
             for segment in record.segments(kind, index):
                 self.port.send(when, segment)
 
@@ -352,8 +377,10 @@ class McaRuntime:
 
     def _send_dump(self, t: float, kind: mca.Kind, first: int, edges: list[EdgeSpec],
                    values: list[int]) -> None:
-        data = mca.pack_values([(e.width, e.signed) for e in edges],
-                               values[first:first + len(edges)])
+        specs = [(e.width, e.signed) for e in edges]
+        raws = values[first:first + len(edges)] if self.fault != mutants.DUMP_OFF_BY_ONE \
+            else mutants.shifted_values(values, first, specs)
+        data = mca.pack_values(specs, raws)
         self.port.send(t, mca.DumpValues(kind, first, data))
 
     def _admin(self, msg: mca.AdminData, t: float) -> None:
@@ -402,17 +429,20 @@ class McaRuntime:
         blink = (self.stats.cycles // BLINK_CYCLES) % 2 == 0
         yellow = t - self.overrun_at < OVERRUN_FLASH_US
         red = self.state is mca.RunState.LATCHED or t - self.can_error_at < CAN_ERROR_FLASH_US
+        loop = self.model.loop_us()
+        if loop <= 0:  # no-range-check took a cycle time of 0 or less: cycles take their work
+            loop = max(self.stats.last_work_us, 1.0)
         return {"red": "on" if red else "off",
                 "yellow": "on" if yellow else "off",
                 "green": "blink",
                 "green_phase": "on" if blink else "off",
-                "green_hz": f"{1e6 / (2 * BLINK_CYCLES * self.model.loop_us()):.1f}",
+                "green_hz": f"{1e6 / (2 * BLINK_CYCLES * loop):.1f}",
                 "yellow_level": f"{self.overrun_depth:.2f}" if yellow else "0"}
 
     def report(self) -> AppReport:
         """Report channel 3 (APPLICATION): :class:`~ucom_tools.wire.mca.AppStatus`."""
         s = self.stats
         status = mca.AppStatus(self.state, min(int(self.load() * 1000), 0xFFFF),
-                               min(int(self.model.loop_us()), 0xFFFF),
+                               max(0, min(int(self.model.loop_us()), 0xFFFF)),
                                min(s.overruns, 0xFFFF), self.flags & 0xFF)
         return AppReport(status.encode())

@@ -36,6 +36,11 @@ and fails if anything arrives glued to them.  So after the rawmode ``< ok >`` th
 waits until it is written, then :data:`RAWMODE_SETTLE_S` (20 ms), and only then attaches
 the client to the bus.
 
+A connection can also start in another process: :mod:`ucom_tools.virtual.multiserve`
+greets the client and reads its ``< open BUS >`` with :class:`ElementSplitter` and
+:func:`check_open`, then hands the socket to the process of that bus, which goes on with
+:meth:`Connection.resume`; the answers are the same as :meth:`Connection.run` gives.
+
 Binds to 127.0.0.1 by default; every accepted connection has TCP_NODELAY set.  The
 server logs to the ``ucom.serve`` logger: connections at INFO, dropped and refused
 clients at WARNING; a lost client never causes a traceback.
@@ -43,6 +48,7 @@ clients at WARNING; a lost client never causes a traceback.
 
 from __future__ import annotations
 
+import binascii
 import contextlib
 import logging
 import re
@@ -52,7 +58,7 @@ import socketserver
 import threading
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from typing import Any
 
 import can
@@ -78,7 +84,11 @@ FLUSH_S = 1.0
 _RECV_SIZE = 4096
 _WRITE_BATCH = 512
 _HEX = re.compile(r"[0-9A-Fa-f]+")
+_PLAIN_SEND = re.compile(rb" ?send ([0-9A-Fa-f]{1,3}) ([0-8])((?: [0-9A-Fa-f]{1,2}){0,8}) ?")
+"""A ``send`` element as clients write it (single spaces), parsed in one match."""
 _DONTWAIT = getattr(socket, "MSG_DONTWAIT", 0)
+NO_BUS_OPEN = "no bus open: send < open BUS > first"
+"""The answer to ``rawmode`` and ``send`` before a bus is open."""
 
 Frame = tuple[int, bytes, float]
 """A frame for a client: identifier, data, end time on the bus (virtual microseconds)."""
@@ -102,29 +112,45 @@ class ElementSplitter:
     def __init__(self, limit: int = MAX_ELEMENT) -> None:
         self.limit = limit
         self._buffer = bytearray()
+        self._pos = 0
+        """Where the unread part of the buffer starts: the elements taken are dropped at
+        the next :meth:`feed`, not one at a time (a chunk of many is cut in linear time)."""
 
     def feed(self, chunk: bytes) -> None:
+        if self._pos:
+            del self._buffer[:self._pos]
+            self._pos = 0
         self._buffer += chunk
 
     def next(self) -> bytes | None:
         """The text between ``<`` and ``>`` of the next complete element, or None;
         raises :class:`ElementTooLong` instead of holding more than ``limit`` bytes."""
         buf = self._buffer
-        start = buf.find(b"<")
+        start = buf.find(b"<", self._pos)
         if start < 0:
             buf.clear()
+            self._pos = 0
             return None
-        del buf[:start]
-        end = buf.find(b">", 1)
+        end = buf.find(b">", start + 1)
         if end < 0:
+            del buf[:start]
+            self._pos = 0
             if len(buf) >= self.limit:  # its ">" would make it longer than the limit
                 raise ElementTooLong("element too long")
             return None
-        if end + 1 > self.limit:
+        if end + 1 - start > self.limit:
+            self._pos = start
             raise ElementTooLong("element too long")
-        element = bytes(buf[1:end])
-        del buf[:end + 1]
-        return element
+        self._pos = end + 1
+        return bytes(buf[start + 1:end])
+
+    def rest(self) -> bytes:
+        """The bytes fed and not yet returned as elements (and forget them): what a
+        process that hands a connection over sends along."""
+        rest = bytes(self._buffer[self._pos:])
+        self._buffer.clear()
+        self._pos = 0
+        return rest
 
 
 def element_words(element: bytes) -> list[str]:
@@ -136,6 +162,24 @@ def element_words(element: bytes) -> list[str]:
     if not words:
         raise ElementError("empty element")
     return words
+
+
+def check_open(args: list[str], buses: Collection[str], fleet_name: str,
+               already_open: str | None = None) -> str:
+    """The bus that ``< open BUS >`` (the words after ``open``) names; ElementError with
+    the server's answer when it is malformed, a bus is open already, or no such bus."""
+    if len(args) != 1:
+        raise ElementError("usage: open BUS")
+    if already_open is not None:
+        raise ElementError(f"bus {already_open} is already open")
+    if args[0] not in buses:
+        raise ElementError(f"no bus {_quote(args[0])} in {fleet_name}")
+    return args[0]
+
+
+def unsupported(verb: str) -> ElementError:
+    """The answer to an element with an unknown command word."""
+    return ElementError(f"unsupported command {_quote(verb)}")
 
 
 def parse_send(args: list[str]) -> tuple[int, bytes]:
@@ -176,6 +220,26 @@ def _data_byte(text: str) -> int:
     return int(text, 16)
 
 
+def _plain_send(element: bytes) -> tuple[int, bytes] | None:
+    """Identifier and data of a well-formed ``send`` element in the form clients write
+    (``send 280 2 01 00``, single spaces), or None: then the general way decides,
+    :func:`element_words` and :func:`parse_send`, which accept the same frames."""
+    m = _PLAIN_SEND.fullmatch(element)
+    if m is None:
+        return None
+    arbitration_id = int(m[1], 16)
+    if arbitration_id > 0x7FF:
+        return None
+    dlc = int(m[2])
+    text = m[3]
+    if len(text) == 3 * dlc and text.count(b" ") == dlc:  # every byte two digits
+        return arbitration_id, bytes.fromhex(text.decode("ascii"))
+    words = text.split()
+    if len(words) != dlc:
+        return None
+    return arbitration_id, bytes([int(w, 16) for w in words])
+
+
 def _quote(text: str, limit: int = 16) -> str:
     """``text`` safe to echo inside an element: printable ASCII, no ``<``, short."""
     shown = "".join(c if "!" <= c <= "~" and c != "<" else "?" for c in text[:limit])
@@ -193,24 +257,29 @@ def _peer(address: Any) -> str:
 # ---------------------------------------------------------------------- output
 class Outbox:
     """Lines waiting for one client's writer thread.  Bounded, and :meth:`put` never
-    blocks, so the bus thread hands each frame to every client without waiting for any."""
+    blocks, so the bus thread hands each frame to every client without waiting for any.
+
+    The writer is woken only when a line arrives in an empty queue (it waits only then);
+    the lines that follow while it is awake go out with the next batch."""
 
     def __init__(self, limit: int) -> None:
         self.limit = limit
         self._lines: deque[Line] = deque()
-        self._cond = threading.Condition()
+        self._cond = threading.Condition(threading.Lock())
         self._closed = False
         self._writing = False
 
     def put(self, line: Line) -> bool:
         """Queue ``line``; false if the queue is full (a closed outbox drops lines)."""
         with self._cond:
+            lines = self._lines
             if self._closed:
                 return True
-            if len(self._lines) >= self.limit:
+            if len(lines) >= self.limit:
                 return False
-            self._lines.append(line)
-            self._cond.notify_all()
+            lines.append(line)
+            if len(lines) == 1:  # the writer may be waiting (it waits only when empty)
+                self._cond.notify_all()
             return True
 
     def take(self) -> list[Line] | None:
@@ -244,8 +313,8 @@ def encode_line(line: Line, epoch: float) -> bytes:
     if isinstance(line, bytes):
         return line
     arbitration_id, data, t_end = line
-    ts = epoch + t_end / 1e6
-    return f"< frame {arbitration_id:03X} {ts:.6f} {data.hex().upper()} >".encode("ascii")
+    return b"< frame %03X %.6f %s >" % (arbitration_id, epoch + t_end / 1e6,
+                                        binascii.hexlify(data).upper())
 
 
 class ClientPort:
@@ -294,11 +363,23 @@ class Connection:
     def run(self) -> None:
         """Serve the client until it leaves or is dropped."""
         log.info("client %s connected", self.peer)
+        self._serve(lambda: self.reply("< hi >"))
+
+    def resume(self, bus: str, pending: bytes = b"") -> None:
+        """Serve a client that another process greeted and that sent ``< open BUS >``
+        there (:mod:`ucom_tools.virtual.multiserve`): answer that open as :meth:`run`
+        would, go on with ``pending`` (what the client sent after it), then the socket."""
+        def start() -> None:
+            self._execute(b"open " + bus.encode("ascii", "replace"))
+            self._splitter.feed(pending)
+        self._serve(start)
+
+    def _serve(self, start: Callable[[], None]) -> None:
         self._writer.start()
         reason = "disconnected"
         try:
             self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            self.reply("< hi >")
+            start()
             self._read_loop()
             self.outbox.wait_written(FLUSH_S)
         except ElementTooLong:
@@ -327,31 +408,33 @@ class Connection:
     # ------------------------------------------------------------------ reading
     def _read_loop(self) -> None:
         while self.alive:
+            while self.alive and (element := self._splitter.next()) is not None:
+                self._execute(element)
+            if not self.alive:
+                return
             chunk = self.sock.recv(_RECV_SIZE)
             if not chunk:
                 return
             self._splitter.feed(chunk)
-            while self.alive and (element := self._splitter.next()) is not None:
-                self._execute(element)
 
     def _execute(self, element: bytes) -> None:
+        port = self.port
+        if port is not None and (frame := _plain_send(element)) is not None:
+            self._transmit(port, *frame)  # the common case, without the general parsing
+            return
         try:
             verb, *args = element_words(element)
             command = self._commands.get(verb)
             if command is None:
-                raise ElementError(f"unsupported command {_quote(verb)}")
+                raise unsupported(verb)
             command(args)
         except ElementError as err:
             self.reply(f"< error {err} >")
 
     def _open(self, args: list[str]) -> None:
-        if len(args) != 1:
-            raise ElementError("usage: open BUS")
-        if self.port is not None:
-            raise ElementError(f"bus {self.port.sim.name} is already open")
-        sim = self.fleet.buses.get(args[0])
-        if sim is None:
-            raise ElementError(f"no bus {_quote(args[0])} in {self.fleet.name}")
+        sim = self.fleet.buses[check_open(
+            args, self.fleet.buses, self.fleet.name,
+            None if self.port is None else self.port.sim.name)]
         self.port = ClientPort(sim, self.outbox, self._overflow)
         self.reply("< ok >")
         log.info("client %s opened %s", self.peer, sim.name)
@@ -380,7 +463,7 @@ class Connection:
 
     def _require_open(self) -> ClientPort:
         if self.port is None:
-            raise ElementError("no bus open: send < open BUS > first")
+            raise ElementError(NO_BUS_OPEN)
         return self.port
 
     def _transmit(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
@@ -402,7 +485,7 @@ class Connection:
         epoch = self.fleet.epoch
         try:
             while (batch := self.outbox.take()) is not None:
-                self.sock.sendall(b"".join(encode_line(line, epoch) for line in batch))
+                self.sock.sendall(b"".join([encode_line(line, epoch) for line in batch]))
         except OSError as err:
             self._end(f"connection lost ({type(err).__name__})", dropped=False)
         except Exception:
