@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import signal
 import subprocess
 import sys
@@ -91,9 +92,10 @@ def baseline(seconds: float) -> dict[str, float]:
             "baseline_jitter_p99_ms": round(percentile(late, 99) * 1e3, 3)}
 
 
-def serve(state: Path) -> tuple[subprocess.Popen[str], int]:
+def serve(state: Path, processes: str) -> tuple[subprocess.Popen[str], int]:
     proc = subprocess.Popen([sys.executable, "-m", "ucom_tools", "fleet", "serve", "armar3",
-                             "--state", str(state), "--port", "0"], text=True,
+                             "--state", str(state), "--port", "0",
+                             "--processes", processes], text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     assert proc.stdout is not None
     line = proc.stdout.readline()
@@ -103,10 +105,32 @@ def serve(state: Path) -> tuple[subprocess.Popen[str], int]:
     return proc, int(line.rsplit(":", 1)[1])
 
 
-def run(port: int, seconds: float) -> dict[str, Any]:
+def cpu_seconds(root: int) -> dict[int, float]:
+    """CPU time (user + system) of process ``root`` and each of its descendants, by pid,
+    from /proc (empty where /proc is not there)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    stats: dict[int, tuple[int, float]] = {}
+    for entry in Path("/proc").glob("[0-9]*"):
+        try:
+            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        stats[int(entry.name)] = (int(fields[1]), (int(fields[11]) + int(fields[12])) / tick)
+    tree, grown = {root}, True
+    while grown:
+        grown = False
+        for pid, (ppid, _) in stats.items():
+            if ppid in tree and pid not in tree:
+                tree.add(pid)
+                grown = True
+    return {pid: stats[pid][1] for pid in tree if pid in stats}
+
+
+def run(port: int, seconds: float, buses: tuple[str, ...], server: int,
+        ) -> dict[str, Any]:
     ages: list[float] = []
     with RemotePart.open("armar3", interface="socketcand", host="127.0.0.1", port=port,
-                         rate_hz=1000.0) as part:
+                         channels=buses, rate_hz=1000.0) as part:
         for h in part.robot.buses.values():
             def age(msg: can.Message) -> None:
                 if msg.arbitration_id >> 6 == 14 and msg.is_rx:
@@ -118,6 +142,7 @@ def run(port: int, seconds: float) -> dict[str, Any]:
         traffic = part.traffic()
         ages.clear()
         cpu, wall = time.process_time(), time.perf_counter()
+        served = cpu_seconds(server)
         k = 0
         end = wall + seconds
         while time.perf_counter() < end:
@@ -129,6 +154,8 @@ def run(port: int, seconds: float) -> dict[str, Any]:
             k += 1
         wall = time.perf_counter() - wall
         cpu = time.process_time() - cpu
+        after = cpu_seconds(server)
+        served = {pid: t - served.get(pid, 0.0) for pid, t in after.items()}
         loads = part.load_between(traffic, part.traffic())
         s = part.stats
         cycles, missed = s.cycles - cycles0, s.missed - missed0
@@ -140,6 +167,8 @@ def run(port: int, seconds: float) -> dict[str, Any]:
             "jitter_max_ms": round(max(late, default=0.0) * 1e3, 3),
             "so_age_p99_ms": round(percentile(ages, 99) * 1e3, 3),
             "cpu_pct": round(100 * cpu / wall, 1),
+            "serve_cpu_pct": round(100 * sum(served.values()) / wall, 1),
+            "serve_cpu_busiest_pct": round(100 * max(served.values(), default=0.0) / wall, 1),
             "bus_load_pct": {n: round(100 * v, 1) for n, v in loads.items()}}
 
 
@@ -147,8 +176,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--buses", default="CAN0,CAN1,CAN2,CAN3",
+                    help="the buses the PC exchanges on (default: all four)")
+    ap.add_argument("--processes", default="auto",
+                    help="fleet serve --processes (default: auto, one per bus)")
     args = ap.parse_args()
-    figures: dict[str, Any] = {}
+    buses = tuple(b.strip() for b in args.buses.split(",") if b.strip())
+    figures: dict[str, Any] = {"cores": os.cpu_count(), "buses": list(buses),
+                               "processes": args.processes}
     figures.update(baseline(min(args.seconds, 5.0)))
     with tempfile.TemporaryDirectory() as tmp:
         state = Path(tmp) / "state"
@@ -157,9 +192,9 @@ def main() -> None:
                                capture_output=True, text=True)
         if flash.returncode:
             raise SystemExit(f"flash failed: {flash.stderr}")
-        proc, port = serve(state)
+        proc, port = serve(state, args.processes)
         try:
-            figures.update(run(port, args.seconds))
+            figures.update(run(port, args.seconds, buses, proc.pid))
         finally:
             proc.send_signal(signal.SIGINT)
             try:
@@ -178,8 +213,10 @@ def main() -> None:
         return
     print(f"ARMAR-III at 1 kHz over socketcand (fleet serve in another process), "
           f"{args.seconds:g} s:")
-    print(f"  loop        {figures['rate_hz']} Hz, {figures['missed_pct']} % missed, "
-          f"CPU {figures['cpu_pct']} %")
+    print(f"  loop        {figures['rate_hz']} Hz, {figures['missed_pct']} % missed")
+    print(f"  CPU         PC side {figures['cpu_pct']} %, fleet serve "
+          f"{figures['serve_cpu_pct']} % (all its processes; the busiest "
+          f"{figures['serve_cpu_busiest_pct']} %), {figures['cores']} cores")
     print(f"  lateness    p50 {figures['jitter_p50_ms']} ms, p99 {figures['jitter_p99_ms']} "
           f"ms, max {figures['jitter_max_ms']} ms")
     print(f"  baseline    python-can send_periodic at 1 kHz: p99 "

@@ -478,3 +478,34 @@ def test_processes_is_auto_or_a_positive_number(value: str) -> None:
     result = CliRunner().invoke(cli, ["fleet", "serve", "armar3", "--processes", value])
     assert result.exit_code == 2, result.output
     assert "--processes" in result.output
+
+
+@pytest.mark.parametrize("processes", ["auto", "1"])
+def test_fault_makes_the_boards_of_every_bus_mutants(processes: str) -> None:
+    with served("--processes", processes, "--fault", "seq-from-zero") as server:
+        until(lambda: "mutant boards (seq-from-zero)" in " ".join(server.stderr().split()),
+              what="the banner naming the fault")
+        for spec in (ARMAR3.buses[0], ARMAR3.buses[-1]):
+            with host(server.port, spec.name) as h:
+                init = h.client.init_chain()  # numbering from 0: only "0" is heard
+                assert {a.seq_id for a in init.acks} == {0}, spec.name
+        server.interrupt()
+        assert server.wait(STOP_S) == 0, server.stderr()
+
+
+def test_an_unknown_fault_is_refused_before_anything_is_served() -> None:
+    result = CliRunner().invoke(cli, ["fleet", "serve", "armar3", "--fault", "seq-from-one"])
+    assert result.exit_code == 3
+    assert "--fault: unknown fault 'seq-from-one'; known: seq-from-zero" in result.output
+
+
+def test_fleet_faults_lists_the_catalogue_as_text_and_json() -> None:
+    from ucom_tools.virtual import mutants
+    text = CliRunner().invoke(cli, ["fleet", "faults"], terminal_width=200)
+    assert text.exit_code == 0
+    assert [line.split()[0] for line in text.output.splitlines()[1:]] == list(mutants.NAMES)
+    js = CliRunner().invoke(cli, ["fleet", "faults", "--json"])
+    import json
+    faults = json.loads(js.output)["faults"]
+    assert [f["name"] for f in faults] == list(mutants.NAMES)
+    assert all(f["section"] and f["symptom"] for f in faults)

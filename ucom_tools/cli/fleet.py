@@ -1,4 +1,5 @@
-"""``ucom fleet show`` and ``ucom fleet serve``: the bundled virtual UCoM fleets."""
+"""``ucom fleet show``, ``ucom fleet serve`` and ``ucom fleet faults``: the bundled virtual
+UCoM fleets and the mutant boards' faults."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from ucom_tools.cli.output import emit_json, leds, stderr, stdout
 from ucom_tools.config import topology as topo
 from ucom_tools.config.topology import BUNDLED, Topology
 from ucom_tools.errors import BusError
+from ucom_tools.virtual import mutants
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.virtual.multiserve import LOG_FORMAT, MultiServer, sigterm_interrupts
 from ucom_tools.virtual.socketcand import (
@@ -124,9 +126,13 @@ class _Processes(click.ParamType):
               help="auto: serve each bus from a process of its own when TOPOLOGY has more "
                    "than one bus (a fleet at 1 kHz needs more than one core); 1: the whole "
                    "fleet in this process; N: the buses shared out among N processes.")
+@click.option("--fault", metavar="NAME",
+              help="Serve mutant boards: every board that names no fault in the topology "
+                   "breaks the protocol in this documented way ('ucom fleet faults' lists "
+                   "them), to show that a conformance suite catches it.")
 @click.pass_context
 def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, port: int,
-          max_clients: int, processes: int | None) -> None:
+          max_clients: int, processes: int | None, fault: str | None) -> None:
     """Serve TOPOLOGY's buses with the socketcand protocol, in real time.
 
     Other processes reach the boards through a socketcand client: 'ucom ... -i socketcand
@@ -140,7 +146,11 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     With --processes auto (the default) a topology with several buses is served from one
     process per bus behind the one port: the buses share nothing but the wall clock, to
     which each is paced.  A bus process that dies stops the whole serve (exit code 4,
-    naming the bus)."""
+    naming the bus).
+
+    --fault NAME serves mutant boards, e.g. 'ucom fleet serve armar3 --fault
+    seq-from-zero' (see 'ucom fleet faults')."""
+    mutants.check(fault, key="--fault")
     verbose = int((ctx.find_root().obj or {}).get("verbose", 0))
     log_level = logging.INFO if verbose else logging.WARNING
     logging.basicConfig(level=log_level, format=LOG_FORMAT, stream=sys.stderr)
@@ -149,9 +159,10 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     robot = topo.load(topology)
     if processes != 1 and len(robot.buses) > 1:
-        _serve_per_bus(robot, state_dir, host, port, max_clients, log_level, processes)
+        _serve_per_bus(robot, state_dir, host, port, max_clients, log_level, processes,
+                       fault)
         return
-    f = Fleet(robot, state_dir=state_dir, realtime=True)
+    f = Fleet(robot, state_dir=state_dir, realtime=True, fault=fault)
     try:
         server = FleetServer(f, host, port, max_clients=max_clients)
     except OSError as e:
@@ -160,7 +171,7 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     h, p = server.address
     print(f"listening on {h}:{p}", flush=True)
     stderr().print(f"serving {f.name} ({', '.join(f.buses)}) with socketcand on {h}:{p}; "
-              f"state: {state_dir or 'not kept'}; Ctrl-C stops")
+                   f"{_mutants(fault)}state: {state_dir or 'not kept'}; Ctrl-C stops")
     try:
         with sigterm_interrupts():
             serve_until_interrupted(server)
@@ -170,13 +181,15 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
 
 
 def _serve_per_bus(robot: Topology, state_dir: Path | None, host: str, port: int,
-                   max_clients: int, log_level: int, processes: int | None) -> None:
+                   max_clients: int, log_level: int, processes: int | None,
+                   fault: str | None) -> None:
     """``fleet serve --processes auto``: one process per bus (or N processes for the
     buses) behind one port."""
     try:
         server = MultiServer(robot, host, port, state_dir=state_dir, max_clients=max_clients,
                              log_level=log_level, switch_interval=SWITCH_INTERVAL_S,
-                             processes=processes)
+                             processes=processes,
+                             fleet_options={"fault": fault} if fault else None)
     except OSError as e:
         raise BusError(f"cannot listen on {host}:{port}: {e.strerror}") from None
     with server:
@@ -188,11 +201,33 @@ def _serve_per_bus(robot: Topology, state_dir: Path | None, host: str, port: int
                   f"{len(server.processes)} processes: " + "; ".join(
                       worker.label for worker in server.processes))
         stderr().print(f"serving {robot.name} ({', '.join(server.buses)}) with socketcand on "
-                       f"{h}:{p}, {shares}; state: {state_dir or 'not kept'}; Ctrl-C stops")
+                       f"{h}:{p}, {shares}; {_mutants(fault)}state: {state_dir or 'not kept'}; "
+                       "Ctrl-C stops")
         try:
             server.serve_until_interrupted()
         finally:
             sys.stdout.flush()
+
+
+def _mutants(fault: str | None) -> str:
+    return "" if fault is None else f"[bold yellow]mutant boards ({escape(fault)})[/]; "
+
+
+@fleet.command("faults")
+@click.option("--json", "as_json", is_flag=True, help="Print the faults as JSON.")
+def faults(as_json: bool) -> None:
+    """List the faults a mutant board can have ('fleet serve --fault NAME', a topology's
+    'fault = "NAME"'): each breaks ucom-protocol(7) in one documented way, names the
+    section it violates and what a client sees."""
+    if as_json:
+        emit_json({"faults": [f.as_dict() for f in mutants.faults()]})
+        return
+    table = Table(box=None, show_header=True, header_style="bold")
+    for col in ("fault", "what the board does wrong", "violates"):
+        table.add_column(col, overflow="fold")
+    for f in mutants.faults():
+        table.add_row(f.name, escape(f.title), escape(f.section))
+    stdout().print(table)
 
 
 def _exchange(rt: dict[str, Any] | None) -> str:
