@@ -14,10 +14,16 @@ every 10 ms), the loop at 1 kHz for ``--seconds`` (default 10).  Figures:
   the frame's values being available to the PC's loop (the board samples its sensors
   before it sends, 0.7 ms earlier with three axes in the model);
 - ``cpu_pct``: CPU time of this process (the PC side) per wall second;
+  ``serve_cpu_pct``: the same of ``fleet serve`` and all its processes together,
+  ``serve_cpu_busiest_pct`` of its busiest process (a bus's), ``cores``: the machine's;
 - ``bus_load_pct``: per bus, measured from the frames the PC saw;
 - ``baseline_jitter_p99_ms``: measured in the same run on the same machine, python-can's
   ``send_periodic`` at 1 kHz (its thread-based cyclic task, on python-can's virtual
   bus): how long after its schedule each frame was sent.
+
+``--buses CAN0,...`` exchanges on some buses only, ``--processes N`` is passed to
+``fleet serve``, ``--realtime`` runs the loop as ``ucom remote run --realtime`` does (and
+the baseline's thread likewise); ``realtime`` says how the loop was scheduled.
 
 Targets: missed < 0.1 %, jitter p99 below the baseline's and below 0.3 ms, bus load under
 70 % on every bus.  ``--json`` prints the figures as one JSON object.
@@ -42,6 +48,7 @@ import can
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from ucom_tools.ops.realtime import RealtimeScheduling  # noqa: E402
 from ucom_tools.ops.remote import RemotePart  # noqa: E402
 
 IMAGE = ROOT / "firmware_images" / "armar3.fl.S"
@@ -75,8 +82,12 @@ class Timed(can.BusABC):
         super().shutdown()
 
 
-def baseline(seconds: float) -> dict[str, float]:
-    """python-can send_periodic at 1 kHz: lateness of each send against its schedule."""
+def baseline(seconds: float, realtime: bool) -> dict[str, float]:
+    """python-can send_periodic at 1 kHz: lateness of each send against its schedule
+    (``realtime``: its thread under SCHED_FIFO as the loop's is, a fair comparison)."""
+    scheduling = RealtimeScheduling()
+    if realtime:
+        scheduling.enter()  # the cyclic task's thread inherits the policy
     bus = Timed()
     try:
         task = bus.send_periodic(can.Message(arbitration_id=0x341, data=bytes(8),
@@ -85,6 +96,7 @@ def baseline(seconds: float) -> dict[str, float]:
         task.stop()
     finally:
         bus.shutdown()
+        scheduling.leave()
     t = bus.times
     late = [max(0.0, t[k] - (t[0] + k * 0.001)) for k in range(len(t))]
     return {"baseline_rate_hz": round(len(t) / seconds, 1),
@@ -126,11 +138,11 @@ def cpu_seconds(root: int) -> dict[int, float]:
     return {pid: stats[pid][1] for pid in tree if pid in stats}
 
 
-def run(port: int, seconds: float, buses: tuple[str, ...], server: int,
+def run(port: int, seconds: float, buses: tuple[str, ...], server: int, realtime: bool,
         ) -> dict[str, Any]:
     ages: list[float] = []
     with RemotePart.open("armar3", interface="socketcand", host="127.0.0.1", port=port,
-                         channels=buses, rate_hz=1000.0) as part:
+                         channels=buses, rate_hz=1000.0, realtime=realtime) as part:
         for h in part.robot.buses.values():
             def age(msg: can.Message) -> None:
                 if msg.arbitration_id >> 6 == 14 and msg.is_rx:
@@ -169,7 +181,8 @@ def run(port: int, seconds: float, buses: tuple[str, ...], server: int,
             "cpu_pct": round(100 * cpu / wall, 1),
             "serve_cpu_pct": round(100 * sum(served.values()) / wall, 1),
             "serve_cpu_busiest_pct": round(100 * max(served.values(), default=0.0) / wall, 1),
-            "bus_load_pct": {n: round(100 * v, 1) for n, v in loads.items()}}
+            "bus_load_pct": {n: round(100 * v, 1) for n, v in loads.items()},
+            "realtime": "normal" if part.scheduling is None else part.scheduling.describe()}
 
 
 def main() -> None:
@@ -178,13 +191,16 @@ def main() -> None:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--buses", default="CAN0,CAN1,CAN2,CAN3",
                     help="the buses the PC exchanges on (default: all four)")
+    ap.add_argument("--realtime", action="store_true",
+                    help="the loop (and the baseline's thread) under SCHED_FIFO, as "
+                         "'ucom remote run --realtime'")
     ap.add_argument("--processes", default="auto",
                     help="fleet serve --processes (default: auto, one per bus)")
     args = ap.parse_args()
     buses = tuple(b.strip() for b in args.buses.split(",") if b.strip())
     figures: dict[str, Any] = {"cores": os.cpu_count(), "buses": list(buses),
                                "processes": args.processes}
-    figures.update(baseline(min(args.seconds, 5.0)))
+    figures.update(baseline(min(args.seconds, 5.0), args.realtime))
     with tempfile.TemporaryDirectory() as tmp:
         state = Path(tmp) / "state"
         flash = subprocess.run([sys.executable, "-m", "ucom_tools", "flash", str(IMAGE),
@@ -194,7 +210,7 @@ def main() -> None:
             raise SystemExit(f"flash failed: {flash.stderr}")
         proc, port = serve(state, args.processes)
         try:
-            figures.update(run(port, args.seconds, buses, proc.pid))
+            figures.update(run(port, args.seconds, buses, proc.pid, args.realtime))
         finally:
             proc.send_signal(signal.SIGINT)
             try:
@@ -211,8 +227,8 @@ def main() -> None:
     if args.json:
         print(json.dumps(figures, indent=2))
         return
-    print(f"ARMAR-III at 1 kHz over socketcand (fleet serve in another process), "
-          f"{args.seconds:g} s:")
+    print(f"ARMAR-III ({', '.join(buses)}) at 1 kHz over socketcand (fleet serve in another "
+          f"process), {args.seconds:g} s, loop scheduling {figures['realtime']}:")
     print(f"  loop        {figures['rate_hz']} Hz, {figures['missed_pct']} % missed")
     print(f"  CPU         PC side {figures['cpu_pct']} %, fleet serve "
           f"{figures['serve_cpu_pct']} % (all its processes; the busiest "

@@ -5,6 +5,7 @@ the boards stop by their watchdog."""
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import signal
 import socket
@@ -189,6 +190,29 @@ def test_ctrl_c_stops_the_boards_and_exits_130(served) -> None:
         assert remote.returncode == 130, err
         # stopped by the PC (MCA Start STOP), not latched by the watchdog
         assert observer.states() == {mca.RunState.STOPPED}
+    finally:
+        observer.close()
+        if remote.poll() is None:
+            remote.kill()
+            remote.wait()
+
+
+def test_realtime_runs_the_loop_under_sched_fifo_or_says_why_not(served) -> None:
+    topo, port = served
+    remote = _ucom("remote", "run", str(topo), "-i", "socketcand", "--host", "127.0.0.1",
+                   "--port", str(port), "--for", "1", "--realtime", "--json")
+    observer = Observer(port)
+    try:
+        out, err = remote.communicate(timeout=DEADLINE_S)
+        assert remote.returncode == 0, err
+        run = json.loads(out)["run"]
+        assert run["cycles"] > 0 and not run["virtual_time"]
+        if run["realtime"].startswith("normal"):  # not permitted here: said, and why
+            assert "SCHED_FIFO" in run["realtime"] and "--realtime" in err
+        else:
+            assert run["realtime"] == "SCHED_FIFO 40"
+        assert observer.wait_for(mca.RunState.STOPPED, time.monotonic() + DEADLINE_S) == {
+            mca.RunState.STOPPED}
     finally:
         observer.close()
         if remote.poll() is None:

@@ -198,7 +198,13 @@ def _stats_json(part: RemotePart, loads: dict[str, float]) -> dict[str, Any]:
             "planned_load": {n: {"nominal": round(x.plan.nominal, 4),
                                  "worst": round(x.plan.worst, 4)}
                              for n, x in part.exchanges.items()},
-            "virtual_time": part.virtual}
+            "virtual_time": part.virtual,
+            "realtime": _realtime_text(part)}
+
+
+def _realtime_text(part: RemotePart) -> str:
+    """How the loop was scheduled: 'SCHED_FIFO 40', 'normal', or 'normal (why)'."""
+    return "normal" if part.scheduling is None else part.scheduling.describe()
 
 
 def _boards_json(part: RemotePart) -> list[dict[str, Any]]:
@@ -240,7 +246,8 @@ def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) 
     stdout().print(
         f"{s.cycles} cycles at {s.rate(part._clock()):.0f} Hz ({clock}), {s.missed} missed, "
         f"lateness p50 {s.percentile(50) * 1e3:.3f} ms, p99 {s.percentile(99) * 1e3:.3f} "
-        f"ms; bus load " + ", ".join(f"{n} {v:.1%}" for n, v in loads.items()))
+        f"ms; bus load " + ", ".join(f"{n} {v:.1%}" for n, v in loads.items())
+        + ("" if part.scheduling is None else f"; {_realtime_text(part)}"))
 
 
 @remote.command("run")
@@ -265,13 +272,17 @@ def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) 
                    "cyclic), e.g. --period 'Voltage A=10'.")
 @click.option("--force", is_flag=True,
               help="Start the boards that match their trees even when others do not.")
+@click.option("--realtime", is_flag=True,
+              help="Run the PC's loop under SCHED_FIFO (Linux; needs CAP_SYS_NICE or an "
+                   "rtprio limit), so other busy processes cannot make it miss cycles; "
+                   "where not permitted it runs as usual and says why.")
 @connection_options
 @json_option
 @click.pass_context
 def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ...],
         seconds: float | None, rate: float, alive_ms: int, record: str | None,
-        periods: tuple[str, ...], force: bool, spec: ConnectSpec, bus_name: str | None,
-        as_json: bool) -> None:
+        periods: tuple[str, ...], force: bool, realtime: bool, spec: ConnectSpec,
+        bus_name: str | None, as_json: bool) -> None:
     """Run the robot's boards in the cyclic exchange.
 
     """ + ROBOT_HELP + """  Starts each board's program if needed, checks its edges
@@ -293,7 +304,7 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
             from ucom_tools.ops.record import RunRecorder
             recorder = stack.enter_context(RunRecorder(record))
         with _part(robot_or_trees, _one_bus(spec, bus_name), rate_hz=rate,
-                   alive_ms=alive_ms, periods=cycles or None) as part:
+                   alive_ms=alive_ms, periods=cycles or None, realtime=realtime) as part:
             if not as_json:
                 _plan_notes(part)
             if recorder is not None:
@@ -330,6 +341,9 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                 interrupted = True
             loads = part.load_between(before, part.traffic())
             problems = part.stop()
+            if part.scheduling is not None and part.scheduling.refused:
+                stderr().print(f"[yellow]ucom: --realtime: {escape(part.scheduling.refused)}; "
+                               "the loop ran at normal priority[/]", soft_wrap=True)
             if as_json:
                 emit_json({"connection": connection_json(spec), "started": True,
                            "interrupted": interrupted, "boards": _boards_json(part),

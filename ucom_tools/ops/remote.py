@@ -20,10 +20,11 @@ in-process fleet in virtual time: the loop drives the fleet clock, nothing waits
 from __future__ import annotations
 
 import difflib
+import select
 import sys
 import time
 from collections import deque
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from decimal import Decimal
@@ -41,6 +42,7 @@ from ucom_tools.config.attrtree.robot import RobotTrees, bind
 from ucom_tools.errors import BoardError, InputError, TreeError, UcomError, UcomTimeoutError
 from ucom_tools.ops.edges import EdgeRef, Names, spec_of
 from ucom_tools.ops.exchange import BusExchange, configure, edge_list
+from ucom_tools.ops.realtime import RealtimeScheduling
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot, open_robot
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.dispatch import share_clock
@@ -51,6 +53,9 @@ from ucom_tools.wire.ids import seq
 
 SPIN_S = 0.0003
 """The loop sleeps until this long before a deadline, then spins (sleep wakes late)."""
+SELECT_SPIN_S = 0.0001
+"""The same when the loop waits in select() on the buses' sockets, which is woken by the
+frames themselves and wakes on time more precisely than a sleep among polls."""
 POLL_S = 0.0002
 """While it waits, the loop looks at the buses this often."""
 SWITCH_INTERVAL_S = 0.0005
@@ -70,8 +75,13 @@ class MappingError(UcomError):
     def __init__(self, report: CheckReport) -> None:
         bad = [b for b in report.boards if not b.ok]
         super().__init__(f"{len(bad)} board(s) do not match their trees: "
-                         + "; ".join(f"{b.where}: {b.summary()}" for b in bad))
+                         + "; ".join(_where_and(b.where, b.summary()) for b in bad))
         self.report = report
+
+
+def _where_and(where: str, text: str) -> str:
+    """``where: text``, unless ``text`` names the board itself already."""
+    return text if text.startswith(where) else f"{where}: {text}"
 
 
 @dataclass(frozen=True)
@@ -136,12 +146,27 @@ class LoopStats:
         return self.cycles / span if span > 0 else 0.0
 
 
+def _filenos(buses: Iterable[can.BusABC]) -> list[int]:
+    """The file descriptor of every bus, or [] when one has none (python-can raises
+    NotImplementedError for buses that cannot be waited on with select)."""
+    fds = []
+    for bus in buses:
+        try:
+            fd = bus.fileno()
+        except (NotImplementedError, AttributeError, OSError):
+            return []
+        if not isinstance(fd, int) or fd < 0:
+            return []
+        fds.append(fd)
+    return fds
+
+
 class RemotePart:
     """A robot's run time from the PC (see the module docstring)."""
 
     def __init__(self, robot: Robot, trees: RobotTrees, *, rate_hz: float = 1000.0,
                  alive_ms: int = mca.ALIVE_DEFAULT_MS,
-                 periods: dict[str, int] | None = None) -> None:
+                 periods: dict[str, int] | None = None, realtime: bool = False) -> None:
         if robot.topology is None:
             raise InputError("the run time needs the robot's topology (which board runs "
                              "which tree): give --topology FILE or a robot name",
@@ -173,6 +198,13 @@ class RemotePart:
         self._seen: dict[tuple[str, int], int] = {}
         self._last_raw: dict[EdgeRef, int] = {}
         self._switch: float | None = None
+        self._fds: list[int] | None = None
+        self.scheduling: RealtimeScheduling | None = (
+            RealtimeScheduling() if realtime and not robot.virtual_time else None)
+        """``realtime``: the loop's thread under SCHED_FIFO from its first cycle to the stop
+        (``scheduling.active``; ``scheduling.refused`` says why not).  Not in virtual time,
+        where the loop drives the clock and nothing waits for the wall."""
+        """The buses' sockets when every bus has one (select() waits on them), else []."""
         self._owns_robot = False
         self.on_values: Callable[[float, EdgeRef, Value], None] | None = None
         """Called with (time, edge, value) for every SO value a cycle saw change (and its
@@ -382,6 +414,9 @@ class RemotePart:
         return the latest SO values by name."""
         if not self._running:
             raise UcomError("the exchange is not running (start() it first)")
+        rt = self.scheduling
+        if rt is not None and not rt.active and not rt.refused:
+            rt.enter()  # once, in the loop's own thread
         self._wait(self._deadline)
         now = self._clock()
         late = now - self._deadline
@@ -411,12 +446,20 @@ class RemotePart:
             for d in dispatchers:
                 d.pump(deadline)
             return
+        fds = self._fds
+        if fds is None:
+            fds = self._fds = _filenos(d.bus for d in dispatchers)
         while True:
             got = sum(d.drain() for d in dispatchers)
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return
-            if not got and remaining > SPIN_S:
+            if got:
+                continue
+            if fds:
+                if remaining > SELECT_SPIN_S:
+                    select.select(fds, (), (), remaining - SELECT_SPIN_S)
+            elif remaining > SPIN_S:
                 time.sleep(min(POLL_S, remaining - SPIN_S))
 
     def run(self, seconds: float, each: Callable[[RemotePart], None] | None = None) -> None:
@@ -574,6 +617,8 @@ class RemotePart:
         finally:
             for _, x in self._handles():
                 x.stop_tasks()
+            if self.scheduling is not None:
+                self.scheduling.leave()
             if self._switch is not None:
                 sys.setswitchinterval(self._switch)
                 self._switch = None

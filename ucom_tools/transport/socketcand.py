@@ -391,6 +391,11 @@ class SocketcandBus(can.BusABC):
     def _shut_down(self) -> can.CanOperationError:
         return can.CanOperationError(f"socketcand {self._where} bus is shut down")
 
+    def fileno(self) -> int:
+        """The connection's socket, for a loop that waits on several buses with select():
+        readable when a frame (or part of one) has come that :meth:`recv` has not taken."""
+        return self._sock.fileno()
+
     def shutdown(self) -> None:
         """Close the connection; safe to call again, and after the server vanished."""
         super().shutdown()
