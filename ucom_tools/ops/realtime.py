@@ -14,6 +14,7 @@ A refusal is not an error: the loop runs at normal priority and the reason is re
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 from dataclasses import dataclass
@@ -74,8 +75,7 @@ class RealtimeScheduling:
             return
         assert self._before is not None
         policy, priority = self._before
-        try:
+        # lowering one's own priority is always allowed; nothing to do if it fails anyway
+        with contextlib.suppress(OSError):
             os.sched_setscheduler(0, policy, os.sched_param(priority))
-        except OSError:
-            pass  # lowering one's own priority is always allowed; nothing to do otherwise
         self.active = False
