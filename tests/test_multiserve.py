@@ -509,3 +509,21 @@ def test_fleet_faults_lists_the_catalogue_as_text_and_json() -> None:
     faults = json.loads(js.output)["faults"]
     assert [f["name"] for f in faults] == list(mutants.NAMES)
     assert all(f["section"] and f["symptom"] for f in faults)
+
+
+def test_bus_option_of_the_run_time_commands_opens_that_bus_by_name() -> None:
+    """``--bus CAN2`` over socketcand opens the served CAN2 and expects CAN2's boards
+    (not the topology's first bus under CAN2's channel)."""
+    import json
+    with served() as server:
+        until(lambda: len(server.bus_pids()) == 4, what="four bus processes logged")
+        result = subprocess.run(
+            [sys.executable, "-m", "ucom_tools", "remote", "check", "armar3", "-i",
+             "socketcand", "--host", LOCAL, "--port", str(server.port), "--bus", "CAN2",
+             "--json"], capture_output=True, text=True, timeout=60)
+        boards = json.loads(result.stdout)["boards"]
+        can2 = ARMAR3.bus("CAN2")
+        assert [(b["bus"], b["where"]) for b in boards] == [
+            ("CAN2", f"CAN2 board {s.position + 1} ({s.placement})") for s in can2.boards]
+        assert result.returncode == 1  # nothing flashed: no program starts
+        assert_stops_cleanly(server, server.interrupt)

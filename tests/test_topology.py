@@ -92,3 +92,22 @@ def test_board_limit_per_bus(tmp_path: Path) -> None:
     path.write_text(text)
     with pytest.raises(TopologyError, match="at most 31 boards"):
         topology.load(str(path))
+
+
+@pytest.mark.parametrize(("channels", "want"), [
+    ([], "CAN2"), (["vcan7"], "vcan7"), (["a", "b", "c", "d"], "c")])
+def test_only_one_bus_takes_its_own_channel(channels: list[str], want: str) -> None:
+    from ucom_tools.ops.robot import _only
+    armar3 = topology.load("armar3")
+    chosen, expected = _only(armar3, "CAN2", channels)
+    assert chosen == [want] and expected == [armar3.bus("CAN2")]
+
+
+def test_only_one_bus_refuses_an_unknown_bus_or_a_channel_count_that_fits_nothing() -> None:
+    from ucom_tools.errors import InputError
+    from ucom_tools.ops.robot import _only
+    armar3 = topology.load("armar3")
+    with pytest.raises(InputError, match="has no bus 'CAN9'; its buses: CAN0, CAN1"):
+        _only(armar3, "CAN9", [])
+    with pytest.raises(InputError, match="--bus CAN1 with 2 channels"):
+        _only(armar3, "CAN1", ["a", "b"])

@@ -3,6 +3,7 @@ report of ``ucom flash --keep-params`` (tables, ``--json``)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -65,6 +66,14 @@ def _shown(path: Path) -> str:
         return str(path.resolve().relative_to(Path.cwd()))
     except ValueError:
         return str(path)
+
+
+def _of_robot(spec: ConnectSpec, robot_name: str, bus_name: str | None) -> ConnectSpec:
+    """The connection to ROBOT's buses: a network or hardware interface without -c opens
+    the robot's buses by name (``--bus NAME``: that one), as 'ucom remote' does."""
+    if spec.virtual:
+        return spec
+    return replace(spec, topology=spec.topology or robot_name, only=bus_name)
 
 
 def _fail_line(where: str, error: str, at: str) -> str:
@@ -132,7 +141,7 @@ def dump_cmd(ctx: click.Context, robot_name: str, output: Path, force: bool, spe
     topo = topology_mod.load(robot_name)
     trees = ops.robot_trees(topo)
     targets = ops.dump_targets(trees, output, force=force, bus=bus_name)
-    with robot(spec) as r:
+    with robot(_of_robot(spec, robot_name, bus_name)) as r:
         readout = ops.read_values(r, trees, bus=bus_name)
     written = ops.write_dump(readout, targets) if readout.ok else []
     if as_json:
@@ -179,7 +188,7 @@ def load_cmd(ctx: click.Context, robot_name: str, files: tuple[str, ...], spec: 
     trees = ops.robot_trees(topo)
     if files:
         trees = ops.bind_files(trees, files)
-    with robot(spec) as r:
+    with robot(_of_robot(spec, robot_name, bus_name)) as r:
         result = ops.load_values(r, trees, bus=bus_name)
     if as_json:
         emit_json({"robot": topo.name, "topology": topo.source,

@@ -138,7 +138,7 @@ def _one_bus(spec: ConnectSpec, bus_name: str | None) -> ConnectSpec:
     if spec.virtual:
         raise InputError("--bus with --virtual: the run time takes the whole robot",
                          key="--bus")
-    return replace(spec, channels=(bus_name,))
+    return replace(spec, only=bus_name)
 
 
 # ---------------------------------------------------------------------- run

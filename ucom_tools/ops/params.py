@@ -84,9 +84,12 @@ def _part_of(robot: Robot, trees: RobotTrees) -> Robot:
     for name in dict.fromkeys(b.bus for b in trees.boards):
         h = robot.buses.get(name)
         if h is None:
+            have = ", ".join(robot.buses) or "none"
+            every = ", ".join(dict.fromkeys(b.bus for b in trees.boards))
+            hint = (f": give a channel for each of its buses ({every}), or --bus "
+                    f"{next(iter(robot.buses))} for that bus alone" if robot.buses else "")
             raise InputError(f"{topology.name} ({topology.source}) has boards on bus "
-                             f"{name}; the connection has {', '.join(robot.buses) or 'none'}",
-                             key="--bus")
+                             f"{name}; the connection has {have}{hint}", key="--bus")
         buses[name] = replace(h, expected=topology.bus(name))
     return replace(robot, buses=buses, topology=topology)
 

@@ -51,6 +51,10 @@ class ConnectSpec:
     """Environment settings that named another bus and were ignored (``UCOM_X=value``)."""
     log: Path | None = None
     """Record every frame of every bus opened into this python-can log (``--log``)."""
+    only: str | None = None
+    """Open only this bus of the topology (``--bus NAME`` of the run-time commands): its
+    channel is the one given for it (-c for every bus, in order), the one channel given,
+    or, with none, the bus's name (a served fleet's channel)."""
 
     def describe(self) -> str:
         if self.virtual:
@@ -313,7 +317,9 @@ def _open(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
                          key="--interface")
     channels = list(spec.channels)
     expected: list[BusSpec | None]
-    if topology is not None:
+    if topology is not None and spec.only is not None:
+        channels, expected = _only(topology, spec.only, channels)
+    elif topology is not None:
         if not channels:
             channels = [b.name for b in topology.buses]
         if len(channels) > len(topology.buses):
@@ -358,6 +364,27 @@ def _open(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
             buses[name] = BusHandle(name, bus, link, BootloaderClient(link, timeouts), exp,
                                     virtual=False)
     return Robot(spec, buses, topology, timeouts=timeouts)
+
+
+def _only(topology: Topology, name: str, channels: list[str],
+          ) -> tuple[list[str], list[BusSpec | None]]:
+    """The channel and the bus of ``--bus NAME`` (see :attr:`ConnectSpec.only`)."""
+    names = [b.name for b in topology.buses]
+    if name not in names:
+        raise InputError(f"{topology.name!r} has no bus {name!r}; its buses: "
+                         + ", ".join(names), key="--bus")
+    index = names.index(name)
+    if not channels:
+        channel = name
+    elif len(channels) == 1:
+        channel = channels[0]
+    elif len(channels) == len(names):
+        channel = channels[index]
+    else:
+        raise InputError(f"--bus {name} with {len(channels)} channels: give its channel "
+                         f"alone, or one for each of the {len(names)} buses in order",
+                         key="--channel")
+    return [channel], [topology.buses[index]]
 
 
 def _open_virtual(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
