@@ -492,3 +492,56 @@ def test_init_request_to_the_served_fleet_is_acknowledged() -> None:
                                                    is_extended_id=False)))
         finally:
             bus.shutdown()
+
+
+class _CountedSends:
+    """The bus's socket, counting the writes (each a system call)."""
+
+    def __init__(self, sock: socket.socket) -> None:
+        self._sock = sock
+        self.sends = 0
+
+    def send(self, data: Any) -> int:
+        self.sends += 1
+        return self._sock.send(data)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._sock, name)
+
+
+def test_held_frames_go_out_in_one_write_and_dropped_ones_not_at_all() -> None:
+    heard = threading.Event()
+
+    def script(peer: Peer) -> None:
+        peer.greet()
+        peer.hear("< send 701 0 >")  # another thread's frame, written while held
+        peer.hear("< send 280 1 01 >< send 281 1 02 >< send 282 1 03 >")
+        peer.hear("< send 290 0 >")  # the dropped batch never came
+        heard.set()
+        peer.wait_closed()
+
+    with FakeServer(script) as server:
+        bus = within(5, lambda: SocketcandBus("CAN0", LOCAL, server.port))
+        counted = _CountedSends(bus._sock)
+        bus._sock = counted  # type: ignore[assignment]
+        try:
+            bus.hold()
+            for k in range(3):
+                bus.send(can.Message(arbitration_id=0x280 + k, data=bytes([k + 1]),
+                                     is_extended_id=False))
+            assert counted.sends == 0
+            other = threading.Thread(target=bus.send, args=(can.Message(
+                arbitration_id=0x701, data=b"", is_extended_id=False),))
+            other.start()
+            other.join(5)
+            assert counted.sends == 1
+            bus.release()
+            assert counted.sends == 2  # three frames, one write
+            with pytest.raises(RuntimeError), bus.batch():
+                bus.send(can.Message(arbitration_id=0x28F, data=b"", is_extended_id=False))
+                raise RuntimeError("the cycle failed")
+            bus.send(can.Message(arbitration_id=0x290, data=b"", is_extended_id=False))
+            assert counted.sends == 3
+            assert heard.wait(5)
+        finally:
+            bus.shutdown()

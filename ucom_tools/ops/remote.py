@@ -12,19 +12,21 @@ the next cycle, another CI or a PAR is written at once and acknowledged);
 ``with`` block, whatever happened) stops every board: motors off.  A PC that stops
 calling :meth:`cycle` stops sending MCA Alive, and the boards' watchdogs stop them.
 
-Real buses: one reader thread per bus takes the answers and SO maps; the loop waits on
-the wall clock (sleep, then a short spin for the last fraction of a millisecond).  The
-in-process fleet in virtual time: the loop drives the fleet clock, nothing waits.
+Real buses: one thread does everything (no reader threads, so the GIL never keeps the
+loop from its deadline).  Each cycle sleeps to its deadline on the wall clock (a short
+spin for the last 0.1 ms), sends the frames due (one write per bus where the interface
+can batch them: socketcand), then takes every frame the buses delivered meanwhile.
+``realtime`` runs the loop's thread under SCHED_FIFO (:mod:`ucom_tools.ops.realtime`).
+The in-process fleet in virtual time: the loop drives the fleet clock, nothing waits.
 """
 
 from __future__ import annotations
 
 import difflib
-import select
 import sys
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from decimal import Decimal
@@ -39,10 +41,17 @@ from ucom_tools.config.attrtree.match import Mismatch, differences
 from ucom_tools.config.attrtree.model import Board, Kind
 from ucom_tools.config.attrtree.parser import load as load_tree
 from ucom_tools.config.attrtree.robot import RobotTrees, bind
-from ucom_tools.errors import BoardError, InputError, TreeError, UcomError, UcomTimeoutError
+from ucom_tools.errors import (
+    BoardError,
+    BusError,
+    InputError,
+    TreeError,
+    UcomError,
+    UcomTimeoutError,
+)
 from ucom_tools.ops.edges import EdgeRef, Names, spec_of
 from ucom_tools.ops.exchange import BusExchange, configure, edge_list
-from ucom_tools.ops.realtime import RealtimeScheduling
+from ucom_tools.ops.realtime import RealtimeScheduling, precise_sleep
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot, open_robot
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.dispatch import share_clock
@@ -51,13 +60,13 @@ from ucom_tools.protocol.mca import BoardEdges, values_of
 from ucom_tools.wire import mca
 from ucom_tools.wire.ids import seq
 
-SPIN_S = 0.0003
-"""The loop sleeps until this long before a deadline, then spins (sleep wakes late)."""
-SELECT_SPIN_S = 0.0001
-"""The same when the loop waits in select() on the buses' sockets, which is woken by the
-frames themselves and wakes on time more precisely than a sleep among polls."""
-POLL_S = 0.0002
-"""While it waits, the loop looks at the buses this often."""
+SPIN_S = 0.0001
+"""The loop sleeps until this long before a deadline, then spins (a sleep wakes a little
+late; the thread's timer slack is made small, see :func:`~ucom_tools.ops.realtime.
+precise_sleep`)."""
+DRAIN_EVERY_S = 0.001
+"""At rates below 1 kHz the loop takes what the buses delivered at least this often while
+it waits, so that no receive buffer fills."""
 SWITCH_INTERVAL_S = 0.0005
 """While the loop runs, Python switches threads this often (default 5 ms: a second
 thread, a live view say, could keep the loop from its deadline that long)."""
@@ -146,21 +155,6 @@ class LoopStats:
         return self.cycles / span if span > 0 else 0.0
 
 
-def _filenos(buses: Iterable[can.BusABC]) -> list[int]:
-    """The file descriptor of every bus, or [] when one has none (python-can raises
-    NotImplementedError for buses that cannot be waited on with select)."""
-    fds = []
-    for bus in buses:
-        try:
-            fd = bus.fileno()
-        except (NotImplementedError, AttributeError, OSError):
-            return []
-        if not isinstance(fd, int) or fd < 0:
-            return []
-        fds.append(fd)
-    return fds
-
-
 class RemotePart:
     """A robot's run time from the PC (see the module docstring)."""
 
@@ -198,7 +192,10 @@ class RemotePart:
         self._seen: dict[tuple[str, int], int] = {}
         self._last_raw: dict[EdgeRef, int] = {}
         self._switch: float | None = None
-        self._fds: list[int] | None = None
+        self._prepared = False
+        self._batching: list[tuple[str, Any]] = []
+        """The buses whose frames of a cycle go out in one write (``hold``/``release``:
+        :class:`~ucom_tools.transport.socketcand.SocketcandBus`)."""
         self.scheduling: RealtimeScheduling | None = (
             RealtimeScheduling() if realtime and not robot.virtual_time else None)
         """``realtime``: the loop's thread under SCHED_FIFO from its first cycle to the stop
@@ -414,9 +411,8 @@ class RemotePart:
         return the latest SO values by name."""
         if not self._running:
             raise UcomError("the exchange is not running (start() it first)")
-        rt = self.scheduling
-        if rt is not None and not rt.active and not rt.refused:
-            rt.enter()  # once, in the loop's own thread
+        if not self._prepared:
+            self._prepare()  # once, in the loop's own thread
         self._wait(self._deadline)
         now = self._clock()
         late = now - self._deadline
@@ -427,8 +423,23 @@ class RemotePart:
             self._k += skipped
             late -= skipped * self.period_s
         self.stats.late.append(late)
-        for x in self.exchanges.values():
-            x.send_cycle(self._deadline)
+        batching = self._batching
+        for _, bus in batching:
+            bus.hold()
+        try:
+            for x in self.exchanges.values():
+                x.send_cycle(self._deadline)
+        except BaseException:
+            for _, bus in batching:
+                bus.release(write=False)
+            raise
+        for name, bus in batching:
+            try:
+                bus.release()
+            except can.CanError as err:
+                raise BusError(f"{name}: cannot send: {err}") from err
+        if not self.virtual:
+            self._drain()  # after the sends: what came during the period, as fresh as can be
         self.stats.cycles += 1
         self._k += 1
         self._deadline += self.period_s
@@ -436,31 +447,41 @@ class RemotePart:
             self._report_so()
         return self.so
 
+    def _prepare(self) -> None:
+        """The loop's thread: SCHED_FIFO (``realtime``), precise sleeps; and the buses
+        whose frames of a cycle can go out in one write."""
+        self._prepared = True
+        rt = self.scheduling
+        if rt is not None:
+            rt.enter()
+        if not self.virtual:
+            precise_sleep()
+        self._batching = [(h.name, h.link.dispatcher.bus) for h, _ in self._handles()
+                          if not self.virtual and callable(
+                              getattr(h.link.dispatcher.bus, "hold", None))]
+
+    def _drain(self) -> int:
+        """Take and dispatch every frame the buses have delivered (without waiting)."""
+        return sum(h.link.dispatcher.drain() for h, _ in self._handles())
+
     def _wait(self, deadline: float) -> None:
-        """Until ``deadline``, take what the buses deliver: in virtual time by driving the
-        fleet clock; on real buses by polling every bus (no reader threads: one thread
-        does everything, so the GIL never keeps the loop from its deadline), sleeping in
-        short steps, spinning the last :data:`SPIN_S`."""
-        dispatchers = [h.link.dispatcher for h, _ in self._handles()]
+        """Until ``deadline``: in virtual time by driving the fleet clock; on real buses by
+        sleeping (one thread does everything, no reader threads, so the GIL never keeps
+        the loop from its deadline), spinning the last :data:`SPIN_S`; the frames that
+        come meanwhile are taken after the cycle's sends (:meth:`cycle`), or every
+        :data:`DRAIN_EVERY_S` while a long period passes."""
         if self.virtual:
-            for d in dispatchers:
-                d.pump(deadline)
+            for h, _ in self._handles():
+                h.link.dispatcher.pump(deadline)
             return
-        fds = self._fds
-        if fds is None:
-            fds = self._fds = _filenos(d.bus for d in dispatchers)
         while True:
-            got = sum(d.drain() for d in dispatchers)
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return
-            if got:
-                continue
-            if fds:
-                if remaining > SELECT_SPIN_S:
-                    select.select(fds, (), (), remaining - SELECT_SPIN_S)
-            elif remaining > SPIN_S:
-                time.sleep(min(POLL_S, remaining - SPIN_S))
+            if remaining > SPIN_S:
+                time.sleep(min(DRAIN_EVERY_S, remaining - SPIN_S))
+                if deadline - time.monotonic() > DRAIN_EVERY_S:
+                    self._drain()
 
     def run(self, seconds: float, each: Callable[[RemotePart], None] | None = None) -> None:
         """Cycle for ``seconds`` (of the bus clock), calling ``each(self)`` every cycle."""
@@ -619,6 +640,7 @@ class RemotePart:
                 x.stop_tasks()
             if self.scheduling is not None:
                 self.scheduling.leave()
+            self._prepared = False
             if self._switch is not None:
                 sys.setswitchinterval(self._switch)
                 self._switch = None

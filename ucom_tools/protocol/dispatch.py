@@ -330,7 +330,20 @@ class Dispatcher:
             self._reading = True
         count = 0
         try:
-            while count < limit and self._read_one(0.0):
+            for d in self.group:  # the periodic frames due, once (not once per frame)
+                d._run_due()
+            recv, dispatch = self.bus.recv, self.dispatch
+            while count < limit:
+                try:
+                    msg = recv(0.0)
+                except can.CanError as err:
+                    raise self._fail(f"{self.name}: cannot receive: {err}") from err
+                except OSError as err:
+                    raise self._fail(f"{self.name}: cannot receive: "
+                                     f"{err.strerror or err}") from err
+                if msg is None:
+                    break
+                dispatch(msg)
                 count += 1
         finally:
             with self._cond:

@@ -44,6 +44,7 @@ import socket
 import threading
 import time
 from collections import deque
+from collections.abc import Iterator
 from typing import Any
 
 import can
@@ -207,6 +208,8 @@ class SocketcandBus(can.BusABC):
         self._splitter = ElementSplitter()
         self._pending: deque[can.Message] = deque()
         self._send_lock = threading.Lock()
+        self._batch: list[bytes] | None = None
+        self._batch_thread: int | None = None
         self._broken: str | None = None
         self._closed = False
         with contextlib.ExitStack() as on_failure:
@@ -313,9 +316,15 @@ class SocketcandBus(can.BusABC):
         """Wait up to ``timeout`` for data and buffer it; False if none came in time."""
         self._check_usable()
         try:
-            if not self._readable.select(timeout):
+            if timeout == 0:  # a poll (a loop draining its buses): no select needed
+                try:
+                    chunk = self._sock.recv(_CHUNK)
+                except BlockingIOError:
+                    return False
+            elif not self._readable.select(timeout):
                 return False
-            chunk = self._sock.recv(_CHUNK)
+            else:
+                chunk = self._sock.recv(_CHUNK)
         except BlockingIOError:
             return True
         except (OSError, ValueError) as err:  # ValueError: closed by shutdown() meanwhile
@@ -333,12 +342,45 @@ class SocketcandBus(can.BusABC):
             element = send_element(msg)
         except ValueError as err:
             raise can.CanOperationError(f"socketcand {self._where} cannot send {err}") from err
-        self._write(element.encode("ascii"), self.send_timeout if timeout is None else timeout)
+        data = element.encode("ascii")
+        if self._batch is not None and self._batch_thread == threading.get_ident():
+            self._batch.append(data)
+        else:
+            self._write(data, self.send_timeout if timeout is None else timeout)
         if self.receive_own_messages:
             self._pending.append(can.Message(
                 timestamp=time.time(), arbitration_id=msg.arbitration_id,
                 is_extended_id=msg.is_extended_id, data=bytes(msg.data[:msg.dlc]),
                 is_rx=False, channel=self.channel))
+
+    def hold(self) -> None:
+        """From now on the frames this thread sends are collected, not written, until
+        :meth:`release` writes them in one go: a cyclic loop's frames of one cycle cost
+        one system call, not one each.  Frames of other threads are written at once."""
+        if self._batch is None:
+            self._batch, self._batch_thread = [], threading.get_ident()
+
+    def release(self, write: bool = True, timeout: float | None = None) -> None:
+        """Write what :meth:`hold` collected (within ``timeout``, default
+        ``send_timeout``; a failure raises :class:`can.CanOperationError` as :meth:`send`
+        would), or drop it (``write`` false); sends are written at once again."""
+        frames, self._batch, self._batch_thread = self._batch, None, None
+        if write and frames:
+            self._write(b"".join(frames), self.send_timeout if timeout is None else timeout)
+
+    @contextlib.contextmanager
+    def batch(self, timeout: float | None = None) -> Iterator[None]:
+        """:meth:`hold` ... :meth:`release` as a context (dropped when the block raises)."""
+        if self._batch is not None:  # nested: the outer batch writes
+            yield
+            return
+        self.hold()
+        try:
+            yield
+        except BaseException:
+            self.release(write=False)
+            raise
+        self.release(timeout=timeout)
 
     def _write(self, data: bytes, limit: float) -> None:
         """Write all of ``data`` within ``limit`` seconds, or nothing, or break the bus."""
