@@ -111,3 +111,30 @@ def test_only_one_bus_refuses_an_unknown_bus_or_a_channel_count_that_fits_nothin
         _only(armar3, "CAN9", [])
     with pytest.raises(InputError, match="--bus CAN1 with 2 channels"):
         _only(armar3, "CAN1", ["a", "b"])
+
+
+def test_the_bundled_trees_are_found_in_a_checkout_or_where_a_wheel_put_them(
+        tmp_path: Path) -> None:
+    checkout, env = tmp_path / "checkout", tmp_path / "env"
+    (checkout / "attribute_trees").mkdir(parents=True)
+    (env / "share" / "ucom-tools" / "attribute_trees").mkdir(parents=True)
+    assert topology.bundled_root(checkout, (str(env),)) == checkout
+    installed = tmp_path / "site-packages"  # a wheel: no trees beside the package
+    installed.mkdir()
+    assert topology.bundled_root(installed, ("/nonexistent", str(env))) == \
+        env / "share" / "ucom-tools"
+    assert topology.bundled_root(installed, ("/nonexistent",)) == installed
+    # this checkout: the bundled robots' trees and images are where the topologies say
+    assert (topology.SOURCE_ROOT / "attribute_trees" / "armar3" / "neck.tree").is_file()
+    assert (topology.SOURCE_ROOT / "firmware_images" / "armar3.fl.S").is_file()
+
+
+def test_pyproject_installs_every_bundled_tree_and_image() -> None:
+    import tomllib
+    root = topology.SOURCE_ROOT
+    data = tomllib.loads((root / "pyproject.toml").read_text())["tool"]["setuptools"][
+        "data-files"]
+    listed = {p for patterns in data.values() for pat in patterns for p in root.glob(pat)}
+    shipped = {p for d in ("attribute_trees", "firmware_images")
+               for p in (root / d).rglob("*") if p.is_file()}
+    assert shipped and listed == shipped

@@ -10,6 +10,7 @@ cut), ``powered = false``, and two boards with the same ``fixed_id``; and mutant
 from __future__ import annotations
 
 import re
+import sys
 import tomllib
 import zlib
 from dataclasses import dataclass, fields, replace
@@ -23,9 +24,24 @@ from ucom_tools.virtual import mutants
 from ucom_tools.wire.fpga import FpgaVersion
 
 BUNDLED = ("armar3", "lauron4", "kairo2", "odete", "puma200", "rosi")
-SOURCE_ROOT = Path(__file__).resolve().parents[2]
-"""Relative paths in a bundled topology (programs, attribute trees) are relative to the
-ucom-tools source tree (where ``firmware_images/`` and ``attribute_trees/`` are)."""
+def bundled_root(source: Path = Path(__file__).resolve().parents[2],
+                 prefixes: tuple[str, ...] = (sys.prefix, sys.base_prefix)) -> Path:
+    """Where ``attribute_trees/`` and ``firmware_images/`` are: the ``source`` tree of a
+    checkout (or an editable install), else ``share/ucom-tools`` of the environment a
+    wheel was installed into (pyproject.toml, data-files)."""
+    if (source / "attribute_trees").is_dir():
+        return source
+    for prefix in prefixes:
+        shared = Path(prefix) / "share" / "ucom-tools"
+        if (shared / "attribute_trees").is_dir():
+            return shared
+    return source
+
+
+SOURCE_ROOT = bundled_root()
+"""Relative paths in a bundled topology (programs, attribute trees) are relative to this
+folder: the ucom-tools source tree (where ``firmware_images/`` and ``attribute_trees/``
+are), or where an installed wheel put them."""
 BITRATES = (10_000, 20_000, 50_000, 100_000, 125_000, 250_000, 500_000, 800_000, 1_000_000)
 
 

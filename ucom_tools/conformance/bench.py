@@ -9,6 +9,7 @@ from pathlib import Path
 
 import can
 
+from ucom_tools.config.topology import SOURCE_ROOT
 from ucom_tools.conformance.case import CaseFailed, Skipped
 from ucom_tools.image.srec import Image, load_image
 from ucom_tools.ops.robot import BusHandle
@@ -22,8 +23,7 @@ from ucom_tools.wire.codes import BoardState, StatusOp, Target
 from ucom_tools.wire.ids import ALL, Address, seq
 from ucom_tools.wire.mca import McaReady
 
-SOURCE = Path(__file__).resolve().parents[2]
-RUNTIME_IMAGE = SOURCE / "firmware_images" / "armar3.fl.S"
+RUNTIME_IMAGE = SOURCE_ROOT / "firmware_images" / "armar3.fl.S"
 
 
 @dataclass(frozen=True)
