@@ -24,7 +24,10 @@ from ucom_tools.virtual import mutants
 from ucom_tools.wire.fpga import FpgaVersion
 
 BUNDLED = ("armar3", "lauron4", "kairo2", "odete", "puma200", "rosi")
-def bundled_root(source: Path = Path(__file__).resolve().parents[2],
+_PACKAGE_PARENT = Path(__file__).resolve().parents[2]
+
+
+def bundled_root(source: Path = _PACKAGE_PARENT,
                  prefixes: tuple[str, ...] = (sys.prefix, sys.base_prefix)) -> Path:
     """Where ``attribute_trees/`` and ``firmware_images/`` are: the ``source`` tree of a
     checkout (or an editable install), else ``share/ucom-tools`` of the environment a
