@@ -12,7 +12,8 @@ import can
 from click.testing import CliRunner
 
 from ucom_tools.cli.main import cli
-from ucom_tools.conformance.case import GROUPS, all_cases
+from ucom_tools.conformance.case import GROUPS
+from ucom_tools.conformance.catalogue import all_cases
 from ucom_tools.wire.ids import Function
 
 ROOT = Path(__file__).resolve().parent.parent

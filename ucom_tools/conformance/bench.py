@@ -10,7 +10,7 @@ from pathlib import Path
 import can
 
 from ucom_tools.config.topology import SOURCE_ROOT
-from ucom_tools.conformance.case import CaseFailed, Skipped
+from ucom_tools.conformance.outcome import CaseFailed, Skipped
 from ucom_tools.image.srec import Image, load_image
 from ucom_tools.ops.robot import BusHandle
 from ucom_tools.protocol.bootloader import InitResult

@@ -14,20 +14,6 @@ GROUPS = ("identifiers", "reset", "init chain", "info", "program enable", "progr
 """The groups, in the order of the protocol page."""
 
 
-class CaseFailed(Exception):
-    """The boards did not do what the page says: what was expected, what came."""
-
-    def __init__(self, what: str, expected: object, got: object) -> None:
-        super().__init__(f"{what}: expected {expected}, got {got}")
-        self.what = what
-        self.expected = expected
-        self.got = got
-
-
-class Skipped(Exception):
-    """The case does not apply (a board lacks a capability); the reason."""
-
-
 @dataclass(frozen=True)
 class Case:
     id: str
@@ -57,10 +43,3 @@ def case(id: str, group: str, section: str, *, writes: str = ""
         REGISTRY.append(Case(id, group, title, section, fn, writes))
         return fn
     return register
-
-
-def all_cases() -> list[Case]:
-    """Every case, in the page's group order."""
-    from ucom_tools.conformance import cases_boot, cases_runtime  # noqa: F401 (register)
-
-    return sorted(REGISTRY, key=lambda c: GROUPS.index(c.group))

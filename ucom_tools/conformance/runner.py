@@ -22,7 +22,9 @@ from pathlib import Path
 import can
 
 from ucom_tools.conformance.bench import RUNTIME_IMAGE, Bench
-from ucom_tools.conformance.case import Case, CaseFailed, Skipped, all_cases
+from ucom_tools.conformance.case import Case
+from ucom_tools.conformance.catalogue import all_cases
+from ucom_tools.conformance.outcome import CaseFailed, Skipped
 from ucom_tools.errors import BusError, InputError, UcomError
 from ucom_tools.ops.robot import Robot
 from ucom_tools.wire.codes import BoardState, StatusOp

@@ -23,12 +23,9 @@ import can
 
 from ucom_tools.errors import UcomError
 from ucom_tools.virtual.fleet import Fleet, release_shared, shared_fleet
-from ucom_tools.virtual.simbus import SimBus
+from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
 
 INF = float("inf")
-TX_QUEUE = 32
-"""Frames a host may have waiting for the bus before ``send`` blocks (real time only),
-like the transmit queue of a CAN adapter."""
 
 
 class HostPort:

@@ -25,7 +25,7 @@ from ucom_tools.errors import InputError, TopologyError, UcomError
 from ucom_tools.virtual import mutants
 from ucom_tools.virtual.board import Identity, VirtualBoard
 from ucom_tools.virtual.clock import FleetClock, RealtimeDriver
-from ucom_tools.virtual.simbus import SimBus
+from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
 
 ROOM_POLL_S = 0.0002
 """How often a host waiting for room in its transmit queue looks again."""
@@ -113,10 +113,9 @@ class Fleet:
         """A frame from a host of a paced fleet (a socketcand client, ``--pace``), ready
         now: handed to the driver thread, which queues it at its next step, so a busy
         fleet never keeps the host waiting for its lock.  Blocks while the host has
-        :data:`~ucom_tools.virtual.canbus.TX_QUEUE` frames waiting (its transmit queue);
+        :data:`~ucom_tools.virtual.simbus.TX_QUEUE` frames waiting (its transmit queue);
         ``can.CanOperationError`` after ``timeout`` seconds of that, or when ``alive()``
         turns false."""
-        from ucom_tools.virtual.canbus import TX_QUEUE
 
         deadline = None if timeout is None else time.monotonic() + timeout
         while sim.queued.get(sender, 0) + self._pending.get(id(sender), 0) >= TX_QUEUE:

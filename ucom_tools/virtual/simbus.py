@@ -28,6 +28,10 @@ from typing import Protocol
 from ucom_tools.virtual.clock import FleetClock
 from ucom_tools.wire.canbits import frame_bits
 
+TX_QUEUE = 32
+"""Frames a host may have waiting for the bus before ``send`` blocks (real time only),
+like the transmit queue of a CAN adapter."""
+
 
 class Node(Protocol):
     """Anything attached to the bus that receives frames."""

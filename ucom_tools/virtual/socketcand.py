@@ -24,7 +24,7 @@ No client can stop the bus or another client:
   without ever waiting, and a writer thread per client empties it outside the bus lock.
   A client that stops reading until its queue overflows is dropped.
 * Back-pressure: a client's frames wait in a transmit queue of
-  :data:`~ucom_tools.virtual.canbus.TX_QUEUE` frames, like a CAN adapter's.  While it is
+  :data:`~ucom_tools.virtual.simbus.TX_QUEUE` frames, like a CAN adapter's.  While it is
   full the server does not read that client's socket, so TCP slows a client that sends
   faster than the bus carries frames; the wait releases the bus lock, and a client that
   disconnects meanwhile is noticed and cleaned up.
