@@ -348,3 +348,15 @@ def test_check_with_a_tree_file_of_ones_own_names_its_line(flashed, tmp_path) ->
                                                       ".tree"), "--virtual", "armar3",
                         "--state", str(flashed))
     assert code == 3 and "CameraHead" in err and "no board of robot" in err
+
+
+def test_the_summary_marks_a_value_the_board_clipped_to_its_encoding(flashed) -> None:
+    code, out, err = ucom("remote", "run", "armar3", "--virtual", "armar3", "--state",
+                          str(flashed), "--for", "0.3", "--set", "Neck Yaw Target=-2000",
+                          "--set", "Right Eye Target=100")
+    assert code == 0, err
+    rows = {line.split("│")[2].strip(): line for line in out.splitlines() if "│" in line}
+    assert "-32768*" in rows["Neck Yaw Velocity"]  # faster than int16 counts/s can say
+    assert "*" not in rows["Right Eye Joint Sensor"]  # a small move: nothing clipped
+    assert "*" not in rows["Neck Yaw Voltage"]  # 0 V is its range's end, not clipping
+    assert "the most the edge's encoding can carry" in out

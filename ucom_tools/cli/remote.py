@@ -230,12 +230,23 @@ def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) 
     t = Table(title="what the joints did (sensor values that moved)", title_justify="left")
     for col in ("board", "name", "first", "last", "range", "unit"):
         t.add_column(col, overflow="fold")
+    clipped = False
     for ref, tr in moved:
+        low, high = _value_text(tr.low), _value_text(tr.high)
+        # a value at the end of what its encoding can carry: the board clipped it (the
+        # quantity went further, e.g. a velocity over 32767 counts/s)
+        least, most = ref.spec.raw_limits()
+        if ref.raw(tr.low) <= least:
+            low, clipped = f"{low}*", True
+        if ref.raw(tr.high) >= most:
+            high, clipped = f"{high}*", True
         t.add_row(escape(ref.where), escape(ref.unique), _value_text(tr.first),
-                  _value_text(tr.last), f"{_value_text(tr.low)} .. {_value_text(tr.high)}",
-                  escape(ref.spec.unit))
+                  _value_text(tr.last), f"{low} .. {high}", escape(ref.spec.unit))
     if moved:
         stdout().print(t)
+        if clipped:
+            stdout().print("[dim]* the most the edge's encoding can carry: the value went "
+                           "further and was clipped[/]")
     else:
         stdout().print("no sensor value moved")
     if len(changed) > len(moved):
