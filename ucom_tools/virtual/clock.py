@@ -28,6 +28,17 @@ from typing import Any
 log = logging.getLogger("ucom.bus")
 
 INF = float("inf")
+MAX_STEP_US = 10_000.0
+"""The most virtual time one step of the paced driver runs (a fleet that keeps up never
+needs more than a fraction of it)."""
+LAG_WARN_US = 50_000.0
+"""A paced fleet this far behind the wall clock after a step is reported: the machine
+cannot run it in real time (its frames reach clients late, its timing is off)."""
+LAG_PERSIST_S = 1.0
+"""... when it stays that far behind for this long (a single slow step, e.g. a program
+that starts, is no reason)."""
+LAG_WARN_EVERY_S = 10.0
+"""At most one such report in this many seconds."""
 
 Event = tuple[float, int, int, Callable[..., None], tuple[Any, ...]]
 """(time, tier, sequence, function, arguments): at equal times tier 0 (state changes:
@@ -87,7 +98,12 @@ class RealtimeDriver:
 
     def __init__(self, clock: FleetClock, name: str = "fleet") -> None:
         self.clock = clock
+        self.name = name
         self.t0 = time.monotonic() - clock.now / 1e6
+        self.worst_lag_us = 0.0
+        """The most the fleet fell behind the wall clock after a step (0: kept up)."""
+        self._next_lag_report = 0.0
+        self._behind_since: float | None = None
         self._stop = False
         self._pending: deque[Callable[[], None]] = deque()
         self._wake = threading.Event()
@@ -124,11 +140,39 @@ class RealtimeDriver:
                     except Exception:
                         log.exception("work handed to the fleet failed")
                 now = self.now_us()
-                self._advance(now)
+                first = clock.next_event_time()
+                # a fleet behind the wall clock catches up in steps of MAX_STEP_US, so
+                # clients' work is taken in between and the lag can be seen
+                target = now if first is None else min(now, max(first, clock.now)
+                                                         + MAX_STEP_US)
+                self._advance(target)
                 nxt = clock.next_event_time()
+            self._note_lag(self.now_us() - clock.now)
+            if target < now:
+                continue
             wait = 0.5 if nxt is None else min(0.5, max(0.0, (nxt - now) / 1e6))
             if wait > 0 and not pending:
                 self._wake.wait(timeout=wait)
+
+    def _note_lag(self, behind_us: float) -> None:
+        """``behind_us``: how far the fleet is behind the wall clock after a step;
+        reported (logger ``ucom.bus``) when over :data:`LAG_WARN_US` for
+        :data:`LAG_PERSIST_S`."""
+        if behind_us > self.worst_lag_us:
+            self.worst_lag_us = behind_us
+        if behind_us < LAG_WARN_US / 5:
+            self._behind_since = None
+            return
+        if behind_us <= LAG_WARN_US:
+            return
+        t = time.monotonic()
+        if self._behind_since is None:
+            self._behind_since = t
+        elif t - self._behind_since >= LAG_PERSIST_S and t >= self._next_lag_report:
+            self._next_lag_report = t + LAG_WARN_EVERY_S
+            log.warning("%s runs %.0f ms behind the wall clock: this machine cannot run it "
+                        "in real time (its frames reach clients late and its timing is off)",
+                        self.name, behind_us / 1000)
 
     def _advance(self, now: float) -> None:
         """Run the fleet up to ``now`` (holding the lock); a node or callback that raises

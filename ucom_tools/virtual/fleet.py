@@ -74,7 +74,8 @@ class Fleet:
             self.buses[spec.name] = sim
             self.boards[spec.name] = boards
         if realtime:
-            self._driver = RealtimeDriver(self.clock, topology.name)
+            self._driver = RealtimeDriver(
+                self.clock, f"{topology.name} ({', '.join(b.name for b in topology.buses)})")
             self._driver.start()
 
     @classmethod

@@ -1,0 +1,60 @@
+"""The paced fleet clock (``fleet serve``): a fleet the machine cannot run in real time
+says so, one that keeps up does not."""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import pytest
+
+from ucom_tools.virtual.clock import LAG_WARN_US, FleetClock, RealtimeDriver
+
+DEADLINE_S = 10.0
+
+
+def _driven(clock: FleetClock, caplog: pytest.LogCaptureFixture, until: float) -> RealtimeDriver:
+    driver = RealtimeDriver(clock, "test fleet (CAN0)")
+    with caplog.at_level(logging.WARNING, logger="ucom.bus"):
+        driver.start()
+        try:
+            deadline = time.monotonic() + DEADLINE_S
+            while time.monotonic() < deadline and clock.now < until:
+                time.sleep(0.01)  # polling the clock's progress, not synchronisation
+        finally:
+            driver.stop()
+    assert clock.now >= until, "the driver did not get there"
+    return driver
+
+
+def test_a_fleet_too_slow_for_the_wall_clock_is_reported(caplog) -> None:
+    clock = FleetClock()
+
+    def slow_model(t: float) -> None:  # a 1 ms cycle whose work takes 20 ms of wall time
+        time.sleep(0.02)
+        clock.at(t + 1000, slow_model)
+
+    clock.at(1000, slow_model)
+    driver = _driven(clock, caplog, 80_000)  # 80 cycles: 1.6 s of wall time
+    assert driver.worst_lag_us > LAG_WARN_US
+    warnings = [r.getMessage() for r in caplog.records if "behind the wall clock" in
+                r.getMessage()]
+    assert len(warnings) == 1, warnings  # once, not every step
+    assert warnings[0].startswith("test fleet (CAN0) runs ")
+    assert "cannot run it in real time" in warnings[0]
+
+
+def test_a_fleet_that_keeps_up_says_nothing_after_a_single_slow_step(caplog) -> None:
+    clock = FleetClock()
+
+    def cycle(t: float) -> None:
+        if t == 5000:  # once: a program that starts, say
+            time.sleep(0.08)
+        clock.at(t + 1000, cycle)
+
+    clock.at(1000, cycle)
+    driver = _driven(clock, caplog, 1_500_000)  # 1.5 s of 1 kHz cycles
+    assert driver.worst_lag_us > LAG_WARN_US  # the slow step was seen ...
+    assert not [r for r in caplog.records if "behind the wall clock" in r.getMessage()]
+    # ... and caught up with: the fleet is on time again
+    assert clock.now >= driver.now_us() - LAG_WARN_US
