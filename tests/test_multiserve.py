@@ -527,3 +527,49 @@ def test_bus_option_of_the_run_time_commands_opens_that_bus_by_name() -> None:
             ("CAN2", f"CAN2 board {s.position + 1} ({s.placement})") for s in can2.boards]
         assert result.returncode == 1  # nothing flashed: no program starts
         assert_stops_cleanly(server, server.interrupt)
+
+
+@pytest.mark.parametrize("processes", ["auto", "1"])
+def test_loss_loses_frames_between_each_client_and_its_bus(processes: str) -> None:
+    """``--loss 0.2``: of 400 frames one client sends, another on the bus gets about
+    (1 - 0.2)^2 of them; the server says how many each lost."""
+    sent = 400
+    with served("--processes", processes, "--loss", "0.2", "--seed", "5") as server:
+        until(lambda: "losing 20.0% of the frames each way" in " ".join(
+            server.stderr().split()), what="the banner naming the loss")
+        a, b = Raw(server.address), Raw(server.address)
+        try:
+            a.handshake("CAN1")
+            b.handshake("CAN1")
+            hears(b, a, "7C1 00")  # attached (retried: the loss may take any one frame)
+            for k in range(sent):
+                a.send(f"< send 7C0 1 {k % 256:02X} >")
+            got, marked = 0, False
+            a.send("< send 7C2 1 EE >")  # the end mark, sent again while it is lost
+            deadline = time.monotonic() + DEADLINE_S
+            while not marked and time.monotonic() < deadline:
+                try:
+                    words = b.element(timeout=0.3)[1:-1].split()
+                except AssertionError:  # quiet: the mark was lost
+                    a.send("< send 7C2 1 EE >")
+                    continue
+                got += words[1:2] == ["7C0"]
+                marked = words[1:2] == ["7C2"]
+            assert marked, "the end mark never came"
+            assert 0.45 * sent < got < 0.85 * sent, got  # 0.64 expected
+        finally:
+            a.close()
+            b.close()
+        until(lambda: re.search(r"\d+ frames lost on their way to it, \d+ from it",
+                                server.stderr()), what="the losses logged")
+        server.interrupt()
+        assert server.wait(STOP_S) == 0, server.stderr()
+
+
+def test_loss_must_be_a_share_below_one() -> None:
+    result = CliRunner().invoke(cli, ["fleet", "serve", "armar3", "--loss", "1"])
+    assert result.exit_code == 2 and "--loss" in result.output
+    from ucom_tools.errors import InputError
+    from ucom_tools.virtual.fleet import Fleet
+    with pytest.raises(InputError, match="--loss: a share of frames lost must be in"):
+        Fleet(ARMAR3, client_loss=-0.1)

@@ -130,9 +130,18 @@ class _Processes(click.ParamType):
               help="Serve mutant boards: every board that names no fault in the topology "
                    "breaks the protocol in this documented way ('ucom fleet faults' lists "
                    "them), to show that a conformance suite catches it.")
+@click.option("--loss", type=click.FloatRange(0, 1, max_open=True), default=0.0,
+              metavar="SHARE", help="Lose this share of the frames between each client and "
+                                    "its bus, each way (e.g. 0.01), as a lossy link to the "
+                                    "PC would: to try tools the way they will meet a real "
+                                    "bus.")
+@click.option("--seed", type=int, default=0, show_default=True,
+              help="Seed of --loss (each client's losses are drawn from SEED, its bus and its "
+                   "number).")
 @click.pass_context
 def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, port: int,
-          max_clients: int, processes: int | None, fault: str | None) -> None:
+          max_clients: int, processes: int | None, fault: str | None, loss: float,
+          seed: int) -> None:
     """Serve TOPOLOGY's buses with the socketcand protocol, in real time.
 
     Other processes reach the boards through a socketcand client: 'ucom ... -i socketcand
@@ -160,9 +169,11 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     robot = topo.load(topology)
     if processes != 1 and len(robot.buses) > 1:
         _serve_per_bus(robot, state_dir, host, port, max_clients, log_level, processes,
-                       fault)
+                       {**({"fault": fault} if fault else {}),
+                        **({"client_loss": loss, "seed": seed} if loss else {})})
         return
-    f = Fleet(robot, state_dir=state_dir, realtime=True, fault=fault)
+    f = Fleet(robot, state_dir=state_dir, realtime=True, fault=fault, client_loss=loss,
+              seed=seed)
     try:
         server = FleetServer(f, host, port, max_clients=max_clients)
     except OSError as e:
@@ -171,7 +182,8 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     h, p = server.address
     print(f"listening on {h}:{p}", flush=True)
     stderr().print(f"serving {f.name} ({', '.join(f.buses)}) with socketcand on {h}:{p}; "
-                   f"{_mutants(fault)}state: {state_dir or 'not kept'}; Ctrl-C stops")
+                   f"{_mutants(fault)}{_losing(loss)}state: {state_dir or 'not kept'}; "
+                   "Ctrl-C stops")
     try:
         with sigterm_interrupts():
             serve_until_interrupted(server)
@@ -182,14 +194,13 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
 
 def _serve_per_bus(robot: Topology, state_dir: Path | None, host: str, port: int,
                    max_clients: int, log_level: int, processes: int | None,
-                   fault: str | None) -> None:
+                   fleet_options: dict[str, Any]) -> None:
     """``fleet serve --processes auto``: one process per bus (or N processes for the
     buses) behind one port."""
     try:
         server = MultiServer(robot, host, port, state_dir=state_dir, max_clients=max_clients,
                              log_level=log_level, switch_interval=SWITCH_INTERVAL_S,
-                             processes=processes,
-                             fleet_options={"fault": fault} if fault else None)
+                             processes=processes, fleet_options=fleet_options)
     except OSError as e:
         raise BusError(f"cannot listen on {host}:{port}: {e.strerror}") from None
     with server:
@@ -201,12 +212,18 @@ def _serve_per_bus(robot: Topology, state_dir: Path | None, host: str, port: int
                   f"{len(server.processes)} processes: " + "; ".join(
                       worker.label for worker in server.processes))
         stderr().print(f"serving {robot.name} ({', '.join(server.buses)}) with socketcand on "
-                       f"{h}:{p}, {shares}; {_mutants(fault)}state: {state_dir or 'not kept'}; "
+                       f"{h}:{p}, {shares}; {_mutants(fleet_options.get('fault'))}"
+                       f"{_losing(fleet_options.get('client_loss', 0.0))}"
+                       f"state: {state_dir or 'not kept'}; "
                        "Ctrl-C stops")
         try:
             server.serve_until_interrupted()
         finally:
             sys.stdout.flush()
+
+
+def _losing(loss: float) -> str:
+    return "" if not loss else f"[bold yellow]losing {loss:.1%} of the frames each way[/]; "
 
 
 def _mutants(fault: str | None) -> str:

@@ -35,9 +35,18 @@ class Fleet:
     """The virtual boards and buses of one topology."""
 
     def __init__(self, topology: Topology, *, state_dir: Path | None = None,
-                 realtime: bool = False, fault: str | None = None) -> None:
+                 realtime: bool = False, fault: str | None = None,
+                 client_loss: float = 0.0, seed: int = 0) -> None:
         self.fault = mutants.check(fault)
         """The fault of every board whose topology entry names none (None: they conform)."""
+        if not 0.0 <= client_loss < 1.0:
+            raise InputError(f"a share of frames lost must be in [0, 1), not {client_loss:g}",
+                             key="--loss")
+        self.client_loss = client_loss
+        """The share of frames lost between each served client and its bus, each way
+        (``fleet serve --loss``: a lossy link to the PC, as in the tests' LossyBus)."""
+        self.seed = seed
+        """Seeds the losses (a client's generator: ``seed`` + its number)."""
         self.topology = topology
         self.state_dir = state_dir
         self.realtime = realtime

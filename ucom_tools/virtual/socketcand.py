@@ -50,7 +50,9 @@ from __future__ import annotations
 
 import binascii
 import contextlib
+import itertools
 import logging
+import random
 import re
 import select
 import socket
@@ -317,19 +319,45 @@ def encode_line(line: Line, epoch: float) -> bytes:
                                         binascii.hexlify(data).upper())
 
 
+_CLIENT_NUMBERS = itertools.count()
+"""Numbers the clients of this process (each one's losses are seeded with it)."""
+
+
 class ClientPort:
     """A client's attachment to one simulated bus (a node of the bus and the sender of
     the client's frames).  ``on_frame`` runs in the bus thread under the bus lock: it only
     queues the frame, and reports an overflowing queue."""
 
-    def __init__(self, sim: SimBus, outbox: Outbox, on_overflow: Callable[[], None]) -> None:
+    def __init__(self, sim: SimBus, outbox: Outbox, on_overflow: Callable[[], None],
+                 loss: Loss | None = None) -> None:
         self.sim = sim
         self.outbox = outbox
         self.on_overflow = on_overflow
+        self.loss = loss
 
     def on_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None:
+        if self.loss is not None and self.loss.lost("to"):
+            return
         if not self.outbox.put((arbitration_id, data, t_end)):
             self.on_overflow()
+
+
+class Loss:
+    """``fleet serve --loss``: frames lost between one client and its bus, a share
+    ``share`` each way, from a generator seeded per client: the serve's seed, the bus and
+    the client's number on this process (the same run loses the same frames)."""
+
+    def __init__(self, share: float, seed: str) -> None:
+        self.share = share
+        self._rng = random.Random(seed)
+        self.counts = {"to": 0, "from": 0}
+        """Frames lost on their way to the client and from it."""
+
+    def lost(self, direction: str) -> bool:
+        if self._rng.random() < self.share:
+            self.counts[direction] += 1
+            return True
+        return False
 
 
 # ---------------------------------------------------------------------- one client
@@ -344,6 +372,8 @@ class Connection:
         self.peer = _peer(address)
         self.fleet = fleet
         self.outbox = Outbox(max_queued_frames)
+        self.loss: Loss | None = None
+        """Frames lost between this client and its bus (``fleet serve --loss``)."""
         self.port: ClientPort | None = None
         self.raw = False
         self._splitter = ElementSplitter()
@@ -435,7 +465,10 @@ class Connection:
         sim = self.fleet.buses[check_open(
             args, self.fleet.buses, self.fleet.name,
             None if self.port is None else self.port.sim.name)]
-        self.port = ClientPort(sim, self.outbox, self._overflow)
+        if self.fleet.client_loss and self.loss is None:
+            self.loss = Loss(self.fleet.client_loss,
+                             f"{self.fleet.seed}/{sim.name}/{next(_CLIENT_NUMBERS)}")
+        self.port = ClientPort(sim, self.outbox, self._overflow, self.loss)
         self.reply("< ok >")
         log.info("client %s opened %s", self.peer, sim.name)
 
@@ -469,6 +502,8 @@ class Connection:
     def _transmit(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
         """Queue a frame once the client's transmit queue has room.  Meanwhile this
         client's socket is not read (back-pressure); the wait releases the bus lock."""
+        if self.loss is not None and self.loss.lost("from"):
+            return  # lost on the way (--loss): the client cannot tell
         sim = port.sim
         while self.alive:
             try:
@@ -517,6 +552,9 @@ class Connection:
 
     def log_end(self) -> None:
         """Say how the client went (once its connection is closed and its slot free)."""
+        if self.loss is not None:
+            log.info("client %s: %d frames lost on their way to it, %d from it (--loss)",
+                     self.peer, self.loss.counts["to"], self.loss.counts["from"])
         if self._dropped:
             log.warning("dropped client %s: %s", self.peer, self._reason)
         else:
