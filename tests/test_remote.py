@@ -360,3 +360,55 @@ def test_the_summary_marks_a_value_the_board_clipped_to_its_encoding(flashed) ->
     assert "*" not in rows["Right Eye Joint Sensor"]  # a small move: nothing clipped
     assert "*" not in rows["Neck Yaw Voltage"]  # 0 V is its range's end, not clipping
     assert "the most the edge's encoding can carry" in out
+
+
+def test_a_loop_that_stalls_past_the_watchdog_is_told_which_boards_stopped(part) -> None:
+    from ucom_tools.wire.codes import ErrorCode
+    part.start()
+    part["Right Eye Target"] = 300
+    for _ in range(20):
+        part.cycle()
+    assert part.events == []  # cycling: nothing to report
+    for h in part.robot.buses.values():  # the PC's program stalls 200 ms: no MCA Alive
+        h.link.dispatcher.pump(h.link.clock() + 0.2)
+    part.cycle()
+    stopped = {(e.bus, e.board) for e in part.events if e.stopped_motors}
+    configured = {(bus, n) for bus, x in part.exchanges.items() for n in x.configured}
+    assert stopped == configured
+    e = next(e for e in part.events if e.stopped_motors)
+    assert e.code is ErrorCode.WATCHDOG and e.text.startswith(
+        "its watchdog stopped every motor: no MCA Alive for ")
+    assert 0.05 <= e.time <= 0.3 and e.where.startswith(f"{e.bus} board {e.board}")
+
+
+def test_run_exits_1_naming_the_boards_whose_watchdog_stopped_them(flashed, monkeypatch,
+                                                                   ) -> None:
+    from ucom_tools.ops.exchange import BusExchange
+    real = BusExchange.send_cycle
+    calls = {"n": 0}
+
+    def stalls(self: BusExchange, now: float) -> int:  # the PC stops sending after a while
+        calls["n"] += 1
+        return real(self, now) if calls["n"] < 200 else 0
+
+    monkeypatch.setattr(BusExchange, "send_cycle", stalls)
+    code, out, err = ucom("remote", "run", "armar3", "--virtual", "armar3", "--state",
+                          str(flashed), "--for", "0.3", "--json")
+    assert code == 1, err
+    events = json.loads(out)["events"]
+    assert {e["where"] for e in events if e["stopped_motors"]} >= {
+        "CAN0 board 3 (head right)", "CAN3 board 1 (platform)"}
+    assert all(e["error"] == "WATCHDOG" for e in events if e["stopped_motors"])
+    code, out, err = ucom("remote", "run", "armar3", "--virtual", "armar3", "--state",
+                          str(flashed), "--for", "0.3")
+    assert code == 1
+    assert "ucom: CAN0 board 3 (head right) at " in err
+    assert "its watchdog stopped every motor: no MCA Alive for " in err
+
+
+def test_a_rate_too_slow_for_the_watchdog_is_refused(flashed) -> None:
+    code, _, err = ucom("remote", "run", "armar3", "--virtual", "armar3", "--state",
+                        str(flashed), "--for", "0.1", "--rate", "50", "--watchdog", "10")
+    assert code == 3
+    assert ("--rate: at 50 Hz the loop sends MCA Alive every 20 ms, and the boards' "
+            "watchdog (10 ms) wants it at least every 5 ms") in " ".join(err.split())

@@ -4,13 +4,12 @@ load, and a command line to set CI and PAR values while the boards run (with com
 of the names).
 
 The PC's loop runs in a thread of its own (:meth:`RemotePart.cycle`); this view only
-reads the latest values.  Rich renders the panels, prompt_toolkit runs the screen and the
-input line.
+reads the latest values.  The boxes are plain text with ANSI styles, prompt_toolkit runs the
+screen and the input line.
 """
 
 from __future__ import annotations
 
-import io
 import threading
 from collections.abc import Iterable
 from decimal import Decimal
@@ -25,18 +24,18 @@ from prompt_toolkit.key_binding import KeyBindings, KeyPressEvent
 from prompt_toolkit.layout import HSplit, Layout, Window
 from prompt_toolkit.layout.controls import BufferControl, FormattedTextControl
 from prompt_toolkit.output import Output
-from rich.columns import Columns
-from rich.console import Console, Group
-from rich.markup import escape
-from rich.panel import Panel
-from rich.table import Table
 
 from ucom_tools.errors import UcomError
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote import RemotePart
+from ucom_tools.ops.remote import RECENT_SAMPLES, RemotePart
 from ucom_tools.wire import mca
 
 REFRESH_S = 0.1
+NAME_WIDTH = 32
+"""Longer names are cut (with an ellipsis) in the boxes."""
+VALUE_WIDTH = 8
+"""The least width of a value column (so that boxes do not jump as values change)."""
+_BOLD, _DIM, _RESET = "\x1b[1m", "\x1b[2m", "\x1b[0m"
 HELP = ("NAME VALUE (or set NAME VALUE, NAME=VALUE) sets a CI or PAR by its robot-wide "
         "name; Tab completes; PgUp/PgDn scroll; q, Ctrl-C or Ctrl-D stop the boards and quit")
 
@@ -61,6 +60,43 @@ def parse_command(line: str) -> tuple[str, str] | None:
     if not name.strip() or not value.strip():
         raise ValueError("expected: [set] NAME VALUE, or NAME=VALUE")
     return name.strip(), value.strip()
+
+
+def _box(title: str, rows: list[tuple[str, str, str]]) -> tuple[int, list[str]]:
+    """A rounded box titled ``title`` with a row per (name, value, unit): its width in
+    columns and its lines (ANSI styles do not count in the width)."""
+    names = [n if len(n) <= NAME_WIDTH else n[:NAME_WIDTH - 1] + "\u2026" for n, _, _ in rows]
+    name_w = max((len(n) for n in names), default=0)
+    value_w = max([VALUE_WIDTH, *(len(v) for _, v, _ in rows)])
+    unit_w = max((len(u) for _, _, u in rows), default=0)
+    inner = max(name_w + 1 + value_w + 1 + unit_w, len(title) + 2)
+    if len(title) + 2 > inner:  # pragma: no cover - max() above
+        title = title[:inner - 2]
+    lines = ["\u256d\u2500 " + title + " " + "\u2500" * (inner - len(title) - 1) + "\u256e"]
+    pad = inner - (name_w + 1 + value_w + 1 + unit_w)
+    for name, (_, value, unit) in zip(names, rows, strict=True):
+        lines.append(f"\u2502 {name:<{name_w}} {value:>{value_w}} {_DIM}{unit:<{unit_w}}"
+                     f"{_RESET}{' ' * pad} \u2502")
+    lines.append("\u2570" + "\u2500" * (inner + 2) + "\u256f")
+    return inner + 4, lines
+
+
+def _arrange(boxes: list[tuple[int, list[str]]], width: int) -> list[str]:
+    """Boxes side by side as many as fit in ``width``, then the next row of them."""
+    out: list[str] = []
+    row: list[tuple[int, list[str]]] = []
+    used = 0
+    for box in [*boxes, (0, [])]:
+        if row and (not box[1] or used + 1 + box[0] > width):
+            height = max(len(lines) for _, lines in row)
+            for k in range(height):
+                out.append(" ".join(lines[k] if k < len(lines) else " " * w
+                                    for w, lines in row).rstrip())
+            row, used = [], 0
+        if box[1]:
+            row.append(box)
+            used += box[0] + (1 if used else 0)
+    return out
 
 
 class NameCompleter(Completer):
@@ -94,6 +130,7 @@ class LiveView:
         self._loads: dict[str, float] = {}
         self._traffic = part.traffic()
         self._ticks = 0
+        self._events_seen = len(part.events)
         self.boards: dict[tuple[str, int], list[EdgeRef]] = {}
         for ref in part.names:
             if ref.kind is mca.Kind.SO:
@@ -110,33 +147,34 @@ class LiveView:
 
     # ------------------------------------------------------------------ rendering
     def render(self, width: int) -> str:
+        """The view as text with ANSI styles: the loop's figures, then a box per board.
+        Written out by hand, not with rich's tables: at ten renders a second rich took
+        most of a core for ARMAR-III's 220 values, and held the GIL the loop needs."""
         self._ticks += 1
+        if len(self.part.events) > self._events_seen:  # what the boards reported
+            self._events_seen = len(self.part.events)
+            e = self.part.events[-1]
+            self.message = f"! {e.where} at {e.time:.3f} s: {e.text}"
         if self._ticks % 10 == 0:
             now = self.part.traffic()
             self._loads = self.part.load_between(self._traffic, now)
             self._traffic = now
         s = self.part.stats
-        head = (f"[bold]{s.cycles}[/] cycles  [bold]{s.rate(self.part._clock()):.0f}[/] Hz"
-                f"  missed [bold]{s.missed}[/]  lateness p50 {s.percentile(50) * 1e3:.3f} ms"
-                f"  p99 {s.percentile(99) * 1e3:.3f} ms"
+        head = (f"{_BOLD}{s.cycles}{_RESET} cycles  {_BOLD}{s.rate(self.part._clock()):.0f}"
+                f"{_RESET} Hz  missed {_BOLD}{s.missed}{_RESET}  lateness (last "
+                f"{RECENT_SAMPLES} cycles) p50 {s.percentile(50, RECENT_SAMPLES) * 1e3:.3f} ms"
+                f"  p99 {s.percentile(99, RECENT_SAMPLES) * 1e3:.3f} ms"
                 + ("  (virtual time)" if self.part.virtual else "")
                 + "   bus load " + "  ".join(f"{n} {v:.1%}" for n, v in self._loads.items()))
-        panels = []
+        boxes = []
         for refs in self.boards.values():
-            t = Table(show_header=False, box=None, pad_edge=False)
-            t.add_column("name", overflow="ellipsis", no_wrap=True, max_width=32)
-            t.add_column("value", justify="right", no_wrap=True)
-            t.add_column("unit", style="dim", no_wrap=True)
+            rows = []
             for ref in refs:
                 raw = self.part.raw(ref)
-                t.add_row(escape(ref.unique), _text(None if raw is None else ref.value(raw)),
-                          escape(ref.spec.unit))
-            panels.append(Panel(t, title=escape(f"{refs[0].prefix} - {refs[0].where}"),
-                                title_align="left", expand=False))
-        buf = io.StringIO()
-        console = Console(file=buf, force_terminal=True, width=width, color_system="standard")
-        console.print(Group(head, Columns(panels)))
-        return buf.getvalue()
+                rows.append((ref.unique, _text(None if raw is None else ref.value(raw)),
+                             ref.spec.unit))
+            boxes.append(_box(f"{refs[0].prefix} - {refs[0].where}", rows))
+        return "\n".join([head, *_arrange(boxes, width)]) + "\n"
 
     def run(self) -> None:
         out = Buffer(completer=NameCompleter(self.part.names.names()),

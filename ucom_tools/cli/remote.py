@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import replace
 from decimal import Decimal
@@ -21,9 +21,18 @@ from ucom_tools.cli.options import connection_json, connection_options, json_opt
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.config import topology as topo
 from ucom_tools.errors import InputError
-from ucom_tools.ops.remote import CheckReport, MappingError, RemotePart, Summary, robot_trees
+from ucom_tools.ops.remote import (
+    RECENT_SAMPLES,
+    BoardEvent,
+    CheckReport,
+    MappingError,
+    RemotePart,
+    Summary,
+    robot_trees,
+)
 from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.wire import mca
+from ucom_tools.wire.codes import ErrorCode
 
 ROBOT_HELP = ("ROBOT_OR_TREES is the robot: a bundled topology (armar3, lauron4, ...) or a "
               "topology file whose boards name their attribute trees (not needed with "
@@ -336,6 +345,11 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                      v) for n, v in wanted]
             raws = [(ref, ref.raw(v, what="--set")) for ref, v in refs]
             part.on_values = _hooks(summary, recorder)
+            live: Callable[[RemotePart], None] | None = None
+            if seconds is None and sys.stdout.isatty() and not as_json:
+                # imported before the start: the first cycles must follow it within the
+                # boards' watchdog time, and prompt_toolkit takes a while to import
+                from ucom_tools.cli.live import live_view as live
             part.start(force=force)
             for ref, raw in raws:
                 part.set(ref, ref.value(raw))
@@ -343,9 +357,8 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
             try:
                 if seconds is not None:
                     part.run(seconds)
-                elif sys.stdout.isatty() and not as_json:
-                    from ucom_tools.cli.live import live_view
-                    live_view(part)
+                elif live is not None:
+                    live(part)
                 else:
                     _run_plain(part)
             except KeyboardInterrupt:
@@ -355,17 +368,41 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
             if part.scheduling is not None and part.scheduling.refused:
                 stderr().print(f"[yellow]ucom: --realtime: {escape(part.scheduling.refused)}; "
                                "the loop ran at normal priority[/]", soft_wrap=True)
+            stopped = sorted({(e.bus, e.board) for e in part.events if e.stopped_motors})
             if as_json:
                 emit_json({"connection": connection_json(spec), "started": True,
                            "interrupted": interrupted, "boards": _boards_json(part),
-                           "run": _stats_json(part, loads), "not_stopped": problems})
+                           "run": _stats_json(part, loads), "not_stopped": problems,
+                           "events": [_event_json(e) for e in part.events]})
             else:
                 _print_summary(part, summary, loads)
                 for p in problems:
                     stderr().print(f"[red]ucom: could not stop {escape(p)}: its watchdog "
                                    "stops it[/]", soft_wrap=True)
+                _print_events(part.events)
+    if stopped and not interrupted:
+        ctx.exit(EXIT_FAILED)
     if interrupted:
         ctx.exit(EXIT_INTERRUPTED)
+
+
+def _event_json(e: BoardEvent) -> dict[str, Any]:
+    return {"time": e.time, "bus": e.bus, "board": e.board, "where": e.where,
+            "error": e.code.name, "text": e.text, "stopped_motors": e.stopped_motors}
+
+
+def _print_events(events: list[BoardEvent]) -> None:
+    """What the boards reported while running, a line per board and kind (with a
+    count), the watchdogs that stopped motors in red."""
+    seen: dict[tuple[str, int, ErrorCode], tuple[BoardEvent, int]] = {}
+    for e in events:
+        first, n = seen.get((e.bus, e.board, e.code), (e, 0))
+        seen[(e.bus, e.board, e.code)] = (first, n + 1)
+    for first, n in seen.values():
+        style = "red" if first.stopped_motors else "yellow"
+        times = f" ({n} times)" if n > 1 else ""
+        stderr().print(f"[{style}]ucom: {escape(first.where)} at {first.time:.3f} s: "
+                       f"{escape(first.text)}{times}[/]", soft_wrap=True)
 
 
 def _hooks(summary: Summary, recorder: Any) -> Any:
@@ -391,7 +428,7 @@ def _run_plain(part: RemotePart) -> None:
             before, last = after, now
             s = part.stats
             stderr().print(f"{s.cycles} cycles, {s.rate(part._clock()):.0f} Hz, {s.missed} "
-                           f"missed, p99 {s.percentile(99) * 1e3:.3f} ms; "
+                           f"missed, p99 {s.percentile(99, RECENT_SAMPLES) * 1e3:.3f} ms; "
                            + ", ".join(f"{n} {v:.1%}" for n, v in loads.items()))
 
 

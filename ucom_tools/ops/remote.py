@@ -23,6 +23,8 @@ The in-process fleet in virtual time: the loop drives the fleet clock, nothing w
 from __future__ import annotations
 
 import difflib
+import itertools
+import math
 import sys
 import time
 from collections import deque
@@ -44,6 +46,7 @@ from ucom_tools.config.attrtree.robot import RobotTrees, bind
 from ucom_tools.errors import (
     BoardError,
     BusError,
+    FrameError,
     InputError,
     TreeError,
     UcomError,
@@ -58,7 +61,9 @@ from ucom_tools.protocol.dispatch import share_clock
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import BoardEdges, values_of
 from ucom_tools.wire import mca
-from ucom_tools.wire.ids import seq
+from ucom_tools.wire import messages as wire_messages
+from ucom_tools.wire.codes import ErrorCode
+from ucom_tools.wire.ids import Function, seq
 
 SPIN_S = 0.0001
 """The loop sleeps until this long before a deadline, then spins (a sleep wakes a little
@@ -67,10 +72,12 @@ precise_sleep`)."""
 DRAIN_EVERY_S = 0.001
 """At rates below 1 kHz the loop takes what the buses delivered at least this often while
 it waits, so that no receive buffer fills."""
-SWITCH_INTERVAL_S = 0.0005
+SWITCH_INTERVAL_S = 0.0001
 """While the loop runs, Python switches threads this often (default 5 ms: a second
 thread, a live view say, could keep the loop from its deadline that long)."""
 JITTER_SAMPLES = 100_000
+RECENT_SAMPLES = 2_000
+"""The cycles a running view's lateness figures are taken over (the last 2 s at 1 kHz)."""
 """Lateness samples kept for the percentiles (the last 100 s at 1 kHz)."""
 _KIND = {Kind.CI: mca.Kind.CI, Kind.SO: mca.Kind.SO, Kind.PAR: mca.Kind.PAR}
 
@@ -91,6 +98,25 @@ class MappingError(UcomError):
 def _where_and(where: str, text: str) -> str:
     """``where: text``, unless ``text`` names the board itself already."""
     return text if text.startswith(where) else f"{where}: {text}"
+
+
+@dataclass(frozen=True)
+class BoardEvent:
+    """An Error a board sent while the exchange ran (a watchdog that stopped its motors,
+    a cycle overrun, a refused CI map, ...)."""
+
+    time: float
+    """Seconds since the exchange started (the bus clock)."""
+    bus: str
+    board: int
+    where: str
+    code: ErrorCode
+    text: str
+
+    @property
+    def stopped_motors(self) -> bool:
+        """The board's watchdog stopped its motors (it stays stopped until started)."""
+        return self.code is ErrorCode.WATCHDOG
 
 
 @dataclass(frozen=True)
@@ -142,11 +168,14 @@ class LoopStats:
     started_wall: float = 0.0
     started_clock: float = 0.0
 
-    def percentile(self, p: float) -> float:
-        """Lateness in seconds that ``p`` % of the cycles stayed under."""
+    def percentile(self, p: float, last: int | None = None) -> float:
+        """Lateness in seconds that ``p`` % of the cycles stayed under (of the ``last``
+        cycles only, if given: a view that shows it while the loop runs sorts a few
+        thousand, not the whole record, and so never holds the GIL for long)."""
         if not self.late:
             return 0.0
-        ordered = sorted(self.late)
+        samples = self.late if last is None else itertools.islice(reversed(self.late), last)
+        ordered = sorted(samples)
         return ordered[min(len(ordered) - 1, int(p / 100 * len(ordered)))]
 
     def rate(self, now: float) -> float:
@@ -167,6 +196,15 @@ class RemotePart:
                              key="--topology")
         if not 1 <= rate_hz <= 10_000:
             raise InputError(f"rate must be 1..10000 Hz, not {rate_hz:g}", key="--rate")
+        period_ms = 1000.0 / rate_hz
+        if period_ms > alive_ms / 2:  # MCA Alive goes out with the cycles, at most
+            raise InputError(
+                f"at {rate_hz:g} Hz the loop sends MCA Alive every {period_ms:g} ms, and the "
+                f"boards' watchdog ({alive_ms} ms) wants it at least every {alive_ms / 2:g} "
+                f"ms: the boards would stop their motors; raise the rate to "
+                f"{2000.0 / alive_ms:g} Hz or more"
+                + (f", or the watchdog to {math.ceil(2 * period_ms)} ms or more"
+                   if 2 * period_ms <= mca.ALIVE_MAX_MS else ""), key="--rate")
         self.robot = robot
         self.trees = trees
         self.period_s = 1.0 / rate_hz
@@ -193,6 +231,9 @@ class RemotePart:
         self._last_raw: dict[EdgeRef, int] = {}
         self._switch: float | None = None
         self._prepared = False
+        self.events: list[BoardEvent] = []
+        """What the boards reported while the exchange ran (their Error messages)."""
+        self._event_subs: list[tuple[Any, Any]] = []
         self._batching: list[tuple[str, Any]] = []
         """The buses whose frames of a cycle go out in one write (``hold``/``release``:
         :class:`~ucom_tools.transport.socketcand.SocketcandBus`)."""
@@ -387,6 +428,7 @@ class RemotePart:
             x.start_exchange(periodic=False)
         self._running = True
         clock = self._clock()
+        self._listen_for_events(clock)
         self.stats = LoopStats(self.period_s, started_wall=time.perf_counter(),
                                started_clock=clock)
         self._deadline = clock
@@ -446,6 +488,31 @@ class RemotePart:
         if self.on_values is not None:
             self._report_so()
         return self.so
+
+    def _listen_for_events(self, started: float) -> None:
+        """From now on every Error a board sends is kept in :attr:`events` (a watchdog
+        that stopped a board's motors above all: the loop goes on, the board does not)."""
+        for d, sub in self._event_subs:
+            d.unsubscribe(sub)
+        self._event_subs = []
+        for h, x in self._handles():
+            def on_error(msg: can.Message, h: BusHandle = h, x: BusExchange = x) -> None:
+                try:
+                    address, err = wire_messages.decode(msg.arbitration_id,
+                                                        bytes(msg.data))
+                except FrameError:
+                    return
+                assert isinstance(err, wire_messages.Error)
+                n = address.number
+                self.events.append(BoardEvent(
+                    round(h.link.clock() - started, 4), h.name, n, x.where(n), err.code,
+                    f"its watchdog stopped every motor: no MCA Alive for {err.detail} ms "
+                    "(stopped until MCA Start)" if err.code is ErrorCode.WATCHDOG
+                    else err.describe()))
+            d = h.link.dispatcher
+            self._event_subs.append((d, d.subscribe(
+                lambda msg: msg.arbitration_id >> 6 == Function.ERROR,
+                f"{h.name} board errors", on_frame=on_error)))
 
     def _prepare(self) -> None:
         """The loop's thread: SCHED_FIFO (``realtime``), precise sleeps; and the buses
