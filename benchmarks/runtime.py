@@ -17,6 +17,8 @@ every 10 ms), the loop at 1 kHz for ``--seconds`` (default 10).  Figures:
   ``serve_cpu_pct``: the same of ``fleet serve`` and all its processes together,
   ``serve_cpu_busiest_pct`` of its busiest process (a bus's), ``cores``: the machine's;
 - ``bus_load_pct``: per bus, measured from the frames the PC saw;
+- ``watchdog_stops``: boards whose watchdog stopped them during the run (0 when the
+  loop and the fleet kept up);
 - ``baseline_jitter_p99_ms``: measured in the same run on the same machine, python-can's
   ``send_periodic`` at 1 kHz (its thread-based cyclic task, on python-can's virtual
   bus): how long after its schedule each frame was sent.
@@ -182,7 +184,9 @@ def run(port: int, seconds: float, buses: tuple[str, ...], server: int, realtime
             "serve_cpu_pct": round(100 * sum(served.values()) / wall, 1),
             "serve_cpu_busiest_pct": round(100 * max(served.values(), default=0.0) / wall, 1),
             "bus_load_pct": {n: round(100 * v, 1) for n, v in loads.items()},
-            "realtime": "normal" if part.scheduling is None else part.scheduling.describe()}
+            "realtime": "normal" if part.scheduling is None else part.scheduling.describe(),
+            "watchdog_stops": len({(e.bus, e.board) for e in part.events
+                                   if e.stopped_motors})}
 
 
 def main() -> None:
@@ -238,6 +242,9 @@ def main() -> None:
     print(f"  baseline    python-can send_periodic at 1 kHz: p99 "
           f"{figures['baseline_jitter_p99_ms']} ms ({figures['baseline_rate_hz']} Hz)")
     print(f"  SO age      p99 {figures['so_age_p99_ms']} ms (end of frame to the PC's loop)")
+    if figures["watchdog_stops"]:
+        print(f"  boards      {figures['watchdog_stops']} stopped by their watchdog "
+              "(the served fleet or the loop fell behind)")
     print("  bus load    " + ", ".join(f"{n} {v} %" for n, v in
                                        figures["bus_load_pct"].items()))
     for name, ok in targets.items():

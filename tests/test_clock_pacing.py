@@ -58,3 +58,39 @@ def test_a_fleet_that_keeps_up_says_nothing_after_a_single_slow_step(caplog) -> 
     assert not [r for r in caplog.records if "behind the wall clock" in r.getMessage()]
     # ... and caught up with: the fleet is on time again
     assert clock.now >= driver.now_us() - LAG_WARN_US
+
+
+def test_a_lagging_paced_fleet_takes_a_hosts_frame_in_its_own_present() -> None:
+    """A host frame is ready at the wall clock's time - unless the fleet is behind the
+    wall clock: then at its present (plus HOST_AHEAD_US), or the boards would see a host
+    that went quiet (their watchdogs fire on a slow machine)."""
+    from ucom_tools.config.topology import load
+    from ucom_tools.virtual.fleet import HOST_AHEAD_US, Fleet
+
+    fleet = Fleet(load("tests/data/armar3_can0.toml"), realtime=True)
+    try:
+        sim = fleet.buses["CAN0"]
+        driver = fleet._driver
+        assert driver is not None
+        seen: list[tuple[float, float]] = []
+        real_send = sim.send
+
+        def send(sender: object, t: float, ident: int, data: bytes) -> None:
+            seen.append((t, fleet.clock.now))
+            real_send(sender, t, ident, data)
+
+        sim.send = send  # type: ignore[method-assign]
+        host = object()
+        fleet.send_paced(sim, host, 0x7C0, b"\x01", timeout=1.0)  # keeping up
+        lag = 0.5e6
+        driver.t0 -= lag / 1e6  # the wall clock runs 0.5 s ahead of the fleet from now
+        fleet.send_paced(sim, host, 0x7C0, b"\x02", timeout=1.0)
+        deadline = time.monotonic() + DEADLINE_S
+        while len(seen) < 2 and time.monotonic() < deadline:
+            time.sleep(0.01)  # polling the driver's progress, not synchronisation
+        assert len(seen) == 2
+        (t1, now1), (t2, now2) = seen
+        assert now1 <= t1 <= now1 + HOST_AHEAD_US  # on time: at the wall clock's time
+        assert t2 == now2 + HOST_AHEAD_US < driver.now_us() - lag / 2  # not 0.5 s ahead
+    finally:
+        fleet.close()

@@ -27,6 +27,8 @@ from ucom_tools.virtual.board import Identity, VirtualBoard
 from ucom_tools.virtual.clock import FleetClock, RealtimeDriver
 from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
 
+HOST_AHEAD_US = 2000.0
+"""How far ahead of a lagging paced fleet's present a host's frame may be ready."""
 ROOM_POLL_S = 0.0002
 """How often a host waiting for room in its transmit queue looks again."""
 
@@ -146,7 +148,10 @@ class Fleet:
         def queue() -> None:
             with self._pending_lock:
                 self._pending[key] -= 1
-            sim.send(sender, t, arbitration_id, data)
+            # ready at the wall clock's time; but a fleet that fell behind the wall clock
+            # takes it in its own present (at most HOST_AHEAD_US ahead), so that a slow
+            # machine does not look to the boards like a host that went quiet
+            sim.send(sender, min(t, self.clock.now + HOST_AHEAD_US), arbitration_id, data)
 
         driver.submit(queue)
 
