@@ -60,7 +60,6 @@ import os
 import pickle
 import signal
 import socket
-import socketserver
 import sys
 import threading
 import time
@@ -79,6 +78,7 @@ from ucom_tools.virtual.socketcand import (
     MAX_ELEMENT,
     MAX_QUEUED_FRAMES,
     NO_BUS_OPEN,
+    ClientServer,
     Connection,
     ElementError,
     ElementSplitter,
@@ -206,38 +206,18 @@ class Reception:
             self.sock.shutdown(socket.SHUT_RDWR)
 
 
-class _Handler(socketserver.BaseRequestHandler):
-    server: Dispatcher
-
-    def handle(self) -> None:
-        self.server.serve_client(self.request, self.client_address)
-
-
-class Dispatcher(socketserver.ThreadingTCPServer):
+class Dispatcher(ClientServer):
     """The main process's TCP server: greets each client, reads up to its open and hands
     it to the process of that bus; counts the connections of every bus."""
 
-    daemon_threads = True
-    allow_reuse_address = True
-    request_queue_size = 32
-
     def __init__(self, host: str, port: int, buses: dict[str, BusProcess], fleet_name: str,
                  *, max_clients: int = MAX_CLIENTS) -> None:
-        if max_clients < 1:
-            raise ValueError("max_clients must be at least 1")
         self.buses = buses
         self.fleet_name = fleet_name
-        self.max_clients = max_clients
-        self._slots = threading.BoundedSemaphore(max_clients)
         self._receptions: set[Reception] = set()
         self._lock = threading.Lock()
         self._closed = False
-        super().__init__((host, port), _Handler)
-
-    @property
-    def address(self) -> tuple[str, int]:
-        host, port = self.server_address[:2]
-        return str(host), int(port)
+        super().__init__(host, port, max_clients=max_clients)
 
     def serve_client(self, sock: socket.socket, address: Any) -> None:
         """One accepted client, in its handler thread: until it opened a bus here, then
@@ -262,32 +242,6 @@ class Dispatcher(socketserver.ThreadingTCPServer):
             log.warning("dropped client %s: the process of %s has ended", reception.peer, bus)
             return
         done.wait()
-
-    def process_request(self, request: Any, client_address: Any) -> None:
-        if not self._slots.acquire(blocking=False):
-            self._refuse(request, client_address)
-            return
-        try:
-            super().process_request(request, client_address)
-        except BaseException:
-            self._slots.release()
-            raise
-
-    def process_request_thread(self, request: Any, client_address: Any) -> None:
-        try:
-            super().process_request_thread(request, client_address)  # closes the socket
-        finally:
-            self._slots.release()
-
-    def _refuse(self, request: socket.socket, client_address: Any) -> None:
-        log.warning("refused client %s: too many clients (%d)", _peer(client_address),
-                    self.max_clients)
-        with contextlib.suppress(OSError):
-            request.sendall(f"< error too many clients ({self.max_clients}) >".encode())
-        self.shutdown_request(request)
-
-    def handle_error(self, request: Any, client_address: Any) -> None:
-        log.error("unexpected error serving %s", _peer(client_address), exc_info=True)
 
     def server_close(self) -> None:
         """Stop listening and close the clients that have not opened a bus."""

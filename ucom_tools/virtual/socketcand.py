@@ -575,30 +575,27 @@ def _peer_gone(sock: socket.socket) -> bool:
 
 # ---------------------------------------------------------------------- the server
 class _Handler(socketserver.BaseRequestHandler):
-    server: FleetServer
+    server: ClientServer
 
     def handle(self) -> None:
         self.server.serve_client(self.request, self.client_address)
 
 
-class FleetServer(socketserver.ThreadingTCPServer):
-    """A threaded TCP server speaking socketcand's raw mode for one fleet."""
+class ClientServer(socketserver.ThreadingTCPServer):
+    """A threaded TCP server for socketcand clients, at most ``max_clients`` at once: one
+    more is told ``< error too many clients (N) >`` and closed.  Subclasses serve a client
+    in :meth:`serve_client` (its handler thread) and may note its end in
+    :meth:`client_ended`."""
 
     daemon_threads = True
     allow_reuse_address = True
     request_queue_size = 32
 
-    def __init__(self, fleet: Fleet, host: str = "127.0.0.1", port: int = DEFAULT_PORT, *,
-                 max_clients: int = MAX_CLIENTS,
-                 max_queued_frames: int = MAX_QUEUED_FRAMES) -> None:
-        if max_clients < 1 or max_queued_frames < 1:
-            raise ValueError("max_clients and max_queued_frames must be at least 1")
-        self.fleet = fleet
+    def __init__(self, host: str, port: int, *, max_clients: int = MAX_CLIENTS) -> None:
+        if max_clients < 1:
+            raise ValueError("max_clients must be at least 1")
         self.max_clients = max_clients
-        self.max_queued_frames = max_queued_frames
         self._slots = threading.BoundedSemaphore(max_clients)
-        self._connections: dict[socket.socket, Connection] = {}
-        self._connections_lock = threading.Lock()
         super().__init__((host, port), _Handler)
 
     @property
@@ -606,17 +603,11 @@ class FleetServer(socketserver.ThreadingTCPServer):
         host, port = self.server_address[:2]
         return str(host), int(port)
 
-    def connections(self) -> list[Connection]:
-        """The clients being served now."""
-        with self._connections_lock:
-            return list(self._connections.values())
-
     def serve_client(self, sock: socket.socket, address: Any) -> None:
-        """Serve one accepted client (in its handler thread)."""
-        conn = Connection(sock, address, self.fleet, self.max_queued_frames)
-        with self._connections_lock:
-            self._connections[sock] = conn
-        conn.run()
+        raise NotImplementedError
+
+    def client_ended(self, sock: socket.socket) -> None:
+        """After a client's connection is closed and its slot is free again."""
 
     def process_request(self, request: Any, client_address: Any) -> None:
         if not self._slots.acquire(blocking=False):
@@ -632,11 +623,8 @@ class FleetServer(socketserver.ThreadingTCPServer):
         try:
             super().process_request_thread(request, client_address)  # closes the socket
         finally:
-            with self._connections_lock:
-                conn = self._connections.pop(request, None)
             self._slots.release()
-            if conn is not None:
-                conn.log_end()
+            self.client_ended(request)
 
     def _refuse(self, request: socket.socket, client_address: Any) -> None:
         log.warning("refused client %s: too many clients (%d)", _peer(client_address),
@@ -647,6 +635,39 @@ class FleetServer(socketserver.ThreadingTCPServer):
 
     def handle_error(self, request: Any, client_address: Any) -> None:
         log.error("unexpected error serving %s", _peer(client_address), exc_info=True)
+
+
+class FleetServer(ClientServer):
+    """socketcand's raw mode for every bus of one fleet, in this process."""
+
+    def __init__(self, fleet: Fleet, host: str = "127.0.0.1", port: int = DEFAULT_PORT, *,
+                 max_clients: int = MAX_CLIENTS,
+                 max_queued_frames: int = MAX_QUEUED_FRAMES) -> None:
+        if max_queued_frames < 1:
+            raise ValueError("max_queued_frames must be at least 1")
+        self.fleet = fleet
+        self.max_queued_frames = max_queued_frames
+        self._connections: dict[socket.socket, Connection] = {}
+        self._connections_lock = threading.Lock()
+        super().__init__(host, port, max_clients=max_clients)
+
+    def connections(self) -> list[Connection]:
+        """The clients being served now."""
+        with self._connections_lock:
+            return list(self._connections.values())
+
+    def serve_client(self, sock: socket.socket, address: Any) -> None:
+        """Serve one accepted client (in its handler thread)."""
+        conn = Connection(sock, address, self.fleet, self.max_queued_frames)
+        with self._connections_lock:
+            self._connections[sock] = conn
+        conn.run()
+
+    def client_ended(self, sock: socket.socket) -> None:
+        with self._connections_lock:
+            conn = self._connections.pop(sock, None)
+        if conn is not None:
+            conn.log_end()
 
     def server_close(self) -> None:
         """Stop listening and close every client."""
