@@ -152,8 +152,9 @@ ARMAR3_BOARD = (EYE_AXIS, EYE_AXIS, EYE_AXIS)
 Direction`` bit set): the plant of a virtual board whose joints are not known."""
 
 
-class _Axis:
-    """State of one motor, gear and joint."""
+class MotorAxis:
+    """State of one motor, gear and joint (the LAURON-IV leg's joints add a torque from
+    outside: :class:`ucom_tools.virtual.programs.lauron4.LegPlant`)."""
 
     def __init__(self, p: AxisParams) -> None:
         self.p = p
@@ -278,7 +279,7 @@ class ThreeAxisPlant:
             raise ValueError(f"{axes} axes need {axes} AxisParams, got {len(params)}")
         self.fpga = fpga
         self.adc = adc
-        self.axes = [_Axis(p) for p in params[:axes]]
+        self.axes = [MotorAxis(p) for p in params[:axes]]
         adc[6], adc[7] = (_adc(v) for v in analog_inputs_v)
         self._write_current_sense()
 

@@ -74,17 +74,17 @@ from dataclasses import replace
 
 from ucom_tools.programs.lauron4 import AXES, PWM_FULL, SPEC, LegMode, Status
 from ucom_tools.programs.model import EdgeKind
-from ucom_tools.virtual.fpga import QuadratureDecoder, VirtualFpga
+from ucom_tools.virtual.fpga import VirtualFpga
 from ucom_tools.virtual.plant import (
     ADC_FULL_SCALE_V,
     ADC_MAX,
     CURRENT_LIMIT_A,
     CURRENT_SENSE_V_PER_A,
-    JOINT_SENSOR_EDGES,
     MOTOR_ENCODER_EDGES,
     SUBSTEP_US,
     SUPPLY_V,
     AxisParams,
+    MotorAxis,
 )
 from ucom_tools.virtual.programs.base import Hardware
 from ucom_tools.wire.fpga import Reg
@@ -112,7 +112,6 @@ ADC_FORCE = (3, 4, 5)
 ADC_SUPPLY = 6
 
 _SUBSTEP_S = SUBSTEP_US * 1e-6
-_TWO_PI = 2 * math.pi
 
 # ---------------------------------------------------------------- the program's constants
 SETTLED_COUNTS = 10
@@ -519,53 +518,23 @@ def _adc(volts: float) -> int:
     return round(_clamp(volts, 0.0, ADC_FULL_SCALE_V) / ADC_FULL_SCALE_V * ADC_MAX)
 
 
-class _Joint:
-    """Motor, gear and joint of one axis (motor-side speed, joint angle), as
-    :class:`~ucom_tools.virtual.plant.ThreeAxisPlant` models them, plus a torque from
-    outside (the ground, a load)."""
-
-    def __init__(self, p: AxisParams) -> None:
-        self.p = p
-        self.inertia = p.rotor_inertia + p.load_inertia / p.gear_ratio ** 2
-        self.angle = p.start_angle
-        self.speed = 0.0
-        """Motor speed [rad/s]."""
-        self.current = 0.0
-        self.edges = self._edge_indices()
-        self._fixed = (self.inertia, p.torque_constant, p.resistance, p.gear_ratio,
-                       *(p.end_stops if p.end_stops is not None else (-math.inf, math.inf)))
-        """J, Kt, R, N and the end stops (none: never reached)."""
-        self._substep_terms = self._terms(_SUBSTEP_S)
-
-    def _edge_indices(self) -> tuple[int, int]:
-        """The joint sensor's and the motor encoder's edge count at the current angle."""
-        p = self.p
-        return (math.floor(p.joint_sensor_polarity * self.angle * JOINT_SENSOR_EDGES / _TWO_PI),
-                math.floor(p.motor_encoder_polarity * self.angle * p.gear_ratio
-                           * MOTOR_ENCODER_EDGES / _TWO_PI))
-
-    def _terms(self, h: float) -> tuple[float, float, float, float]:
-        """The denominators of a substep of ``h`` seconds, J + h (b + Kt^2 / R) (driven) and
-        J + h b (not driven, or the current limited), and Coulomb friction's share
-        h T_c / (denominator) of each."""
-        p = self.p
-        damped = self.inertia + h * (p.viscous_friction + p.torque_constant ** 2 / p.resistance)
-        free = self.inertia + h * p.viscous_friction
-        return damped, h * p.coulomb_friction / damped, free, h * p.coulomb_friction / free
+class _Joint(MotorAxis):
+    """Motor, gear and joint of one axis, as :class:`~ucom_tools.virtual.plant.MotorAxis`
+    models them, plus a torque from outside (the ground, a load)."""
 
     @property
     def velocity(self) -> float:
         """Joint velocity [rad/s]."""
         return self.speed / self.p.gear_ratio
 
-    def integrate(self, volts: float | None, torque: float, h: float, steps: int = 1,
+    def integrate_loaded(self, volts: float | None, torque: float, h: float, steps: int = 1,
                   angles: list[float] | None = None) -> None:
         """``steps`` substeps of ``h`` seconds with ``volts`` at the terminals (None: stage
         off) and a constant ``torque`` [N m] from outside at the joint, each as
-        :meth:`ucom_tools.virtual.plant._Axis.integrate` does it with the outside torque / N
+        :meth:`ucom_tools.virtual.plant.MotorAxis.integrate` does it with the outside torque / N
         added to the drive; ``angles`` (if given) gets the angle after every substep."""
         inertia, kt, resistance, gear, low, high = self._fixed
-        damped, damped_coulomb, free, free_coulomb = (
+        damped, damped_coulomb, free, free_coulomb, _ = (
             self._substep_terms if h == _SUBSTEP_S else self._terms(h))
         outside = torque / gear
         if volts is None:
@@ -600,17 +569,6 @@ class _Joint:
         if volts is not None and -limit < current < limit:
             current = (volts - kt * speed) / resistance
         self.current = current
-
-    def sense(self, counters: list[QuadratureDecoder] | None, k: int) -> None:
-        """Feed the edges since the last call to quadrature ``counters`` 2k and 2k+1 (the
-        FPGA's; None in its neutral state, which counts nothing)."""
-        joint, motor = edges = self._edge_indices()
-        if counters is not None:
-            if joint != self.edges[0]:
-                counters[2 * k].feed(joint - self.edges[0])
-            if motor != self.edges[1]:
-                counters[2 * k + 1].feed(motor - self.edges[1])
-        self.edges = edges
 
 
 class LegPlant:
@@ -701,7 +659,7 @@ class LegPlant:
         traces: list[list[float] | None] = [None, [], []] if watch else [None] * AXES
         for joint, v, extra, trace in zip(joints, volts, self.load, traces, strict=True):
             for h, n in substeps:
-                joint.integrate(v, 0.0 + extra, h, n, trace)
+                joint.integrate_loaded(v, 0.0 + extra, h, n, trace)
         if watch:
             assert ground_z is not None and traces[1] is not None and traces[2] is not None
             for beta, gamma in zip(traces[1][:-1], traces[2][:-1], strict=True):
@@ -720,7 +678,7 @@ class LegPlant:
             for _ in range(n):
                 torques = self._ground_torques()
                 for (joint, v, extra), t in zip(drives, torques, strict=True):
-                    joint.integrate(v, t + extra, h)
+                    joint.integrate_loaded(v, t + extra, h)
 
     # ------------------------------------------------------------------ the foot
     def foot(self) -> tuple[tuple[float, float, float], list[tuple[float, float, float]]]:
