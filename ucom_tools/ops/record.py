@@ -68,6 +68,19 @@ i.e. channel 1 in Vector's and PEAK's counting), see :attr:`RunRecorder.channels
 _GZIP_OK = frozenset({".asc", ".csv", ".log", ".trc", ".txt"})
 
 
+def channel_number(channels: dict[str, int], name: str) -> int:
+    """The number bus ``name`` is stored as in the formats of :data:`INT_CHANNELS`: its
+    own (CAN0 -> 0) unless taken, else the lowest free one; kept in ``channels``."""
+    number = channels.get(name)
+    if number is None:
+        taken = set(channels.values())
+        number = channel2int(name)
+        if number is None or number in taken:
+            number = next(n for n in range(len(taken) + 1) if n not in taken)
+        channels[name] = number
+    return number
+
+
 def supported_extensions() -> list[str]:
     """Every extension :class:`RunRecorder` accepts, as shown in messages."""
     exts = list(FORMATS)
@@ -76,9 +89,9 @@ def supported_extensions() -> list[str]:
     return sorted(exts) + sorted(f"{e}.gz" for e in _GZIP_OK)
 
 
-def log_extension(path: str | os.PathLike[str]) -> str:
+def log_extension(path: str | os.PathLike[str], key: str = "--record") -> str:
     """The format extension of ``path`` (lower case, ``.asc.gz`` for compressed ones);
-    InputError (key ``--record``) naming the supported ones when python-can cannot write
+    InputError (naming ``key``) listing the supported ones when python-can cannot write
     it."""
     suffixes = [s.lower() for s in Path(path).suffixes]
     ext = "".join(suffixes[-2:]) if suffixes[-1:] == [".gz"] else "".join(suffixes[-1:])
@@ -86,7 +99,7 @@ def log_extension(path: str | os.PathLike[str]) -> str:
     if ext not in supported:
         shown = f"'{ext}'" if ext else "no extension"
         raise InputError(f"{os.fspath(path)}: {shown} is not a CAN log format python-can "
-                         f"writes; use one of {', '.join(supported)}", key="--record")
+                         f"writes; use one of {', '.join(supported)}", key=key)
     return ext
 
 
@@ -214,14 +227,7 @@ class RunRecorder(can.Listener):
 
     # --------------------------------------------------------------------- frames
     def _channel(self, name: str) -> int:
-        number = self.channels.get(name)
-        if number is None:
-            taken = set(self.channels.values())
-            number = channel2int(name)
-            if number is None or number in taken:
-                number = next(n for n in range(len(taken) + 1) if n not in taken)
-            self.channels[name] = number
-        return number
+        return channel_number(self.channels, name)
 
     def on_message_received(self, msg: can.Message) -> None:
         """Record one frame (its ``channel``, the bus name, is kept: verbatim in the

@@ -21,11 +21,11 @@ from typing import Any
 
 import can
 from can.io.generic import MessageWriter
-from can.util import channel2int
 
 from ucom_tools.config import topology as topo_mod
 from ucom_tools.config.topology import BusSpec, Topology
 from ucom_tools.errors import BusError, InputError, UcomError
+from ucom_tools.ops.record import INT_CHANNELS, channel_number, log_extension
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
@@ -135,35 +135,15 @@ class Robot:
 
 
 # ------------------------------------------------------------------------ --log
-INT_CHANNELS = frozenset({".asc", ".blf", ".trc", ".mf4"})
-"""Log formats whose channel is a number: bus CANn is stored as n (channel n + 1 in
-Vector's and PEAK's counting); other buses get the lowest free number."""
-
-
 class LogError(UcomError):
     """The ``--log`` recording could not be written (a full disk, a lost directory); the
     partial file was removed."""
 
 
-def log_extension(path: str | os.PathLike[str]) -> str:
-    """The format extension of ``path`` (``.asc``, ``.log.gz``, ...); InputError (key
-    ``--log``) naming the supported ones when python-can cannot write it."""
-    from ucom_tools.ops.record import supported_extensions
-
-    suffixes = [x.lower() for x in Path(path).suffixes]
-    ext = "".join(suffixes[-2:]) if suffixes[-1:] == [".gz"] else "".join(suffixes[-1:])
-    supported = supported_extensions()
-    if ext not in supported:
-        shown = f"'{ext}'" if ext else "no extension"
-        raise InputError(f"{os.fspath(path)}: {shown} is not a CAN log format python-can "
-                         f"writes; use one of {', '.join(supported)}", key="--log")
-    return ext
-
-
 def check_log(path: str | os.PathLike[str]) -> str:
     """Check ``--log FILE`` before anything is opened: a format python-can writes, in a
     directory that exists, not a directory itself.  Returns the extension."""
-    ext = log_extension(path)
+    ext = log_extension(path, key="--log")
     p = Path(path)
     if not p.parent.is_dir():
         raise InputError(f"{os.fspath(p)}: directory {os.fspath(p.parent)} does not exist",
@@ -226,16 +206,6 @@ class FrameLog:
             with contextlib.suppress(ValueError):
                 handle.link.dispatcher.taps.remove(tap)
 
-    def _channel(self, name: str) -> int:
-        number = self.channels.get(name)
-        if number is None:
-            taken = set(self.channels.values())
-            number = channel2int(name)
-            if number is None or number in taken:
-                number = next(n for n in range(len(taken) + 1) if n not in taken)
-            self.channels[name] = number
-        return number
-
     def _record(self, msg: can.Message, bus: str) -> None:
         """Record one frame of ``bus`` (sent frames have ``is_rx`` False)."""
         with self._lock:
@@ -243,7 +213,8 @@ class FrameLog:
                 return
             try:
                 out = copy.copy(msg)
-                out.channel = self._channel(bus) if self._int_channels else bus
+                out.channel = channel_number(self.channels, bus) if self._int_channels \
+                    else bus
                 self._writer.on_message_received(out)
                 self.frames += 1
             except Exception as err:  # a bus reader must not die of the recording
