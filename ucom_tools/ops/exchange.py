@@ -89,7 +89,7 @@ def configure(client: McaClient, address: Address, where: str, tree: Board,
     values = defaults_raw(tree, edges, where, tree_file)
     written: dict[str, int] = {}
     for kind in (mca.Kind.PAR, mca.Kind.CI):
-        _write_runs(client, address, kind, [(i, raw) for k, i, raw, _ in values if k is kind],
+        write_runs(client, address, kind, [(i, raw) for k, i, raw, _ in values if k is kind],
                     edges.of(kind))
     for _kind, _i, raw, unique in values:
         written[unique] = raw
@@ -105,7 +105,7 @@ def configure(client: McaClient, address: Address, where: str, tree: Board,
     return Configured(address, edges, written)
 
 
-def _write_runs(client: McaClient, address: Address, kind: mca.Kind,
+def write_runs(client: McaClient, address: Address, kind: mca.Kind,
                 values: Sequence[tuple[int, int]], records: Sequence[mca.EdgeRecord]) -> None:
     """Write values, consecutive indices together (as few frames as fit)."""
     values = sorted(values)

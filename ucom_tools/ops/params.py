@@ -29,7 +29,7 @@ from ucom_tools.config.attrtree import BoundBoard, Kind, RobotTrees, Tree, Value
 from ucom_tools.config.topology import Topology
 from ucom_tools.errors import BoardError, InputError, TreeError, UcomError, UcomTimeoutError
 from ucom_tools.ops.edges import spec_of
-from ucom_tools.ops.exchange import defaults_raw
+from ucom_tools.ops.exchange import defaults_raw, write_runs
 from ucom_tools.ops.remote import BoardCheck, RemotePart
 from ucom_tools.ops.robot import Robot
 from ucom_tools.programs.model import EdgeSpec
@@ -463,19 +463,6 @@ class LoadResult:
         return [b for b in self.boards if b.error or b.not_taken]
 
 
-def _write_runs(client: McaClient, n: int, kind: mca.Kind, values: Sequence[tuple[int, int]],
-                records: Sequence[mca.EdgeRecord]) -> None:
-    """Write (index, raw) values, consecutive indices in one request."""
-    values = sorted(values)
-    i = 0
-    while i < len(values):
-        j = i + 1
-        while j < len(values) and values[j][0] == values[j - 1][0] + 1:
-            j += 1
-        client.write(seq(n), kind, values[i][0], [raw for _, raw in values[i:j]], records)
-        i = j
-
-
 def load_values(robot: Robot, trees: RobotTrees, *, bus: str | None = None,
                 strict: bool = True) -> LoadResult:
     """Write the PAR and CI defaults of ``trees`` to their boards, acknowledged, then
@@ -525,7 +512,7 @@ def load_values(robot: Robot, trees: RobotTrees, *, bus: str | None = None,
                     runs = [(i, raw) for k, i, raw, _ in values if k is kind]
                     if runs:
                         sent = True
-                        _write_runs(client, n, kind, runs, edges.of(kind))
+                        write_runs(client, seq(n), kind, runs, edges.of(kind))
                 back = {k: _dump_kind(client, n, edges, k) for k in (mca.Kind.CI, mca.Kind.PAR)}
             except (BoardError, UcomTimeoutError) as err:
                 loads[key] = replace(loads[key], error=f"writing failed: {err}")
