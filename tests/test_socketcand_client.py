@@ -545,3 +545,21 @@ def test_held_frames_go_out_in_one_write_and_dropped_ones_not_at_all() -> None:
             assert heard.wait(5)
         finally:
             bus.shutdown()
+
+
+def test_fileno_is_the_connection_a_select_loop_can_wait_on() -> None:
+    import select
+
+    def script(peer: Peer) -> None:
+        peer.greet()
+        peer.say("< frame 123 1.000000 AB >")
+        peer.wait_closed()
+
+    with FakeServer(script) as server:
+        bus = within(5, lambda: SocketcandBus("CAN0", LOCAL, server.port))
+        try:
+            assert select.select([bus.fileno()], [], [], 5)[0] == [bus.fileno()]
+            msg = bus.recv(1)
+            assert msg is not None and msg.arbitration_id == 0x123
+        finally:
+            bus.shutdown()
