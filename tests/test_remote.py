@@ -284,6 +284,22 @@ def test_record_writes_a_log_python_can_reads_and_a_values_csv(flashed, tmp_path
     assert any(r["name"] == "Right Eye Target" and r["value"] == "200" for r in rows)
 
 
+def test_recorded_values_set_and_sensed_share_the_frames_time_base(flashed, tmp_path,
+                                                                  ) -> None:
+    log = tmp_path / "run.blf"
+    code, _, err = ucom("remote", "run", "armar3", "--virtual", "armar3", "--state",
+                        str(flashed), "--for", "0.3", "--set", "Right Eye Target=200",
+                        "--record", str(log))
+    assert code == 0, err
+    with (tmp_path / "run.blf.values.csv").open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    times = [float(r["timestamp"]) for r in rows]
+    target = next(float(r["timestamp"]) for r in rows if r["name"] == "Right Eye Target")
+    assert min(times) <= target <= max(times) and max(times) - min(times) < 1.0
+    frames = [f.timestamp for f in can.LogReader(str(log))]
+    assert frames[0] <= target <= frames[-1]  # the set is where its frame is
+
+
 def test_the_readme_example_moves_an_eye(flashed, capsys) -> None:
     readme = (ROOT / "README.md").read_text()
     block = next(b.split("```", 1)[0] for b in readme.split("```python\n")[1:]

@@ -246,7 +246,8 @@ class RemotePart:
         self._owns_robot = False
         self.on_values: Callable[[float, EdgeRef, Value], None] | None = None
         """Called with (time, edge, value) for every SO value a cycle saw change (and its
-        first), and for every CI or PAR value set (recorders)."""
+        first), and for every CI or PAR value set (recorders); the time on the base of the
+        bus's frame timestamps, as --record logs the frames."""
 
     @classmethod
     def open(cls, robot: str, *, virtual: bool = False, state_dir: str | Path | None = None,
@@ -645,8 +646,8 @@ class RemotePart:
             x.mca.write(seq(ref.board), mca.Kind.PAR, ref.index, [raw],
                         x.configured[ref.board].edges.par)
             self._par[ref] = raw
-        if self.on_values is not None:
-            self.on_values(self._clock(), ref, ref.value(raw))
+        if self.on_values is not None:  # stamped as the frames are (SO values, --record)
+            self.on_values(x.link.dispatcher.stamp(), ref, ref.value(raw))
         return ref
 
     @property

@@ -140,11 +140,16 @@ class Dispatcher:
         self.sent += 1
         self._count(msg)
         if self.taps:
-            out = can.Message(timestamp=self._stamp(), arbitration_id=msg.arbitration_id,
+            out = can.Message(timestamp=self.stamp(), arbitration_id=msg.arbitration_id,
                               data=msg.data, is_extended_id=False, is_rx=False,
                               channel=self.name)
             for tap in self.taps:
                 tap(out)
+
+    def stamp(self) -> float:
+        """Now, on the time base of this bus's received frames' timestamps (what a sent
+        frame is stamped with for the taps)."""
+        return self._stamp()
 
     def every(self, period: float, frames: Callable[[], Iterable[can.Message]], name: str,
               *, start: float | None = None) -> Periodic:
