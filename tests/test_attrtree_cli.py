@@ -12,6 +12,7 @@ from click.testing import CliRunner, Result
 
 from ucom_tools.cli.main import cli
 from ucom_tools.config import attrtree
+from ucom_tools.errors import WriteError
 
 ROOT = Path(__file__).resolve().parent.parent
 TREES = ROOT / "attribute_trees"
@@ -258,7 +259,7 @@ def test_save_is_atomic_when_the_rename_fails(tmp_path: Path,
         raise OSError(28, "No space left on device")
 
     monkeypatch.setattr(os, "replace", boom)
-    with pytest.raises(OSError):
+    with pytest.raises(WriteError, match="No space left"):
         attrtree.save(attrtree.load(EYES), path)
     assert path.read_text() == "before\n"
     assert os.listdir(tmp_path) == ["t.tree"]

@@ -51,6 +51,16 @@ class ImageError(InputError):
     """A firmware image (S-record file) that cannot be programmed."""
 
 
+class WriteError(UcomError):
+    """An output (a file, a device, standard output) could not be written: a full disk,
+    an I/O error.  What was written before is kept whole; nothing is left half-written
+    (``man/ucom.1``, FILES)."""
+
+    def __init__(self, message: str, *, path: str | None = None) -> None:
+        super().__init__(message)
+        self.path = path
+
+
 class BusError(UcomError):
     """A CAN bus could not be opened or failed while in use."""
 

@@ -34,6 +34,7 @@ from ucom_tools.ops.enumerate import enumerate_bus
 from ucom_tools.ops.flash import FlashResult, Selection
 from ucom_tools.ops.robot import ConnectSpec, Robot
 from ucom_tools.protocol.programmer import Cancelled
+from ucom_tools.signals import Terminated, interrupt_exit_code
 from ucom_tools.wire.codes import StatusOp, Target
 from ucom_tools.wire.ids import IdType
 
@@ -339,14 +340,15 @@ def _flash_out(ctx: click.Context, spec: ConnectSpec, result: FlashResult,
         ctx.exit(EXIT_FAILED)
 
 
-def _cancelled(ctx: click.Context) -> None:
-    stderr().print("[yellow]flash cancelled: the boards dropped the transfer and keep no "
+def _cancelled(ctx: click.Context, e: BaseException) -> None:
+    how = f"terminated ({e.name})" if isinstance(e, Terminated) else "cancelled"
+    stderr().print(f"[yellow]flash {how}: the boards dropped the transfer and keep no "
                    "startable program[/]")
-    ctx.exit(EXIT_INTERRUPTED)
+    ctx.exit(interrupt_exit_code(e) if isinstance(e, KeyboardInterrupt) else EXIT_INTERRUPTED)
 
 
 @click.command("flash")
-@click.argument("image", type=click.Path(dir_okay=False))
+@click.argument("image", type=click.Path())
 @click.option("--boards", default="all", show_default=True,
               help="'all' or seq IDs like 1,3 (on each selected bus).")
 @click.option("--autostart", is_flag=True, help="Set AutoStart on every verified board.")
@@ -400,11 +402,11 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
             result = run_flash(r, img, selection=selection, bus=bus_name, autostart=autostart,
                                start=start_after or keep_params, verify=not no_verify,
                                force=force, verbose=_verbose(ctx))
-        except (KeyboardInterrupt, Cancelled):
+        except (KeyboardInterrupt, Cancelled) as e:
             if kept is not None and kept.directory is not None:
                 stderr().print(f"[yellow]the values read before programming are in "
                                f"{escape(str(kept.directory))}[/]", soft_wrap=True)
-            _cancelled(ctx)
+            _cancelled(ctx, e)
             return
         restored = _keep_after(r, kept, result) if kept is not None else None
     _flash_out(ctx, spec, result, as_json, restored)
@@ -440,7 +442,7 @@ def _keep_refused(ctx: click.Context, spec: ConnectSpec, kept: params_ops.Kept,
 def _program_command(name: str, option: int, target: Target, detail: str) -> click.Command:
     @click.command(name, help=help_text(option, detail))
     @click.argument("board")
-    @click.argument("image", type=click.Path(dir_okay=False))
+    @click.argument("image", type=click.Path())
     @click.option("--force", is_flag=True,
                   help="Program even when the image does not fit the board (with a warning).")
     @connection_options
@@ -463,8 +465,8 @@ def _program_command(name: str, option: int, target: Target, detail: str) -> cli
                 result = run_flash(r, img, selection=selection, bus=ref.bus or bus_name,
                                    target=target, init=False, force=force,
                                    verbose=_verbose(ctx), what=label(option))
-            except (KeyboardInterrupt, Cancelled):
-                _cancelled(ctx)
+            except (KeyboardInterrupt, Cancelled) as e:
+                _cancelled(ctx, e)
                 return
         _flash_out(ctx, spec, result, as_json)
     return cmd

@@ -414,7 +414,7 @@ def _scripted(session: Session) -> None:
 
 
 @click.command("console")
-@click.option("--image", "image_path", type=click.Path(dir_okay=False),
+@click.option("--image", "image_path", type=click.Path(),
               help="S-record file to load at start (like dsp_console2can's command line).")
 @connection_options
 def console(image_path: str | None, spec: ConnectSpec, bus_name: str | None) -> None:

@@ -9,6 +9,7 @@ import click
 from rich.markup import escape
 
 from ucom_tools.cli.exitcodes import EXIT_FAILED
+from ucom_tools.cli.options import Finite
 from ucom_tools.cli.output import emit_json, stderr
 from ucom_tools.errors import InputError
 from ucom_tools.ops.decode import DEFAULT_MARGIN, RULES, decode_frames, load_trees, read_trace
@@ -36,7 +37,7 @@ file cannot be read.  --json: {"frames", "buses": [{"name", "frames", "boards":
 
 
 @click.command("decode", help=HELP)
-@click.argument("trace", type=click.Path(path_type=Path, dir_okay=False))
+@click.argument("trace", type=click.Path(path_type=Path))
 @click.option("--trees", "trees", multiple=True, metavar="ROBOT_OR_TREES",
               help="The robot (a bundled topology such as armar3, or a topology file whose "
                    "boards name their attribute trees) and/or tree files replacing its trees "
@@ -50,7 +51,7 @@ file cannot be read.  --json: {"frames", "buses": [{"name", "frames", "boards":
 @click.option("-b", "--bitrate", type=click.IntRange(10_000, 1_000_000),
               help="Bus bitrate the answer deadlines assume (default: the topology's with "
                    "--trees, else 1000000).")
-@click.option("--margin", type=click.FloatRange(0.0, 10.0), default=DEFAULT_MARGIN,
+@click.option("--margin", type=Finite(0.0, 10.0), default=DEFAULT_MARGIN,
               show_default=True, metavar="SECONDS",
               help="Added to every answer deadline for the recording's time stamps (more for "
                    "a trace recorded over a network).")

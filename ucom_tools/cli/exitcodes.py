@@ -15,9 +15,15 @@ EXIT_BAD_INPUT = 3
 EXIT_BUS = 4
 """A bus or connection could not be opened or failed while in use (also: a server could
 not listen)."""
+EXIT_WRITE = 5
+"""An output could not be written (a full disk, an I/O error, a full standard output) after
+the job began; the job's result was reported, the files it wrote before are whole, nothing
+is left half-written, and a file being replaced keeps its old content."""
 EXIT_INTERRUPTED = 130
-"""Interrupted (Ctrl-C); a transfer under way was aborted."""
+"""Interrupted (Ctrl-C); a transfer under way was aborted, the boards were stopped or
+restored.  SIGHUP and SIGTERM end a job the same way, with 129 and 143."""
 
 ALL = {EXIT_OK: "success", EXIT_FAILED: "some boards failed", EXIT_USAGE: "usage error",
        EXIT_BAD_INPUT: "bad input", EXIT_BUS: "bus or connection failure",
-       EXIT_INTERRUPTED: "interrupted"}
+       EXIT_WRITE: "output not written", EXIT_INTERRUPTED: "interrupted",
+       129: "ended by SIGHUP", 143: "ended by SIGTERM"}

@@ -7,6 +7,10 @@ their own modules (commands, console, srec, fleet, tree), which never import thi
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import io
+import os
 import sys
 import traceback
 from typing import Any
@@ -32,10 +36,12 @@ from ucom_tools.cli.exitcodes import (
     EXIT_BAD_INPUT,
     EXIT_BUS,
     EXIT_FAILED,
-    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_WRITE,
 )
 from ucom_tools.cli.output import stderr
-from ucom_tools.errors import BusError, InputError, UcomError
+from ucom_tools.errors import BusError, InputError, UcomError, WriteError
+from ucom_tools.signals import Terminated, interrupt_exit_code, stop_signals
 
 
 class UcomGroup(click.Group):
@@ -46,13 +52,19 @@ class UcomGroup(click.Group):
             return super().invoke(ctx)
         except InputError as e:
             self._fail(ctx, e, EXIT_BAD_INPUT, "bad input")
+        except WriteError as e:
+            self._fail(ctx, e, EXIT_WRITE, "cannot write")
         except BusError as e:
             self._fail(ctx, e, EXIT_BUS, "bus error")
         except UcomError as e:
             self._fail(ctx, e, EXIT_FAILED, "error")
-        except KeyboardInterrupt:
-            stderr().print("[yellow]interrupted[/]")
-            ctx.exit(EXIT_INTERRUPTED)
+        except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM, SIGHUP (ucom_tools.signals)
+            with contextlib.suppress(OSError):
+                if isinstance(e, Terminated):
+                    stderr().print(f"[yellow]terminated ({e.name})[/]")
+                else:
+                    stderr().print("[yellow]interrupted[/]")
+            ctx.exit(interrupt_exit_code(e))
 
     @staticmethod
     def _fail(ctx: click.Context, e: Exception, code: int, label: str) -> None:
@@ -72,7 +84,8 @@ def cli(ctx: click.Context, verbose: int) -> None:
 
     Exit codes: 0 success, 1 some boards failed (or are missing, or a wiring fault),
     2 usage error, 3 bad input (file, topology, argument, environment; nothing was sent),
-    4 bus or connection failure, 130 interrupted.  The connection options may come from
+    4 bus or connection failure, 5 an output could not be written (full disk), 130
+    interrupted (129, 143: ended by SIGHUP, SIGTERM; the same safe stop).  The connection options may come from
     UCOM_INTERFACE, UCOM_CHANNEL, UCOM_BITRATE, UCOM_HOST, UCOM_PORT, UCOM_VIRTUAL,
     UCOM_TOPOLOGY, UCOM_STATE, UCOM_PACE; a bus named on the command line wins over the
     environment.  See ucom(1) and ucom-protocol(7).
@@ -95,8 +108,114 @@ cli.add_command(decode.decode)
 cli.add_command(dbc.dbc)
 
 
+class GuardedStdout(io.TextIOBase):
+    """Standard output that a job cannot die of: the first write error (a closed pipe, a
+    full disk) is kept and later output is dropped, so the job goes on to its end and
+    :func:`main` decides the exit code (``man/ucom.1``, EXIT STATUS)."""
+
+    def __init__(self, stream: Any) -> None:
+        super().__init__()
+        self._stream = stream
+        self.failure: OSError | None = None
+
+    def write(self, text: str) -> int:
+        if self.failure is None:
+            try:
+                self._stream.write(text)
+            except OSError as err:
+                self.failure = err
+        return len(text)
+
+    def flush(self) -> None:
+        if self.failure is None:
+            try:
+                self._stream.flush()
+            except OSError as err:
+                self.failure = err
+
+    def writable(self) -> bool:
+        return True
+
+    def isatty(self) -> bool:
+        return bool(self._stream.isatty())
+
+    def fileno(self) -> int:
+        return int(self._stream.fileno())
+
+    @property
+    def encoding(self) -> str:  # type: ignore[override]
+        return str(self._stream.encoding)
+
+    @property
+    def errors(self) -> str | None:  # type: ignore[override]
+        return self._stream.errors
+
+    @property
+    def buffer(self) -> Any:
+        return _GuardedBinary(self._stream.buffer, self)
+
+
+class _GuardedBinary:
+    """The binary side of :class:`GuardedStdout`: its errors are kept there too."""
+
+    def __init__(self, raw: Any, guard: GuardedStdout) -> None:
+        self._raw = raw
+        self._guard = guard
+
+    def write(self, data: bytes) -> int:
+        if self._guard.failure is None:
+            try:
+                self._guard._stream.flush()
+                self._raw.write(data)
+            except OSError as err:
+                self._guard.failure = err
+        return len(data)
+
+    def flush(self) -> None:
+        if self._guard.failure is None:
+            try:
+                self._raw.flush()
+            except OSError as err:
+                self._guard.failure = err
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._raw, name)
+
+
 def main() -> None:
-    cli(prog_name="ucom")
+    """The ``ucom`` command: SIGTERM and SIGHUP stop a job as Ctrl-C does; a closed
+    standard output (``| head``) ends the output quietly with the job's exit code, a full
+    one is named with exit code 5 (when the job itself succeeded)."""
+    guard = GuardedStdout(sys.stdout)
+    sys.stdout = guard
+    code: int | str | None = EXIT_OK
+    try:
+        with stop_signals():
+            cli.main(prog_name="ucom", standalone_mode=True)
+    except SystemExit as e:
+        code = e.code
+    finally:
+        guard.flush()
+        sys.stdout = guard._stream
+    if guard.failure is not None:
+        _quiet_stdout()
+        if guard.failure.errno != errno.EPIPE:
+            with contextlib.suppress(OSError):
+                stderr().print(f"[bold red]ucom: cannot write:[/] standard output: "
+                               f"{escape(guard.failure.strerror or str(guard.failure))}",
+                               highlight=False, soft_wrap=True)
+            if code in (None, EXIT_OK):
+                code = EXIT_WRITE
+    sys.exit(code)
+
+
+def _quiet_stdout() -> None:
+    """Point standard output at /dev/null, so that the interpreter's last flush does not
+    fail again on a closed pipe or a full disk."""
+    with contextlib.suppress(OSError, ValueError, AttributeError):
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, sys.stdout.fileno())
+        os.close(fd)
 
 
 __all__ = ["EXIT_FAILED", "cli", "main"]

@@ -10,6 +10,7 @@ the other kind are ignored, and a note on stderr (and the ``connection`` object 
 from __future__ import annotations
 
 import functools
+import math
 import os
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -35,6 +36,20 @@ REAL = ("interface", "channels", "host", "port", "topology")
 VIRTUAL = ("virtual",)
 FLAGS = {"interface": "-i", "channels": "-c", "host": "--host", "port": "--port",
          "topology": "--topology", "virtual": "--virtual"}
+
+
+class Finite(click.FloatRange):
+    """A number within a range that is finite: ``nan`` and ``inf`` are refused by name
+    (click's own FloatRange lets ``nan`` through every bound)."""
+
+    name = "finite number"
+
+    def convert(self, value: Any, param: click.Parameter | None,
+                ctx: click.Context | None) -> Any:
+        number = click.FLOAT.convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number.", param, ctx)
+        return super().convert(number, param, ctx)
 
 
 def connection_options(f: Callable[..., Any]) -> Callable[..., Any]:

@@ -165,7 +165,7 @@ def dump_cmd(ctx: click.Context, robot_name: str, output: Path, force: bool, spe
 # ----------------------------------------------------------------------------- load
 @params.command("load")
 @click.argument("robot_name", metavar="ROBOT")
-@click.argument("files", nargs=-1, type=click.Path(dir_okay=False))
+@click.argument("files", nargs=-1, type=click.Path())
 @connection_options
 @json_option
 @click.pass_context

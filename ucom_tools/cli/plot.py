@@ -8,13 +8,10 @@ without them a drawing ends as bad input (exit 3) that says how to install them.
 
 from __future__ import annotations
 
-import contextlib
 import difflib
 import os
 import shutil
-import stat
 import sys
-import tempfile
 from collections.abc import Sequence
 from decimal import Decimal
 from pathlib import Path
@@ -23,6 +20,7 @@ from typing import Any
 import click
 from rich.markup import escape
 
+from ucom_tools import fileio
 from ucom_tools.cli.output import emit_json, stderr
 from ucom_tools.errors import InputError
 from ucom_tools.ops.record import Series, Values, read_values
@@ -124,8 +122,9 @@ def steps(values: Values, s: Series) -> tuple[list[float], list[float]]:
 
 # ----------------------------------------------------------------------------- drawing
 def draw_png(values: Values, chosen: Sequence[Series], out: str) -> None:
-    """Draw ``chosen`` into the PNG ``out``, written atomically (temporary file beside
-    it, renamed over it; an existing file keeps its permissions)."""
+    """Draw ``chosen`` into the PNG ``out``, written by the rules of ``ucom(1)``, FILES
+    (a regular file atomically, keeping its permissions; a device or FIFO written
+    through)."""
     try:
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.figure import Figure
@@ -153,28 +152,8 @@ def draw_png(values: Values, chosen: Sequence[Series], out: str) -> None:
     ax.set_title(os.path.basename(values.file))
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best")
-    try:
-        mode = stat.S_IMODE(target.stat().st_mode)
-    except OSError:
-        mode = 0o644
-    try:
-        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.",
-                                   suffix=".tmp")
-    except OSError as err:
-        raise InputError(f"cannot write {out}: {err.strerror or err}", key="-o") from None
-    try:
-        with os.fdopen(fd, "wb") as f:
-            fig.savefig(f, format="png")
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, mode)
-        os.replace(tmp, target)
-    except BaseException as err:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        if isinstance(err, OSError):
-            raise InputError(f"cannot write {out}: {err.strerror or err}", key="-o") from None
-        raise
+    with fileio.output_stream(target, "wb", option="-o") as f:
+        fig.savefig(f, format="png")
 
 
 def _tty() -> bool:

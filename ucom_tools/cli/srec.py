@@ -15,7 +15,7 @@ def srec() -> None:
 
 
 @srec.command("info")
-@click.argument("file", type=click.Path(dir_okay=False))
+@click.argument("file", type=click.Path())
 @click.option("--addressing", type=click.Choice(["auto", "word", "byte"]), default="auto",
               show_default=True, help="Whether record addresses count words or bytes.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
@@ -33,7 +33,7 @@ def info(file: str, addressing: str, as_json: bool) -> None:
 
 
 @srec.command("progid")
-@click.argument("file", type=click.Path(dir_okay=False))
+@click.argument("file", type=click.Path())
 @click.option("--addressing", type=click.Choice(["auto", "word", "byte"]), default="auto",
               show_default=True)
 def progid(file: str, addressing: str) -> None:

@@ -70,7 +70,7 @@ def _fail_all(errors: list[TreeError]) -> None:
 
 
 @tree.command("check")
-@click.argument("files", nargs=-1, type=click.Path(dir_okay=False))
+@click.argument("files", nargs=-1, type=click.Path())
 @click.option("--topology", "robot", metavar="ROBOT",
               help="Also check every tree this robot's topology binds (a bundled name such "
                    "as armar3, or a topology file), and that every board has one.")
@@ -128,7 +128,7 @@ def _print_robot(r: RobotTrees) -> None:
 
 # ----------------------------------------------------------------------------- show
 @tree.command("show")
-@click.argument("file", type=click.Path(dir_okay=False))
+@click.argument("file", type=click.Path())
 @click.option("--board", "number", type=int, metavar="N", help="Only board block N.")
 def show(file: str, number: int | None) -> None:
     """A table per board of FILE: index, kind, generic and unique name, default; grouped
@@ -164,9 +164,11 @@ def _board_table(t: Tree, b: Board) -> Table:
 
 # ----------------------------------------------------------------------------- format
 @tree.command("format")
-@click.argument("file", type=click.Path(dir_okay=False))
-@click.option("-o", "--output", "out", type=click.Path(dir_okay=False),
-              help="Write here (atomically; may be FILE itself) instead of to stdout.")
+@click.argument("file", type=click.Path())
+@click.option("-o", "--output", "out", type=click.Path(),
+              help="Write here instead of to stdout (a file atomically, may be FILE "
+              "itself; a link's target; a device or FIFO written through; see ucom(1) "
+              "FILES).")
 def format_(file: str, out: str | None) -> None:
     """Write FILE in the canonical form: two blanks per level, one entry per line, defaults
     in index order.  Comments other than # CI, # SO, # PAR are dropped."""
@@ -174,16 +176,13 @@ def format_(file: str, out: str | None) -> None:
     if out is None:
         click.echo(attrtree.dumps(text_tree), nl=False)
         return
-    try:
-        attrtree.save(text_tree, out)
-    except OSError as err:
-        raise TreeError(f"cannot write: {err.strerror or err}", file=out) from None
+    attrtree.save(text_tree, out, option="-o")
 
 
 # ----------------------------------------------------------------------------- diff
 @tree.command("diff")
-@click.argument("a", type=click.Path(dir_okay=False))
-@click.argument("b", type=click.Path(dir_okay=False))
+@click.argument("a", type=click.Path())
+@click.argument("b", type=click.Path())
 @click.option("--json", "as_json", is_flag=True, help="Print the changes as JSON.")
 @click.pass_context
 def diff(ctx: click.Context, a: str, b: str, as_json: bool) -> None:

@@ -9,6 +9,7 @@ cut), ``powered = false``, and two boards with the same ``fixed_id``; and mutant
 
 from __future__ import annotations
 
+import math
 import re
 import sys
 import tomllib
@@ -18,6 +19,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from ucom_tools import fileio
 from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.config import mutants
 from ucom_tools.errors import TopologyError
@@ -45,6 +47,12 @@ SOURCE_ROOT = bundled_root()
 """Relative paths in a bundled topology (programs, attribute trees) are relative to this
 folder: the ucom-tools source tree (where ``firmware_images/`` and ``attribute_trees/``
 are), or where an installed wheel put them."""
+MAX_BOARDS = 31
+"""Boards one bus can hold: the protocol addresses seq IDs 1-31 (``ucom-protocol(7)``)."""
+MAX_BUSES = 16
+"""Buses one topology can have (ARMAR-III has 4; a PC rarely carries more than 16 CAN
+channels): a larger file is a mistake, and each bus costs a thread or a process."""
+
 BITRATES = (10_000, 20_000, 50_000, 100_000, 125_000, 250_000, 500_000, 800_000, 1_000_000)
 
 
@@ -176,6 +184,8 @@ class _Checker:
             raise self.fail(path, key, f"expected {_kind(kind)}, got {value!r}")
         if not isinstance(value, kind):
             raise self.fail(path, key, f"expected {_kind(kind)}, got {value!r}")
+        if isinstance(value, float) and not math.isfinite(value):
+            raise self.fail(path, key, f"expected a finite number, got {value!r}")
         return value
 
     def no_extra(self, table: dict[str, Any], path: tuple[Any, ...], allowed: set[str]) -> None:
@@ -213,12 +223,17 @@ def resolve(name_or_path: str) -> tuple[str, str]:
         res = resources.files("ucom_tools.config") / "topologies" / f"{name_or_path}.toml"
         return name_or_path, res.read_text(encoding="utf-8")
     path = Path(name_or_path)
+
+    def refuse(text: str) -> TopologyError:
+        if text == "no such file":
+            text = f"no such topology file (bundled ones: {', '.join(BUNDLED)})"
+        return TopologyError(text, file=name_or_path)
+
+    data = fileio.read_input(path, limit=fileio.TEXT_LIMIT, what="a topology file",
+                             error=refuse)
     try:
-        return str(path), path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise TopologyError(f"no such topology file (bundled ones: {', '.join(BUNDLED)})",
-                            file=name_or_path) from None
-    except (OSError, UnicodeDecodeError) as err:
+        return str(path), data.decode("utf-8")
+    except UnicodeDecodeError as err:
         raise TopologyError(f"cannot read: {err}", file=name_or_path) from None
 
 
@@ -244,6 +259,9 @@ def parse(text: str, source: str, base: Path | None = None) -> Topology:
     buses_raw = c.take(data, (), "bus", list, what="at least one [[bus]] table")
     if not buses_raw:
         raise c.fail((), "bus", "at least one [[bus]] table is needed")
+    if len(buses_raw) > MAX_BUSES:
+        raise c.fail((), "bus", f"at most {MAX_BUSES} buses per topology, got "
+                     f"{len(buses_raw)}")
     buses = []
     serials: set[int] = set()
     names: set[str] = set()
@@ -261,8 +279,9 @@ def parse(text: str, source: str, base: Path | None = None) -> Topology:
         if bitrate not in BITRATES:
             raise c.fail(path, "bitrate", "expected one of " + ", ".join(map(str, BITRATES)))
         boards_raw = c.take(braw, path, "board", list, [])
-        if len(boards_raw) > 31:
-            raise c.fail(path, "board", f"at most 31 boards per bus, got {len(boards_raw)}")
+        if len(boards_raw) > MAX_BOARDS:
+            raise c.fail(path, "board", f"at most {MAX_BOARDS} boards per bus (the seq IDs "
+                         f"1-31), got {len(boards_raw)}")
         boards = tuple(_board(c, name, bname, i, j, b, base, serials)
                        for j, b in enumerate(boards_raw))
         for j, b in enumerate(boards):

@@ -24,7 +24,6 @@ import io
 import itertools
 import os
 import re
-import stat
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -33,6 +32,7 @@ from typing import TextIO
 
 import bincopy
 
+from ucom_tools import fileio
 from ucom_tools.errors import FrameError, ImageError
 from ucom_tools.memory import Kind, kind_of
 from ucom_tools.wire.codes import Space, Target
@@ -135,17 +135,19 @@ def load_image(path: str | Path, *, addressing: str = "auto") -> Image:
     bad line, or once more than :data:`MAX_FILE_BYTES` have come (devices, FIFOs)."""
     source = str(path)
     _check_addressing(addressing, source)
+    def refuse(text: str) -> ImageError:
+        return ImageError(text, file=source)
+
+    binary = fileio.open_input(path, limit=1 << 62, what="an S-record file", error=refuse)
     try:
-        with open(path, encoding="latin-1", newline="") as stream:  # latin-1: byte = char
-            st = os.fstat(stream.fileno())
-            too_big = stat.S_ISREG(st.st_mode) and st.st_size > MAX_FILE_BYTES
+        st = os.fstat(binary.fileno())
+        too_big = st.st_size > MAX_FILE_BYTES
+        with io.TextIOWrapper(binary, encoding="latin-1", newline="") as stream:  # byte = char
             records = _records(_lines(stream, source, too_big=too_big), source)
-    except FileNotFoundError:
-        raise ImageError("no such file", file=source) from None
-    except IsADirectoryError:
-        raise ImageError("is a directory, not an S-record file", file=source) from None
     except OSError as err:
-        raise ImageError(f"cannot read: {err.strerror}", file=source) from None
+        raise ImageError(f"cannot read: {fileio.reason(err)}", file=source) from None
+    finally:
+        binary.close()
     return _image(records, source, addressing)
 
 

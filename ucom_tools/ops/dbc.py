@@ -34,9 +34,7 @@ here and only when a database is built.
 
 from __future__ import annotations
 
-import contextlib
 import os
-import tempfile
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -44,7 +42,7 @@ from enum import IntEnum
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ucom_tools import __version__
+from ucom_tools import __version__, fileio
 from ucom_tools.errors import InputError
 from ucom_tools.wire import mca
 from ucom_tools.wire.codes import (
@@ -468,33 +466,24 @@ def dumps() -> str:
 
 
 def write(path: str | os.PathLike[str], *, force: bool = False) -> int:
-    """Write the DBC file atomically (a temporary file beside it, renamed into place);
-    an existing file only with ``force``.  Returns the number of messages."""
+    """Write the DBC file by the rules of ``ucom(1)``, FILES (a regular file atomically,
+    a device or FIFO written through, ``-`` standard output); an existing regular file
+    only with ``force``.  Returns the number of messages."""
     target = Path(path)
+    if os.fspath(path) == fileio.STDOUT:
+        fileio.write_text(fileio.STDOUT, dumps(), encoding="cp1252", newline=None,
+                          allow_stdout=True)
+        return len(entries())
     if target.is_dir():
         raise InputError(f"{os.fspath(target)} is a directory", key="--output")
     if not target.parent.is_dir():
         raise InputError(f"{os.fspath(target)}: directory {os.fspath(target.parent)} does "
                          "not exist", key="--output")
-    if target.exists() and not force:
+    if target.is_file() and not force:
         raise InputError(f"{os.fspath(target)} exists; --force replaces it", key="--output")
     text = dumps()
-    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}-", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="cp1252", newline="") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        try:
-            mode = target.stat().st_mode & 0o7777
-        except OSError:
-            mode = 0o644
-        os.chmod(tmp, mode)
-        os.replace(tmp, target)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    fileio.write_text(target, text, encoding="cp1252", newline=None, option="--output",
+                      allow_stdout=True)
     return len(entries())
 
 

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
 
+from ucom_tools import fileio
 from ucom_tools.config import attrtree
 from ucom_tools.config.attrtree import BoundBoard, Kind, RobotTrees, Tree, Value
 from ucom_tools.config.topology import Topology
@@ -357,7 +358,8 @@ def dump_targets(trees: RobotTrees, output: Path, *, force: bool = False,
 
 def write_dump(readout: Readout, targets: Sequence[DumpTarget]) -> list[Path]:
     """Write the live trees: each one rendered and checked first (it must read back as
-    the same values), then each file replaced atomically."""
+    the same values), then all staged beside their targets and renamed into place: every
+    file or none (a full disk leaves the old files as they were)."""
     rendered: list[tuple[Tree, Path]] = []
     for d in targets:
         tree = live_tree(d.tree, readout.read)
@@ -365,11 +367,11 @@ def write_dump(readout: Readout, targets: Sequence[DumpTarget]) -> list[Path]:
         if again != tree:  # cannot happen with a valid tree; never write what does not
             raise UcomError(f"{d.path}: the dumped tree does not read back as written")
         rendered.append((tree, d.path))
-    directories = {p.parent for _, p in rendered}
-    for directory in directories:
-        directory.mkdir(parents=True, exist_ok=True)
-    for tree, path in rendered:
-        attrtree.save(tree, path)
+    for directory in sorted({p.parent for _, p in rendered}):
+        fileio.prepare_directory(directory, option="-o")
+    with fileio.Batch(option="-o") as batch:  # every tree or none (ucom(1), FILES)
+        for tree, path in rendered:
+            batch.write_text(path, attrtree.dumps(tree))
     return [p for _, p in rendered]
 
 

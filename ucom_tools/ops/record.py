@@ -4,9 +4,10 @@ python-can log, every value change of the exchanged edges into ``FILE.values.csv
 :class:`RunRecorder` is a :class:`can.Listener`: the bus readers hand it each frame
 (from several threads at once; one lock keeps the files whole).  The log format follows
 FILE's extension (:data:`FORMATS`, written by :func:`can.Logger`); the extension and the
-directory are checked before anything is written.  Both files are written under
-temporary names beside their targets and renamed into place by :meth:`RunRecorder.close`,
-so FILE and FILE.values.csv are complete recordings or absent, never half-written.
+directory are checked before anything is written.  Both files are written by the rules of
+``ucom(1)``, FILES (:mod:`ucom_tools.fileio`): under temporary names beside their targets,
+renamed into place by :meth:`RunRecorder.close`, so FILE and FILE.values.csv are complete
+recordings or keep what they had, never half-written (a device or FIFO is written through).
 
 The values file (``man/ucom.1``, ``remote plot``) is a CSV with the header
 :data:`VALUES_HEADER`, one row per change of a value: ``timestamp`` (seconds, 6
@@ -22,10 +23,9 @@ import contextlib
 import copy
 import csv
 import importlib.util
+import io
 import math
 import os
-import stat
-import tempfile
 import threading
 from dataclasses import dataclass, field
 from decimal import Decimal, InvalidOperation
@@ -38,7 +38,9 @@ import can
 from can.io.generic import MessageWriter
 from can.util import channel2int
 
-from ucom_tools.errors import InputError, UcomError
+from ucom_tools import fileio
+from ucom_tools.errors import InputError, WriteError
+from ucom_tools.fileio import Batch, Output, reason
 
 VALUES_SUFFIX = ".values.csv"
 """Appended to the full name of the frame log: run.blf -> run.blf.values.csv."""
@@ -135,18 +137,9 @@ def kind_text(kind: str | Enum) -> str:
     return text
 
 
-def _mode(target: Path) -> int:
-    """The permissions a replaced file keeps; 0644 for a new one (a temporary file is
-    0600)."""
-    try:
-        return stat.S_IMODE(target.stat().st_mode)
-    except OSError:
-        return 0o644
-
-
-class RecordError(UcomError):
+class RecordError(WriteError):
     """Writing the recording failed (a full disk, a lost directory); the partial files
-    were removed."""
+    were removed, files they would have replaced keep their content."""
 
 
 class RunRecorder(can.Listener):
@@ -174,39 +167,32 @@ class RunRecorder(can.Listener):
         self._last: dict[tuple[str, int, str], Decimal] = {}
         self._closed = False
         self._failure: BaseException | None = None
-        self._tmp: list[str] = []
-        parent = self.path.parent
-        if not parent.is_dir():
-            raise InputError(f"{os.fspath(self.path)}: directory {os.fspath(parent)} does "
-                             "not exist", key="--record")
-        for target in (self.path, self.values_path):
-            if target.is_dir():
-                raise InputError(f"{os.fspath(target)} is a directory", key="--record")
+        self._batch = Batch(option="--record")
         self._writer: MessageWriter | None = None
         self._values_file: IO[str] | None = None
         try:
-            log_tmp = self._temp(self.path, self.extension)
-            self._writer = can.Logger(log_tmp)
-            values_tmp = self._temp(self.values_path, VALUES_SUFFIX)
-            self._values_file = open(values_tmp, "w", encoding="utf-8", newline="")  # noqa: SIM115
+            log_out = self._output(self.path, self.extension)
+            self._writer = can.Logger(log_out.write_path)
+            values_out = self._output(self.values_path, VALUES_SUFFIX)
+            self._values_file = values_out.open("w", encoding="utf-8", newline="")
             self._csv = csv.writer(self._values_file, lineterminator="\n")
             self._csv.writerow(VALUES_HEADER)
+        except WriteError as err:
+            self._discard()
+            raise InputError(str(err).removeprefix("--record: "), key="--record") from None
         except OSError as err:
             self._discard()
-            raise InputError(f"cannot write {os.fspath(self.path)}: {err.strerror or err}",
+            raise InputError(f"cannot write {os.fspath(self.path)}: {reason(err)}",
                              key="--record") from None
         except BaseException:
             self._discard()
             raise
 
-    def _temp(self, target: Path, suffix: str) -> str:
-        """A new empty file beside ``target`` whose name ends in ``suffix`` (python-can
-        picks the format by it) and has no other dot."""
-        stem = target.name[:-len(suffix)].replace(".", "_") if suffix else target.name
-        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{stem}-", suffix=suffix)
-        os.close(fd)
-        self._tmp.append(tmp)
-        return tmp
+    def _output(self, target: Path, suffix: str) -> Output:
+        """Where ``target`` is written (``ucom(1)``, FILES): a temporary file beside it
+        whose name ends in ``suffix`` (python-can picks the format by it), or the device
+        or FIFO itself."""
+        return self._batch.output(target, suffix=suffix)
 
     # --------------------------------------------------------------------- counters
     @property
@@ -297,8 +283,6 @@ class RunRecorder(can.Listener):
                 if self._writer is not None:
                     self._writer.stop()
                 if self._values_file is not None:
-                    self._values_file.flush()
-                    os.fsync(self._values_file.fileno())
                     self._values_file.close()
             except Exception as err:
                 if self._failure is None:
@@ -306,24 +290,12 @@ class RunRecorder(can.Listener):
             if self._failure is not None:
                 self._discard()
                 self._raise_failure()
-            log_tmp, values_tmp = self._tmp
-            replaced = False
             try:
-                with open(log_tmp, "rb") as f:  # python-can closed it unsynced
-                    os.fsync(f.fileno())
-                for tmp, target in ((log_tmp, self.path), (values_tmp, self.values_path)):
-                    os.chmod(tmp, _mode(target))
-                os.replace(log_tmp, self.path)
-                replaced = True
-                os.replace(values_tmp, self.values_path)
-            except OSError as err:
+                self._batch.commit()  # both synced before either is renamed
+            except WriteError as err:
                 self._failure = err
                 self._discard()
-                if replaced:  # not a log without its values
-                    with contextlib.suppress(OSError):
-                        self.path.unlink()
-                self._raise_failure()
-            self._tmp.clear()
+                raise RecordError(f"{err}; nothing was kept", path=err.path) from None
 
     def discard(self) -> None:
         """End the recording without keeping anything (idempotent; after :meth:`close`
@@ -341,10 +313,7 @@ class RunRecorder(can.Listener):
         with contextlib.suppress(Exception):
             if self._values_file is not None:
                 self._values_file.close()
-        for tmp in self._tmp:
-            with contextlib.suppress(OSError):
-                os.unlink(tmp)
-        self._tmp.clear()
+        self._batch.discard()
 
     def __enter__(self) -> RunRecorder:
         return self
@@ -390,6 +359,10 @@ class Values:
     end: float | None
 
 
+VALUES_LIMIT = 1 << 30
+"""The largest values file read (1 GiB: about ten hours of ARMAR-III's exchange)."""
+
+
 def read_values(path: str | os.PathLike[str]) -> Values:
     """Read a values file written by :class:`RunRecorder`; InputError naming FILE:LINE
     when it is not one (missing header column, bad number or kind, short row)."""
@@ -399,7 +372,9 @@ def read_values(path: str | os.PathLike[str]) -> Values:
     end: float | None = None
     line = 1
     try:
-        with open(file, encoding="utf-8", newline="") as f:
+        binary = fileio.open_input(file, limit=VALUES_LIMIT, what="a values file",
+                                   error=lambda text: InputError(text, file=file))
+        with io.TextIOWrapper(binary, encoding="utf-8", newline="") as f:
             reader = csv.reader(f)
             header = next(reader, None)
             if header is None:

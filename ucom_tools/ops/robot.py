@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import copy
 import os
-import tempfile
 import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -24,7 +23,8 @@ from can.io.generic import MessageWriter
 
 from ucom_tools.config import topology as topo_mod
 from ucom_tools.config.topology import BusSpec, Topology
-from ucom_tools.errors import BusError, InputError, UcomError
+from ucom_tools.errors import BusError, InputError, UcomError, WriteError
+from ucom_tools.fileio import Output, reason
 from ucom_tools.ops.record import INT_CHANNELS, channel_number, log_extension
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
@@ -121,9 +121,14 @@ class Robot:
         """Shut every bus down, then end the ``--log`` recording: renamed into place
         (``keep_log``), or discarded (after bad input: nothing is written).  Raises
         :class:`LogError` (no file left) when the recording could not be written."""
+        unsaved: list[str] = []
         for h in self.buses.values():
             if self.log is not None:
                 self.log.detach(h)
+            failures = getattr(h.bus, "state_failures", None)  # the virtual fleet's --state
+            if callable(failures):
+                with contextlib.suppress(Exception):
+                    unsaved += failures()
             with contextlib.suppress(Exception):
                 h.bus.shutdown()
         log, self.log = self.log, None
@@ -132,12 +137,17 @@ class Robot:
                 log.close()
             else:
                 log.discard()
+        if unsaved:
+            raise WriteError(f"the virtual boards' state could not be saved ({unsaved[0]}"
+                             + (f"; {len(unsaved) - 1} more board(s)" if len(unsaved) > 1
+                                else "")
+                             + "); the state directory keeps the flash as it was before")
 
 
 # ------------------------------------------------------------------------ --log
-class LogError(UcomError):
+class LogError(WriteError):
     """The ``--log`` recording could not be written (a full disk, a lost directory); the
-    partial file was removed."""
+    partial file was removed and a file it would have replaced keeps its content."""
 
 
 def check_log(path: str | os.PathLike[str]) -> str:
@@ -157,13 +167,14 @@ class FrameLog:
     """``--log FILE``: every frame of the robot's buses, received and sent, into a
     python-can log (:func:`can.Logger`, the format by the extension).
 
-    Written under a temporary name beside FILE and renamed into place by :meth:`close`,
-    so FILE is a complete recording or absent (an existing FILE keeps its permissions).
-    Each frame carries its bus name as channel (as the bus's number in the formats of
-    :data:`INT_CHANNELS`) and its time on the bus's time base: a received frame its own
-    timestamp, a sent frame the time it was handed to the bus, on the same base (the
-    virtual fleet's virtual time in virtual time).  Thread-safe: the bus readers record from
-    their threads."""
+    Written by the rules of ``ucom(1)``, FILES (:class:`ucom_tools.fileio.Output`): a
+    regular FILE under a temporary name beside it, renamed into place by :meth:`close`, so
+    it is a complete recording or keeps what it had (and its permissions); a device or FIFO
+    is written through.  Each frame carries its bus name as channel (as the bus's number in
+    the formats of :data:`INT_CHANNELS`) and its time on the bus's time base: a received
+    frame its own timestamp, a sent frame the time it was handed to the bus, on the same
+    base (the virtual fleet's virtual time in virtual time).  Thread-safe: the bus readers
+    record from their threads."""
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
@@ -175,17 +186,13 @@ class FrameLog:
         self._closed = False
         self._failure: BaseException | None = None
         self.frames = 0
-        stem = self.path.name[:-len(self.extension)].replace(".", "_")
-        fd, self._tmp = tempfile.mkstemp(dir=self.path.parent, prefix=f".{stem}-",
-                                         suffix=self.extension)
-        os.close(fd)
+        self._out = Output(self.path, option="--log", suffix=self.extension)
         try:
-            self._writer: MessageWriter = can.Logger(self._tmp)
+            self._writer: MessageWriter = can.Logger(self._out.write_path)
         except Exception as err:
-            with contextlib.suppress(OSError):
-                os.unlink(self._tmp)
-            raise InputError(f"cannot write {os.fspath(self.path)}: "
-                             f"{getattr(err, 'strerror', None) or err}", key="--log") from None
+            self._out.discard()
+            raise InputError(f"cannot write {os.fspath(self.path)}: {reason(err)}",
+                             key="--log") from None
 
     def attach(self, handle: BusHandle) -> None:
         """Record every frame ``handle``'s dispatcher receives or sends from now on, with
@@ -222,30 +229,25 @@ class FrameLog:
 
     def close(self) -> None:
         """Flush the log and rename it into place (idempotent); :class:`LogError`, and no
-        file, when writing failed."""
+        file (the old one, if any, as it was), when writing failed."""
         with self._lock:
             if self._closed:
                 return
             self._closed = True
             try:
                 self._writer.stop()
-                with open(self._tmp, "rb") as f:  # python-can closed it unsynced
-                    os.fsync(f.fileno())
-                if self._failure is None:
-                    try:
-                        mode = self.path.stat().st_mode & 0o7777
-                    except OSError:
-                        mode = 0o644
-                    os.chmod(self._tmp, mode)
-                    os.replace(self._tmp, self.path)
-                    return
-            except OSError as err:
+            except Exception as err:
                 self._failure = self._failure or err
-            with contextlib.suppress(OSError):
-                os.unlink(self._tmp)
+            if self._failure is None:
+                try:
+                    self._out.commit()
+                    return
+                except WriteError as err:
+                    raise LogError(f"{err}; nothing was kept", path=err.path) from None
+            self._out.discard()
             failure = self._failure
             raise LogError(f"--log: writing {os.fspath(self.path)} failed: "
-                           f"{getattr(failure, 'strerror', None) or failure}; nothing was kept")
+                           f"{reason(failure)}; nothing was kept", path=os.fspath(self.path))
 
     def discard(self) -> None:
         """End the recording and keep nothing (idempotent; after :meth:`close` the file
@@ -256,8 +258,7 @@ class FrameLog:
             self._closed = True
             with contextlib.suppress(Exception):
                 self._writer.stop()
-            with contextlib.suppress(OSError):
-                os.unlink(self._tmp)
+            self._out.discard()
 
 
 def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:

@@ -82,6 +82,9 @@ class EdgeSpec:
         if isinstance(value, str) and value.lstrip("-").lower().startswith("0x"):
             value = int(value, 16)
         d = Decimal(value).scaleb(-self.exponent)
+        if not d.is_finite():
+            raise ValueError(f"{value} is not a finite number ({self.name} takes "
+                             f"{self.describe_range()})")
         if d != d.to_integral_value():
             raise ValueError(f"{value} needs more than {-self.exponent} decimal places "
                              f"({self.name} carries {max(0, -self.exponent)})")

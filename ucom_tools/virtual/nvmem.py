@@ -6,12 +6,12 @@ so that a fleet keeps its boards' flash across restarts like power cycles.
 from __future__ import annotations
 
 import json
-import os
 from array import array
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from ucom_tools.errors import InputError
+from ucom_tools import fileio
+from ucom_tools.errors import InputError, UcomError
 from ucom_tools.memory import P_FLASH_END, PAGE_WORDS, X_FLASH_END, X_FLASH_START
 from ucom_tools.wire.codes import Space
 from ucom_tools.wire.transfer import TransferPlan, encode_date
@@ -93,6 +93,8 @@ class NonVolatile:
         self.x = Memory(X_FLASH_START, X_WORDS)
         self.p.words[0:4] = array("H", BOOT_VECTORS)
         self.record = BootRecord()
+        self.save_failure: str | None = None
+        """Why the last save failed (the files on disk then hold the state before it)."""
 
     def space(self, space: Space) -> Memory:
         return self.p if space is Space.P else self.x
@@ -115,21 +117,28 @@ class NonVolatile:
 
     # ------------------------------------------------------------------ persistence
     def save(self, path: Path) -> None:
-        """Write ``path.flash`` and ``path.json`` atomically."""
-        flash = path.with_suffix(".flash")
-        rec = path.with_suffix(".json")
-        tmp = flash.with_suffix(".flash.tmp")
-        tmp.write_bytes(self.p.words.tobytes() + self.x.words.tobytes())
-        os.replace(tmp, flash)
-        tmp = rec.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(asdict(self.record), indent=1))
-        os.replace(tmp, rec)
+        """Write ``path.flash`` and ``path.json``, both or neither (``ucom(1)``, FILES):
+        when the disk is full the previous pair stays as it was and :attr:`save_failure`
+        says why (the board goes on with what it has in memory, as a board whose flash
+        write failed would report it; the CLI names it at the end)."""
+        self._save(path, flash=True)
 
     def save_record(self, path: Path) -> None:
-        rec = path.with_suffix(".json")
-        tmp = rec.with_suffix(".json.tmp")
-        tmp.write_text(json.dumps(asdict(self.record), indent=1))
-        os.replace(tmp, rec)
+        """Write ``path.json`` alone (the bootloader record changed, the flash did not)."""
+        self._save(path, flash=False)
+
+    def _save(self, path: Path, *, flash: bool) -> None:
+        try:
+            with fileio.Batch(option="--state") as batch:
+                if flash:
+                    batch.write_bytes(path.with_suffix(".flash"),
+                                      self.p.words.tobytes() + self.x.words.tobytes())
+                batch.write_text(path.with_suffix(".json"),
+                                 json.dumps(asdict(self.record), indent=1))
+        except UcomError as err:  # InputError (the directory went away) or WriteError
+            self.save_failure = str(err)
+        else:
+            self.save_failure = None
 
     def load(self, path: Path) -> bool:
         """Read what :meth:`save` wrote; False if nothing was stored yet.

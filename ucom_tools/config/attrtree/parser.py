@@ -16,6 +16,7 @@ from enum import Enum
 from pathlib import Path
 from typing import NoReturn
 
+from ucom_tools import fileio
 from ucom_tools.config.attrtree.model import KIND_ORDER, Board, Edge, Kind, Tree, Value
 from ucom_tools.errors import TreeError
 
@@ -75,12 +76,10 @@ class _BoardDraft:
 def load(path: str | Path) -> Tree:
     """Read and check the attribute tree file at ``path``."""
     name = str(path)
-    try:
-        data = Path(path).read_bytes()
-    except FileNotFoundError:
-        raise TreeError("no such attribute tree file", file=name) from None
-    except OSError as err:
-        raise TreeError(f"cannot read: {err.strerror or err}", file=name) from None
+    data = fileio.read_input(path, limit=fileio.TEXT_LIMIT, what="an attribute tree file",
+                             error=lambda text: TreeError(
+                                 "no such attribute tree file" if text == "no such file"
+                                 else text, file=name))
     return parse(data, name)
 
 

@@ -9,12 +9,9 @@ the order of the default lines, are not kept).  :func:`save` replaces a file ato
 
 from __future__ import annotations
 
-import contextlib
-import os
-import stat
-import tempfile
 from pathlib import Path
 
+from ucom_tools import fileio
 from ucom_tools.config.attrtree.model import Board, Kind, Tree
 
 INDENT = "  "
@@ -51,24 +48,9 @@ def _board(out: list[str], board: Board) -> None:
     out.append(f"{i1}}}{board.number}")
 
 
-def save(tree: Tree, path: str | Path) -> None:
-    """Write ``tree`` to ``path`` atomically: a temporary file in the same directory, synced,
-    then renamed over the target, which is never half-written.  An existing file keeps its
-    permissions."""
-    target = Path(path)
-    try:
-        mode = stat.S_IMODE(target.stat().st_mode)
-    except FileNotFoundError:
-        mode = 0o644
-    fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as f:
-            f.write(dumps(tree))
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, mode)
-        os.replace(tmp, target)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+def save(tree: Tree, path: str | Path, *, option: str | None = None) -> None:
+    """Write ``tree`` to ``path`` by the rules of ``ucom(1)``, FILES: a regular file
+    atomically (a temporary file in the same directory, synced, renamed over the target,
+    which keeps its permissions), a link's target in its place, a device or FIFO written
+    through, ``-`` standard output."""
+    fileio.write_text(path, dumps(tree), option=option, allow_stdout=True)

@@ -1,0 +1,67 @@
+"""SIGTERM and SIGHUP as Ctrl-C: the same safe stop for every way a user ends a job.
+
+A job that is ended by ``kill``, a service manager or a closed terminal must stop its
+boards (or restore them) exactly as after Ctrl-C.  :func:`stop_signals` turns both signals
+into :class:`Terminated`, a :class:`KeyboardInterrupt`, raised in the main thread, so that
+every ``except KeyboardInterrupt`` and ``finally`` of the job runs; the CLI then exits
+with 128 + the signal's number (143, 129), as a shell reports a job killed by it
+(``man/ucom.1``, EXIT STATUS).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from collections.abc import Iterator
+from typing import Any
+
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+"""The signals that end a job as Ctrl-C does."""
+
+
+class Terminated(KeyboardInterrupt):
+    """The job was ended by ``signum`` (SIGTERM or SIGHUP); handled as Ctrl-C."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+    @property
+    def name(self) -> str:
+        return signal.Signals(self.signum).name
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + self.signum
+
+
+def interrupt_exit_code(exc: KeyboardInterrupt) -> int:
+    """130 for Ctrl-C, 128 + the signal's number for :class:`Terminated`."""
+    return exc.exit_code if isinstance(exc, Terminated) else 130
+
+
+@contextlib.contextmanager
+def stop_signals() -> Iterator[None]:
+    """Meanwhile SIGTERM and SIGHUP raise :class:`Terminated` in the main thread (outside
+    it, or where a signal is ignored by the parent, as ``nohup`` does, nothing changes).
+    The second signal of a kind is raised too: a job stuck in its clean-up can still be
+    ended, with the same exit code."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def terminate(signum: int, frame: Any) -> None:
+        raise Terminated(signum)
+
+    previous: dict[signal.Signals, Any] = {}
+    for sig in STOP_SIGNALS:
+        current = signal.getsignal(sig)
+        if current is signal.SIG_IGN:  # nohup: the user asked us to survive it
+            continue
+        previous[sig] = signal.signal(sig, terminate)
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
