@@ -16,7 +16,7 @@ import click
 from rich.markup import escape
 from rich.table import Table
 
-from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
+from ucom_tools.cli.exitcodes import EXIT_FAILED
 from ucom_tools.cli.options import connection_json, connection_options, json_option
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.config import topology as topo
@@ -31,6 +31,7 @@ from ucom_tools.ops.remote import (
     robot_trees,
 )
 from ucom_tools.ops.robot import ConnectSpec, open_robot
+from ucom_tools.signals import Terminated, interrupt_exit_code
 from ucom_tools.wire import mca
 from ucom_tools.wire.codes import ErrorCode
 
@@ -317,7 +318,8 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
     wanted = _parse_sets(sets)
     cycles = _parse_periods(periods)
     summary = Summary()
-    interrupted = False
+    interrupted = 0  # the exit code of an interrupt
+    how = ""
     with ExitStack() as stack:
         recorder = None
         if record is not None:  # checked up front; discarded if the run is refused
@@ -361,17 +363,22 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                     live(part)
                 else:
                     _run_plain(part)
-            except KeyboardInterrupt:
-                interrupted = True
+            except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM, SIGHUP: stop every board
+                interrupted = interrupt_exit_code(e)
+                how = f"terminated ({e.name})" if isinstance(e, Terminated) else "interrupted"
             loads = part.load_between(before, part.traffic())
             problems = part.stop()
+            if interrupted:
+                stderr().print(f"[yellow]{how}: "
+                               + (f"{len(problems)} board(s) could not be stopped"
+                                  if problems else "every board stopped") + "[/]")
             if part.scheduling is not None and part.scheduling.refused:
                 stderr().print(f"[yellow]ucom: --realtime: {escape(part.scheduling.refused)}; "
                                "the loop ran at normal priority[/]", soft_wrap=True)
             stopped = sorted({(e.bus, e.board) for e in part.events if e.stopped_motors})
             if as_json:
                 emit_json({"connection": connection_json(spec), "started": True,
-                           "interrupted": interrupted, "boards": _boards_json(part),
+                           "interrupted": bool(interrupted), "boards": _boards_json(part),
                            "run": _stats_json(part, loads), "not_stopped": problems,
                            "events": [_event_json(e) for e in part.events]})
             else:
@@ -383,7 +390,7 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
     if stopped and not interrupted:
         ctx.exit(EXIT_FAILED)
     if interrupted:
-        ctx.exit(EXIT_INTERRUPTED)
+        ctx.exit(interrupted)
 
 
 def _event_json(e: BoardEvent) -> dict[str, Any]:
