@@ -84,7 +84,7 @@ def test_flash_aborts_the_transfer_on_sigterm(tmp_path: Path) -> None:
                  str(tmp_path))
     try:
         seen = signal_when(proc, proc.stderr, "programming armar3.fl.S", signal.SIGTERM)
-        out, err = proc.communicate(timeout=DEADLINE)
+        _out, err = proc.communicate(timeout=DEADLINE)
     finally:
         proc.kill()
     assert proc.returncode == 143, "".join(seen) + err
@@ -109,7 +109,7 @@ def test_params_load_stops_on_sigterm_seen_on_its_bus_traffic(state: Path,
         with open(fifo, encoding="ascii", errors="replace") as traffic:
             seen = signal_when(proc, traffic, " Tx ", signal.SIGTERM)
             traffic.read()  # until the job closes it
-        out, err = proc.communicate(timeout=DEADLINE)
+        _out, err = proc.communicate(timeout=DEADLINE)
     finally:
         proc.kill()
     assert proc.returncode == 143, "".join(seen[-5:]) + err

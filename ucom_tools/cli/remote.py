@@ -17,7 +17,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from ucom_tools.cli.exitcodes import EXIT_FAILED
-from ucom_tools.cli.options import connection_json, connection_options, json_option
+from ucom_tools.cli.options import Finite, connection_json, connection_options, json_option
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.config import topology as topo
 from ucom_tools.errors import InputError
@@ -276,9 +276,9 @@ def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) 
 @click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
               help="Set a CI or PAR edge by its robot-wide name after the start "
                    "(repeatable), e.g. --set 'Right Eye Target=1000'.")
-@click.option("--for", "seconds", type=click.FloatRange(0, min_open=True), metavar="SECONDS",
+@click.option("--for", "seconds", type=Finite(0, min_open=True), metavar="SECONDS",
               help="Run this long, then stop the boards and print what they did.")
-@click.option("--rate", type=click.FloatRange(1, 10_000), default=1000.0, show_default=True,
+@click.option("--rate", type=Finite(1, 10_000), default=1000.0, show_default=True,
               metavar="HZ", help="Cycles per second of the PC's loop.")
 @click.option("--watchdog", "alive_ms", type=click.IntRange(mca.ALIVE_MIN_MS,
                                                             mca.ALIVE_MAX_MS),
@@ -292,7 +292,9 @@ def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) 
                    "the program) every CYCLES cycles instead of its default (0: not "
                    "cyclic), e.g. --period 'Voltage A=10'.")
 @click.option("--force", is_flag=True,
-              help="Start the boards that match their trees even when others do not.")
+              help="Start the boards that match their trees even when others do not, and "
+                   "start even where another host's exchange runs (its MCA Alive or CI "
+                   "maps are on the bus: exit code 4 without --force).")
 @click.option("--realtime", is_flag=True,
               help="Run the PC's loop under SCHED_FIFO (Linux; needs CAP_SYS_NICE or an "
                    "rtprio limit), so other busy processes cannot make it miss cycles; "
@@ -311,10 +313,13 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
     --force), writes the trees' PAR and CI defaults, sets up the SO maps at the programs'
     default rates (the bus load is estimated first: over 100 % is refused, over 70 %
     warned), starts the exchange on every bus and runs the PC's loop: CI maps and MCA
-    Alive every cycle.  On a terminal a live view shows every value; 'set NAME VALUE'
-    changes a CI or PAR while running.  With --for it runs N seconds and prints what the
-    joints did (--json: every edge's last value and the loop's figures).  Ctrl-C or the
-    end stops every board (motors off); a PC that dies leaves them to their watchdog."""
+    Alive every cycle.  It first listens on every bus for the boards' watchdog time:
+    where another host's exchange runs (MCA Alive or CI maps it did not send) nothing is
+    sent and the exit code is 4, unless --force.  On a terminal a live view shows every
+    value; 'set NAME VALUE' changes a CI or PAR while running.  With --for it runs N
+    seconds and prints what the joints did (--json: every edge's last value and the
+    loop's figures).  Ctrl-C or the end stops every board (motors off); a PC that dies
+    leaves them to their watchdog."""
     wanted = _parse_sets(sets)
     cycles = _parse_periods(periods)
     summary = Summary()
@@ -332,6 +337,7 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
             if recorder is not None:
                 for h in part.robot.buses.values():
                     h.link.dispatcher.taps.append(recorder.on_message_received)
+            part.claim(force=force)  # another host's exchange: exit 4, nothing sent
             report = part.check()
             if not report.ok:
                 if as_json and not force:
