@@ -289,7 +289,8 @@ def test_negative_identifier_gets_an_error_and_the_bus_goes_on(
     b"< send 280 02 01 00 >",                   # DLC of two digits
     b"< send 800 1 00 >",                       # identifier over 7FF
     b"< send 0280 2 01 00 >",                   # four digits
-    b"< send 00000280 2 01 00 >",               # extended identifier
+    b"< send 20000000 0 >",                     # extended identifier over 1FFFFFFF
+    b"< send 000000280 0 >",                    # nine digits
     b"< send 0x80 1 00 >",                      # not plain hex
     b"< send 280 2 01 >",                       # fewer data bytes than the DLC
     b"< send 280 1 01 00 >",                    # more data bytes than the DLC

@@ -19,7 +19,13 @@ from ucom_tools.config import topology as topo
 from ucom_tools.config.topology import BUNDLED, Topology
 from ucom_tools.errors import BusError
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.multiserve import LOG_FORMAT, MultiServer, sigterm_interrupts
+from ucom_tools.virtual.multiserve import (
+    LOG_FORMAT,
+    MultiServer,
+    auto_processes,
+    sigterm_interrupts,
+    usable_cores,
+)
 from ucom_tools.virtual.socketcand import (
     DEFAULT_PORT,
     MAX_CLIENTS,
@@ -124,8 +130,10 @@ class _Processes(click.ParamType):
                    "'< error too many clients (N) >' and closed.")
 @click.option("--processes", type=_Processes(), default="auto", show_default=True,
               help="auto: serve each bus from a process of its own when TOPOLOGY has more "
-                   "than one bus (a fleet at 1 kHz needs more than one core); 1: the whole "
-                   "fleet in this process; N: the buses shared out among N processes.")
+                   "than one bus (a fleet at 1 kHz needs more than one core), but no more "
+                   "processes than this machine has cores; 1: the whole fleet in this "
+                   "process; N: the buses shared out among N processes (at most one per "
+                   "bus).")
 @click.option("--fault", metavar="NAME",
               help="Serve mutant boards: every board that names no fault in the topology "
                    "breaks the protocol in this documented way ('ucom fleet faults' lists "
@@ -167,10 +175,12 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     # that clients' readers and writers get their turn within a cycle
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     robot = topo.load(topology)
-    if processes != 1 and len(robot.buses) > 1:
-        _serve_per_bus(robot, state_dir, host, port, max_clients, log_level, processes,
+    count = _process_count(robot, processes)
+    if count > 1:
+        _serve_per_bus(robot, state_dir, host, port, max_clients, log_level, count,
                        {**({"fault": fault} if fault else {}),
-                        **({"client_loss": loss, "seed": seed} if loss else {})})
+                        **({"client_loss": loss, "seed": seed} if loss else {})},
+                       auto=processes is None)
         return
     f = Fleet(robot, state_dir=state_dir, realtime=True, fault=fault, client_loss=loss,
               seed=seed)
@@ -181,9 +191,11 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
         raise BusError(f"cannot listen on {host}:{port}: {e.strerror}") from None
     h, p = server.address
     print(f"listening on {h}:{p}", flush=True)
+    one_core = ("one process (auto: 1 core); "
+                if processes is None and len(robot.buses) > 1 else "")
     stderr().print(f"serving {f.name} ({', '.join(f.buses)}) with socketcand on {h}:{p}; "
-                   f"{_mutants(fault)}{_losing(loss)}state: {state_dir or 'not kept'}; "
-                   "Ctrl-C stops")
+                   f"{one_core}{_mutants(fault)}{_losing(loss)}"
+                   f"state: {state_dir or 'not kept'}; Ctrl-C stops")
     try:
         with sigterm_interrupts():
             serve_until_interrupted(server)
@@ -192,9 +204,24 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
         sys.stdout.flush()
 
 
+def _process_count(robot: Topology, asked: int | None) -> int:
+    """How many processes serve ``robot``: ``--processes N`` as asked (a usage error when
+    N exceeds the buses: a bus is never split), ``auto`` (None) one per bus up to the
+    cores there are (:func:`~ucom_tools.virtual.multiserve.auto_processes`)."""
+    buses = len(robot.buses)
+    if asked is None:
+        return auto_processes(robot)
+    if asked > buses:
+        raise click.BadParameter(
+            f"{asked} processes for {robot.name}, which has {buses} "
+            f"bus{'' if buses == 1 else 'es'}: at most one process per bus "
+            f"(give {buses}, or auto)", param_hint="'--processes'")
+    return asked
+
+
 def _serve_per_bus(robot: Topology, state_dir: Path | None, host: str, port: int,
-                   max_clients: int, log_level: int, processes: int | None,
-                   fleet_options: dict[str, Any]) -> None:
+                   max_clients: int, log_level: int, processes: int,
+                   fleet_options: dict[str, Any], *, auto: bool = False) -> None:
     """``fleet serve --processes auto``: one process per bus (or N processes for the
     buses) behind one port."""
     try:
@@ -209,8 +236,9 @@ def _serve_per_bus(robot: Topology, state_dir: Path | None, host: str, port: int
         h, p = server.address
         print(f"listening on {h}:{p}", flush=True)
         shares = ("one process per bus" if len(server.processes) == len(server.buses) else
-                  f"{len(server.processes)} processes: " + "; ".join(
-                      worker.label for worker in server.processes))
+                  f"{len(server.processes)} processes"
+                  + (f" (auto: {usable_cores()} cores)" if auto else "") + ": "
+                  + "; ".join(worker.label for worker in server.processes))
         stderr().print(f"serving {robot.name} ({', '.join(server.buses)}) with socketcand on "
                        f"{h}:{p}, {shares}; {_mutants(fleet_options.get('fault'))}"
                        f"{_losing(fleet_options.get('client_loss', 0.0))}"

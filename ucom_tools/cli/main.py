@@ -85,10 +85,10 @@ def cli(ctx: click.Context, verbose: int) -> None:
     Exit codes: 0 success, 1 some boards failed (or are missing, or a wiring fault),
     2 usage error, 3 bad input (file, topology, argument, environment; nothing was sent),
     4 bus or connection failure, 5 an output could not be written (full disk), 130
-    interrupted (129, 143: ended by SIGHUP, SIGTERM; the same safe stop).  The connection options may come from
-    UCOM_INTERFACE, UCOM_CHANNEL, UCOM_BITRATE, UCOM_HOST, UCOM_PORT, UCOM_VIRTUAL,
-    UCOM_TOPOLOGY, UCOM_STATE, UCOM_PACE; a bus named on the command line wins over the
-    environment.  See ucom(1) and ucom-protocol(7).
+    interrupted (129, 143: ended by SIGHUP, SIGTERM; the same safe stop).  The
+    connection options may come from UCOM_INTERFACE, UCOM_CHANNEL, UCOM_BITRATE,
+    UCOM_HOST, UCOM_PORT, UCOM_VIRTUAL, UCOM_TOPOLOGY, UCOM_STATE, UCOM_PACE; a bus named
+    on the command line wins over the environment.  See ucom(1) and ucom-protocol(7).
     """
     output.reset()
     ctx.ensure_object(dict)

@@ -115,17 +115,24 @@ class ElementSplitter:
             log.warning("socketcand: skipped %r outside an element", junk[:80])
 
 
-_FRAME = re.compile(r"< frame ([0-9A-Fa-f]{3}) (\d+\.\d+) ([0-9A-Fa-f]{0,16}) ?>\Z", re.ASCII)
-"""The common case, a standard frame with contiguous data, parsed in one match."""
+_FRAME = re.compile(r"< frame ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) (\d+\.\d+) ([0-9A-Fa-f]{0,16}) ?>\Z",
+                    re.ASCII)
+"""The common case, a frame with contiguous data, parsed in one match."""
 
 
 def parse_element_frame(element: str, channel: str) -> can.Message | None:
-    """A standard frame element in the usual form, or None (then :func:`parse_frame`)."""
+    """A frame element in the usual form (identifier of 3 hex digits, or 8 for an
+    extended frame), or None (then :func:`parse_frame`)."""
     m = _FRAME.match(element)
     if m is None or len(m.group(3)) % 2:
         return None
-    return can.Message(timestamp=float(m.group(2)), arbitration_id=int(m.group(1), 16),
-                       data=bytes.fromhex(m.group(3)), is_extended_id=False, is_rx=True,
+    ident = m.group(1)
+    arbitration_id = int(ident, 16)
+    extended = len(ident) == 8
+    if extended and arbitration_id > 0x1FFFFFFF:
+        return None
+    return can.Message(timestamp=float(m.group(2)), arbitration_id=arbitration_id,
+                       data=bytes.fromhex(m.group(3)), is_extended_id=extended, is_rx=True,
                        channel=channel)
 
 

@@ -243,6 +243,11 @@ class VirtualBoard:
         if self.application is not None and self.application.runtime is not None:
             self.application.runtime.can_error(t)
 
+    def on_extended_frame(self, arbitration_id: int, data: bytes, t: float) -> None:
+        """An extended frame (29-bit identifier) on the bus: not part of the protocol
+        (man/ucom-protocol.7, BUS), so the board ignores it, whatever its identifier's
+        bits would mean in an 11-bit one: no answer, no Error, no state change."""
+
     def on_frame(self, arbitration_id: int, data: bytes, t: float) -> None:
         if not self._powered:
             return

@@ -24,6 +24,7 @@ import can
 from ucom_tools.errors import UcomError
 from ucom_tools.virtual.fleet import Fleet, release_shared, shared_fleet
 from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
+from ucom_tools.wire.canbits import MAX_EXTENDED_ID
 
 INF = float("inf")
 
@@ -39,13 +40,19 @@ class HostPort:
         self.inbox: deque[tuple[can.Message, float]] = deque()
         self.rt_inbox: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
 
-    def on_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None:
+    def on_frame(self, arbitration_id: int, data: bytes, t_end: float,
+                 extended: bool = False) -> None:
         msg = can.Message(timestamp=self.epoch + t_end / 1e6, arbitration_id=arbitration_id,
-                          data=data, is_extended_id=False, channel=self.channel, is_rx=True)
+                          data=data, is_extended_id=extended, channel=self.channel,
+                          is_rx=True)
         if self.realtime:
             self.rt_inbox.put(msg)
         else:
             self.inbox.append((msg, t_end))
+
+    def on_extended_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None:
+        """A frame with a 29-bit identifier (another host's: boards send none)."""
+        self.on_frame(arbitration_id, data, t_end, extended=True)
 
 
 class VirtualUcomBus(can.BusABC):
@@ -102,27 +109,35 @@ class VirtualUcomBus(can.BusABC):
 
     # ------------------------------------------------------------------ send
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        if msg.is_extended_id or msg.is_fd or msg.is_remote_frame or msg.is_error_frame:
-            raise can.CanOperationError("the virtual UCoM bus carries CAN 2.0A data frames "
-                                        "with 11-bit identifiers only")
-        if not 0 <= msg.arbitration_id <= 0x7FF or msg.dlc > 8:
-            raise can.CanOperationError("identifier must be 11 bit and DLC at most 8")
+        """Send a data frame, standard or extended (the boards ignore extended ones, other
+        hosts of the bus receive them); remote, error and CAN FD frames are refused."""
+        if msg.is_fd or msg.is_remote_frame or msg.is_error_frame:
+            raise can.CanOperationError("the virtual UCoM bus carries CAN 2.0 data frames "
+                                        "only (no remote, error or CAN FD frames)")
+        extended = bool(msg.is_extended_id)
+        if not 0 <= msg.arbitration_id <= (MAX_EXTENDED_ID if extended else 0x7FF):
+            raise can.CanOperationError(
+                f"identifier 0x{msg.arbitration_id:X} has more than "
+                f"{29 if extended else 11} bits")
+        if msg.dlc > 8:
+            raise can.CanOperationError(f"DLC {msg.dlc}: at most 8")
         data = bytes(msg.data[:msg.dlc])
         sim, port = self.sim, self.port
+        ident = msg.arbitration_id
         if self.realtime:
-            self.fleet.send_paced(sim, port, msg.arbitration_id, data, timeout=timeout)
+            self.fleet.send_paced(sim, port, ident, data, timeout=timeout, extended=extended)
             if self.receive_own_messages:
-                port.on_frame(msg.arbitration_id, data, self.fleet.now_us(sim))
+                port.on_frame(ident, data, self.fleet.now_us(sim), extended)
             return
         with sim.lock:
-            if sim.send_alone(port, sim.now, msg.arbitration_id, data) is None:
+            if sim.send_alone(port, sim.now, ident, data, extended=extended) is None:
                 # virtual time: queue the frame like an adapter's TX queue; the clock
                 # runs on when the host waits (or here, while the queue is full)
                 if sim.queued[port] >= TX_QUEUE:
                     sim.run_until(INF, stop=lambda: sim.queued[port] < TX_QUEUE)
-                sim.send(port, sim.now, msg.arbitration_id, data)
+                sim.send(port, sim.now, ident, data, extended=extended)
         if self.receive_own_messages:
-            port.on_frame(msg.arbitration_id, data, sim.now)
+            port.on_frame(ident, data, sim.now, extended)
 
     # ------------------------------------------------------------------ receive
     def recv(self, timeout: float | None = None) -> can.Message | None:
@@ -160,6 +175,12 @@ class VirtualUcomBus(can.BusABC):
             deadline = INF if timeout is None else self.sim.now + timeout * 1e6
             got = self._next_virtual(deadline)
         return (got[0], False) if got else (None, False)
+
+    def state_failures(self) -> list[str]:
+        """Why boards of this bus could not save their flash to the state directory (their
+        files there keep the state before); empty when all is saved."""
+        return [b.nv.save_failure for b in self.fleet.boards.get(self.sim.name, ())
+                if b.nv.save_failure]
 
     def shutdown(self) -> None:
         if self._is_shutdown:

@@ -121,13 +121,13 @@ class Fleet:
 
     def send_paced(self, sim: SimBus, sender: object, arbitration_id: int, data: bytes,
                    *, timeout: float | None, alive: Callable[[], bool] | None = None,
-                   ) -> None:
+                   extended: bool = False) -> None:
         """A frame from a host of a paced fleet (a socketcand client, ``--pace``), ready
         now: handed to the driver thread, which queues it at its next step, so a busy
         fleet never keeps the host waiting for its lock.  Blocks while the host has
         :data:`~ucom_tools.virtual.simbus.TX_QUEUE` frames waiting (its transmit queue);
         ``can.CanOperationError`` after ``timeout`` seconds of that, or when ``alive()``
-        turns false."""
+        turns false.  ``extended``: a 29-bit identifier (:meth:`SimBus.send`)."""
 
         deadline = None if timeout is None else time.monotonic() + timeout
         while sim.queued.get(sender, 0) + self._pending.get(id(sender), 0) >= TX_QUEUE:
@@ -138,7 +138,7 @@ class Fleet:
         driver = self._driver
         if driver is None:  # stopped (closing): the frame waits on its bus for ever
             with sim.lock:
-                sim.send(sender, sim.now, arbitration_id, data)
+                _send(sim, sender, sim.now, arbitration_id, data, extended)
             return
         t = driver.now_us()
         key = id(sender)
@@ -151,7 +151,8 @@ class Fleet:
             # ready at the wall clock's time; but a fleet that fell behind the wall clock
             # takes it in its own present (at most HOST_AHEAD_US ahead), so that a slow
             # machine does not look to the boards like a host that went quiet
-            sim.send(sender, min(t, self.clock.now + HOST_AHEAD_US), arbitration_id, data)
+            _send(sim, sender, min(t, self.clock.now + HOST_AHEAD_US), arbitration_id, data,
+                  extended)
 
         driver.submit(queue)
 
@@ -240,6 +241,16 @@ def _state_dir(path: Path) -> None:
     if not os.access(path, os.R_OK | os.W_OK | os.X_OK):
         raise InputError("cannot use the state directory: no permission to read and write "
                          "it", file=str(path))
+
+
+def _send(sim: SimBus, sender: object, t: float, arbitration_id: int, data: bytes,
+          extended: bool) -> None:
+    """``sim.send``; the keyword only for an extended frame (a standard frame is queued
+    with the call it always had)."""
+    if extended:
+        sim.send(sender, t, arbitration_id, data, extended=True)
+    else:
+        sim.send(sender, t, arbitration_id, data)
 
 
 def install_program(board: VirtualBoard, spec: BoardSpec, source: str, bus: str) -> None:

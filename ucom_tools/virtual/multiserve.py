@@ -520,6 +520,22 @@ class MultiServer:
         self._failed.set()
 
 
+def usable_cores() -> int:
+    """The cores this process may run on: its CPU affinity where the system keeps one
+    (``os.sched_getaffinity``, Linux), else ``os.cpu_count()``; at least 1."""
+    affinity = getattr(os, "sched_getaffinity", None)
+    if affinity is not None:
+        with contextlib.suppress(OSError):
+            return max(1, len(affinity(0)))
+    return max(1, os.cpu_count() or 1)
+
+
+def auto_processes(topology: Topology) -> int:
+    """``--processes auto``: one process per bus, but no more than there are cores to
+    run them (a process per bus beyond that only adds switching)."""
+    return max(1, min(len(topology.buses), usable_cores()))
+
+
 def bus_groups(topology: Topology, processes: int | None = None) -> list[tuple[str, ...]]:
     """The buses of each process: one bus each (``processes`` None), else ``processes``
     groups (at most one per bus) with as even a share of the boards as can be, each

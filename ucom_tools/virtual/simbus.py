@@ -8,6 +8,14 @@ bits (stuffing included, :mod:`ucom_tools.wire.canbits`) at the bus bitrate.  No
 virtual boards and host ports; the bus also carries the init line that runs from each
 board's init output to the next board's init input (dissertation B.2.2).
 
+The protocol's frames are standard (11-bit identifiers).  A host may also send extended
+frames (29-bit identifiers, ``extended=True``): they take the extended format's length
+and arbitrate by their arbitration field (:func:`~ucom_tools.wire.canbits.arbitration_key`:
+a standard frame wins against an extended one with the same base ID), and they reach
+only the nodes that take them (``on_extended_frame``), as a CAN controller whose
+acceptance filter passes standard frames only never shows the others to its software:
+the boards ignore them.
+
 Every bus of a fleet runs on the fleet's :class:`~ucom_tools.virtual.clock.FleetClock`:
 a frame becomes ready, the bus arbitrates among the ready frames when it falls idle (after
 every frame ready at that instant), the winner ends ``bits / bitrate`` later and is then
@@ -26,7 +34,11 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from ucom_tools.virtual.clock import FleetClock
-from ucom_tools.wire.canbits import frame_bits
+from ucom_tools.wire.canbits import MAX_EXTENDED_ID, arbitration_key, frame_bits
+
+_Entry = tuple[int, int, bytes, object, int, bool]
+"""A frame ready to contend: arbitration key, token (the order queued), data, sender,
+identifier, extended."""
 
 TX_QUEUE = 32
 """Frames a host may have waiting for the bus before ``send`` blocks (real time only),
@@ -34,7 +46,8 @@ like the transmit queue of a CAN adapter."""
 
 
 class Node(Protocol):
-    """Anything attached to the bus that receives frames."""
+    """Anything attached to the bus that receives frames.  A node that takes extended
+    frames too has ``on_extended_frame(arbitration_id, data, t_end)`` as well."""
 
     def on_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None: ...
 
@@ -50,7 +63,10 @@ class BusStats:
     clashes: int = 0
     errors: int = 0
     """Error frames seen (:meth:`SimBus.error_frame`)."""
+    extended: int = 0
+    """Extended frames among :attr:`frames` (they have no function)."""
     by_function: Counter[int] = field(default_factory=Counter)
+    """Standard frames by function (identifier bits 10-6)."""
 
     def load(self, elapsed_us: float) -> float:
         return self.busy_us / elapsed_us if elapsed_us > 0 else 0.0
@@ -75,8 +91,10 @@ class SimBus:
         self.us_per_bit = 1e6 / bitrate
         self.clock = clock or FleetClock()
         self.stats = BusStats()
-        self._contenders: list[tuple[int, int, bytes, object]] = []
-        self._waiting: dict[int, deque[tuple[int, int, bytes, object]] | None] = {}
+        self._contenders: list[_Entry] = []
+        """The frames at the heads of the senders' queues, a heap by arbitration key
+        (a standard frame's key is its identifier << 19), then by the order queued."""
+        self._waiting: dict[int, deque[_Entry] | None] = {}
         """Per sender with a frame contending (by id(sender)): the ready frames behind it,
         in order (None: none yet), so each node sends FIFO."""
         self._busy = False
@@ -91,7 +109,8 @@ class SimBus:
         self.queued: Counter[object] = Counter()
         """Frames each sender has queued that are not on the wire yet (its TX queue)."""
         self.drop: Callable[[object, int, bytes], bool] | None = None
-        """Fault injection: ``drop(node, id, data)`` true = ``node`` misses that frame."""
+        """Fault injection: ``drop(node, id, data)`` true = ``node`` misses that standard
+        frame (extended frames are not offered to it)."""
 
     # ---------------------------------------------------------------- the clock's
     @property
@@ -129,38 +148,49 @@ class SimBus:
 
     # ---------------------------------------------------------------- frames
     def send(self, sender: object, t_ready: float, arbitration_id: int, data: bytes,
-             track: bool = False) -> int:
+             track: bool = False, *, extended: bool = False) -> int:
         """Queue a frame that may start at ``t_ready``; with ``track`` its end time can be
-        asked with :meth:`sent_at` (the token is returned)."""
+        asked with :meth:`sent_at` (the token is returned).  ``extended``: a 29-bit
+        identifier."""
+        if extended and not 0 <= arbitration_id <= MAX_EXTENDED_ID:
+            raise ValueError(f"extended identifier 0x{arbitration_id:X}: more than 29 bits")
         token = next(self._seq)
         self.queued[sender] += 1
         if track:
             self._tracked.add(token)
-        self.clock.at(t_ready, self._ready, arbitration_id, token, bytes(data), sender)
+        if extended:
+            self.clock.at(t_ready, self._ready, arbitration_id, token, bytes(data), sender,
+                          True)
+        else:
+            self.clock.at(t_ready, self._ready, arbitration_id, token, bytes(data), sender)
         return token
 
     def send_alone(self, sender: object, t_ready: float, arbitration_id: int,
-                   data: bytes) -> float | None:
+                   data: bytes, *, extended: bool = False) -> float | None:
         """Transmit a frame at once if nothing can come first: the bus is idle, no frame
         waits for it, and no event of the fleet is due before the frame would end (what
         :meth:`send` and the clock would do, without their queues).  Returns the frame's
         end time, or None when it must take the general way."""
         if self._busy or self._contenders or self._arbitration_due:
             return None
+        if extended and not 0 <= arbitration_id <= MAX_EXTENDED_ID:
+            raise ValueError(f"extended identifier 0x{arbitration_id:X}: more than 29 bits")
         clock = self.clock
         start = t_ready if t_ready > clock.now else clock.now
-        bits = frame_bits(arbitration_id, data)
+        bits = frame_bits(arbitration_id, data, extended=True) if extended else \
+            frame_bits(arbitration_id, data)
         t_end = start + bits * self.us_per_bit
         if not clock.quiet_until(t_end):
             return None
         clock.advance_to(t_end)
         self.queued[sender] += 1
-        self._deliver(t_end, arbitration_id, -1, data, sender, bits)
+        self._deliver(t_end, arbitration_id, -1, data, sender, bits, extended)
         return t_end
 
     def _ready(self, t: float, arbitration_id: int, token: int, data: bytes,
-               sender: object) -> None:
-        entry = (arbitration_id, token, data, sender)
+               sender: object, extended: bool = False) -> None:
+        entry: _Entry = (arbitration_key(arbitration_id, extended), token, data, sender,
+                         arbitration_id, extended)
         key = id(sender)
         waiting = self._waiting
         if key not in waiting:
@@ -184,8 +214,8 @@ class SimBus:
         if self._busy or not contenders:
             return
         head = heapq.heappop(contenders)
-        arbitration_id, token, data, sender = head
-        if contenders and contenders[0][0] == arbitration_id and contenders[0][3] is not sender:
+        rank, token, data, sender, arbitration_id, extended = head
+        if contenders and contenders[0][0] == rank and contenders[0][3] is not sender:
             self.stats.clashes += 1
         key = id(sender)
         queue = self._waiting[key]
@@ -193,31 +223,39 @@ class SimBus:
             heapq.heappush(contenders, queue.popleft())
         else:
             del self._waiting[key]
-        bits = frame_bits(arbitration_id, data)
+        bits = frame_bits(arbitration_id, data, extended=True) if extended else \
+            frame_bits(arbitration_id, data)
         self._busy = True
         self.clock.at(t + bits * self.us_per_bit, self._end, arbitration_id, token, data,
-                      sender, bits)
+                      sender, bits, extended)
 
     def _end(self, t: float, arbitration_id: int, token: int, data: bytes, sender: object,
-             bits: int) -> None:
+             bits: int, extended: bool) -> None:
         self._busy = False
-        self._deliver(t, arbitration_id, token, data, sender, bits)
+        self._deliver(t, arbitration_id, token, data, sender, bits, extended)
         if self._contenders:
             self._want_arbitration(t)
 
     def _deliver(self, t_end: float, arbitration_id: int, token: int, data: bytes,
-                 sender: object, bits: int) -> None:
+                 sender: object, bits: int, extended: bool = False) -> None:
         duration = bits * self.us_per_bit
         stats = self.stats
         stats.frames += 1
         stats.bits += bits
         stats.payload_bits += 8 * len(data)
         stats.busy_us += duration
-        stats.by_function[arbitration_id >> 6] += 1
         self.queued[sender] -= 1
         if token >= 0 and token in self._tracked:
             self._tracked.discard(token)
             self.sent_marks[token] = t_end
+        if extended:
+            stats.extended += 1
+            for node in self.nodes:
+                take = getattr(node, "on_extended_frame", None)
+                if node is not sender and take is not None:
+                    take(arbitration_id, data, t_end)
+            return
+        stats.by_function[arbitration_id >> 6] += 1
         drop = self.drop
         for node in self.nodes:
             if node is not sender and (drop is None or not drop(node, arbitration_id, data)):

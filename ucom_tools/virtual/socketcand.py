@@ -9,11 +9,24 @@ bus in real time, every frame on the bus goes to every other client of that bus:
     client  < send 280 2 1 0 >          server  < frame 0C1 1700000000.000345 01... >
     client  < echo >                    server  < echo >
 
-``send`` takes an identifier of 1-3 hex digits (0..7FF; CAN 2.0A only), a DLC of one hex
-digit 0..8 and exactly DLC data bytes of 1-2 hex digits each (python-can sends them
-unpadded).  Whatever else a client sends - a malformed or unknown element, non-ASCII
-bytes, a command before ``open``, a second ``open`` - is answered with
-``< error ... >`` and the client stays connected.
+``send`` takes an identifier of 1-3 hex digits (0..7FF, a standard frame) or of exactly
+8 (0..1FFFFFFF, an extended frame, as socketcand decides), a DLC of one hex digit 0..8
+and exactly DLC data bytes of 1-2 hex digits each (python-can sends them unpadded).
+Extended frames go onto the simulated bus like any other (their own length and
+arbitration, :mod:`~ucom_tools.virtual.simbus`); the boards ignore them, the other
+clients of the bus get them as ``< frame 1ABCDEF0 SEC.USEC DATA >`` (8 hex digits).
+Whatever else a client sends - a malformed or unknown element, non-ASCII bytes, a
+command before ``open``, a second ``open`` - is answered with ``< error ... >`` and the
+client stays connected.
+
+In raw mode that answer ends without the blank before ``>``: ``< error DLC 9 above 8>``
+(:func:`error_element`).  There ``< error ... >`` is the protocol's element for an error
+frame, ``< error CLASS SEC.USEC >``, and python-can's client (4.6) takes every element
+that starts with ``< error `` and ends with `` >`` for one: it raises on any other text,
+on that ``recv`` and on every later one that reads more (it parses its buffer again), and
+the frames behind it are lost.  An element that does not end with `` >`` it logs as one
+it cannot parse and goes on, so a python-can client that sends a frame the server
+refuses (a remote frame with a DLC, a CAN FD frame) sees a warning and keeps working.
 
 No client can stop the bus or another client:
 
@@ -86,6 +99,11 @@ FLUSH_S = 1.0
 _RECV_SIZE = 4096
 _WRITE_BATCH = 512
 _HEX = re.compile(r"[0-9A-Fa-f]+")
+CAN_EFF_FLAG = 0x80000000
+"""Marks an extended frame's identifier in this module, as in SocketCAN's ``can_id``
+(what socketcand passes to the kernel): :func:`parse_send` returns it, the lines of a
+client's :class:`Outbox` carry it."""
+CAN_EFF_MASK = 0x1FFFFFFF
 _PLAIN_SEND = re.compile(rb" ?send ([0-9A-Fa-f]{1,3}) ([0-8])((?: [0-9A-Fa-f]{1,2}){0,8}) ?")
 """A ``send`` element as clients write it (single spaces), parsed in one match."""
 _DONTWAIT = getattr(socket, "MSG_DONTWAIT", 0)
@@ -93,7 +111,8 @@ NO_BUS_OPEN = "no bus open: send < open BUS > first"
 """The answer to ``rawmode`` and ``send`` before a bus is open."""
 
 Frame = tuple[int, bytes, float]
-"""A frame for a client: identifier, data, end time on the bus (virtual microseconds)."""
+"""A frame for a client: identifier (with :data:`CAN_EFF_FLAG` if extended), data, end
+time on the bus (virtual microseconds)."""
 Line = bytes | Frame
 """What a client's writer sends: an encoded reply or a frame."""
 
@@ -184,8 +203,16 @@ def unsupported(verb: str) -> ElementError:
     return ElementError(f"unsupported command {_quote(verb)}")
 
 
+def error_element(text: str, raw: bool = False) -> str:
+    """The answer to a malformed element: ``< error TEXT >``, in raw mode ``< error
+    TEXT>`` (no blank before ``>``: not an error frame to python-can's client, see the
+    module's description)."""
+    return f"< error {text}>" if raw else f"< error {text} >"
+
+
 def parse_send(args: list[str]) -> tuple[int, bytes]:
-    """Identifier and data of ``< send ID DLC B0 B1 .. >`` from the words after ``send``."""
+    """Identifier and data of ``< send ID DLC B0 B1 .. >`` from the words after ``send``;
+    an extended frame's identifier (8 hex digits) carries :data:`CAN_EFF_FLAG`."""
     if len(args) < 2:
         raise ElementError("usage: send ID DLC DATA...")
     ident, dlc_text, *byte_words = args
@@ -197,11 +224,15 @@ def parse_send(args: list[str]) -> tuple[int, bytes]:
 
 
 def _identifier(text: str) -> int:
-    if not _HEX.fullmatch(text) or len(text) > 8:
-        raise ElementError(f"bad identifier {_quote(text)}: 1-3 hex digits")
-    if len(text) > 3:
-        raise ElementError(f"extended identifier {text}: only 11-bit identifiers are carried")
+    """A standard identifier (1-3 hex digits) or an extended one (8, with the flag)."""
+    if not _HEX.fullmatch(text) or len(text) not in (1, 2, 3, 8):
+        raise ElementError(f"bad identifier {_quote(text)}: 1-3 hex digits (11 bit) "
+                           "or 8 (29 bit)")
     value = int(text, 16)
+    if len(text) == 8:
+        if value > CAN_EFF_MASK:
+            raise ElementError(f"extended identifier {text} above 1FFFFFFF")
+        return value | CAN_EFF_FLAG
     if value > 0x7FF:
         raise ElementError(f"identifier {text} above 7FF")
     return value
@@ -311,10 +342,15 @@ class Outbox:
 
 
 def encode_line(line: Line, epoch: float) -> bytes:
-    """A reply as is; a frame as ``< frame ID SEC.USEC HEXDATA >``."""
+    """A reply as is; a frame as ``< frame ID SEC.USEC HEXDATA >``, ID of 3 hex digits
+    (standard) or 8 (extended), as socketcand writes them."""
     if isinstance(line, bytes):
         return line
     arbitration_id, data, t_end = line
+    if arbitration_id & CAN_EFF_FLAG:
+        return b"< frame %08X %.6f %s >" % (arbitration_id & CAN_EFF_MASK,
+                                            epoch + t_end / 1e6,
+                                            binascii.hexlify(data).upper())
     return b"< frame %03X %.6f %s >" % (arbitration_id, epoch + t_end / 1e6,
                                         binascii.hexlify(data).upper())
 
@@ -340,6 +376,10 @@ class ClientPort:
             return
         if not self.outbox.put((arbitration_id, data, t_end)):
             self.on_overflow()
+
+    def on_extended_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None:
+        """A frame with a 29-bit identifier: to the client as socketcand writes it."""
+        self.on_frame(arbitration_id | CAN_EFF_FLAG, data, t_end)
 
 
 class Loss:
@@ -413,7 +453,7 @@ class Connection:
             self._read_loop()
             self.outbox.wait_written(FLUSH_S)
         except ElementTooLong:
-            self.reply("< error element too long >")
+            self.reply(error_element("element too long", self.raw))
             self.outbox.wait_written(FLUSH_S)
             self.drop(f"sent an element longer than {MAX_ELEMENT} bytes")
         except OSError as err:
@@ -459,7 +499,7 @@ class Connection:
                 raise unsupported(verb)
             command(args)
         except ElementError as err:
-            self.reply(f"< error {err} >")
+            self.reply(error_element(str(err), self.raw))
 
     def _open(self, args: list[str]) -> None:
         sim = self.fleet.buses[check_open(
@@ -500,15 +540,18 @@ class Connection:
         return self.port
 
     def _transmit(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
-        """Queue a frame once the client's transmit queue has room.  Meanwhile this
-        client's socket is not read (back-pressure); the wait releases the bus lock."""
+        """Queue a frame (identifier with :data:`CAN_EFF_FLAG` if extended) once the
+        client's transmit queue has room.  Meanwhile this client's socket is not read
+        (back-pressure); the wait releases the bus lock."""
         if self.loss is not None and self.loss.lost("from"):
             return  # lost on the way (--loss): the client cannot tell
+        extended = bool(arbitration_id & CAN_EFF_FLAG)
+        arbitration_id &= CAN_EFF_MASK
         sim = port.sim
         while self.alive:
             try:
                 self.fleet.send_paced(sim, port, arbitration_id, data, timeout=ROOM_POLL_S,
-                                      alive=lambda: self.alive)
+                                      alive=lambda: self.alive, extended=extended)
                 return
             except can.CanOperationError:
                 pass  # no room yet: still there?

@@ -1,9 +1,15 @@
-"""Length of a CAN 2.0A data frame on the wire, in bits, bit stuffing included.
+"""Length of a CAN data frame on the wire, in bits, bit stuffing included, and the order
+in which frames win arbitration.
 
-A standard data frame is SOF(1) ID(11) RTR(1) IDE(1) r0(1) DLC(4) DATA(8n) CRC(15),
-all subject to bit stuffing, then CRC delimiter(1) ACK(2) EOF(7) and the interframe space
-(3): ``47 + 8n`` bits plus stuff bits.  Without stuffing this gives Tab. B.2 of the
-dissertation (8 bytes: 64 / 111 bits = 577 kbit/s at 1 Mbit/s).
+A standard (CAN 2.0A) data frame is SOF(1) ID(11) RTR(1) IDE(1) r0(1) DLC(4) DATA(8n)
+CRC(15), all subject to bit stuffing, then CRC delimiter(1) ACK(2) EOF(7) and the
+interframe space (3): ``47 + 8n`` bits plus stuff bits.  Without stuffing this gives
+Tab. B.2 of the dissertation (8 bytes: 64 / 111 bits = 577 kbit/s at 1 Mbit/s).
+
+An extended (CAN 2.0B) data frame is SOF(1) base ID(11) SRR(1) IDE(1) ID extension(18)
+RTR(1) r1(1) r0(1) DLC(4) DATA(8n) CRC(15), stuffed, and the same tail: ``67 + 8n``
+bits plus stuff bits.  The UCoM protocol uses standard frames only; extended ones are
+accounted so that a bus that carries them (``ucom fleet serve``) keeps its timing.
 
 CRC and stuffing are computed byte-wise with tables, so accounting every frame of a
 flash transfer stays cheap.
@@ -15,11 +21,14 @@ from functools import lru_cache
 
 CRC15_POLY = 0x4599
 FIXED_TAIL_BITS = 1 + 2 + 7 + 3  # CRC delimiter, ACK slot + delimiter, EOF, IFS
+EXTENDED_HEADER_BITS = 39
+"""SOF to DLC of an extended frame: 1 + 11 + 1 + 1 + 18 + 1 + 1 + 1 + 4 bits."""
+MAX_EXTENDED_ID = 0x1FFFFFFF
 
 
-def unstuffed_bits(dlc: int) -> int:
+def unstuffed_bits(dlc: int, extended: bool = False) -> int:
     """Frame length without stuff bits (the basis of Tab. B.2)."""
-    return 47 + 8 * dlc
+    return (67 if extended else 47) + 8 * dlc
 
 
 def payload_rate(dlc: int, bitrate: int = 1_000_000) -> float:
@@ -104,8 +113,12 @@ def stuff_bits(region: int, nbits: int) -> int:
 
 
 @lru_cache(maxsize=65536)
-def frame_bits(arbitration_id: int, data: bytes, remote: bool = False) -> int:
-    """Bits a standard-identifier data (or remote) frame occupies on the bus, IFS included."""
+def frame_bits(arbitration_id: int, data: bytes, remote: bool = False,
+               extended: bool = False) -> int:
+    """Bits a data (or remote) frame occupies on the bus, IFS included; a standard
+    frame (11-bit identifier) unless ``extended`` (29-bit)."""
+    if extended:
+        return _extended_frame_bits(arbitration_id, data, remote)
     dlc = len(data)
     header = (arbitration_id << 7) | ((1 if remote else 0) << 6) | dlc  # SOF=0, IDE=0, r0=0
     nbits = 19 + (0 if remote else 8 * dlc)
@@ -114,8 +127,33 @@ def frame_bits(arbitration_id: int, data: bytes, remote: bool = False) -> int:
     return nbits + 15 + stuff_bits(region, nbits + 15) + FIXED_TAIL_BITS
 
 
-def worst_frame_bits(dlc: int) -> int:
-    """Longest a standard data frame of ``dlc`` bytes can be: every stuff bit that the
-    34 + 8n bits from SOF to the CRC can need (one per 4 bits after the first 5)."""
-    stuffed = 34 + 8 * dlc
-    return unstuffed_bits(dlc) + (stuffed - 1) // 4
+def _extended_frame_bits(arbitration_id: int, data: bytes, remote: bool) -> int:
+    if not 0 <= arbitration_id <= MAX_EXTENDED_ID:
+        raise ValueError(f"extended identifier 0x{arbitration_id:X}: more than 29 bits")
+    dlc = len(data)
+    base, low = arbitration_id >> 18, arbitration_id & 0x3FFFF
+    # SOF=0, base ID, SRR=1, IDE=1, ID extension, RTR, r1=0, r0=0, DLC
+    header = (base << 27) | (0b11 << 25) | (low << 7) | ((1 if remote else 0) << 6) | dlc
+    nbits = EXTENDED_HEADER_BITS + (0 if remote else 8 * dlc)
+    value = (header << (8 * dlc)) | int.from_bytes(data, "big") if not remote else header
+    region = (value << 15) | crc15(value, nbits)
+    return nbits + 15 + stuff_bits(region, nbits + 15) + FIXED_TAIL_BITS
+
+
+def worst_frame_bits(dlc: int, extended: bool = False) -> int:
+    """Longest a data frame of ``dlc`` bytes can be: every stuff bit that the 34 + 8n
+    bits (extended: 54 + 8n) from SOF to the CRC can need (one per 4 bits after the
+    first 5)."""
+    stuffed = (54 if extended else 34) + 8 * dlc
+    return unstuffed_bits(dlc, extended) + (stuffed - 1) // 4
+
+
+def arbitration_key(arbitration_id: int, extended: bool = False) -> int:
+    """Rank of a data frame in arbitration, lower wins: its arbitration field as the bus
+    sees it, bit by bit.  An extended frame's base ID (its 11 high bits) meets a standard
+    frame's identifier; after them the standard frame sends RTR (dominant, 0) where the
+    extended one sends SRR (recessive, 1), so the standard frame wins against every
+    extended frame with the same base ID and loses against those with a lower one."""
+    if not extended:
+        return arbitration_id << 19
+    return ((arbitration_id >> 18) << 19) | (1 << 18) | (arbitration_id & 0x3FFFF)
