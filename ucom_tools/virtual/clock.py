@@ -134,6 +134,13 @@ class RealtimeDriver:
         while not self._stop:
             self._wake.clear()
             with clock.lock:
+                if pending:
+                    # an idle fleet's clock stands where its last step left it (up to a
+                    # wait ago): bring it to the wall clock first, so that a client's
+                    # frame is taken in the present, not stamped in the past
+                    wall = self.now_us()
+                    if clock.quiet_until(wall):
+                        clock.advance_to(wall)
                 while pending:
                     try:
                         pending.popleft()()
