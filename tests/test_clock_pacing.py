@@ -80,6 +80,12 @@ def test_a_lagging_paced_fleet_takes_a_hosts_frame_in_its_own_present() -> None:
             real_send(sender, t, ident, data)
 
         sim.send = send  # type: ignore[method-assign]
+
+        def tick(t: float) -> None:  # a fleet with work every millisecond (its programs)
+            fleet.clock.at(t + 1000, tick)
+
+        with fleet.clock.lock:
+            fleet.clock.at(fleet.clock.now + 1000, tick)
         host = object()
         fleet.send_paced(sim, host, 0x7C0, b"\x01", timeout=1.0)  # keeping up
         lag = 0.5e6
