@@ -241,8 +241,10 @@ def test_a_late_answer_is_named_with_its_delay(frames) -> None:
     trace[i] = copy.copy(trace[i])
     trace[i].timestamp += 0.2  # Ready(STATUS) of board 2, 200 ms late
     conv = decode_frames(trace)
-    (v,) = conv.violations
+    (v,) = _violations(conv, "late")
     assert v.rule == "late" and v.board == "2" and v.index == i
+    # the frame was stamped later but not moved: the frames after it run back in time
+    assert {x.rule for x in conv.violations} == {"late", "time-backwards"}
     assert "SetStatus PROG_ENABLE to every board: answer 200." in v.message
     assert v.t == pytest.approx(trace[i].timestamp - trace[0].timestamp)
 

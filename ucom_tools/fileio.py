@@ -158,8 +158,8 @@ class Output:
 
     def failed(self, err: BaseException) -> WriteError:
         """The error for a failure while writing this output."""
-        return WriteError(f"{_where(self.name, self.option)}: writing failed: "
-                          f"{reason(err)}", path=self.name)
+        return WriteError(f"{_where(self.name, self.option)}: {reason(err)}",
+                          path=self.name)
 
     # ------------------------------------------------------------------ writing
     def open(self, mode: str = "w", **kwargs: Any) -> IO[Any]:
@@ -251,7 +251,7 @@ def _open_socket(path: str, mode: str, **kwargs: Any) -> IO[Any]:
         sock.connect(path)
     except OSError as err:
         sock.close()
-        raise WriteError(f"{path}: writing failed: {reason(err)}", path=path) from None
+        raise WriteError(f"{path}: {reason(err)}", path=path) from None
     binary = sock.makefile("wb")
     sock.close()  # the file keeps the connection
     if "b" in mode:
@@ -348,8 +348,8 @@ class Batch:
                         os.close(fd)
         except OSError as err:
             self.discard()
-            raise WriteError(f"{self.option + ': ' if self.option else ''}writing failed: "
-                             f"{reason(err)}; nothing was written") from None
+            raise WriteError(f"{self.option + ': ' if self.option else ''}{reason(err)}; "
+                             "nothing was written") from None
         for out in self.outputs:
             out.commit()
 

@@ -10,13 +10,21 @@ import click
 from rich.markup import escape
 from rich.table import Table
 
+from ucom_tools import fileio
 from ucom_tools.cli.exitcodes import EXIT_BUS, EXIT_FAILED
 from ucom_tools.cli.options import connection_json, connection_options, json_option, robot
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.conformance import junit
 from ucom_tools.conformance.bench import RUNTIME_IMAGE
-from ucom_tools.conformance.runner import Outcome, SuiteResult, run_suite, select
-from ucom_tools.errors import InputError
+from ucom_tools.conformance.restore import RECONNECT_S
+from ucom_tools.conformance.runner import (
+    Outcome,
+    SuiteResult,
+    describe_stop,
+    run_suite,
+    select,
+)
+from ucom_tools.errors import InputError, UcomError, WriteError
 from ucom_tools.ops.robot import ConnectSpec
 
 STYLE = {"passed": "green", "failed": "red", "skipped": "yellow", "error": "red"}
@@ -40,6 +48,7 @@ def _list(pattern: str | None, as_json: bool) -> None:
 def _json(result: SuiteResult, spec: ConnectSpec) -> dict[str, Any]:
     return {"connection": connection_json(spec), "ok": result.ok,
             "counts": result.counts(), "bus_failure": result.bus_failure,
+            "stopped": result.stop_text,
             "left_as_found": not result.not_restored, "not_restored": result.not_restored,
             "cases": [{"id": o.case.id, "group": o.case.group, "bus": o.bus,
                        "section": o.case.section, "status": o.status,
@@ -64,12 +73,14 @@ def _print(result: SuiteResult) -> None:
     c = result.counts()
     stdout().print(f"\n{c['passed']} passed, {c['failed']} failed, {c['skipped']} skipped"
                    + (f", {c['error']} errors" if c["error"] else "")
+                   + (f"; [yellow]stopped:[/] {escape(result.stop_text)}"
+                      if result.stop_text else "")
                    + ("" if not result.not_restored else
                       f"; [red]not left as found:[/] {escape('; '.join(result.not_restored))}"))
 
 
 @click.command("conformance")
-@click.option("--junit", "junit_file", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--junit", "junit_file", type=click.Path(path_type=Path),
               metavar="FILE", help="Write a JUnit XML report (one testcase per case and bus).")
 @click.option("--trace-dir", type=click.Path(file_okay=False, path_type=Path), metavar="DIR",
               help="Write each case's frames to DIR/BUS/CASE.log (python-can format).")
@@ -78,48 +89,107 @@ def _print(result: SuiteResult) -> None:
                    "'run time').")
 @click.option("--list", "list_only", is_flag=True,
               help="List the cases (and what each writes to the boards); run nothing.")
-@click.option("--runtime-image", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--runtime-image", type=click.Path(path_type=Path),
               default=RUNTIME_IMAGE, show_default=True, metavar="FILE",
               help="The run-time program the run-time cases load into external RAM.")
+@click.option("--reconnect", "reconnect_s", type=click.FloatRange(0, 3600),
+              default=RECONNECT_S, show_default=True, metavar="SECONDS",
+              help="How long a lost connection is given to come back, so that the boards "
+                   "can be restored.")
 @connection_options
 @json_option
 @click.pass_context
 def conformance(ctx: click.Context, junit_file: Path | None, trace_dir: Path | None,
                 pattern: str | None, list_only: bool, runtime_image: Path,
-                spec: ConnectSpec, bus_name: str | None, as_json: bool) -> None:
+                reconnect_s: float, spec: ConnectSpec, bus_name: str | None,
+                as_json: bool) -> None:
     """Check that the boards speak the protocol (ucom-protocol(7)), content and timing.
 
     Runs every case on every bus (or --bus): identifiers, reset, init chain, Info,
     program enable, programming (into external RAM), AutoStart and XReset, FPGA
     registers, the run time (MCA Ready, descriptions, parameters, Dump CI, SO period
     accuracy, watchdog reaction, Report 3) and bad input.  Each case cites the page's
-    section.  The boards are reset between cases and left as found.  Exit 0 when every
-    case passed or was skipped, 1 when one failed, 4 when the bus failed."""
+    section.  The boards are reset between cases and left as found, also after Ctrl-C,
+    SIGTERM, SIGHUP, a trace that cannot be written or a lost bus that comes back; a board
+    that could not be restored is named.  Exit 0 when every case passed or was skipped,
+    1 when one failed or a board was not left as found, 4 when the bus failed, 5 when a
+    trace or the report could not be written, 130/143/129 when interrupted."""
     if list_only:
         _list(pattern, as_json)
         return
     cases = select(pattern)
     if not runtime_image.is_file():
         raise InputError(f"{runtime_image}: no such file", key="--runtime-image")
-    if junit_file is not None and not junit_file.parent.is_dir():
-        raise InputError(f"{junit_file.parent}: no such directory", key="--junit")
+    # the report's target is checked (and its temporary file made) before anything is sent
+    report = fileio.Output(junit_file, option="--junit", allow_stdout=True) \
+        if junit_file is not None else None
 
     def progress(o: Outcome) -> None:
         if not as_json and o.status != "passed":
             stderr().print(f"[{STYLE[o.status]}]{o.status}[/] {o.bus} {escape(o.case.id)}: "
                            f"{escape(o.message)}", soft_wrap=True)
 
-    with robot(spec) as r:
-        result = run_suite(r, cases, trace_dir=trace_dir, runtime_image=runtime_image,
-                           progress=progress, buses=[h.name for h in r.select(bus_name)])
-    if junit_file is not None:
-        junit.write(result, junit_file)
+    def notice(text: str) -> None:
+        stderr().print(f"[yellow]{escape(text)}[/]", soft_wrap=True)
+
+    try:
+        if trace_dir is not None:
+            fileio.prepare_directory(trace_dir, option="--trace-dir")
+        with robot(spec) as r:
+            result = run_suite(r, cases, trace_dir=trace_dir, runtime_image=runtime_image,
+                               progress=progress, buses=[h.name for h in r.select(bus_name)],
+                               notice=notice, reconnect_s=reconnect_s)
+    except BaseException:
+        if report is not None:
+            report.discard()
+        raise
+    _finish(ctx, result, spec, report, as_json)
+
+
+def _finish(ctx: click.Context, result: SuiteResult, spec: ConnectSpec,
+            report: fileio.Output | None, as_json: bool) -> None:
+    """Report, then the exit code: 1 when a board was not left as found (whatever else
+    happened), else the interrupt's (130, 143, 129), else 4 for a bus failure, 1 for a
+    failed case, else the write error's (a trace or the report; its line in any case)."""
+    report_error: UcomError | None = None
+    if report is not None:
+        try:
+            junit.write(result, report)
+        except UcomError as err:
+            report_error = err
     if as_json:
         emit_json(_json(result, spec))
     else:
         _print(result)
-    if result.bus_failure is not None:
-        stderr().print(f"[bold red]ucom: bus error:[/] {escape(result.bus_failure)}")
-        ctx.exit(EXIT_BUS)
-    if not result.ok or result.not_restored:
+    stop = result.stopped
+    interrupt = stop if isinstance(stop, KeyboardInterrupt) else None
+    errors = [e for e in (stop, report_error) if e is not None and e is not interrupt]
+    if result.not_restored:
+        if interrupt is not None:
+            stderr().print(f"[yellow]{escape(describe_stop(interrupt))}[/]")
+        _error_lines(errors)
+        for line in result.not_restored:
+            stderr().print(f"[bold red]ucom: not left as found:[/] {escape(line)}",
+                           highlight=False, soft_wrap=True)
         ctx.exit(EXIT_FAILED)
+    if interrupt is not None:
+        _error_lines(errors)
+        raise interrupt  # the error boundary (cli.main) gives it its line and exit code
+    if result.bus_failure is not None or result.failed:
+        _error_lines(errors)
+        if result.bus_failure is not None:
+            stderr().print(f"[bold red]ucom: bus error:[/] {escape(result.bus_failure)}")
+            ctx.exit(EXIT_BUS)
+        ctx.exit(EXIT_FAILED)
+    if errors:
+        _error_lines(errors[1:])
+        raise errors[0]  # the error boundary: one line, the exit code of its kind
+
+
+def _error_lines(errors: list[BaseException]) -> None:
+    """The line the error boundary would print for each of ``errors``."""
+    for err in errors:
+        label = "bad input" if isinstance(err, InputError) else \
+            "cannot write" if isinstance(err, WriteError) else "error"
+        stderr().print(f"[bold red]ucom: {label}:[/] {escape(str(err))}", highlight=False,
+                       soft_wrap=True)

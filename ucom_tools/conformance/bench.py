@@ -52,6 +52,8 @@ class Bench:
         self._mca: McaClient | None = None
         self._image: Image | None = None
         self.restarted_programs = False
+        self.touched = False
+        """A board may have changed: the suite reset them (the restore is due)."""
 
     # ------------------------------------------------------------------ time
     def clock(self) -> float:
@@ -112,6 +114,7 @@ class Bench:
         """Every board to its bootloader (XReset: a program with AutoStart would start
         again after a plain reset; the runner restores the flags at the end), seq IDs
         kept."""
+        self.touched = True
         self.boot.reset(clear_autostart=True)
         self.wait(self.timeouts.reset)
 

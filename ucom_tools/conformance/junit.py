@@ -4,11 +4,10 @@ reason.  CI systems (GitHub Actions, GitLab) show it as a test report."""
 
 from __future__ import annotations
 
-import os
-import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+from ucom_tools import fileio
 from ucom_tools.conformance.runner import SuiteResult
 
 
@@ -35,23 +34,28 @@ def to_xml(result: SuiteResult, name: str = "ucom conformance") -> ET.ElementTre
             ET.SubElement(tc, "skipped", {"message": o.message})
         if o.trace:
             ET.SubElement(tc, "system-out").text = f"trace: {o.trace}"
-    if result.not_restored or result.bus_failure:
+    if result.not_restored or result.bus_failure or result.stopped is not None:
         err = ET.SubElement(suite, "system-err")
-        err.text = "\n".join(([f"bus failure: {result.bus_failure}"]
-                              if result.bus_failure else [])
+        err.text = "\n".join(([f"stopped: {result.stop_text}"] if result.stop_text else [])
+                             + ([f"bus failure: {result.bus_failure}"]
+                                if result.bus_failure else [])
                              + [f"not left as found: {p}" for p in result.not_restored])
     return ET.ElementTree(suite)
 
 
-def write(result: SuiteResult, path: Path) -> None:
-    """Write the report atomically."""
+def write(result: SuiteResult, path: Path | fileio.Output) -> None:
+    """Write the report by the rules of ``ucom(1)``, FILES (a regular file atomically,
+    mode 0644 under the umask or the old file's; a device or FIFO written through; ``-``
+    standard output).  ``path`` may be an :class:`~ucom_tools.fileio.Output` prepared
+    before the suite ran (so that an unwritable target is found before anything is sent).
+    :class:`~ucom_tools.errors.WriteError` when writing fails."""
     tree = to_xml(result)
     ET.indent(tree)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or Path("."))
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            tree.write(fh, encoding="utf-8", xml_declaration=True)
-        os.replace(tmp, path)
-    except BaseException:
-        os.unlink(tmp)
-        raise
+    out = path if isinstance(path, fileio.Output) else \
+        fileio.Output(path, option="--junit", allow_stdout=True)
+    with out:
+        try:
+            with out.open("wb") as fh:
+                tree.write(fh, encoding="utf-8", xml_declaration=True)
+        except OSError as err:
+            raise out.failed(err) from None

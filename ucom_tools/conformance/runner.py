@@ -1,19 +1,29 @@
 """Running the conformance cases: every selected case on every bus, the boards reset
-between cases and left as found at the end; a trace per case.
+between cases and left as found at the end, whatever ends the suite; a trace per case.
 
-As found: before the first case, each board's Info (program in flash, ProgID, AutoStart)
-and whether it ran a program is noted.  Before each case every board is brought to its
+As found: before the first case, each board's Info (program in flash, ProgID, AutoStart),
+whether it ran a program and its program's parameters are noted
+(:mod:`ucom_tools.conformance.restore`).  Before each case every board is brought to its
 bootloader with XReset (a plain reset would start an AutoStart program again); cases
 restore what they change themselves, programs under test run from external RAM (a
 reset ends them; flash is written only to give AutoStart a program where no board had
-one, and made invalid again); at the end the AutoStart flags are set again and the
-programs that ran are started again.  What is then not as it was is reported
-(``left_as_found`` false).
+one, and made invalid again); at the end the AutoStart flags are set again, the programs
+that ran are started again and their parameters written back.  What is then not as it
+was is named (``not_restored``).
+
+The restore runs on every way out of a bus's cases: their end, an interrupt (Ctrl-C,
+SIGTERM, SIGHUP: :class:`KeyboardInterrupt`), a trace that cannot be written, a lost
+connection (opened again when the bus comes back within :data:`RECONNECT_S`), an error of
+the suite itself.  Further signals wait until it is done (:mod:`.shield`); the suite then
+stops, and the result says why (``stopped``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import fnmatch
+import os
+import signal
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -21,14 +31,23 @@ from pathlib import Path
 
 import can
 
+from ucom_tools import fileio
 from ucom_tools.conformance.bench import RUNTIME_IMAGE, Bench
 from ucom_tools.conformance.case import Case
 from ucom_tools.conformance.catalogue import all_cases
 from ucom_tools.conformance.outcome import CaseFailed, Skipped
-from ucom_tools.errors import BusError, InputError, UcomError
+from ucom_tools.conformance.restore import (
+    RECONNECT_S,
+    Found,
+    note_found,
+    reopen,
+    restore,
+    unrestored,
+)
+from ucom_tools.conformance.shield import Shield
+from ucom_tools.errors import BusError, InputError, UcomError, WriteError
 from ucom_tools.ops.robot import Robot
-from ucom_tools.wire.codes import BoardState, StatusOp
-from ucom_tools.wire.ids import seq
+from ucom_tools.signals import Terminated
 
 RENDER_FRAMES = 40
 """A failure shows the last frames of its case, decoded."""
@@ -48,24 +67,16 @@ class Outcome:
 
 
 @dataclass
-class Found:
-    """A board as the suite found it."""
-
-    bus: str
-    board: int
-    serial: int
-    flash_valid: bool
-    progid: int | None
-    autostart: bool
-    running: bool
-
-
-@dataclass
 class SuiteResult:
     outcomes: list[Outcome] = field(default_factory=list)
     found: list[Found] = field(default_factory=list)
     not_restored: list[str] = field(default_factory=list)
+    """What could not be restored, one line per board (``CAN0:2: AutoStart not set``)."""
     bus_failure: str | None = None
+    stopped: BaseException | None = None
+    """What ended the suite before its end, after the restore: an interrupt
+    (:class:`KeyboardInterrupt`; :class:`~ucom_tools.signals.Terminated` for SIGTERM and
+    SIGHUP) or a trace that could not be written (a :class:`UcomError`)."""
 
     @property
     def failed(self) -> list[Outcome]:
@@ -73,7 +84,12 @@ class SuiteResult:
 
     @property
     def ok(self) -> bool:
-        return not self.failed and self.bus_failure is None
+        return not self.failed and self.bus_failure is None and self.stopped is None
+
+    @property
+    def stop_text(self) -> str | None:
+        """Why the suite stopped early, in words (None: it did not)."""
+        return None if self.stopped is None else describe_stop(self.stopped)
 
     def counts(self) -> dict[str, int]:
         out = {"passed": 0, "failed": 0, "skipped": 0, "error": 0}
@@ -107,79 +123,133 @@ def render(frames: Sequence[can.Message]) -> str:
                          for f in frames)
 
 
-def _found(bench: Bench) -> list[Found]:
-    out = []
-    for n in bench.boards():
-        if not 1 <= n <= 31:
-            raise UcomError(f"a board answered the init chain as number {n}")
-        info = bench.boot.info(seq(n))
-        out.append(Found(bench.name, n, info.serial, info.flash_valid, info.progid,
-                         info.autostart, info.state in (BoardState.RUNNING_FLASH,
-                                                        BoardState.RUNNING_EXTRAM)))
-    return out
+def describe_stop(stop: BaseException) -> str:
+    """``interrupted (SIGINT)``, ``terminated (SIGTERM)``, ``cannot write: ...``, or the
+    error's text."""
+    if isinstance(stop, Terminated):
+        return f"terminated ({stop.name})"
+    if isinstance(stop, KeyboardInterrupt):
+        return "interrupted (SIGINT)"
+    if isinstance(stop, WriteError):
+        return f"cannot write: {stop}"
+    return str(stop)
 
 
-def _restore(bench: Bench, found: list[Found]) -> list[str]:
-    """Reset, number, start the programs that ran; what is not as found."""
-    problems = []
-    bench.reset_all()
-    bench.init()
-    for f in found:
-        where = f"{f.bus} board {f.board}"
-        if f.board not in bench.numbers:
-            problems.append(f"{where}: did not answer at the end")
-            continue
-        if f.autostart and f.flash_valid:
-            bench.boot.set_status(seq(f.board), StatusOp.AUTOSTART, 1)
-        if f.running and f.flash_valid:
-            started = bench.boot.start(seq(f.board))
-            if not started or not started[0].started:
-                problems.append(f"{where}: its program did not start again")
-        info = bench.boot.info(seq(f.board))
-        now = (info.flash_valid, info.progid if info.flash_valid else None, info.autostart)
-        then = (f.flash_valid, f.progid if f.flash_valid else None, f.autostart)
-        if now != then:
-            problems.append(f"{where}: flash valid/ProgID/AutoStart {then} became {now}")
-    return problems
+class _NotWritten(Exception):
+    """A trace could not be written; ``error`` says so for the user."""
+
+    def __init__(self, error: UcomError) -> None:
+        super().__init__(str(error))
+        self.error = error
 
 
 def run_suite(robot: Robot, cases: Sequence[Case], *, trace_dir: Path | None = None,
               runtime_image: Path = RUNTIME_IMAGE,
               progress: Callable[[Outcome], None] | None = None,
-              buses: Sequence[str] | None = None) -> SuiteResult:
-    """Every case on every bus of ``robot`` (or of ``buses``)."""
+              buses: Sequence[str] | None = None,
+              notice: Callable[[str], None] | None = None,
+              reconnect_s: float = RECONNECT_S) -> SuiteResult:
+    """Every case on every bus of ``robot`` (or of ``buses``), the boards restored on
+    every way out (module docstring).  ``notice`` hears, in words, that the suite stops
+    and restores the boards, and of every signal that waits for the restore."""
     result = SuiteResult()
-    try:
-        for handle in robot.buses.values():
-            if buses is not None and handle.name not in buses:
+
+    def deferred(signum: int) -> None:
+        _tell(notice, f"{signal.Signals(signum).name}: restoring the boards first")
+
+    with Shield(deferred) as shield:
+        for name in list(robot.buses):
+            if buses is not None and name not in buses:
                 continue
-            bench = Bench(handle, robot.timeouts, runtime_image)
-            try:
-                bench.init()  # as found: no reset yet (it would end running programs)
-                try:
-                    found = _found(bench)
-                except (UcomError, CaseFailed, Skipped) as err:
-                    found = []
-                    result.not_restored.append(f"{bench.name}: the boards could not be "
-                                               f"read as found ({err}); nothing restored")
-                result.found += found
-                for c in cases:
-                    outcome = _run_case(bench, c, trace_dir)
-                    result.outcomes.append(outcome)
-                    if progress is not None:
-                        progress(outcome)
-                try:
-                    result.not_restored += _restore(bench, found)
-                except (UcomError, CaseFailed, Skipped) as err:
-                    result.not_restored.append(f"{bench.name}: restoring failed: {err}")
-            finally:
-                bench.close()
-    except BusError as err:
-        result.bus_failure = str(err)
+            result.stopped = shield.take()  # a signal between two buses
+            if result.stopped is not None:
+                break
+            _run_bus(robot, name, cases, result, shield, trace_dir=trace_dir,
+                     runtime_image=runtime_image, progress=progress, notice=notice,
+                     reconnect_s=reconnect_s)
+            if result.stopped is None:
+                result.stopped = shield.take()  # a signal during the restore
+            if result.stopped is not None or result.bus_failure is not None:
+                break
     return result
 
 
-def _run_case(bench: Bench, c: Case, trace_dir: Path | None) -> Outcome:
+def _run_bus(robot: Robot, name: str, cases: Sequence[Case], result: SuiteResult,
+             shield: Shield, *, trace_dir: Path | None, runtime_image: Path,
+             progress: Callable[[Outcome], None] | None,
+             notice: Callable[[str], None] | None, reconnect_s: float) -> None:
+    """The cases on one bus, then the restore (whatever ended the cases)."""
+    bench = Bench(robot.buses[name], robot.timeouts, runtime_image)
+    found: list[Found] = []
+    why = ""
+    try:
+        with shield.raising():
+            bench.init()  # as found: no reset yet (it would end running programs)
+            try:
+                found = note_found(bench)
+            except BusError:
+                raise
+            except (UcomError, CaseFailed, Skipped) as err:
+                result.not_restored.append(f"{bench.name}: the boards could not be read "
+                                           f"as found ({err}); nothing restored")
+            result.found += found
+            for c in cases:
+                outcome = _run_case(bench, c)
+                result.outcomes.append(outcome)
+                if trace_dir is not None:
+                    outcome.trace = _trace(trace_dir, bench.name, c.id, bench.frames)
+                if progress is not None:
+                    progress(outcome)
+    except KeyboardInterrupt as stop:
+        result.stopped, why = stop, describe_stop(stop)
+    except _NotWritten as err:
+        result.stopped, why = err.error, "a trace could not be written"
+    except BusError as err:
+        result.bus_failure, why = str(err), "the bus failed"
+    finally:
+        try:
+            if bench.touched:
+                if why:
+                    _tell(notice, f"{why}: restoring the boards of {bench.name}")
+                bench = _restore(robot, bench, found, result, reconnect_s)
+        finally:
+            bench.close()
+
+
+def _tell(notice: Callable[[str], None] | None, text: str) -> None:
+    """Tell ``notice`` (a failing one must not keep the boards from being restored)."""
+    if notice is not None:
+        with contextlib.suppress(Exception):
+            notice(text)
+
+
+def _restore(robot: Robot, bench: Bench, found: list[Found], result: SuiteResult,
+             reconnect_s: float) -> Bench:
+    """Restore the boards of ``bench``'s bus; a bus that fails is opened again when it
+    comes back within ``reconnect_s`` seconds.  The bench it ended on."""
+    for attempt in range(2):
+        try:
+            result.not_restored += restore(bench, found)
+            return bench
+        except BusError as err:
+            lost = str(err)
+        except (UcomError, CaseFailed, Skipped) as err:  # the bus is there, the boards not
+            result.not_restored += unrestored(found, f"restoring failed: {err}")
+            return bench
+        if attempt:
+            break
+        handle = reopen(robot, bench.name, reconnect_s)
+        if handle is None:
+            result.not_restored += unrestored(
+                found, f"{lost}; the bus did not come back within {reconnect_s:g} s")
+            return bench
+        bench.close()
+        bench = Bench(handle, robot.timeouts, bench.runtime_image)
+    result.not_restored += unrestored(found, lost)
+    return bench
+
+
+def _run_case(bench: Bench, c: Case) -> Outcome:
     bench.reset_all()
     bench.frames.clear()
     start = time.perf_counter()
@@ -197,15 +267,36 @@ def _run_case(bench: Bench, c: Case, trace_dir: Path | None) -> Outcome:
     outcome.seconds = time.perf_counter() - start
     if outcome.status == "failed":
         outcome.frames = render(bench.frames)
-    if trace_dir is not None:
-        outcome.trace = _write_trace(trace_dir, bench.name, c.id, bench.frames)
     return outcome
 
 
+def _trace(trace_dir: Path, bus: str, case_id: str, frames: list[can.Message]) -> str:
+    """Write the case's trace; :class:`_NotWritten` (the suite stops) when it cannot be."""
+    try:
+        return _write_trace(trace_dir, bus, case_id, frames)
+    except UcomError as err:
+        raise _NotWritten(err) from err
+    except OSError as err:
+        where = os.fspath(err.filename) if err.filename else str(trace_dir / bus)
+        why = "not a directory" if isinstance(err, FileExistsError | NotADirectoryError) \
+            else err.strerror or str(err)
+        raise _NotWritten(WriteError(f"--trace-dir: {where}: {why}", path=where)) from err
+
+
 def _write_trace(trace_dir: Path, bus: str, case_id: str, frames: list[can.Message]) -> str:
-    path = trace_dir / bus / f"{case_id}.log"
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with can.Logger(str(path)) as log:
-        for f in frames:
-            log.on_message_received(f)
+    """One case's frames as ``DIR/BUS/CASE.log``, written by the rules of ``ucom(1)``,
+    FILES (atomically: a full disk leaves no partial trace)."""
+    try:  # once the suite runs, an output that cannot be written is a write error
+        directory = fileio.prepare_directory(trace_dir / bus)
+    except InputError as err:
+        raise WriteError(f"--trace-dir: {err.reason.removesuffix('; nothing was written')}",
+                         path=str(trace_dir / bus)) from None
+    path = directory / f"{case_id}.log"
+    with fileio.Output(path, option="--trace-dir", suffix=".log") as out:
+        log = can.Logger(out.write_path)
+        try:
+            for f in frames:
+                log.on_message_received(f)
+        finally:
+            log.stop()
     return str(path)

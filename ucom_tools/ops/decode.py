@@ -78,6 +78,10 @@ DEFAULT_BUS = "CAN"
 """The bus of frames that carry no channel (.csv and .db logs)."""
 DEFAULT_BITRATE = 1_000_000
 DEFAULT_MARGIN = 0.002
+BACKWARDS_S = 0.05
+"""How far a frame may be stamped before one written earlier on its bus (a recorder writes
+frames as its threads take them; a paced server's clock may lag by milliseconds) before
+the trace is taken to mix time bases (``time-backwards``)."""
 """Seconds every answer deadline adds for the recording itself: a sent frame is stamped
 when the host handed it to its interface, a received one by the interface."""
 STARTUP = 0.001
@@ -96,6 +100,9 @@ RULES = {
                             "opened, or whose slot does not rise",
     "so-map-stopped": "an SO map that stopped arriving at its period while its board's "
                       "exchange ran",
+    "time-backwards": "a frame stamped more than 50 ms (or the margin, if larger) before "
+                      "one written before it on the same bus: the trace mixes time bases "
+                      "(its order and every deadline after it are doubtful)",
 }
 """Every rule a :class:`Violation` names, and what it means."""
 
@@ -1803,6 +1810,7 @@ def decode_frames(frames: Iterable[can.Message], trees: RobotTrees | None = None
         per_bus.setdefault(bus_name(f.channel, trees), []).append((i, f))
     buses: list[BusConversation] = []
     for name, items in per_bus.items():
+        _check_time_base(decoder, name, items, max(margin, BACKWARDS_S), start)
         items.sort(key=lambda x: (x[1].timestamp, x[0]))
         bus = _BusDecoder(decoder, name)
         assert start is not None
@@ -1812,6 +1820,29 @@ def decode_frames(frames: Iterable[can.Message], trees: RobotTrees | None = None
         buses.append(bus.conv)
     decoder.violations.sort(key=lambda v: (v.index, v.rule))
     return Conversation(buses, decoder.violations, len(listed), start)
+
+
+def _check_time_base(decoder: _Decoder, bus: str, items: list[tuple[int, can.Message]],
+                     margin: float, start: float | None) -> None:
+    """One ``time-backwards`` violation for a bus whose frames, in the order they were
+    written, run back by more than ``margin`` (a recording keeps one clock: a sent frame
+    may be written a little after a received one that came later, no more)."""
+    latest = -math.inf
+    back = 0
+    first: tuple[int, can.Message, float] | None = None
+    for i, f in items:
+        if f.timestamp < latest - margin:
+            back += 1
+            if first is None:
+                first = (i, f, latest - f.timestamp)
+        latest = max(latest, f.timestamp)
+    if first is not None:
+        i, f, by = first
+        decoder.violations.append(Violation(
+            f.timestamp - (start or 0.0), i, bus, "-", "time-backwards",
+            f"frame {i} is stamped {by:.6f} s before a frame written before it"
+            + (f" ({back} such frames)" if back > 1 else "")
+            + "; the trace mixes time bases"))
 
 
 # ============================================================================ input

@@ -268,8 +268,8 @@ class RunRecorder(can.Listener):
     def _raise_failure(self) -> None:
         if self._failure is not None:
             err = self._failure
-            raise RecordError(f"recording to {self.path} failed: "
-                              f"{getattr(err, 'strerror', None) or err}") from err
+            raise RecordError(f"--record: {self.path}: {reason(err)}; nothing was kept",
+                              path=str(self.path)) from err
 
     # --------------------------------------------------------------------- end
     def close(self) -> None:

@@ -246,7 +246,7 @@ class FrameLog:
                     raise LogError(f"{err}; nothing was kept", path=err.path) from None
             self._out.discard()
             failure = self._failure
-            raise LogError(f"--log: writing {os.fspath(self.path)} failed: "
+            raise LogError(f"--log: {os.fspath(self.path)}: "
                            f"{reason(failure)}; nothing was kept", path=os.fspath(self.path))
 
     def discard(self) -> None:

@@ -32,12 +32,21 @@ the ``timeout`` of ``recv``
 A connection the server closed or reset, an element longer than :data:`MAX_ELEMENT`, and a
 send that timed out after writing part of a frame leave the bus unusable: that call and
 every later ``recv``/``send`` raise :class:`can.CanOperationError`.
+
+Time stamps: a received frame is stamped on this machine's clock (``time.time()``), as a
+sent one is, so a log of both (``--log``, ``--record``) has one time base.  The server's
+stamp (when the frame was on its bus, on the server's clock) is translated by the offset
+measured on the connection: the least (arrival - server stamp) seen so far, the frame
+that came fastest.  A translated stamp is never later than the frame's arrival, and an
+answer is never stamped before the request that caused it; the bus's own spacing of the
+frames is kept.  :attr:`SocketcandBus.clock_offset` is the offset in seconds.
 """
 
 from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import re
 import selectors
 import socket
@@ -213,6 +222,11 @@ class SocketcandBus(can.BusABC):
         self.server_errors: deque[str] = deque(maxlen=SERVER_ERRORS_KEPT)
         self._where = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
         self._splitter = ElementSplitter()
+        self._arrival = 0.0
+        """When the last data came (``time.time()``)."""
+        self.clock_offset = math.inf
+        """This machine's clock minus the server's, as measured (seconds; inf until the
+        first frame)."""
         self._pending: deque[can.Message] = deque()
         self._send_lock = threading.Lock()
         self._batch: list[bytes] | None = None
@@ -297,13 +311,13 @@ class SocketcandBus(can.BusABC):
     def _take(self, element: str) -> None:
         fast = parse_element_frame(element, self.channel)
         if fast is not None:
-            self._pending.append(fast)
+            self._pending.append(self._local(fast))
             return
         words = element[1:-1].split()
         kind = words[0] if words else ""
         if kind == "frame":
             try:
-                self._pending.append(parse_frame(words, self.channel))
+                self._pending.append(self._local(parse_frame(words, self.channel)))
             except ValueError as err:
                 log.warning("socketcand %s: ignored %s: %s", self._where, element, err)
         elif kind == "error":
@@ -312,6 +326,16 @@ class SocketcandBus(can.BusABC):
             log.warning("socketcand %s reports an error: %s", self._where, text)
         else:
             log.debug("socketcand %s: ignored %s", self._where, element)
+
+    def _local(self, msg: can.Message) -> can.Message:
+        """``msg`` stamped on this machine's clock (the module docstring, Time stamps)."""
+        offset = self._arrival - msg.timestamp
+        if offset < self.clock_offset:
+            self.clock_offset = offset
+        else:
+            offset = self.clock_offset
+        msg.timestamp += offset
+        return msg
 
     def _pop_element(self) -> str | None:
         try:
@@ -338,6 +362,7 @@ class SocketcandBus(can.BusABC):
             raise self._lost(err) from err
         if not chunk:
             raise self._fail(f"socketcand {self._where} closed the connection")
+        self._arrival = time.time()
         self._splitter.feed(chunk)
         return True
 
