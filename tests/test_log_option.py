@@ -86,11 +86,16 @@ def test_every_frame_of_every_bus_with_virtual_time(tmp_path: Path) -> None:
 def test_formats_by_extension(tmp_path: Path, ext: str) -> None:
     log = tmp_path / f"t{ext}"
     r = ucom("count", "--virtual", "armar3", "--init", "--log", str(log))
+    if ext in (".csv", ".db"):  # no channel column: four buses could not be told apart
+        assert r.exit_code == 3 and "has no channel column" in r.stderr
+        assert os.listdir(tmp_path) == []
+        r = ucom("count", "--virtual", "tests/data/armar3_can0.toml", "--init", "--log",
+                 str(log))
     assert r.exit_code == 0, r.stderr
     frames = read_trace(log)
     conv = decode_frames(frames)
     names = [b.name for b in conv.buses]
-    if ext in (".csv", ".db"):  # no channel column: one bus
+    if ext in (".csv", ".db"):  # one bus: kept, as the default bus
         assert names == ["CAN"]
     else:  # bus CANn stored as channel n where the format wants numbers
         assert names == ["CAN0", "CAN1", "CAN2", "CAN3"]

@@ -80,8 +80,8 @@ def connection_options(f: Callable[..., Any]) -> Callable[..., Any]:
         click.option("--log", "log_file", metavar="FILE", type=click.Path(path_type=Path),
                      help="Record every frame of every bus opened, received and sent, into "
                           "FILE, a python-can log whose format follows the extension (.asc, "
-                          ".blf, .log, .trc, .csv, .db, .txt; .gz for the text ones); "
-                          "'ucom decode FILE' reads it back."),
+                          ".blf, .log, .trc; .csv and .db for one bus; .gz for the text "
+                          "ones); 'ucom decode FILE' reads it back."),
     ]
     for opt in reversed(options):
         f = opt(f)

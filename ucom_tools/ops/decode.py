@@ -44,12 +44,12 @@ from pathlib import Path
 from typing import Any
 
 import can
-from can.util import channel2int
 
 from ucom_tools.config.attrtree import Kind as TreeKind
 from ucom_tools.config.attrtree.match import program_of
 from ucom_tools.config.attrtree.robot import BoundBoard, RobotTrees
 from ucom_tools.errors import FrameError, InputError
+from ucom_tools.ops.record import DEFAULT_BUS, channel_names
 from ucom_tools.programs import known
 from ucom_tools.programs.model import ProgramSpec
 from ucom_tools.protocol.link import SHARED_BUS_FACTOR
@@ -74,8 +74,6 @@ from ucom_tools.wire.transfer import decode_date
 
 PC_TO_BOARD = "PC -> board"
 BOARD_TO_PC = "board -> PC"
-DEFAULT_BUS = "CAN"
-"""The bus of frames that carry no channel (.csv and .db logs)."""
 DEFAULT_BITRATE = 1_000_000
 DEFAULT_MARGIN = 0.002
 BACKWARDS_S = 0.05
@@ -328,19 +326,11 @@ def _ms(seconds: float) -> str:
 
 
 def bus_name(channel: Any, trees: RobotTrees | None = None) -> str:
-    """The bus a frame's channel names: a string as it is; a number n (the formats that
-    store numbers: .asc, .blf, .trc) the topology's bus of that number, else ``CANn``
-    (ucom's recordings store bus CANn as n); no channel :data:`DEFAULT_BUS` (the
-    topology's only bus when it has one)."""
+    """The bus a frame's channel names (:func:`~ucom_tools.ops.record.channel_names`,
+    the one rule for reading and writing; for a single channel, without the rule's
+    look at the whole trace)."""
     buses = [b.name for b in trees.topology.buses] if trees is not None else []
-    if channel is None or channel == "":
-        return buses[0] if len(buses) == 1 else DEFAULT_BUS
-    if isinstance(channel, int) and not isinstance(channel, bool):
-        for name in buses:
-            if channel2int(name) == channel:
-                return name
-        return f"CAN{channel}"
-    return str(channel)
+    return channel_names([channel], buses)[channel]
 
 
 # ============================================================================ edges
@@ -1806,8 +1796,10 @@ def decode_frames(frames: Iterable[can.Message], trees: RobotTrees | None = None
     listed = list(frames)
     start = min((f.timestamp for f in listed), default=None)
     per_bus: dict[str, list[tuple[int, can.Message]]] = {}
+    names = channel_names({f.channel for f in listed},
+                          [b.name for b in trees.topology.buses] if trees is not None else [])
     for i, f in enumerate(listed):
-        per_bus.setdefault(bus_name(f.channel, trees), []).append((i, f))
+        per_bus.setdefault(names[f.channel], []).append((i, f))
     buses: list[BusConversation] = []
     for name, items in per_bus.items():
         _check_time_base(decoder, name, items, max(margin, BACKWARDS_S), start)

@@ -27,12 +27,13 @@ import io
 import math
 import os
 import threading
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from decimal import Decimal, InvalidOperation
 from enum import Enum
 from pathlib import Path
 from types import TracebackType
-from typing import IO
+from typing import IO, Any
 
 import can
 from can.io.generic import MessageWriter
@@ -54,11 +55,10 @@ KINDS = ("CI", "SO", "PAR")
 FORMATS: dict[str, str] = {
     ".asc": "Vector ASCII log",
     ".blf": "Vector binary log",
-    ".csv": "python-can CSV (no channel column)",
-    ".db": "SQLite database (no channel column)",
+    ".csv": "python-can CSV (no channel or direction column: one bus only)",
+    ".db": "SQLite database (no channel or direction column: one bus only)",
     ".log": "can-utils candump -l log",
     ".trc": "PEAK trace",
-    ".txt": "text, one frame a line (not readable back)",
 }
 """Extensions python-can writes (via :func:`can.Logger`) and what they are; the text
 formats also gzip-compressed (``.asc.gz``, ...).  ``.mf4`` when asammdf is installed."""
@@ -67,7 +67,27 @@ INT_CHANNELS = frozenset({".asc", ".blf", ".trc", ".mf4"})
 """Formats whose channel is a number: a bus name is stored as its number (CAN0 -> 0,
 i.e. channel 1 in Vector's and PEAK's counting), see :attr:`RunRecorder.channels`."""
 
-_GZIP_OK = frozenset({".asc", ".csv", ".log", ".trc", ".txt"})
+_GZIP_OK = frozenset({".asc", ".csv", ".log", ".trc"})
+
+ONE_BUS = frozenset({".csv", ".db", ".csv.gz"})
+"""Formats without a channel (or direction) column: refused for a recording of several
+buses, whose frames they could not tell apart."""
+
+NOT_READABLE = {".txt": "python-can writes .txt but cannot read it back; use .log "
+                        "(candump -l text) instead"}
+"""Formats python-can writes that no reader takes (ucom writes only what it reads)."""
+
+
+def check_buses(extension: str, buses: Iterable[str], path: str | os.PathLike[str],
+                key: str) -> None:
+    """InputError, before anything is recorded, when ``extension`` cannot keep apart the
+    frames of ``buses`` (:data:`ONE_BUS`)."""
+    names = list(buses)
+    if extension in ONE_BUS and len(names) > 1:
+        raise InputError(f"{os.fspath(path)}: {extension} has no channel column: the frames "
+                         f"of {', '.join(names)} could not be told apart; use .asc, .blf, "
+                         ".log or .trc" + (" (or --bus for one bus)" if key == "--record"
+                                           else ""), key=key)
 
 
 def channel_number(channels: dict[str, int], name: str) -> int:
@@ -81,6 +101,62 @@ def channel_number(channels: dict[str, int], name: str) -> int:
             number = next(n for n in range(len(taken) + 1) if n not in taken)
         channels[name] = number
     return number
+
+
+def log_writer(out: Output) -> MessageWriter:
+    """python-can's writer for the log ``out`` (the format by its extension), writing to
+    its temporary file but naming the final one where the format records its own name
+    (a PEAK trace's header)."""
+    writer: MessageWriter = can.Logger(out.write_path)
+    if isinstance(writer, can.TRCWriter) and out.kind != "stdout":
+        writer.filepath = os.path.abspath(out.target)
+    return writer
+
+
+DEFAULT_BUS = "CAN"
+"""The bus of frames without a channel (a one-bus trace)."""
+
+
+def channel_names(channels: Iterable[Any], buses: Sequence[str] = ()) -> dict[Any, str]:
+    """The robot bus each channel of a trace stands for: the rule that undoes
+    :func:`channel_number` and python-can's conversions, in one place.
+
+    - no channel: the robot's only bus, else :data:`DEFAULT_BUS`;
+    - a number n (the formats of :data:`INT_CHANNELS`): the bus whose name ends in n
+      (CAN0 for 0), else ``CANn``;
+    - a string: the bus of that name, also in another case (``can0`` from
+      ``can.logconvert`` is CAN0), else the string as it is;
+    - python-can counts a PEAK trace's channels from 1 and ``can.logconvert`` keeps that
+      count (``can1``-``can4`` for CAN0-CAN3): when the numbered channels of a trace are
+      exactly 1..n and the robot's ``buses`` are numbered 0..n-1, they are shifted.
+    """
+    chans = list(dict.fromkeys(channels))
+    numbered = {c: channel2int(c) for c in chans if c not in (None, "")
+                and not isinstance(c, bool)}
+    by_number = {channel2int(b): b for b in buses if channel2int(b) is not None}
+    by_folded = {b.casefold(): b for b in buses}
+    shift = 0
+    values = sorted(n for n in numbered.values() if n is not None)
+    known = sorted(n for n in by_number if n is not None)
+    if values and known and values == list(range(1, len(values) + 1)) and \
+            known == list(range(len(values))):
+        shift = 1
+    out: dict[Any, str] = {}
+    for c in chans:
+        if c is None or c == "":
+            out[c] = buses[0] if len(buses) == 1 else DEFAULT_BUS
+            continue
+        if isinstance(c, str) and c.casefold() in by_folded and not shift:
+            out[c] = by_folded[c.casefold()]
+            continue
+        n = numbered.get(c)
+        if n is not None and (isinstance(c, int) or shift or c.casefold().startswith(
+                ("can", "vcan"))):
+            n -= shift
+            out[c] = by_number.get(n, f"CAN{n}")
+            continue
+        out[c] = str(c)
+    return out
 
 
 def supported_extensions() -> list[str]:
@@ -98,6 +174,9 @@ def log_extension(path: str | os.PathLike[str], key: str = "--record") -> str:
     suffixes = [s.lower() for s in Path(path).suffixes]
     ext = "".join(suffixes[-2:]) if suffixes[-1:] == [".gz"] else "".join(suffixes[-1:])
     supported = supported_extensions()
+    if ext.removesuffix(".gz") in NOT_READABLE:
+        raise InputError(f"{os.fspath(path)}: {NOT_READABLE[ext.removesuffix('.gz')]}",
+                         key=key)
     if ext not in supported:
         shown = f"'{ext}'" if ext else "no extension"
         raise InputError(f"{os.fspath(path)}: {shown} is not a CAN log format python-can "
@@ -172,7 +251,7 @@ class RunRecorder(can.Listener):
         self._values_file: IO[str] | None = None
         try:
             log_out = self._output(self.path, self.extension)
-            self._writer = can.Logger(log_out.write_path)
+            self._writer = log_writer(log_out)
             values_out = self._output(self.values_path, VALUES_SUFFIX)
             self._values_file = values_out.open("w", encoding="utf-8", newline="")
             self._csv = csv.writer(self._values_file, lineterminator="\n")
@@ -214,6 +293,10 @@ class RunRecorder(can.Listener):
     # --------------------------------------------------------------------- frames
     def _channel(self, name: str) -> int:
         return channel_number(self.channels, name)
+
+    def check_buses(self, buses: Iterable[str]) -> None:
+        """InputError when this recording's format cannot keep ``buses`` apart."""
+        check_buses(self.extension, buses, self.path, "--record")
 
     def on_message_received(self, msg: can.Message) -> None:
         """Record one frame (its ``channel``, the bus name, is kept: verbatim in the

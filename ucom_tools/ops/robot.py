@@ -25,7 +25,13 @@ from ucom_tools.config import topology as topo_mod
 from ucom_tools.config.topology import BusSpec, Topology
 from ucom_tools.errors import BusError, InputError, UcomError, WriteError
 from ucom_tools.fileio import Output, reason
-from ucom_tools.ops.record import INT_CHANNELS, channel_number, log_extension
+from ucom_tools.ops.record import (
+    INT_CHANNELS,
+    channel_number,
+    check_buses,
+    log_extension,
+    log_writer,
+)
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
@@ -188,7 +194,7 @@ class FrameLog:
         self.frames = 0
         self._out = Output(self.path, option="--log", suffix=self.extension)
         try:
-            self._writer: MessageWriter = can.Logger(self._out.write_path)
+            self._writer: MessageWriter = log_writer(self._out)
         except Exception as err:
             self._out.discard()
             raise InputError(f"cannot write {os.fspath(self.path)}: {reason(err)}",
@@ -273,6 +279,12 @@ def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:
             log.discard()
         raise
     if log is not None:
+        try:
+            check_buses(log.extension, robot.buses, log.path, "--log")
+        except InputError:
+            robot.close(keep_log=False)
+            log.discard()
+            raise
         robot.log = log
         for h in robot.buses.values():
             log.attach(h)
