@@ -25,6 +25,7 @@ import subprocess
 import sys
 import threading
 import time
+import xml.etree.ElementTree as ET
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -525,3 +526,25 @@ def test_a_report_that_cannot_be_written_is_one_line(tmp_path: Path) -> None:
     assert json.loads(r.stdout)["ok"]
     assert r.stderr.strip().splitlines() == [
         f"ucom: cannot write: --junit: {report}: No space left on device"]
+
+
+def test_the_report_of_a_stopped_suite_keeps_the_junit_schema() -> None:
+    """The rules Jenkins' xunit validates with, on a report with every kind of outcome
+    and a stopped suite (system-err at the testsuite)."""
+    from tests import junit_rules
+    from ucom_tools.conformance import junit
+    from ucom_tools.conformance.catalogue import all_cases
+    from ucom_tools.conformance.runner import Outcome, SuiteResult
+
+    cases = all_cases()[:4]
+    outcomes = [Outcome(case=c, bus="CAN0", status=status, message=f"{status} here",
+                        seconds=0.01, frames="280#0100", trace="")
+                for c, status in zip(cases, ("passed", "failed", "error", "skipped"),
+                                     strict=True)]
+    result = SuiteResult(outcomes=outcomes, not_restored=["CAN0:2: not running"],
+                         bus_failure=None)
+    assert junit_rules.breaches(junit.to_xml(result).getroot()) == []
+    wrong = junit.to_xml(result).getroot()
+    ET.SubElement(wrong.find("testcase"), "properties")  # what the report once held
+    assert junit_rules.breaches(wrong) == [
+        "/testsuite/testcase: 'properties' may not be inside 'testcase'"]
