@@ -182,8 +182,8 @@ def test_dump_writes_trees_that_tree_check_accepts_with_the_live_values(
     assert (board["bus"], board["seq_id"], board["tree"]) == ("CAN0", 3, str(EYES))
     gain = next(v for v in board["values"] if v["unique"] == "RightEye P")
     assert gain == {"kind": "PAR", "index": 38, "generic": "MotorA P", "unique": "RightEye P",
-                    "raw": 123456, "value": "0.123456", "unit": "", "default": "50",
-                    "changed": True}
+                    "raw": 123456, "value": 0.123456, "text": "0.123456", "unit": "",
+                    "default": 50, "default_text": "50", "changed": True}
 
 
 def test_dump_load_dump_gives_byte_identical_files(held: Held, tmp_path: Path) -> None:

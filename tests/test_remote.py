@@ -202,10 +202,11 @@ def test_run_for_json_has_every_edge_and_the_loop_figures(flashed) -> None:
     assert len(data["boards"]) == 11
     eyes = next(b for b in data["boards"] if b["prefix"] == "Eyes")
     values = {e["name"]: (e["kind"], e["value"]) for e in eyes["edges"]}
+    texts = {e["name"]: e["text"] for e in eyes["edges"]}
     assert len(values) == 71
-    assert values["Right Eye Target"] == ("CI", "700")
-    assert values["RightEye I"] == ("PAR", "0.000400")
-    assert abs(int(values["Right Eye Joint Sensor"][1]) - 700) <= 20
+    assert values["Right Eye Target"] == ("CI", 700)  # JSON numbers, typed
+    assert values["RightEye I"] == ("PAR", 0.0004) and texts["RightEye I"] == "0.000400"
+    assert abs(values["Right Eye Joint Sensor"][1] - 700) <= 20
     run = data["run"]
     assert run["cycles"] >= 400 and run["missed"] == 0 and run["virtual_time"]
     assert 0.6 < run["bus_load"]["CAN0"] < 0.7

@@ -47,6 +47,10 @@ from ucom_tools.signals import Terminated, interrupt_exit_code, stop_signals
 class UcomGroup(click.Group):
     """Root group: maps ucom-tools errors to exit codes, one line on stderr."""
 
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        ctx.meta["ucom.argv"] = list(args)  # for the error boundary: was --json asked?
+        return super().parse_args(ctx, args)
+
     def invoke(self, ctx: click.Context) -> Any:
         try:
             return super().invoke(ctx)
@@ -72,6 +76,10 @@ class UcomGroup(click.Group):
             traceback.print_exc(file=sys.stderr)
         stderr().print(f"[bold red]ucom: {label}:[/] {escape(str(e))}", highlight=False,
                        soft_wrap=True)
+        if "--json" in ctx.meta.get("ucom.argv", ()) and not output.json_emitted():
+            # a program reading --json gets a document on standard output in any case
+            output.emit_json({"error": {"kind": label, "message": str(e),
+                                        "exit_code": code}})
         ctx.exit(code)
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import sys
+from decimal import Decimal
 from typing import Any
 
 from rich.console import Console
@@ -19,6 +20,7 @@ UNLIMITED = 100_000
 """Width of a piped standard output: tables take the width they need."""
 
 _consoles: dict[str, Console] = {}
+_emitted = {"json": False}
 
 
 def _stdout_width() -> int | None:
@@ -36,6 +38,12 @@ def _stdout_width() -> int | None:
 def reset() -> None:
     """Forget the consoles; the next use makes them for the current streams and env."""
     _consoles.clear()
+    _emitted["json"] = False
+
+
+def json_emitted() -> bool:
+    """Whether this invocation printed its JSON document already."""
+    return _emitted["json"]
 
 
 def stdout() -> Console:
@@ -55,7 +63,30 @@ def stderr() -> Console:
     return c
 
 
+def json_number(value: object) -> int | float | None:
+    """A value for JSON as a number (an int where it is whole, else a float), from a
+    number or its exact text (``1000``, ``0.0005``, ``0x444``); the exact text, where it
+    matters, goes in a field of its own."""
+    if value is None:
+        return None
+    if isinstance(value, bool):
+        return int(value)
+    if isinstance(value, int):
+        return value
+    if isinstance(value, str):
+        text = value.strip()
+        body = text.lstrip("-")
+        if body.lower().startswith("0x"):
+            n = int(body, 16)
+            return -n if text.startswith("-") else n
+        value = Decimal(text)
+    if isinstance(value, Decimal):
+        return int(value) if value == value.to_integral_value() else float(value)
+    return float(value)  # type: ignore[arg-type]
+
+
 def emit_json(data: Any) -> None:
+    _emitted["json"] = True
     sys.stdout.write(json.dumps(data, indent=2, default=str) + "\n")
     sys.stdout.flush()
 

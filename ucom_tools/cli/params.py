@@ -14,7 +14,7 @@ from rich.table import Table
 
 from ucom_tools.cli.exitcodes import EXIT_FAILED
 from ucom_tools.cli.options import connection_json, connection_options, json_option, robot
-from ucom_tools.cli.output import emit_json, stderr, stdout
+from ucom_tools.cli.output import emit_json, json_number, stderr, stdout
 from ucom_tools.config import topology as topology_mod
 from ucom_tools.config.attrtree import Kind
 from ucom_tools.ops import params as ops
@@ -30,7 +30,8 @@ def params() -> None:
 # ----------------------------------------------------------------------------- JSON
 def _value_json(v: ops.EdgeValue) -> dict[str, Any]:
     return {"kind": v.kind.value, "index": v.index, "generic": v.generic, "unique": v.unique,
-            "raw": v.raw, "value": v.text, "unit": v.unit, "default": v.default,
+            "raw": v.raw, "value": json_number(v.text), "text": v.text, "unit": v.unit,
+            "default": json_number(v.default), "default_text": v.default,
             "changed": v.changed}
 
 
