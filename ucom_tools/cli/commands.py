@@ -31,7 +31,7 @@ from ucom_tools.image import load_image
 from ucom_tools.ops import boards as ops
 from ucom_tools.ops import params as params_ops
 from ucom_tools.ops.enumerate import enumerate_bus
-from ucom_tools.ops.flash import FlashResult, Selection
+from ucom_tools.ops.flash import FlashResult, Selection, listen_first
 from ucom_tools.ops.robot import ConnectSpec, Robot
 from ucom_tools.protocol.programmer import Cancelled
 from ucom_tools.signals import Terminated, interrupt_exit_code
@@ -130,7 +130,7 @@ def reset_one_cmd(ctx: click.Context, board: str, spec: ConnectSpec, bus_name: s
 def init_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, no_info: bool,
              as_json: bool) -> None:
     with robot(spec) as r:
-        results = [enumerate_bus(h, with_info=not no_info) for h in r.select(bus_name)]
+        results = r.each(lambda h: enumerate_bus(h, with_info=not no_info), bus_name)
     if as_json:
         _json(spec, {"buses": [render.enumeration_json(e) for e in results]})
     else:
@@ -392,6 +392,7 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
     selection = Selection.parse(boards)
     with robot(spec) as r:
         r.select(bus_name)  # an unknown --bus is exit code 3 before anything is sent
+        listen_first(r, bus_name)  # another host programming: exit 4, nothing sent
         kept = params_ops.keep_before(r, bus=bus_name) if keep_params else None
         if kept is not None and not kept.readout.ok and not force:
             _keep_refused(ctx, spec, kept, as_json)

@@ -18,7 +18,7 @@ from rich.table import Table
 
 from ucom_tools.cli.exitcodes import EXIT_FAILED
 from ucom_tools.cli.options import Finite, connection_json, connection_options, json_option
-from ucom_tools.cli.output import emit_json, stderr, stdout
+from ucom_tools.cli.output import emit_json, json_number, stderr, stdout
 from ucom_tools.config import topology as topo
 from ucom_tools.errors import InputError
 from ucom_tools.ops.remote import (
@@ -226,9 +226,10 @@ def _boards_json(part: RemotePart) -> list[dict[str, Any]]:
                        "prefix": ref.prefix, "edges": []}
             out.append(current)
         raw = part.raw(ref)
+        value = None if raw is None else ref.value(raw)
         current["edges"].append({"name": ref.unique, "kind": ref.kind.name,
-                                 "value": None if raw is None else _value_text(
-                                     ref.value(raw))})
+                                 "value": json_number(value),
+                                 "text": None if value is None else _value_text(value)})
     return out
 
 
@@ -284,9 +285,9 @@ def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) 
                                                             mca.ALIVE_MAX_MS),
               default=mca.ALIVE_DEFAULT_MS, show_default=True, metavar="MS",
               help="The boards stop their motors when no MCA Alive came for this long.")
-@click.option("--record", "record", type=click.Path(dir_okay=False), metavar="FILE",
-              help="Record every frame (format by extension: .asc .blf .log .csv ...) and "
-                   "every value change to FILE.values.csv.")
+@click.option("--record", "record", type=click.Path(), metavar="FILE",
+              help="Record every frame (format by extension: .asc .blf .log .trc; .csv "
+                   ".db for one bus) and every value change to FILE.values.csv.")
 @click.option("--period", "periods", multiple=True, metavar="EDGE=CYCLES",
               help="Exchange a program edge (its generic name, on every board that runs "
                    "the program) every CYCLES cycles instead of its default (0: not "
@@ -335,6 +336,7 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
             if not as_json:
                 _plan_notes(part)
             if recorder is not None:
+                recorder.check_buses(part.robot.buses)  # exit 3 before the exchange starts
                 for h in part.robot.buses.values():
                     h.link.dispatcher.taps.append(recorder.on_message_received)
             part.claim(force=force)  # another host's exchange: exit 4, nothing sent

@@ -6,6 +6,10 @@ board's attribute-tree block -> PAR and CI defaults of the tree -> Admin Data (w
 time, SO maps, CI maps) -> MCA Start.  A board whose edges differ from its tree is not
 configured at all (nothing is written to it); a value of the tree that the board's edge
 cannot carry is refused before anything is sent.
+
+Before a host starts an exchange it listens (:class:`ExchangeWatch`): MCA Alive or CI
+maps it did not send mean that another host runs the exchange on that bus, and a second
+start would take its boards from it.
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ from ucom_tools.config.attrtree.match import compare, program_of
 from ucom_tools.config.attrtree.model import Board, Kind
 from ucom_tools.config.attrtree.robot import RobotTrees
 from ucom_tools.config.topology import BusSpec
-from ucom_tools.errors import BoardError, InputError, UcomTimeoutError
+from ucom_tools.errors import BoardError, BusError, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import spec_of
 from ucom_tools.programs.model import EdgeKind
 from ucom_tools.protocol.bootloader import BootloaderClient
@@ -27,6 +31,7 @@ from ucom_tools.protocol.dispatch import Periodic
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import BoardEdges, McaClient, values_of
 from ucom_tools.protocol.plan import BusPlan, CiMapPlan, needs_of, plan
+from ucom_tools.protocol.programmer import OtherHosts
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.wire import mca
 from ucom_tools.wire.ids import ALL, Address, Function, seq
@@ -136,6 +141,34 @@ def plan_bus(bus: BusSpec, trees: RobotTrees, *, alive_ms: int = mca.ALIVE_DEFAU
         needs.append(needs_of(spec.position + 1, spec.placement, program,
                               axes=len(spec.joints) or None, periods=periods))
     return plan(bus.name, bus.bitrate, needs, alive_ms=alive_ms)
+
+
+class ExchangeWatch(OtherHosts):
+    """Another host's cyclic exchange: MCA Alive and CI maps (process data) this host did
+    not send (``man/ucom-protocol.7``, RUN TIME, Start sequence)."""
+
+    functions = frozenset({Function.MCA_ALIVE, Function.MCA_CONTROLLER_INPUT})
+
+    def judge(self, arbitration_id: int, data: bytes) -> str | None:
+        if arbitration_id >> 6 == Function.MCA_ALIVE:
+            return "MCA Alive"
+        if arbitration_id & 0x20:  # type bit 1: process data, map number in bits 4-0
+            return f"CI map {arbitration_id & 0x1F}"
+        return None  # an acknowledged CI write: a console, say, not an exchange
+
+    @staticmethod
+    def listen_time(link: Link, alive_ms: int = mca.ALIVE_DEFAULT_MS) -> float:
+        """How long to listen: the boards' watchdog time (a running exchange sends MCA
+        Alive five times in it, :data:`~ucom_tools.protocol.plan.ALIVE_DIVISOR`, and CI
+        maps more often) and the transport's margin."""
+        return link.budget(alive_ms / 1000, answers=1)
+
+    def check(self, bus: str) -> None:
+        """BusError naming what was seen, if another host runs an exchange on ``bus``."""
+        if self.seen:
+            raise BusError(f"another host runs the cyclic exchange on {bus} (frames from "
+                           f"another host: {self.summary()}); nothing was sent; --force "
+                           "starts anyway")
 
 
 class BusExchange:

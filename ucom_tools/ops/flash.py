@@ -5,6 +5,11 @@ running a program back to the bootloader (XReset), ProgEnable, one broadcast tra
 ProgID verification of every board (and a read-back of its Info), resending only what a
 board missed, then AutoStart and Start when asked.  A board is reported programmed only
 when it verified.
+
+Another host programming the same bus is noticed (:class:`~ucom_tools.protocol.
+programmer.ProgrammingWatch`): :func:`listen_first` before anything is sent (``ucom
+flash`` calls it before its reset), and the job itself before it sends to the boards
+and before its data; either raises :class:`~ucom_tools.errors.BusError` (exit code 4).
 """
 
 from __future__ import annotations
@@ -26,13 +31,19 @@ from ucom_tools.ops.enumerate import (
     missing_expected,
 )
 from ucom_tools.ops.robot import BusHandle, Robot
-from ucom_tools.protocol.programmer import Programmer
+from ucom_tools.protocol.programmer import Programmer, ProgrammingWatch, quiet_time
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import BoardState, StatusOp, Target
 from ucom_tools.wire.descriptor import ImageDescriptor
 from ucom_tools.wire.ids import ALL, Address, IdType, seq
 from ucom_tools.wire.info import BoardInfo
 from ucom_tools.wire.transfer import TransferPlan
+
+ASK_SERIES = 2
+"""An answer the job cannot go on without (a board's Info record, its acknowledgement of
+ProgEnable) is asked for in up to this many series of questions (``1 + retries`` each):
+an Info record is ten frames, and on a bus that loses 5 % of the frames each way one of
+them is missing from all three answers of a series about once in a hundred records."""
 
 ProgressFn = Callable[[str, int, int, int], None]
 Notes = dict[int, tuple[str, ...]]
@@ -141,6 +152,26 @@ def flash(robot: Robot, image: Image, *, selection: Selection = Selection("all")
     return FlashResult(image.name, plan.progid, plan.size_words, target, tuple(results))
 
 
+def listen_first(robot: Robot, bus: str | None = None) -> None:
+    """Listen on the selected buses, all at once, before anything is sent to them: for as
+    long as a host that is programming leaves its bus silent (:func:`~ucom_tools.protocol.
+    programmer.quiet_time`, a fraction of a second over socketcand).  BusError naming
+    what was seen when another host is programming one of them."""
+    handles = robot.select(bus)
+
+    def one(h: BusHandle) -> None:
+        with ProgrammingWatch(h.link) as watch:
+            watch.listen(quiet_time(h.link, h.client.timeouts))
+            watch.check(h.name, "nothing was sent; try again when it is done")
+
+    if len(handles) == 1 or robot.virtual_time:
+        for h in handles:
+            one(h)
+    else:
+        with ThreadPoolExecutor(max_workers=len(handles)) as pool:
+            list(pool.map(one, handles))
+
+
 @dataclass
 class _Job:
     plan: TransferPlan
@@ -192,6 +223,11 @@ class _Job:
                              for b in enum.boards)
                 return BusFlash(h.name, rows, enum, 0, 0, "init chain faulty")
             infos = {seq(b.seq_id): b.info for b in enum.boards if b.info is not None}
+            for b in enum.boards:
+                if b.info is None and not b.duplicate:
+                    again = _info(h, b.seq_id, ASK_SERIES - 1)
+                    if again is not None and again.serial == b.serial:
+                        infos[seq(b.seq_id)] = again
             return enum, infos, {b.seq_id: (b.serial, b.placement) for b in enum.boards}
         infos = h.client.info_many(ALL)
         if not infos:
@@ -221,6 +257,10 @@ class _Job:
                              for a, inf in infos.items() if a.id_type is IdType.SEQUENTIAL}
 
     def run(self, h: BusHandle) -> BusFlash:
+        with ProgrammingWatch(h.link) as watch:
+            return self._run(h, watch)
+
+    def _run(self, h: BusHandle, watch: ProgrammingWatch) -> BusFlash:
         survey = self._survey(h)
         if isinstance(survey, BusFlash):
             return survey
@@ -244,6 +284,7 @@ class _Job:
         if not targets:
             return BusFlash(h.name, (*(results[n] for n in sorted(results)), *absent), enum,
                             0, 0, "no board to program")
+        watch.check(h.name, "nothing was programmed")
         self._to_bootloader(h, targets, present)
         enabled = self._enable(h, targets, present, results, placements)
         frames = rounds = resent = 0
@@ -255,7 +296,7 @@ class _Job:
                     self.progress(h.name, sent, total, len(enabled))
 
             programmer = Programmer(h.link, h.client.timeouts, progress=report,
-                                    cancel=self.cancel)
+                                    cancel=self.cancel, others=watch)
             transfer = programmer.transfer(self.plan, [seq(n) for n in enabled])
             frames, rounds = transfer.frames_sent, transfer.rounds
             resent = transfer.resent_frames
@@ -327,6 +368,10 @@ class _Job:
         else:
             replies = [r for n in targets
                        for r in h.client.set_status(seq(n), StatusOp.PROG_ENABLE, 1)]
+        for _ in range(ASK_SERIES - 1):
+            answered = {r.address.number for r in replies}
+            replies += [r for n in targets if n not in answered
+                        for r in h.client.set_status(seq(n), StatusOp.PROG_ENABLE, 1)]
         ok = {r.address.number for r in replies if r.ok}
         for r in replies:
             if not r.ok and isinstance(r.message, m.Error):
@@ -343,9 +388,8 @@ class _Job:
                    results: dict[int, BoardResult]) -> None:
         for n in verified:
             r = results[n]
-            try:
-                inf = h.client.info(Address(IdType.SEQUENTIAL, n))
-            except UcomTimeoutError:
+            inf = _info(h, n, ASK_SERIES)
+            if inf is None:
                 results[n] = replace(r, outcome="failed",
                                       detail="verified, but the Info read-back timed out")
                 continue
@@ -353,6 +397,16 @@ class _Job:
             if not valid or inf.progid != self.plan.progid:
                 results[n] = replace(r, outcome="failed", detail=(
                     f"Info read-back shows ProgID 0x{inf.progid:08X}, valid={valid}"))
+
+
+def _info(h: BusHandle, n: int, series: int) -> BoardInfo | None:
+    """Board ``n``'s Info record, asked for in up to ``series`` series of questions."""
+    for _ in range(series):
+        try:
+            return h.client.info(Address(IdType.SEQUENTIAL, n))
+        except UcomTimeoutError:
+            continue
+    return None
 
 
 def _fail(bus: str, n: int, serial: int | None, placement: str | None,

@@ -18,6 +18,9 @@ spin for the last 0.1 ms), sends the frames due (one write per bus where the int
 can batch them: socketcand), then takes every frame the buses delivered meanwhile.
 ``realtime`` runs the loop's thread under SCHED_FIFO (:mod:`ucom_tools.ops.realtime`).
 The in-process fleet in virtual time: the loop drives the fleet clock, nothing waits.
+
+One exchange per bus: before anything is sent, :meth:`RemotePart.claim` listens on every
+bus and refuses (BusError) where another host's exchange runs, unless forced.
 """
 
 from __future__ import annotations
@@ -53,7 +56,7 @@ from ucom_tools.errors import (
     UcomTimeoutError,
 )
 from ucom_tools.ops.edges import EdgeRef, Names, spec_of
-from ucom_tools.ops.exchange import BusExchange, configure, edge_list
+from ucom_tools.ops.exchange import BusExchange, ExchangeWatch, configure, edge_list
 from ucom_tools.ops.realtime import RealtimeScheduling, precise_sleep
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot, open_robot
 from ucom_tools.protocol.bootloader import BootloaderClient
@@ -231,6 +234,7 @@ class RemotePart:
         self._last_raw: dict[EdgeRef, int] = {}
         self._switch: float | None = None
         self._prepared = False
+        self._claimed = False
         self.events: list[BoardEvent] = []
         """What the boards reported while the exchange ran (their Error messages)."""
         self._event_subs: list[tuple[Any, Any]] = []
@@ -314,6 +318,23 @@ class RemotePart:
         with ThreadPoolExecutor(max_workers=len(pairs), thread_name_prefix="ucom-bus") as pool:
             return list(pool.map(lambda p: work(*p), pairs))
 
+    # ------------------------------------------------------------------ other hosts
+    def claim(self, *, force: bool = False) -> None:
+        """Listen on every bus before anything is sent to it, for the boards' watchdog time
+        and the transport's margin: :class:`~ucom_tools.errors.BusError` when another host
+        runs the cyclic exchange on one of them (MCA Alive or CI maps this host did not
+        send), unless ``force``.  :meth:`start` claims first unless it was done."""
+        self._claimed = True
+        if force:
+            return
+
+        def listen(h: BusHandle, x: BusExchange) -> None:
+            with ExchangeWatch(h.link) as watch:
+                watch.listen(ExchangeWatch.listen_time(h.link, x.plan.alive_ms))
+                watch.check(h.name)
+
+        self._each_bus(listen)
+
     # ------------------------------------------------------------------ check
     def check(self) -> CheckReport:
         """Init every bus, start each board's program if needed, fetch its descriptions
@@ -375,7 +396,10 @@ class RemotePart:
     def start(self, *, force: bool = False) -> CheckReport:
         """Check, then configure every matching board (tree defaults, maps) and start the
         exchange on every bus.  A mismatch raises :class:`MappingError` and starts
-        nothing, unless ``force``: then only the matching boards run."""
+        nothing, unless ``force``: then only the matching boards run.  Another host's
+        exchange on a bus (:meth:`claim`) raises BusError, unless ``force``."""
+        if not self._claimed:
+            self.claim(force=force)
         report = self.report or self.check()
         if not report.ok and not force:
             raise MappingError(report)

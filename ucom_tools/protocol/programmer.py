@@ -3,34 +3,54 @@
 One broadcast transfer per bus, for any number of ProgEnabled boards:
 
 1. the preamble (BEGIN, META, ERASE, PREPARE) and Ready(ERASED) from every board; a board
-   that does not report erased flash is asked again (PREPARE, then the whole preamble
-   addressed to it alone), so a lost frame costs a repetition, not the board;
+   that does not report erased flash is asked again, alone: PREPARE, or what its Error
+   SEQUENCE says it lacks, so a lost frame costs a repetition, not the board;
 2. the blocks: a BLOCK frame, then its data frames, each carrying its slot, obeying
    Ready(PAUSE)/Ready(RESUME) (a lost RESUME costs the time the board needs to drain);
 3. END, and every board's Program Finished with what it lacks, frame by frame; END is
    asked again of a board whose answer does not come;
 4. exactly the missing frames again (the union over the boards; a board ignores what
-   it has), then END again: rounds go on while a round makes progress.
+   it has), then END again: a *round*.  Rounds go on until every board verified, or
+   :data:`PROGRESS_WINDOW` rounds in a row brought no progress, or the repair deadline
+   passed (:meth:`Programmer.repair_time`: what a bus losing half of the frames needs,
+   from the image's frames at the bus bitrate and END's round trip), or
+   :data:`MAX_ROUNDS`.  A lost resend costs a round, not the transfer; a board that
+   stays silent for a round is asked again in the next.
 
 A board counts as programmed only when it reported VERIFIED with the host's ProgID.
+
+Another host programming the same bus wrecks both transfers (its BEGIN restarts every
+board's).  :class:`ProgrammingWatch` notices its frames, and the answers to requests this
+host never made; the programmer then stops before it sends data (:class:`BusError`).
 """
 
 from __future__ import annotations
 
+import contextlib
+import math
 import threading
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from types import TracebackType
+from typing import Self
 
-from ucom_tools.errors import UcomError
-from ucom_tools.protocol.link import Link, Received
+import can
+
+from ucom_tools.errors import BusError, FrameError, UcomError
+from ucom_tools.memory import REGIONS
+from ucom_tools.protocol.dispatch import Subscription
+from ucom_tools.protocol.link import SHARED_BUS_FACTOR, Link, Received
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.answers import MAX_REPORTS
 from ucom_tools.wire.codes import (
     ErrorCode,
     PrepareFault,
+    ProgramOp,
     ReadyReason,
     ResultStatus,
+    StatusOp,
     split_prepare_fault,
 )
 from ucom_tools.wire.ids import ALL, Address, Function, data_frame_id
@@ -49,8 +69,20 @@ REFUSALS = frozenset({ErrorCode.PROTECTED_ADDRESS, ErrorCode.UNMAPPED_ADDRESS,
 """Errors by which a board refuses a transfer (asking again would not help)."""
 POLL_EVERY = 8
 """Frames between two looks at the receive queue while streaming (PAUSE, Error)."""
+PROGRESS_WINDOW = 4
+"""Rounds in a row that brought no progress (no board verified, what no board lacks
+changed) end the transfer.  One such round is no verdict: on a bus losing 5 % of the
+frames each way a round that resends one frame (and its BLOCK frame) brings nothing one
+time in ten, four in a row one time in 10,000."""
 MAX_ROUNDS = 64
-"""A safety bound: rounds stop earlier, as soon as one makes no progress."""
+"""A safety bound: rounds stop earlier, by the progress window or the repair deadline."""
+LARGEST_PROGRAM = sum(r.end - r.start + 1 for r in REGIONS if r.programmable)
+"""Words of the largest image a board takes (its program and data flash): what another
+host's boards may read back after its END."""
+
+OWN_SENDS = 8
+"""The last sendings of each frame kept to recognise its echo (END, say, is sent again
+to each board that did not answer)."""
 
 DATA_ID = data_frame_id(0)
 """Identifier of a Program data frame at slot 0; slot s is DATA_ID | s."""
@@ -92,12 +124,17 @@ class _Board:
         self.lacks: tuple[PrepareFault | None, int] | None = None
         """What the board's Error SEQUENCE said it lacks of the preamble."""
         self.silent = 0
-        """Preamble repairs sent to this board that brought no answer at all."""
+        """Preamble questions to this board that brought no answer at all."""
         self.fault: str | None = None
         self.frame_us = 100.0
         self.result: m.ProgramResult | None = None
         self.reports: list[m.ProgramMissing | m.ProgramPartial] = []
         self.missing: Missing | None = None
+        """What the board lacks as far as its answers tell (None: it never answered)."""
+        self.said: tuple[int, Missing] | None = None
+        """Its last MISSING answer: the RESULT's number of reports, the frames they named."""
+        self.unanswered = 0
+        """ENDs asked of this board in a row that brought no Program Finished."""
         self.errors: list[str] = []
         self.failure = ""
         self.resent = 0
@@ -114,24 +151,33 @@ class _Board:
 
 
 class Programmer:
-    """Programs one image into the ProgEnabled boards of one bus."""
+    """Programs one image into the ProgEnabled boards of one bus.
+
+    ``others`` watches for another host programming the same bus: the transfer stops with
+    :class:`BusError` before its preamble and before its data when that host showed
+    itself (and between blocks and rounds: both transfers are lost then)."""
 
     def __init__(self, link: Link, timeouts: Timeouts = DEFAULT, *,
                  max_rounds: int = MAX_ROUNDS, progress: Progress | None = None,
-                 cancel: threading.Event | None = None) -> None:
+                 cancel: threading.Event | None = None,
+                 others: ProgrammingWatch | None = None) -> None:
         self.link = link
         self.cancel = cancel
         self.timeouts = timeouts
         self.max_rounds = max_rounds
         self.progress = progress
+        self.others = others
         self.frames_sent = 0
         self._state: dict[Address, _Board] = {}
         self._paused: dict[Address, float] = {}
 
     # ------------------------------------------------------------------ sending
     def _send(self, msg: m.BootMessage, address: Address = ALL) -> None:
-        self.link.send(msg, address)
+        arb, data = m.encode(msg, address)
+        self.link.send_raw(arb, data)
         self.frames_sent += 1
+        if self.others is not None:
+            self.others.own(arb, data)
 
     def _preamble_frames(self, plan: TransferPlan) -> list[m.BootMessage]:
         return [plan.begin(), *plan.meta(), *plan.erases(), plan.prepare()]
@@ -142,34 +188,77 @@ class Programmer:
             raise Cancelled("programming cancelled; the boards dropped the transfer and keep "
                             "no startable program")
 
+    def _check_others(self, done: str) -> None:
+        if self.others is not None:
+            self.others.check(self.link.name, done)
+
     # ------------------------------------------------------------------ transfer
     def transfer(self, plan: TransferPlan, boards: list[Address]) -> TransferResult:
         state = self._state = {a: _Board(a) for a in boards}
         self._paused = {}
+        self._check_others("this host sent nothing of its transfer")
         self._preamble(plan)
+        self._check_others("this host stopped before sending data")
         needed: dict[int, set[int]] = {i: set(range(b.frames))
                                        for i, b in enumerate(plan.blocks)}
         rounds = data_frames = resent = 0
         total = sum(len(b.words) * 2 for b in plan.blocks)
-        while needed and rounds < self.max_rounds:
-            if not any(b.alive and not b.verified for b in state.values()):
+        still = 0  # rounds in a row without progress
+        deadline: float | None = None
+        allowed = 0.0
+        why = ""
+        while any(b.alive and not b.verified for b in state.values()):
+            if still >= PROGRESS_WINDOW:
+                why = f"the last {still} rounds brought no progress"
                 break
+            if rounds >= self.max_rounds:
+                why = f"the most rounds a transfer takes ({self.max_rounds})"
+                break
+            if deadline is not None and self.link.clock() >= deadline:
+                why = (f"the repair rounds took the time they have ({allowed:.2f} s, what a "
+                       "bus losing half of the frames needs)")
+                break
+            if rounds:
+                self._check_others("both transfers are lost")
             rounds += 1
             sent = self._stream(plan, needed, total if rounds == 1 else None)
             data_frames += sent
             if rounds > 1:
                 resent += sent
             self._end(plan)
+            if deadline is None:
+                allowed = self.repair_time(plan, len(boards))
+                deadline = self.link.clock() + allowed
             needed, progress = self._missing(plan)
-            if not progress:
-                break
+            still = 0 if progress else still + 1
         for b in state.values():
-            if b.alive and not b.verified and b.missing:
-                b.failure = (f"{len(b.missing)} data frame(s) still missing after {rounds} "
-                             "round(s); the last round brought no progress")
+            if not b.alive or b.verified:
+                continue
+            if b.result is None and not b.missing:
+                b.failure = f"sent no Program Finished after End, asked {b.unanswered} times"
+            else:
+                lacking = len(b.missing if b.missing is not None else self._reported(plan, b))
+                b.failure = (f"{lacking} data frame(s) still missing after {rounds} "
+                             f"round(s); {why}")
         outcomes = {a: self._outcome(b, plan.progid) for a, b in state.items()}
         return TransferResult(outcomes, plan.progid, rounds, self.frames_sent, data_frames,
                               resent)
+
+    def repair_time(self, plan: TransferPlan, boards: int) -> float:
+        """How long the rounds after the first may take together (bus clock): what a bus
+        that loses up to half of what is sent needs.  Every BLOCK and data frame of the
+        image once more at the bus bitrate (doubled, as every wire time of a wait: the bus
+        may carry other traffic), and for each halving of them down to one frame, and for
+        each round of the progress window, a round's END asked ``1 + retries`` times,
+        each wait as :meth:`~ucom_tools.protocol.link.Link.budget` allows it with nothing
+        ahead of it (the boards' verification, their answers at the bitrate, the
+        transport margin)."""
+        frames = sum(b.frames + 1 for b in plan.blocks)
+        image = SHARED_BUS_FACTOR * self.link.wire_time(frames)
+        trip = (SHARED_BUS_FACTOR * self.link.wire_time(boards * (1 + MAX_REPORTS))
+                + self.timeouts.verify(plan.size_words) + self.link.margin)
+        rounds = math.ceil(math.log2(max(frames, 2))) + PROGRESS_WINDOW
+        return image + rounds * (1 + self.timeouts.retries) * trip
 
     # ------------------------------------------------------------------ preamble
     def _preamble(self, plan: TransferPlan) -> None:
@@ -196,6 +285,7 @@ class Programmer:
             pending = [b for b in pending if b.alive and not b.erased]
             if not pending or attempt == attempts - 1:
                 break
+            self._check_others("this host stopped before sending data")
             for b in pending:
                 self._check_cancel()
                 for frame in self._repair(plan, b):
@@ -207,11 +297,14 @@ class Programmer:
                              f"{attempts} times")
 
     def _repair(self, plan: TransferPlan, b: _Board) -> list[m.BootMessage]:
-        """The frames that complete board ``b``'s preamble, from what it said it lacks."""
+        """The frames that complete board ``b``'s preamble, from what it said it lacks.
+        After silence PREPARE alone: its answer, or PREPARE, was lost, or the board is
+        still erasing (it ignores PREPARE then); BEGIN would restart its erase, so the
+        whole preamble goes only to a board that says no BEGIN came."""
         lacks, b.lacks = b.lacks, None
         if lacks is None:
             b.silent += 1
-            return [plan.prepare()] if b.silent == 1 else self._preamble_frames(plan)
+            return [plan.prepare()]
         fault, info = lacks
         if fault is PrepareFault.META_INCOMPLETE:
             return [*(f for f in plan.meta() if info >> f.field & 1), plan.prepare()]
@@ -226,20 +319,30 @@ class Programmer:
         sent = 0
         sent_bytes = 0
         send_raw = self.link.send_raw
-        for i in sorted(needed):
-            self._check_cancel()
-            block = plan.blocks[i]
-            self._send(block.header())
-            raw = block.payload()
-            for slot in sorted(needed[i]):  # the hot path: frames as (identifier, bytes)
-                send_raw(DATA_ID | slot, raw[8 * slot:8 * slot + 8])
-                sent += 1
-                if sent % POLL_EVERY == 0:
-                    self._poll()
-            self.frames_sent += len(needed[i])
-            sent_bytes += 8 * len(needed[i])
-            if total is not None and self.progress is not None:
-                self.progress(min(sent_bytes, total), total)
+        others = self.others
+        if others is not None and needed:
+            others.sending_data()
+            others.pause()  # the hot path: the BLOCK frames are reported by _send
+        try:
+            for i in sorted(needed):
+                self._check_cancel()
+                if others is not None and others.seen:
+                    self._check_others("both transfers are lost")
+                block = plan.blocks[i]
+                self._send(block.header())
+                raw = block.payload()
+                for slot in sorted(needed[i]):  # the hot path: frames as (identifier, bytes)
+                    send_raw(DATA_ID | slot, raw[8 * slot:8 * slot + 8])
+                    sent += 1
+                    if sent % POLL_EVERY == 0:
+                        self._poll()
+                self.frames_sent += len(needed[i])
+                sent_bytes += 8 * len(needed[i])
+                if total is not None and self.progress is not None:
+                    self.progress(min(sent_bytes, total), total)
+        finally:
+            if others is not None:
+                others.resume()
         return sent
 
     def _poll(self) -> None:
@@ -257,12 +360,16 @@ class Programmer:
 
     # ------------------------------------------------------------------ end
     def _end(self, plan: TransferPlan) -> None:
+        """END, and every board's Program Finished with its reports; END asked again
+        (addressed) of a board whose RESULT did not come.  A board still silent after
+        that is not given up: the next round asks it again."""
         waiting = [b for b in self._state.values() if b.alive and not b.verified]
         for b in waiting:
             b.result = None
             b.reports = []
         self._send(m.ProgramEnd())
         board_time = self.timeouts.verify(plan.size_words)
+        asks = {b.address: 1 for b in waiting}
         for attempt in range(1 + self.timeouts.retries):
             lacking = [b for b in waiting if not b.answered]
             deadline = self.link.deadline(board_time,
@@ -276,15 +383,15 @@ class Programmer:
                 break
             for b in lacking:
                 self._send(m.ProgramEnd(), b.address)
+                asks[b.address] += 1
         for b in waiting:
-            if b.alive and b.result is None:
-                b.alive = False
-                b.failure = ("sent no Program Finished after End, asked "
-                             f"{1 + self.timeouts.retries} times")
+            b.unanswered = 0 if b.result is not None else b.unanswered + asks[b.address]
 
     def _missing(self, plan: TransferPlan) -> tuple[dict[int, set[int]], bool]:
         """What to send again (the union over the boards), and whether the round made
-        progress (a board verified, or what some board lacks changed)."""
+        progress: a board verified, or what a board reported (its RESULT's number of
+        reports and the reports that came) changed.  A board that did not answer gets
+        again what it reported the round before."""
         needed: dict[int, set[int]] = {}
         progress = False
         for b in self._state.values():
@@ -292,32 +399,40 @@ class Programmer:
                 continue
             r = b.result
             if r is None:
-                continue
-            if r.status is ResultStatus.VERIFIED:
+                again: frozenset[tuple[int, int]] = b.missing or frozenset()
+            elif r.status is ResultStatus.VERIFIED:
                 progress |= b.missing is None or bool(b.missing)
                 b.missing = frozenset()
                 continue
-            if r.status is not ResultStatus.MISSING:
+            elif r.status is not ResultStatus.MISSING:
                 b.alive = False
                 b.failure = r.status.text + (
                     f" (board computed 0x{r.progid:08X}, image has 0x{plan.progid:08X})"
                     if r.status is ResultStatus.PROGID_MISMATCH else "")
                 continue
-            lacks: set[tuple[int, int]] = set()
-            for rep in b.reports:
-                if isinstance(rep, m.ProgramMissing):
-                    for i in range(rep.first, min(rep.first + rep.count, len(plan.blocks))):
-                        lacks.update((i, s) for s in range(plan.blocks[i].frames))
-                elif rep.block < len(plan.blocks):
-                    lacks.update((rep.block, s) for s in range(rep.first, rep.first + rep.count)
-                                 if s < plan.blocks[rep.block].frames)
-            new = frozenset(lacks)
-            progress |= new != b.missing
-            b.missing = new
-            b.resent += len(new)
-            for i, s in new:
+            else:
+                lacks = frozenset(self._reported(plan, b))
+                said = (r.reports, lacks)
+                progress |= said != b.said
+                b.said = said
+                b.missing = again = lacks  # a lost report: its frames are asked next round
+            b.resent += len(again)
+            for i, s in again:
                 needed.setdefault(i, set()).add(s)
         return needed, progress
+
+    @staticmethod
+    def _reported(plan: TransferPlan, b: _Board) -> set[tuple[int, int]]:
+        """The (block, slot) pairs board ``b``'s MISSING and PARTIAL reports name."""
+        lacks: set[tuple[int, int]] = set()
+        for rep in b.reports:
+            if isinstance(rep, m.ProgramMissing):
+                for i in range(rep.first, min(rep.first + rep.count, len(plan.blocks))):
+                    lacks.update((i, s) for s in range(plan.blocks[i].frames))
+            elif rep.block < len(plan.blocks):
+                lacks.update((rep.block, s) for s in range(rep.first, rep.first + rep.count)
+                             if s < plan.blocks[rep.block].frames)
+        return lacks
 
     # ------------------------------------------------------------------ receiving
     def _handle(self, got: Received) -> None:
@@ -358,3 +473,199 @@ class Programmer:
                                 f"0x{progid:08X}", b.resent, errors)
         return BoardOutcome(b.address, False, r.progid if r and r.progid else None,
                             b.failure or "no answer", b.resent, errors)
+
+
+# ---------------------------------------------------------------------- other hosts
+class OtherHosts:
+    """Frames another host put on the bus, as this host sees them (``man/ucom-protocol.7``,
+    PROGRAMMING, Other hosts): a subscriber of the link's dispatcher that hands every frame
+    of :attr:`functions` to :meth:`judge` and counts what it names in :attr:`seen`.
+
+    A frame this host sent is never another host's.  Where the interface echoes sent frames
+    (python-can's ``receive_own_messages``) the echo is marked as sent (``is_rx`` false),
+    or it equals a frame this host sent and is stamped within the time an echo takes of
+    the sending (the frames still on their way at the bus bitrate, and the transport
+    margin; sent frames are stamped on the base of received ones,
+    :meth:`~ucom_tools.protocol.dispatch.Dispatcher.stamp`): both are left alone.  The
+    frames this host sends are seen through a tap on the dispatcher; :meth:`pause` takes
+    it off a hot path, whose sender reports the frames that matter with :meth:`own`."""
+
+    functions: frozenset[int] = frozenset()
+    """Function codes (identifier bits 10-6) of the frames :meth:`judge` looks at."""
+
+    def __init__(self, link: Link) -> None:
+        self.link = link
+        self.seen: Counter[str] = Counter()
+        """What :meth:`judge` named, with how often."""
+        self._own: dict[tuple[int, bytes], deque[tuple[float, float]]] = {}
+        """Frames this host sent: when (stamp), and how long an echo may take, the last
+        few times each was sent."""
+        self._sub: Subscription | None = None
+        self._tapping = False
+
+    def _accepts(self, msg: can.Message) -> bool:
+        return not (msg.is_extended_id or msg.is_error_frame or msg.is_remote_frame) and \
+            (msg.arbitration_id >> 6) in self.functions
+
+    # ------------------------------------------------------------------ life
+    def start(self) -> Self:
+        if self._sub is None:
+            self._sub = self.link.dispatcher.subscribe(
+                self._accepts, f"{self.link.name} other hosts", on_frame=self._take)
+        self.resume()
+        return self
+
+    def close(self) -> None:
+        self.pause()
+        if self._sub is not None:
+            self.link.dispatcher.unsubscribe(self._sub)
+            self._sub = None
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    def pause(self) -> None:
+        """Stop looking at the frames this host sends (its sender reports them: :meth:`own`)."""
+        if self._tapping:
+            self._tapping = False
+            with contextlib.suppress(ValueError):
+                self.link.dispatcher.taps.remove(self._tap)
+
+    def resume(self) -> None:
+        """Look at the frames this host sends again."""
+        if not self._tapping:
+            self._tapping = True
+            self.link.dispatcher.taps.append(self._tap)
+
+    # ------------------------------------------------------------------ own frames
+    def own(self, arbitration_id: int, data: bytes, stamp: float | None = None) -> None:
+        """A frame this host sent (at ``stamp``, now if None): its echo is not another
+        host's."""
+        key = (arbitration_id, bytes(data))
+        sends = self._own.get(key)
+        if sends is None:
+            sends = self._own[key] = deque(maxlen=OWN_SENDS)
+        when = self.link.dispatcher.stamp() if stamp is None else stamp
+        sends.append((when, self.link.budget(0.0, answers=1)))
+        self.sent(arbitration_id, data)
+
+    def sent(self, arbitration_id: int, data: bytes) -> None:
+        """This host sent a frame of :attr:`functions` (what it asked for, for :meth:`judge`)."""
+
+    def _tap(self, msg: can.Message) -> None:
+        if not msg.is_rx and (msg.arbitration_id >> 6) in self.functions:
+            self.own(msg.arbitration_id, bytes(msg.data), msg.timestamp)
+
+    def _take(self, msg: can.Message) -> None:
+        if not msg.is_rx:
+            return  # an echo the interface marks as this host's
+        key = (msg.arbitration_id, bytes(msg.data))
+        t = msg.timestamp
+        if any(abs(t - when) <= echo for when, echo in self._own.get(key, ())):
+            return  # this host's own frame, echoed
+        what = self.judge(msg.arbitration_id, key[1])
+        if what:
+            self.seen[what] += 1
+
+    def judge(self, arbitration_id: int, data: bytes) -> str | None:
+        """What a received frame that this host did not send shows of another host's
+        work, or None when it shows nothing."""
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ looking
+    def listen(self, seconds: float) -> None:
+        """Read the bus for ``seconds`` of its clock, sending nothing (every frame is
+        judged on its way: the watch subscribed first)."""
+        d = self.link.dispatcher
+        listening = d.subscribe(self._accepts, f"{self.link.name} listening")
+        deadline = self.link.clock() + seconds
+        try:
+            while d.wait(listening, deadline) is not None:
+                listening.queue.clear()
+        finally:
+            d.unsubscribe(listening)
+
+    def summary(self, limit: int = 4) -> str:
+        """What was seen, most frequent first (``12 x MCA Alive, CI map 1``)."""
+        items = [f"{n} x {what}" if n > 1 else what
+                 for what, n in self.seen.most_common(limit)]
+        more = len(self.seen) - limit
+        return ", ".join(items) + (f" and {more} other kinds" if more > 0 else "")
+
+
+class ProgrammingWatch(OtherHosts):
+    """Another host's programming traffic: Program frames and SetStatus PROG_ENABLE this
+    host did not send (data frames until this host sends data of its own: then an echo
+    could not be told from them, and their BLOCK frames still show), and answers to
+    requests this host never made: Ready ERASED, PAUSE or RESUME before its PREPARE,
+    Ready STATUS of ProgEnable before its SetStatus PROG_ENABLE, Program Finished before
+    its END."""
+
+    functions = frozenset({Function.PROGRAM, Function.SET_STATUS, Function.READY,
+                           Function.PROGRAM_FINISHED})
+
+    def __init__(self, link: Link) -> None:
+        super().__init__(link)
+        self.asked: set[str] = set()
+        """What this host has sent so far: "enable", "prepare", "end", "data"."""
+
+    def sending_data(self) -> None:
+        """This host sends data frames from now on."""
+        self.asked.add("data")
+
+    def sent(self, arbitration_id: int, data: bytes) -> None:
+        function = arbitration_id >> 6
+        if function == Function.PROGRAM and len(data) < 8 and data:
+            if data[0] == ProgramOp.PREPARE:
+                self.asked.add("prepare")
+            elif data[0] == ProgramOp.END:
+                self.asked.add("end")
+        elif function == Function.SET_STATUS and data[:1] == bytes([StatusOp.PROG_ENABLE]):
+            self.asked.add("enable")
+
+    def judge(self, arbitration_id: int, data: bytes) -> str | None:
+        function = arbitration_id >> 6
+        if function == Function.PROGRAM:
+            if len(data) == 8:
+                return None if "data" in self.asked else "Program data frame"
+            try:
+                return f"Program {ProgramOp(data[0]).name}"
+            except (IndexError, ValueError):
+                return "Program frame"
+        if function == Function.SET_STATUS:
+            if data[:1] == bytes([StatusOp.PROG_ENABLE]):
+                return "SetStatus PROG_ENABLE"
+            return None
+        if function == Function.PROGRAM_FINISHED:
+            return None if "end" in self.asked else "Program Finished (this host sent no END)"
+        try:
+            ready = m.Ready.decode(data)
+        except FrameError:
+            return None
+        if ready.reason in (ReadyReason.ERASED, ReadyReason.PAUSE, ReadyReason.RESUME) and \
+                "prepare" not in self.asked:
+            return f"Ready {ready.reason.name} (this host sent no PREPARE)"
+        if ready.reason is ReadyReason.STATUS and ready.value16 >> 8 == StatusOp.PROG_ENABLE \
+                and "enable" not in self.asked:
+            return "Ready STATUS of ProgEnable (this host sent no SetStatus)"
+        return None
+
+    def check(self, bus: str, done: str) -> None:
+        """BusError naming what was seen, if another host showed itself; ``done`` says
+        what became of this host's job."""
+        if self.seen:
+            raise BusError(f"another host is programming {bus} (frames from another host: "
+                           f"{self.summary()}); {done}")
+
+
+def quiet_time(link: Link, timeouts: Timeouts = DEFAULT) -> float:
+    """How long to listen for another host's transfer before one's own: the longest its
+    boards leave the bus silent once their flash is erased, the wait for Program Finished
+    after END of the largest image a board takes (the boards' verification, their answer,
+    the transport margin).  The erase itself (up to 25 ms a page) can pass unheard; that
+    host shows itself when its data begin (:class:`ProgrammingWatch`)."""
+    return link.budget(timeouts.reply + timeouts.verify(LARGEST_PROGRAM), answers=1)
