@@ -24,6 +24,7 @@ import pytest
 from tests.test_socketcand import served
 from ucom_tools.transport.socketcand import (
     MAX_ELEMENT,
+    PINGS,
     ElementSplitter,
     SocketcandBus,
     parse_frame,
@@ -85,13 +86,18 @@ class Peer:
         got, self._heard = self._heard[:len(want)], self._heard[len(want):]
         assert got == want
 
-    def greet(self, channel: str = "CAN0", after_rawmode: str = "< ok >") -> None:
-        """The server's side of a handshake that succeeds."""
+    def greet(self, channel: str = "CAN0", after_rawmode: str = "< ok >",
+              tail: str = "") -> None:
+        """The server's side of a handshake that succeeds, with the client's round trips
+        (its ``< echo >`` pings) answered; ``tail`` comes with the last answer."""
         self.say("< hi >")
         self.hear(f"< open {channel} >")
         self.say("< ok >")
         self.hear("< rawmode >")
         self.say(after_rawmode)
+        for i in range(PINGS):
+            self.hear("< echo >")
+            self.say("< echo >" + (tail if i == PINGS - 1 else ""))
 
     def wait_closed(self) -> None:
         """Read (and drop) everything until the client closes the connection."""
@@ -238,7 +244,7 @@ def test_frames_split_and_glued_are_decoded_in_order() -> None:
 
     def script(peer: Peer) -> None:
         # the handshake's last answer arrives together with half a frame
-        peer.greet(after_rawmode="< ok >< frame 0C1 1700000000.000001 01")
+        peer.greet(tail="< frame 0C1 1700000000.000001 01")
         while (piece := pieces.get(timeout=5)) is not None:
             peer.say(piece)
         peer.wait_closed()

@@ -172,8 +172,7 @@ def robot(spec: ConnectSpec, *, run_init: bool = False, bus: str | None = None
     r = open_robot(spec)
     try:
         if run_init:
-            for h in r.select(bus):
-                h.client.init_chain()
+            r.each(lambda h: h.client.init_chain(), bus)
         yield r
     except InputError:
         r.close(keep_log=False)  # bad input: nothing is written, --log neither

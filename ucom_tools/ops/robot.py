@@ -14,9 +14,10 @@ import copy
 import os
 import threading
 from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import can
 from can.io.generic import MessageWriter
@@ -36,6 +37,8 @@ from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.transport.socketcand import SocketcandBus
+
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -87,6 +90,20 @@ def transport_margin(kind: str) -> float:
     return TRANSPORT_MARGIN.get(kind, LOCAL_MARGIN)
 
 
+ROUND_TRIPS = 4
+"""A network bus's margin is this many of its measured round trips (there and back for
+the request and the answer, and as much again for the server's scheduling) ..."""
+
+
+def network_margin(round_trip_s: float | None) -> float:
+    """The margin of a network bus whose round trip was measured on its connection
+    (:attr:`SocketcandBus.round_trip_s`): :data:`ROUND_TRIPS` of them, at least
+    :data:`LOCAL_MARGIN`; the fixed :data:`TRANSPORT_MARGIN` when none could be."""
+    if round_trip_s is None:
+        return TRANSPORT_MARGIN["socketcand"]
+    return max(LOCAL_MARGIN, ROUND_TRIPS * round_trip_s)
+
+
 @dataclass
 class BusHandle:
     """One open bus with its protocol clients and the boards expected on it."""
@@ -122,6 +139,20 @@ class Robot:
         if name not in self.buses:
             raise InputError(f"no bus {name!r}; buses: {', '.join(self.buses)}", key="--bus")
         return [self.buses[name]]
+
+    def each(self, work: Callable[[BusHandle], T], name: str | None = None) -> list[T]:
+        """``work`` on every selected bus (``name``: one), in bus order: all buses at once,
+        one thread each (a robot's buses are independent: init, Info, flash take the time
+        of the slowest bus, not the sum), or one after the other in virtual time, where
+        the fleet clock is driven by whoever waits and threads would only take turns.
+        The first exception, after every bus has finished its work."""
+        handles = self.select(name)
+        if len(handles) == 1 or self.virtual_time:
+            return [work(h) for h in handles]
+        with ThreadPoolExecutor(max_workers=len(handles),
+                                thread_name_prefix="ucom-bus") as pool:
+            futures = [pool.submit(work, h) for h in handles]
+        return [f.result() for f in futures]
 
     def close(self, *, keep_log: bool = True) -> None:
         """Shut every bus down, then end the ``--log`` recording: renamed into place
@@ -344,7 +375,9 @@ def _open(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
                                f"{_one_line(err)}") from err
             name = exp.name if exp is not None else channel
             bitrate = spec.bitrate or (exp.bitrate if exp is not None else DEFAULT_BITRATE)
-            link = Link(bus, name, bitrate=bitrate, margin=transport_margin(spec.interface))
+            margin = network_margin(bus.round_trip_s) if isinstance(bus, SocketcandBus) \
+                else transport_margin(spec.interface)
+            link = Link(bus, name, bitrate=bitrate, margin=margin)
             buses[name] = BusHandle(name, bus, link, BootloaderClient(link, timeouts), exp,
                                     virtual=False)
     return Robot(spec, buses, topology, timeouts=timeouts)

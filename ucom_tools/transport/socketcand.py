@@ -124,6 +124,11 @@ class ElementSplitter:
             log.warning("socketcand: skipped %r outside an element", junk[:80])
 
 
+PINGS = 3
+"""``< echo >`` round trips measured after the handshake."""
+PING_WAIT_S = 0.1
+"""The least an echo is waited for (more on a slow connection: 20 rawmode round trips)."""
+
 _FRAME = re.compile(r"< frame ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) (\d+\.\d+) ([0-9A-Fa-f]{0,16}) ?>\Z",
                     re.ASCII)
 """The common case, a frame with contiguous data, parsed in one match."""
@@ -228,6 +233,9 @@ class SocketcandBus(can.BusABC):
         """This machine's clock minus the server's, as measured (seconds; inf until the
         first frame)."""
         self._pending: deque[can.Message] = deque()
+        self.round_trip_s: float | None = None
+        """The longest of the round trips measured while connecting (``< rawmode >`` and
+        :data:`PINGS` ``< echo >``): what the deadlines of a network bus add."""
         self._send_lock = threading.Lock()
         self._batch: list[bytes] | None = None
         self._batch_thread: int | None = None
@@ -251,8 +259,31 @@ class SocketcandBus(can.BusABC):
         command = f"< open {self.channel} >"
         self._handshake_send(command)
         self._expect("ok", command)
+        sent = time.monotonic()
         self._handshake_send("< rawmode >")
         self._expect("ok", "< rawmode >")
+        trips = [time.monotonic() - sent]
+        for _ in range(PINGS):  # a server that does not echo costs at most this much
+            trip = self._ping(min(self.handshake_timeout, max(PING_WAIT_S, 20 * trips[0])))
+            if trip is None:
+                break
+            trips.append(trip)
+        self.round_trip_s = max(trips)
+
+    def _ping(self, wait: float) -> float | None:
+        """One ``< echo >`` round trip in seconds, or None when the server does not answer
+        it within ``wait`` seconds (frames that come meanwhile are kept)."""
+        sent = time.monotonic()
+        deadline = sent + wait
+        try:
+            self._write(b"< echo >", wait)
+        except can.CanOperationError:
+            return None
+        while (element := self._next_element(deadline)) is not None:
+            if element[1:-1].split() == ["echo"]:
+                return time.monotonic() - sent
+            self._take(element)
+        return None
 
     def _handshake_send(self, command: str) -> None:
         try:
