@@ -26,6 +26,7 @@ from ucom_tools.cli import (
     dbc,
     decode,
     fleet,
+    image,
     output,
     params,
     remote,
@@ -85,10 +86,10 @@ def cli(ctx: click.Context, verbose: int) -> None:
     Exit codes: 0 success, 1 some boards failed (or are missing, or a wiring fault),
     2 usage error, 3 bad input (file, topology, argument, environment; nothing was sent),
     4 bus or connection failure, 5 an output could not be written (full disk), 130
-    interrupted (129, 143: ended by SIGHUP, SIGTERM; the same safe stop).  The connection options may come from
-    UCOM_INTERFACE, UCOM_CHANNEL, UCOM_BITRATE, UCOM_HOST, UCOM_PORT, UCOM_VIRTUAL,
-    UCOM_TOPOLOGY, UCOM_STATE, UCOM_PACE; a bus named on the command line wins over the
-    environment.  See ucom(1) and ucom-protocol(7).
+    interrupted (129, 143: ended by SIGHUP, SIGTERM; the same safe stop).  The connection
+    options may come from UCOM_INTERFACE, UCOM_CHANNEL, UCOM_BITRATE, UCOM_HOST,
+    UCOM_PORT, UCOM_VIRTUAL, UCOM_TOPOLOGY, UCOM_STATE, UCOM_PACE; a bus named on the
+    command line wins over the environment.  See ucom(1) and ucom-protocol(7).
     """
     output.reset()
     ctx.ensure_object(dict)
@@ -98,6 +99,7 @@ def cli(ctx: click.Context, verbose: int) -> None:
 for _command in commands.COMMANDS:
     cli.add_command(_command)
 cli.add_command(console.console)
+cli.add_command(image.image)
 cli.add_command(srec.srec)
 cli.add_command(fleet.fleet)
 cli.add_command(tree.tree)
