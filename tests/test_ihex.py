@@ -304,3 +304,37 @@ def test_the_corpus_is_what_the_generator_writes(tmp_path: Path) -> None:
     made = {p.name for p in tmp_path.iterdir()}
     objcopy = {"legacy_objcopy.hex", "word_addressed_objcopy.hex"}
     assert made | objcopy == {p.name for p in CORPUS.iterdir()}
+
+
+CUTS = [  # (characters of the last data record kept, where it ends)
+    (4, "inside the address"), (7, "inside the record type"), (20, "inside the data"),
+    (40, "before the checksum"), (41, "inside the checksum")]
+
+
+@pytest.mark.parametrize("keep, where", CUTS, ids=[c[1].replace(" ", "_") for c in CUTS])
+def test_a_file_cut_inside_a_record_names_line_and_place(tmp_path: Path, keep: int,
+                                                         where: str) -> None:
+    lines = (CORPUS / "small.hex").read_text().splitlines()
+    path = tmp_path / "cut.hex"
+    path.write_text("\n".join([*lines[:3], lines[3][:1 + keep]]))
+    with pytest.raises(ImageError) as info:
+        load_image(path)
+    assert info.value.line == 4
+    assert info.value.reason.startswith("record cut short: its length byte 10 promises 16 "
+                                        "data bytes, 42 hex digits after ':'")
+    assert info.value.reason.endswith(f"the line has only {keep}; it ends {where}")
+
+
+@pytest.mark.parametrize("byte_count", [7, 32, 255])
+def test_hex_from_another_writer_with_any_record_size_reads_the_same(
+        tmp_path: Path, byte_count: int) -> None:
+    """intelhex's own writer, records of an odd size too (words split across records)."""
+    ref = load_image(FIRMWARE / "armar3.fl.S")
+    ih = intelhex.IntelHex()
+    ih.loadhex(str(CORPUS / "armar3.hex"))
+    path = tmp_path / "other.hex"
+    with path.open("w") as f:
+        ih.write_hex_file(f, byte_count=byte_count)
+    img = load_image(path)
+    assert (img.words, img.vector_words, img.entry, img.progid) == (
+        ref.words, ref.vector_words, ref.entry, ref.progid)
