@@ -22,7 +22,7 @@ _PEEK = 64 * 1024
 
 
 def format_of_name(name: str | os.PathLike[str]) -> str | None:
-    """"ihex" for a name the extension makes Intel HEX, else None (decided by content)."""
+    """Intel HEX ("ihex") for a name the extension decides, else None (by content)."""
     return "ihex" if os.fspath(name).lower().endswith(ihex.SUFFIXES) else None
 
 
@@ -52,7 +52,7 @@ def load_image(path: str | Path, *, addressing: str = "auto") -> Image:
 
 
 def _by_content(binary: BinaryIO, source: str) -> str:
-    """"ihex" when the first non-blank byte of ``binary`` is ':', else "srec"; the stream
+    """The format by content: "ihex" when the first non-blank byte is ":", else "srec"; the stream
     is put back at its start."""
     seen = 0
     try:
