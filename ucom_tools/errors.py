@@ -48,7 +48,7 @@ class TopologyError(InputError):
 
 
 class ImageError(InputError):
-    """A firmware image (S-record file) that cannot be programmed."""
+    """A firmware image (S-record or Intel HEX file) that cannot be programmed."""
 
 
 class WriteError(UcomError):

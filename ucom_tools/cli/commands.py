@@ -372,7 +372,7 @@ def _cancelled(ctx: click.Context, e: BaseException) -> None:
 def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
               start_after: bool, no_verify: bool, force: bool, keep_params: bool,
               spec: ConnectSpec, bus_name: str | None, as_json: bool) -> None:
-    """Program IMAGE (S-record) into the boards of every bus, verified.
+    """Program IMAGE (S-record or Intel HEX) into the boards of every bus, verified.
 
     Resets, runs the init chain with wiring checks, brings boards that run a program back
     to their bootloader, enables programming, sends the image once per bus (all buses in

@@ -114,7 +114,7 @@ class Session:
             15: ((), self.do_last),
             16: ((), self.do_list_update),
             17: ((), self.do_list_print),
-            18: ((Param("file", "S-record file"),), self.do_load),
+            18: ((Param("file", "image file (S-record or Intel HEX)"),), self.do_load),
             19: ((), self.do_progid),
             20: ((FORCE,), self.do_progall),
             21: ((ONE_BOARD,), self.do_reset_one),
@@ -240,8 +240,8 @@ class Session:
 
     def _need_image(self) -> Image | None:
         if self.image is None:
-            self.out.print("no S-record file loaded (option 18)")
-            path = self.ask("  S-record file: ").strip()
+            self.out.print("no S-record file loaded (option 18; Intel HEX is read too)")
+            path = self.ask("  image file (S-record or Intel HEX): ").strip()
             if not path:
                 return None
             self.do_load(path)
@@ -415,7 +415,8 @@ def _scripted(session: Session) -> None:
 
 @click.command("console")
 @click.option("--image", "image_path", type=click.Path(),
-              help="S-record file to load at start (like dsp_console2can's command line).")
+              help="Image to load at start, S-record or Intel HEX (like dsp_console2can's "
+                   "command line).")
 @connection_options
 def console(image_path: str | None, spec: ConnectSpec, bus_name: str | None) -> None:
     """The interactive console of dsp_console2can: options 1-21 and q.

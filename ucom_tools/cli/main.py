@@ -26,6 +26,7 @@ from ucom_tools.cli import (
     dbc,
     decode,
     fleet,
+    image,
     output,
     params,
     remote,
@@ -106,6 +107,7 @@ def cli(ctx: click.Context, verbose: int) -> None:
 for _command in commands.COMMANDS:
     cli.add_command(_command)
 cli.add_command(console.console)
+cli.add_command(image.image)
 cli.add_command(srec.srec)
 cli.add_command(fleet.fleet)
 cli.add_command(tree.tree)

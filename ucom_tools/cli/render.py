@@ -234,7 +234,8 @@ def print_probe(c: Console, results: list[ProbeResult]) -> None:
 def image_json(img: Image, plan: TransferPlan) -> dict[str, Any]:
     from ucom_tools.wire.codes import Space
     return {
-        "file": img.path, "header": img.header, "entry": f"P:{img.entry:04X}",
+        "file": img.path, "format": img.format_name, "header": img.header,
+        "entry": f"P:{img.entry:04X}",
         "addressing": img.addressing, "records": img.records,
         "progid": hex32(plan.progid), "size_words": img.size(),
         "words": {"P": img.size(Space.P), "X": img.size(Space.X)},
@@ -265,8 +266,10 @@ def descriptor_json(d: ImageDescriptor | None) -> dict[str, Any] | None:
 def print_image(c: Console, img: Image, plan: TransferPlan) -> None:
     d = image_json(img, plan)
     c.print(f"[bold]{escape(img.path)}[/]")
-    c.print(f"  header     {escape(repr(d['header']))}   ({d['records']} records, "
-            f"{img.addressing} addresses)")
+    c.print(f"  format     {d['format']} ({d['records']} records, {img.addressing} "
+            "addresses)")
+    if img.format == "srec":
+        c.print(f"  header     {escape(repr(d['header']))}")
     c.print(f"  entry      {d['entry']}")
     c.print(f"  size       {d['size_words']} words ({d['words']['P']} P:, {d['words']['X']} X:)"
             f" = {d['size_words'] * 2} bytes in {d['blocks']} blocks")

@@ -24,11 +24,11 @@ import io
 import itertools
 import os
 import re
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TextIO
+from typing import BinaryIO, TextIO
 
 import bincopy
 
@@ -46,6 +46,12 @@ from ucom_tools.wire.transfer import (
 )
 
 X_OFFSET = 0x0020_0000
+"""X: word a is at word address X_OFFSET + a (at byte address 2 * (X_OFFSET + a))."""
+FORMAT_NAMES = {"srec": "S-record", "ihex": "Intel HEX"}
+CODEWARRIOR_HEADER = "PROGRAM&DATA"
+"""The S0 header CodeWarrior writes (and ucom writes where an image has none)."""
+WORDS_PER_RECORD = 16
+"""Words per S3 record that ucom writes, as tools/make_firmware_images.py does."""
 MAX_FILE_BYTES = 16 * 1024 * 1024
 """Largest file accepted (line ends included), counted while reading."""
 MAX_RECORD_CHARS = 2 + 2 * (1 + 255)
@@ -88,6 +94,12 @@ class Image:
     addressing: str
     descriptor: ImageDescriptor | None = None
     """What the program was built for (P:7DE0); None = no descriptor (flagged)."""
+    format: str = "srec"
+    """The file's format: "srec" (S-records) or "ihex" (Intel HEX)."""
+
+    @property
+    def format_name(self) -> str:
+        return FORMAT_NAMES[self.format]
 
     @property
     def name(self) -> str:
@@ -133,22 +145,45 @@ def load_image(path: str | Path, *, addressing: str = "auto") -> Image:
 
     The file is read line by line and checked as it is read: reading stops at the first
     bad line, or once more than :data:`MAX_FILE_BYTES` have come (devices, FIFOs)."""
+    _check_addressing(addressing, str(path))
+    return load_stream(open_image(path, "an S-record file"), str(path), addressing=addressing)
+
+
+def load_stream(binary: BinaryIO, source: str, *, addressing: str = "auto") -> Image:
+    """Read and check the S-record file open as ``binary`` (closed afterwards)."""
+    def read(stream: TextIO, too_big: bool) -> Image:
+        _check_addressing(addressing, source)
+        return _image(_records(_lines(stream, source, too_big=too_big), source), source,
+                      addressing)
+
+    return read_stream(binary, source, read)
+
+
+def open_image(path: str | Path, what: str) -> BinaryIO:
+    """Image file ``path`` opened for reading (a regular file, :func:`fileio.open_input`);
+    :class:`ImageError` naming it when it cannot be.  The size cap is applied as it is
+    read (:func:`read_stream`), so that a huge file that is no image is named as such."""
     source = str(path)
-    _check_addressing(addressing, source)
+
     def refuse(text: str) -> ImageError:
         return ImageError(text, file=source)
 
-    binary = fileio.open_input(path, limit=1 << 62, what="an S-record file", error=refuse)
+    return fileio.open_input(path, limit=1 << 62, what=what, error=refuse)
+
+
+def read_stream(binary: BinaryIO, source: str,
+                reader: Callable[[TextIO, bool], Image]) -> Image:
+    """``reader(text stream, too_big)`` applied to ``binary`` (one character per byte),
+    which is closed afterwards; a failing read is :class:`ImageError`."""
     try:
         st = os.fstat(binary.fileno())
-        too_big = st.st_size > MAX_FILE_BYTES
+        too_big = st.st_size > MAX_FILE_BYTES  # a regular file (open_image)
         with io.TextIOWrapper(binary, encoding="latin-1", newline="") as stream:  # byte = char
-            records = _records(_lines(stream, source, too_big=too_big), source)
+            return reader(stream, too_big)
     except OSError as err:
         raise ImageError(f"cannot read: {fileio.reason(err)}", file=source) from None
     finally:
         binary.close()
-    return _image(records, source, addressing)
 
 
 def parse_image(text: str, source: str = "<image>", *, addressing: str = "auto") -> Image:
@@ -164,35 +199,38 @@ def _check_addressing(addressing: str, source: str) -> None:
                          file=source)
 
 
-def _lines(stream: TextIO, source: str, *, too_big: bool = False) -> Iterator[tuple[int, str]]:
+def _lines(stream: TextIO, source: str, *, too_big: bool = False, kind: str = "S-record",
+           record: str = "S-record", max_record: int = MAX_RECORD_CHARS,
+           max_line: int = MAX_LINE_CHARS) -> Iterator[tuple[int, str]]:
     """The numbered lines of ``stream``, without line ends (LF, CR LF or CR), each checked
-    to be printable ASCII and at most MAX_LINE_CHARS long; the whole stream at most
+    to be printable ASCII and at most ``max_line`` long; the whole stream at most
     MAX_FILE_BYTES, counted while reading since devices and FIFOs report no size.
 
     ``too_big``: the file's size is known to exceed the limit; it is refused after its
-    first line, so that a file that is no S-record file at all is named as such."""
+    first line, so that a file that is no image file at all is named as such.  ``kind``
+    and ``record`` name the format in messages ("Intel HEX", "Intel HEX record")."""
     total = 0
     for no in itertools.count(1):
-        line = stream.readline(MAX_LINE_CHARS + 3)  # a whole line with CR LF, or one more
+        line = stream.readline(max_line + 3)  # a whole line with CR LF, or one more
         if not line:
             return
         total += len(line)
         if total > MAX_FILE_BYTES:
             raise ImageError(f"file is larger than {_amount(MAX_FILE_BYTES)}; not an "
-                             "S-record image for a DSP56F803", file=source, line=no)
+                             f"{kind} image for a DSP56F803", file=source, line=no)
         body = line.rstrip("\r\n")
         bad = _NOT_TEXT.search(body)
         if bad:
-            raise ImageError(f"not an S-record file: {_describe(bad.group())}", file=source,
+            raise ImageError(f"not an {kind} file: {_describe(bad.group())}", file=source,
                              line=no, column=bad.start() + 1)
-        if len(body) > MAX_LINE_CHARS:
-            raise ImageError(f"not an S-record: the line is longer than {MAX_LINE_CHARS} "
-                             f"characters (a record has at most {MAX_RECORD_CHARS})",
+        if len(body) > max_line:
+            raise ImageError(f"not an {record}: the line is longer than {max_line} "
+                             f"characters (a record has at most {max_record})",
                              file=source, line=no)
         yield no, body
         if too_big:
             raise ImageError(f"file is larger than {_amount(MAX_FILE_BYTES)}; not an "
-                             "S-record image for a DSP56F803", file=source)
+                             f"{kind} image for a DSP56F803", file=source)
 
 
 def _amount(size: int) -> str:
@@ -330,19 +368,43 @@ def _image(records: list[_Record], source: str, addressing: str) -> Image:
         else:
             entry = r.address // 2 if mode == "byte" else r.address
             end_line = r.line
+    return finish_image(source, header=header, entry=entry, entry_line=end_line, words=words,
+                        vectors=vectors, records=len(records), addressing=mode,
+                        line_of=lines.get)
+
+
+def finish_image(source: str, *, header: str, entry: int, entry_line: int | None,
+                 words: dict[tuple[Space, int], int], vectors: dict[int, int], records: int,
+                 addressing: str, line_of: Callable[[tuple[Space, int]], int | None],
+                 format: str = "srec") -> Image:
+    """The checks on an image as a whole, for every format: words to program, an entry in
+    program flash, a descriptor that can be read.  ``line_of`` gives a word's line."""
     if not words:
         raise ImageError("empty image: no data words to program" + (
             " (only reset-vector words, which the bootloader keeps)" if vectors else ""),
             file=source)
     if not (0x0004 <= entry <= 0x7DFF):
         raise ImageError(f"entry address P:{entry:04X} is not in program flash "
-                         "(P:0004-7DFF)", file=source, line=end_line)
+                         "(P:0004-7DFF)", file=source, line=entry_line)
     try:
         descriptor = ImageDescriptor.from_image(words)
     except FrameError as err:
         raise ImageError(f"image descriptor at P:{DESCRIPTOR_ADDRESS:04X}: {err.message}",
-                         file=source, line=lines.get((Space.P, DESCRIPTOR_ADDRESS))) from None
-    return Image(source, header, entry, words, vectors, len(records), mode, descriptor)
+                         file=source, line=line_of((Space.P, DESCRIPTOR_ADDRESS))) from None
+    return Image(source, header, entry, words, vectors, records, addressing, descriptor,
+                 format)
+
+
+def region_problem(space: Space, addr: int) -> str | None:
+    """Why word ``space:addr`` cannot be in an image, or None: it may (program flash,
+    data flash, or one of the reset-vector words P:0000-0003, which are kept aside)."""
+    if space is Space.P and addr in VECTOR_WORDS:
+        return None
+    kind = kind_of(space, addr)
+    if kind in (Kind.PROGRAM_FLASH, Kind.DATA_FLASH):
+        return None
+    return (f"word {space.name}:{addr:04X} lies in {kind.value}; only program flash "
+            "P:0004-7DFF and data flash X:1000-1EFF can be programmed")
 
 
 def _add_words(r: _Record, mode: str, source: str, words: dict[tuple[Space, int], int],
@@ -373,13 +435,43 @@ def _add_words(r: _Record, mode: str, source: str, words: dict[tuple[Space, int]
             first = lines.get(key) or "an earlier line"
             raise ImageError(f"word {space.name}:{addr:04X} is also written on line {first} "
                              "(overlapping data)", file=source, line=r.line)
+        problem = region_problem(space, addr)
+        if problem:
+            raise ImageError(problem, file=source, line=r.line)
         if space is Space.P and addr in VECTOR_WORDS:
             vectors[addr] = value
             continue
-        kind = kind_of(space, addr)
-        if kind not in (Kind.PROGRAM_FLASH, Kind.DATA_FLASH):
-            raise ImageError(f"word {space.name}:{addr:04X} lies in {kind.value}; only "
-                             "program flash P:0004-7DFF and data flash X:1000-1EFF can be "
-                             "programmed", file=source, line=r.line)
         words[key] = value
         lines[key] = r.line
+
+
+def dumps(img: Image) -> str:
+    """``img`` as S-record text in the CodeWarrior 56800 convention, which ucom and
+    CodeWarrior read: an S0 header (the image's, else "PROGRAM&DATA"), S3 records of
+    :data:`WORDS_PER_RECORD` words at WORD addresses (X: at 0x00200000 + address), each
+    word low byte first, the reset-vector words included, and an S7 entry record."""
+    lines = [bincopy.pack_srec("0", 0, len(header), header)
+             for header in [(img.header or CODEWARRIOR_HEADER).encode("latin-1")]]
+    every = dict(img.words)
+    every.update({(Space.P, a): v for a, v in img.vector_words.items()})
+    for space, start, values in runs(every):
+        base = X_OFFSET if space is Space.X else 0
+        for i in range(0, len(values), WORDS_PER_RECORD):
+            chunk = values[i:i + WORDS_PER_RECORD]
+            data = b"".join(w.to_bytes(2, "little") for w in chunk)
+            lines.append(bincopy.pack_srec("3", base + start + i, len(data), data))
+    lines.append(bincopy.pack_srec("7", img.entry, 0, None))
+    return "\n".join(lines) + "\n"
+
+
+def runs(words: dict[tuple[Space, int], int]) -> list[tuple[Space, int, list[int]]]:
+    """The words as runs of consecutive addresses, P: before X:, each (space, first
+    address, values)."""
+    out: list[tuple[Space, int, list[int]]] = []
+    for space, addr in sorted(words):  # Space.P < Space.X
+        last = out[-1] if out else None
+        if last and last[0] is space and last[1] + len(last[2]) == addr:
+            last[2].append(words[(space, addr)])
+        else:
+            out.append((space, addr, [words[(space, addr)]]))
+    return out
