@@ -319,10 +319,8 @@ class ThreeAxisPlant:
         for k, axis in enumerate(self.axes):  # the axes do not interact
             volts: float | None = None
             if enabled >> k & 1:
-                duty = registers[_PWM0 + k] & 0xFFFF
-                if duty & 0x8000:
-                    duty -= 0x10000
-                duty = duty / PWM_FULL
+                pwm = registers[_PWM0 + k] & 0xFFFF
+                duty = (pwm - 0x10000 if pwm & 0x8000 else pwm) / PWM_FULL
                 duty = duty if duty < 1.0 else 1.0  # max(-1.0, min(1.0, duty))
                 duty = duty if duty > -1.0 else -1.0
                 volts = axis.p.motor_polarity * duty * SUPPLY_V
