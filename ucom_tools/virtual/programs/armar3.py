@@ -195,11 +195,11 @@ class _Axis:
     The state is kept flat (no objects per counter or loop): the cycle runs 11 000 times
     a virtual second in a fleet."""
 
-    __slots__ = ("active", "anchor", "command", "hold", "homing_us", "joint_channel",
-                 "joint_position", "joint_view", "k", "motor_channel", "motor_position",
-                 "motor_view", "pos_previous", "pos_sum", "pwm", "raw", "reset_answer",
-                 "sensed", "settled", "settled_us", "since_us", "so_slots", "stall_anchor",
-                 "stall_us", "value", "vel_previous", "vel_sum")
+    __slots__ = ("active", "anchor", "ci_slots", "command", "hold", "homing_us",
+                 "joint_channel", "joint_position", "joint_view", "k", "motor_channel",
+                 "motor_position", "motor_view", "pos_previous", "pos_sum", "pwm", "raw",
+                 "reset_answer", "sensed", "settled", "settled_us", "since_us", "so_slots",
+                 "stall_anchor", "stall_us", "value", "vel_previous", "vel_sum")
 
     def __init__(self, k: int) -> None:
         self.k = k
@@ -238,6 +238,7 @@ class _Axis:
         self.active = False
         self.pwm = 0.0
         """The program's PWM (before the direction bit)."""
+        self.ci_slots = (_COMMAND[k], _TARGET[k], _TARGET_VEL[k], _RESET_OFFSET[k])
         self.so_slots = (_JOINT_ENCODER[k], _MOTOR_ENCODER[k], _VOLTAGE[k], _RESET_ANSWER[k],
                          _VELOCITY[k], _SETTLED[k])
 
@@ -301,8 +302,8 @@ class _Axis:
             value = self.value
         # ---- control
         if control:
-            k = self.k
-            command = ci[_COMMAND[k]]
+            command_slot, target_slot, target_vel_slot, reset_offset_slot = self.ci_slots
+            command = ci[command_slot]
             if command not in _CONTROLLED:
                 command = Command.OFF
             if command != self.command or resumed:
@@ -313,10 +314,10 @@ class _Axis:
             if command == Command.OFF:
                 pwm = 0.0
             elif command == Command.HOMING and self.hold is None:
-                self._home(hw, c, ci[_RESET_OFFSET[k]], dt_us)
+                self._home(hw, c, ci[reset_offset_slot], dt_us)
                 pwm = self.pwm
             elif command == Command.VELOCITY:
-                target_vel = ci[_TARGET_VEL[k]]
+                target_vel = ci[target_vel_slot]
                 v_cmd = _clamp(target_vel, -c.v_max, c.v_max)
                 if c.p > 0:
                     gain = min(c.p, LIMIT_APPROACH_PER_S)
@@ -331,10 +332,10 @@ class _Axis:
                 if hold is not None:
                     goal, feedforward = hold, 0.0
                 else:
-                    target, low_p, high_p = ci[_TARGET[k]], c.min_position, c.max_position
+                    target, low_p, high_p = ci[target_slot], c.min_position, c.max_position
                     goal = int(low_p if target < low_p else high_p if target > high_p
                                else target)
-                    feedforward = c.feedforward * ci[_TARGET_VEL[k]]
+                    feedforward = c.feedforward * ci[target_vel_slot]
                 # the position loop (a discrete PID, see _velocity_loop)
                 error = goal - position
                 p, i, d, limit = c.p, c.i, c.d, c.v_max
@@ -348,7 +349,19 @@ class _Axis:
                     out = feedforward + p * error + i * total + d * difference
                 self.pos_sum = total
                 v_cmd = -limit if out < -limit else limit if out > limit else out
-                pwm = self._velocity_loop(v_cmd - value, c)
+                # the velocity loop (_velocity_loop, inline: it runs every cycle)
+                error_v = v_cmd - value
+                p, i, d, limit = c.vp, c.vi, c.vd, c.max_pwm
+                previous_v = self.vel_previous
+                difference = 0.0 if previous_v is None else error_v - previous_v
+                self.vel_previous = error_v
+                total = self.vel_sum + error_v if i else 0.0
+                out = 0.0 + p * error_v + i * total + d * difference
+                if (out if out >= 0 else -out) > limit and (out > 0) == (error_v > 0):
+                    total = self.vel_sum if i else 0.0
+                    out = 0.0 + p * error_v + i * total + d * difference
+                self.vel_sum = total
+                pwm = -limit if out < -limit else limit if out > limit else out
             self.pwm = pwm
             # ---- Settled
             if goal is not None and abs(goal - self.joint_position) <= SETTLED_COUNTS \
