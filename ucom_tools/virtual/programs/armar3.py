@@ -242,6 +242,19 @@ class _Axis:
         self.so_slots = (_JOINT_ENCODER[k], _MOTOR_ENCODER[k], _VOLTAGE[k], _RESET_ANSWER[k],
                          _VELOCITY[k], _SETTLED[k])
 
+    def at_rest(self) -> bool:
+        """Could the cycle repeat itself (see :class:`_Quiet`): no velocity, the count where
+        it last changed, no homing under way."""
+        return (self.raw == 0.0 and self.value == 0.0 and self.joint_position == self.anchor
+                and self.sensed and self.since_us > 0
+                and not (self.command == Command.HOMING and self.hold is None))
+
+    def state(self) -> tuple[object, ...]:
+        """Everything a cycle reads or writes but the time since the count changed and
+        Settled's time (floats by their bits: 0.0 is not -0.0)."""
+        return tuple(v.hex() if isinstance(v, float) else (type(v), v)
+                     for v in (getattr(self, name) for name in _STATE))
+
     def reset_velocity(self, position: int) -> None:
         self.anchor = position
         self.since_us = 0.0
@@ -441,6 +454,38 @@ class _Axis:
             self.pwm = _clamp(c.reset_pwm, -c.max_pwm, c.max_pwm)
 
 
+_STATE = tuple(sorted(set(_Axis.__slots__) - {"since_us", "settled_us", "so_slots",
+                                                "ci_slots"}))
+"""What :meth:`_Axis.state` compares."""
+
+
+@dataclass(frozen=True, slots=True)
+class _Quiet:
+    """A cycle that left every axis as it found it but for two clocks: the time since the
+    count last changed (``since_us``) and Settled's time (``settled_us``).
+
+    The cycle is a function of the axes' state and its inputs (the counters, CI, the ADC,
+    dt, stopped or not; PAR through the configuration).  With the same inputs again the
+    next cycle repeats it exactly, because neither clock can change a branch here:
+    ``since_us`` only matters once the count moves or while a velocity is left (there is
+    none: :meth:`_Axis.at_rest`), and ``settled_us`` only while it has not reached
+    :data:`SETTLED_US` (so it is 0, or Settled is 1 already).  So such a cycle only adds
+    dt to the clocks that the full one adds it to, and writes the same PWM, output
+    enables and SO values (as they are)."""
+
+    counts: tuple[int, ...]
+    ci: list[int]
+    adc: list[int]
+    so: list[int]
+    dt_us: float
+    control: bool
+    settling: tuple[bool, ...]
+    """Per axis: the cycle adds dt to ``settled_us`` (else it holds it at 0)."""
+    registers: tuple[int, ...]
+    """PWM0..2 and OUTPUT_ENABLE as the cycle wrote them."""
+    work: float
+
+
 class Armar3Model:
     """``armar3.fl.S`` on a virtual board: implements
     :class:`~ucom_tools.virtual.programs.base.ProgramModel` for
@@ -459,6 +504,8 @@ class Armar3Model:
         self._configs: list[_Config] = []
         self._stopped = False
         self._resumed = False
+        self._quiet: _Quiet | None = None
+        """The last cycle, if the next one with the same inputs repeats it."""
 
     # ------------------------------------------------------------------ ProgramModel
     def loop_us(self) -> float:
@@ -467,6 +514,53 @@ class Armar3Model:
     def step(self, dt_us: float) -> float:
         if self.par != self._par_seen:
             self._configure()
+        quiet = self._quiet
+        hw = self.hw
+        counters = hw.fpga.quad
+        if quiet is not None:
+            if (not self._resumed and dt_us == quiet.dt_us
+                    and tuple([q.count for q in counters]) == quiet.counts
+                    and self.ci == quiet.ci and hw.adc == quiet.adc and self.so == quiet.so
+                    and self._stopped != quiet.control):
+                return self._repeat(quiet)
+            self._quiet = None
+        # the cycle could repeat itself: compare the state before and after
+        check = dt_us > 0 and not self._resumed
+        for a in self.axes:  # (a loop: a moving axis ends it at once)
+            if a.value != 0.0 or not a.at_rest():
+                check = False
+                break
+        if check:
+            counts = tuple([q.count for q in counters])
+            ci, adc = list(self.ci), list(hw.adc)
+            before = [a.state() for a in self.axes]
+        work = self._cycle(dt_us)
+        if check and [a.state() for a in self.axes] == before and all(
+                [a.settled or a.settled_us == 0.0 for a in self.axes]):
+            registers = hw.fpga.registers
+            self._quiet = _Quiet(
+                counts, ci, adc, list(self.so), dt_us, not self._stopped,
+                tuple([a.settled_us != 0.0 for a in self.axes]),
+                (*registers[_PWM0:_PWM0 + len(AXES)], registers[_OUTPUT_ENABLE]),
+                work)
+        return work
+
+    def _repeat(self, quiet: _Quiet) -> float:
+        """The cycle again with the same inputs (:class:`_Quiet`)."""
+        dt_us = quiet.dt_us
+        for a, settling in zip(self.axes, quiet.settling, strict=True):
+            a.since_us = a.since_us + dt_us
+            if settling:
+                a.settled_us += dt_us
+                a.settled = a.settled_us >= SETTLED_US
+        registers = self.hw.fpga.registers
+        *pwms, enable = quiet.registers
+        for k, pwm in enumerate(pwms):
+            registers[_PWM0 + k] = pwm
+        registers[_OUTPUT_ENABLE] = enable
+        return quiet.work
+
+    def _cycle(self, dt_us: float) -> float:
         hw = self.hw
         fpga = hw.fpga
         counters, registers = fpga.quad, fpga.registers
@@ -493,6 +587,7 @@ class Armar3Model:
         return BASE_US + AXIS_US * active
 
     def stop(self) -> None:
+        self._quiet = None
         self._stopped = True
         for a in self.axes:
             a.stop()
@@ -500,12 +595,14 @@ class Armar3Model:
 
     def release(self) -> None:
         if self._stopped:
+            self._quiet = None
             self._stopped, self._resumed = False, True
 
     # ------------------------------------------------------------------ one cycle
     def _configure(self) -> None:
         """Derive every axis's :class:`_Config` from PAR and set the prescalers (in the
         first cycle and whenever a PAR value differs from the last cycle's)."""
+        self._quiet = None
         self._par_seen = list(self.par)
         self._configs = [self._config(name, k) for k, name in enumerate(AXES)]
         self._write_prescalers()
