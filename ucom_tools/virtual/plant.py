@@ -326,11 +326,14 @@ class ThreeAxisPlant:
                 volts = axis.p.motor_polarity * duty * SUPPLY_V
             if axis.speed == 0.0 and not volts:  # at rest and undriven: nothing changes
                 axis.current = 0.0
-            else:
-                if full:
-                    axis.integrate(volts, _SUBSTEP_S, full)
-                if rest > 1e-9:
-                    axis.integrate(volts, rest * 1e-6)
+                if axis.angle != axis.sensed_angle:
+                    axis.sense(counters, k)
+                adc[k] = _ADC_ZERO  # the current sense of 0 A
+                continue
+            if full:
+                axis.integrate(volts, _SUBSTEP_S, full)
+            if rest > 1e-9:
+                axis.integrate(volts, rest * 1e-6)
             if axis.angle != axis.sensed_angle:  # else the edge counts are the same
                 axis.sense(counters, k)
             # the current sense (as _write_current_sense)
