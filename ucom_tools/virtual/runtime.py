@@ -81,6 +81,8 @@ class CiMap:
     """Four 16-bit slots, each signed as its edge (an unused slot unsigned)."""
     needs: int
     """Bytes a frame of this map must have: up to its last used slot."""
+    checks: tuple[tuple[int, int, int, int], ...] = ()
+    """Per used slot, in slot order: (slot, edge index, the edge's minimum, maximum)."""
 
 
 @dataclass
@@ -246,19 +248,17 @@ class McaRuntime:
             self.can_error(t)
             self._map_error(t, ErrorCode.BAD_LENGTH, number << 8 | len(data))
             return
-        raws = m.layout.unpack(mca.mask(data[:8].ljust(8, b"\x55")))
-        edges = self._kinds[mca.Kind.CI]
-        for slot, (index, raw) in enumerate(zip(m.slots, raws, strict=True)):
-            if index != mca.NO_EDGE and not edges[index].minimum <= raw <= edges[index].maximum \
-                    and self._range_check:
+        raws = m.layout.unpack(data[:8].ljust(8, b"\x55").translate(_MASK_TABLE))
+        checks = m.checks
+        for slot, _index, minimum, maximum in checks:
+            if not minimum <= raws[slot] <= maximum and self._range_check:
                 # nothing of the frame is taken (a value cannot be trusted, its neighbours
                 # neither)
                 self._map_error(t, ErrorCode.OUT_OF_RANGE, number << 8 | slot)
                 return
         ci = self.model.ci
-        for index, raw in zip(m.slots, raws, strict=True):
-            if index != mca.NO_EDGE:
-                ci[index] = raw
+        for slot, index, _minimum, _maximum in checks:
+            ci[index] = raws[slot]
 
     def _map_error(self, t: float, code: ErrorCode, detail: int) -> None:
         """An Error about a CI map frame (function byte 0x80 | 13: process data), the
@@ -437,7 +437,10 @@ class McaRuntime:
                 layout = struct.Struct(">" + "".join(
                     "H" if i == mca.NO_EDGE else _FORMAT[2, ci[i].signed] for i in slots))
                 needs = 2 * (max(n for n, i in enumerate(slots) if i != mca.NO_EDGE) + 1)
-                self.ci_maps[msg.map_no] = CiMap(msg.map_no, tuple(slots), layout, needs)
+                checks = tuple((n, i, ci[i].minimum, ci[i].maximum)
+                               for n, i in enumerate(slots) if i != mca.NO_EDGE)
+                self.ci_maps[msg.map_no] = CiMap(msg.map_no, tuple(slots), layout, needs,
+                                                 checks)
         self._ready(t, function, bytes((msg.op, msg.args[0] if msg.args else 0)))
 
     # ------------------------------------------------------------------ shown
