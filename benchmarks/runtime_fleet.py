@@ -17,8 +17,15 @@ SO maps at the programs' default periods).
    counted on the simulated bus (stuff bits of the real values included).  The design
    target is under 70 % on CAN0 (3 boards, 7 joints).
 
+``--repeat N`` measures every figure N times and keeps the fastest run (the bus load of
+the fastest fleet run).
+
+3. The targets of issue 17 (:data:`TARGETS`), each MET or NOT MET: ``speedup`` >= 5
+   (in process with the PC side), ``fleet_alone_speedup`` >= 12, ``scaling`` <= 8.
+
 ``--json`` prints the figures as one JSON object (keys: speedup, one_board_speedup,
-fleet_alone_speedup, scaling, board_cycle_us, bus_load).
+fleet_alone_speedup, scaling, board_cycle_us, bus_load, targets: per key its target,
+comparison and whether it is met).
 """
 
 from __future__ import annotations
@@ -44,6 +51,22 @@ from ucom_tools.virtual.fleet import Fleet  # noqa: E402
 
 IMAGE = SOURCE_ROOT / "firmware_images" / "armar3.fl.S"
 TARGET = 0.70
+TARGETS: dict[str, tuple[str, float]] = {
+    "speedup": (">=", 5.0),
+    "fleet_alone_speedup": (">=", 12.0),
+    "scaling": ("<=", 8.0),
+}
+"""Issue 17's targets: figure -> (comparison, value)."""
+
+
+def targets(figures: dict[str, object]) -> dict[str, dict[str, object]]:
+    """Each target of :data:`TARGETS` with the figure and whether it is met."""
+    out: dict[str, dict[str, object]] = {}
+    for key, (op, value) in TARGETS.items():
+        figure = float(figures[key])  # type: ignore[arg-type]
+        met = figure >= value if op == ">=" else figure <= value
+        out[key] = {"figure": figure, "target": f"{op} {value:g}", "met": met}
+    return out
 
 
 def robot(topology: Topology, alive_ms: int = 50,
@@ -135,12 +158,21 @@ def one_board(topology: Topology) -> Topology:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=3.0, help="virtual seconds measured")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="measure each figure this many times and keep the fastest run "
+                         "(on a shared machine other work only ever slows a run down)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     armar3 = load("armar3")
-    single = measure(one_board(armar3), args.seconds)
-    fleet = measure(armar3, args.seconds)
-    alone = fleet_alone(armar3, args.seconds)
+    runs = max(1, args.repeat)
+
+    def fastest(topology: Topology) -> dict[str, object]:
+        return max((measure(topology, args.seconds) for _ in range(runs)),
+                   key=lambda m: float(m["speedup"]))  # type: ignore[arg-type]
+
+    single = fastest(one_board(armar3))
+    fleet = fastest(armar3)
+    alone = max(fleet_alone(armar3, args.seconds) for _ in range(runs))
     wall_per_s = fleet["wall_s"] / fleet["virtual_s"]  # type: ignore[operator]
     one_wall_per_s = single["wall_s"] / single["virtual_s"]  # type: ignore[operator]
     figures = {
@@ -151,6 +183,7 @@ def main() -> None:
         "board_cycle_us": round(wall_per_s / int(fleet["boards"]) / 1000 * 1e6, 1),  # type: ignore[call-overload]
         "bus_load": fleet["bus_load"],
     }
+    figures["targets"] = targets(figures)
     if args.json:
         print(json.dumps(figures, indent=2))
         return
@@ -168,6 +201,10 @@ def main() -> None:
         mark = "" if f["counted"] < TARGET else f"  (over the {TARGET:.0%} target)"
         print(f"    {bus}          {f['computed_nominal']:6.1%} / {f['computed_worst']:6.1%}"
               f"     {f['counted']:6.1%}{mark}")
+    print("  targets (issue 17)")
+    for key, t in figures["targets"].items():
+        print(f"    {key:<20} {t['figure']:7.2f}  {t['target']:<6} "
+              f"{'MET' if t['met'] else 'NOT MET'}")
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ from collections.abc import Callable
 from typing import Any
 
 log = logging.getLogger("ucom.bus")
+_heappush, _heappop = heapq.heappush, heapq.heappop
 
 INF = float("inf")
 MAX_STEP_US = 10_000.0
@@ -59,8 +60,8 @@ class FleetClock:
 
     def at(self, t: float, callback: Callable[..., None], *args: Any, tier: int = 0) -> None:
         """Call ``callback(t, *args)`` at virtual time ``t`` (never before ``now``)."""
-        heapq.heappush(self._events, (t if t > self.now else self.now, tier, next(self._seq),
-                                      callback, args))
+        now = self.now
+        _heappush(self._events, (t if t > now else now, tier, next(self._seq), callback, args))
 
     def next_event_time(self) -> float | None:
         return self._events[0][0] if self._events else None
@@ -78,13 +79,19 @@ class FleetClock:
         """Run every event due up to ``limit`` in time order, or until ``stop()`` turns
         true after an event; then time stands at ``limit`` (if finite and reached)."""
         events = self._events
-        pop = heapq.heappop
-        while events and events[0][0] <= limit:
-            t, _tier, _seq, callback, args = pop(events)
-            self.now = t
-            callback(t, *args)
-            if stop is not None and stop():
-                return
+        pop = _heappop
+        if stop is None:
+            while events and events[0][0] <= limit:
+                t, _tier, _seq, callback, args = pop(events)
+                self.now = t
+                callback(t, *args)
+        else:
+            while events and events[0][0] <= limit:
+                t, _tier, _seq, callback, args = pop(events)
+                self.now = t
+                callback(t, *args)
+                if stop():
+                    return
         if limit != INF and self.now < limit:
             self.now = limit
 

@@ -97,7 +97,7 @@ MAX_AXES = 3
 
 _TWO_PI = 2 * math.pi
 _SUBSTEP_S = SUBSTEP_US * 1e-6
-_PWM0 = int(Reg.PWM0)
+_PWM0, _OUTPUT_ENABLE = int(Reg.PWM0), int(Reg.OUTPUT_ENABLE)
 
 
 @dataclass(frozen=True)
@@ -166,6 +166,8 @@ class MotorAxis:
         self.current = 0.0
         """Motor current [A]."""
         self.joint_edges, self.motor_edges = self._edge_indices()
+        self.sensed_angle = self.angle
+        """The angle the edge counts are of."""
         self._fixed = (self.inertia, p.torque_constant, p.resistance, p.gear_ratio,
                        *(p.end_stops if p.end_stops is not None else (-math.inf, math.inf)))
         """J, Kt, R, N and the end stops (none: never reached)."""
@@ -205,34 +207,54 @@ class MotorAxis:
             push, damped, damped_coulomb = h * 0.0, free, free_coulomb
         else:
             push = h * (kt * volts / resistance)
-        limit = CURRENT_LIMIT_A
         angle, speed = self.angle, self.speed
-        # the hot spot: abs() and math.copysign() are written out as comparisons
-        for _ in range(steps):
-            base = inertia * speed
-            speed = (base + push) / damped
-            coulomb = damped_coulomb
-            if volts is not None:
+        # the hot spot: abs() and math.copysign() are written out as comparisons, the
+        # products of loop invariants computed once (the same operations on the same
+        # operands: the same result), the driven and the undriven substep apart
+        if volts is None:
+            for _ in range(steps):
+                base = inertia * speed
+                speed = (base + push) / damped
+                if -damped_coulomb <= speed <= damped_coulomb:
+                    speed = 0.0  # sticks
+                else:
+                    speed = speed - damped_coulomb if speed > 0.0 else speed + damped_coulomb
+                angle += h * speed / gear
+                if angle <= low:
+                    angle, speed = low, max(speed, 0.0)
+                elif angle >= high:
+                    angle, speed = high, min(speed, 0.0)
+                if speed == 0.0 and base == 0.0:
+                    # at rest before and after (sticking, or stalled at an end stop), so
+                    # the angle did not change either: the remaining substeps repeat this
+                    # one exactly
+                    break
+        else:
+            limit = CURRENT_LIMIT_A
+            push_high, push_low = limited_push * limit, limited_push * -limit
+            low_limit = -limit
+            for _ in range(steps):
+                base = inertia * speed
+                speed = (base + push) / damped
+                coulomb = damped_coulomb
                 current = (volts - kt * speed) / resistance
                 if current > limit:  # the stage limits; no back-EMF damping
-                    speed = (base + limited_push * limit) / free
+                    speed = (base + push_high) / free
                     coulomb = free_coulomb
-                elif current < -limit:
-                    speed = (base + limited_push * -limit) / free
+                elif current < low_limit:
+                    speed = (base + push_low) / free
                     coulomb = free_coulomb
-            if -coulomb <= speed <= coulomb:
-                speed = 0.0  # sticks
-            else:
-                speed = speed - coulomb if speed > 0.0 else speed + coulomb
-            angle += h * speed / gear
-            if angle <= low:
-                angle, speed = low, max(speed, 0.0)
-            elif angle >= high:
-                angle, speed = high, min(speed, 0.0)
-            if speed == 0.0 and base == 0.0:
-                # at rest before and after (sticking, or stalled at an end stop), so the
-                # angle did not change either: the remaining substeps repeat this one exactly
-                break
+                if -coulomb <= speed <= coulomb:
+                    speed = 0.0  # sticks
+                else:
+                    speed = speed - coulomb if speed > 0.0 else speed + coulomb
+                angle += h * speed / gear
+                if angle <= low:
+                    angle, speed = low, max(speed, 0.0)
+                elif angle >= high:
+                    angle, speed = high, min(speed, 0.0)
+                if speed == 0.0 and base == 0.0:
+                    break  # as above
         self.angle, self.speed = angle, speed
         self.current = 0.0 if volts is None else max(-CURRENT_LIMIT_A, min(
             CURRENT_LIMIT_A, (volts - kt * speed) / resistance))
@@ -240,6 +262,7 @@ class MotorAxis:
     def sense(self, counters: list[QuadratureDecoder] | None, k: int) -> None:
         """Feed the edges since the last call to quadrature ``counters`` 2k and 2k+1 (the
         FPGA's; None in its neutral state, which counts nothing)."""
+        self.sensed_angle = self.angle
         joint, motor = self._edge_indices()
         if counters is not None:
             if joint != self.joint_edges:
@@ -249,14 +272,12 @@ class MotorAxis:
         self.joint_edges, self.motor_edges = joint, motor
 
 
-def _signed16(value: int) -> int:
-    value &= 0xFFFF
-    return value - 0x10000 if value & 0x8000 else value
-
-
 def _adc(volts: float) -> int:
     volts = volts if volts < ADC_FULL_SCALE_V else ADC_FULL_SCALE_V
     return round((volts if volts > 0.0 else 0.0) / ADC_FULL_SCALE_V * ADC_MAX)
+
+
+_ADC_ZERO = _adc(0.0)
 
 
 class ThreeAxisPlant:
@@ -288,32 +309,45 @@ class ThreeAxisPlant:
         if dt_us < 0:
             raise ValueError("time runs forward")
         fpga = self.fpga
-        enabled = fpga.outputs_enabled()
-        counters = None if fpga.neutral else fpga.quad
+        neutral = fpga.neutral
+        registers = fpga.registers
+        enabled = 0 if neutral else registers[_OUTPUT_ENABLE]  # fpga.outputs_enabled()
+        counters = None if neutral else fpga.quad
         full = int(dt_us // SUBSTEP_US)
         rest = dt_us - full * SUBSTEP_US
+        adc = self.adc
         for k, axis in enumerate(self.axes):  # the axes do not interact
             volts: float | None = None
             if enabled >> k & 1:
-                duty = _signed16(fpga.registers[_PWM0 + k]) / PWM_FULL
-                duty = max(-1.0, min(1.0, duty))
+                pwm = registers[_PWM0 + k] & 0xFFFF
+                duty = (pwm - 0x10000 if pwm & 0x8000 else pwm) / PWM_FULL
+                duty = duty if duty < 1.0 else 1.0  # max(-1.0, min(1.0, duty))
+                duty = duty if duty > -1.0 else -1.0
                 volts = axis.p.motor_polarity * duty * SUPPLY_V
             if axis.speed == 0.0 and not volts:  # at rest and undriven: nothing changes
                 axis.current = 0.0
-            else:
-                if full:
-                    axis.integrate(volts, _SUBSTEP_S, full)
-                if rest > 1e-9:
-                    axis.integrate(volts, rest * 1e-6)
-            axis.sense(counters, k)
-        self._write_current_sense()
+                if axis.angle != axis.sensed_angle:
+                    axis.sense(counters, k)
+                adc[k] = _ADC_ZERO  # the current sense of 0 A
+                continue
+            if full:
+                axis.integrate(volts, _SUBSTEP_S, full)
+            if rest > 1e-9:
+                axis.integrate(volts, rest * 1e-6)
+            if axis.angle != axis.sensed_angle:  # else the edge counts are the same
+                axis.sense(counters, k)
+            # the current sense (as _write_current_sense)
+            current = axis.current
+            adc[k] = _adc((current if current >= 0.0 else -current) * CURRENT_SENSE_V_PER_A)
+        for k in range(len(self.axes), MAX_AXES):  # no motor fitted
+            adc[k] = _ADC_ZERO
 
     def _write_current_sense(self) -> None:
         adc = self.adc
         for k, axis in enumerate(self.axes):
             adc[k] = _adc(abs(axis.current) * CURRENT_SENSE_V_PER_A)
         for k in range(len(self.axes), MAX_AXES):  # no motor fitted
-            adc[k] = _adc(0.0)
+            adc[k] = _ADC_ZERO
 
     # ------------------------------------------------------------------ for tests
     def joint_angle(self, k: int) -> float:

@@ -16,7 +16,9 @@ until the PC sends MCA Start START again.
 from __future__ import annotations
 
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from operator import itemgetter
 
 from ucom_tools.errors import FrameError
 from ucom_tools.programs.model import EdgeKind, EdgeSpec, ProgramSpec
@@ -29,6 +31,8 @@ from ucom_tools.wire.codes import ErrorCode
 from ucom_tools.wire.ids import Function
 
 _FORMAT = {(2, True): "h", (2, False): "H", (4, True): "i", (4, False): "I"}
+_MASK_TABLE = bytes(b ^ mca.MAP_MASK for b in range(256))
+"""``bytes.translate`` table of :func:`ucom_tools.wire.mca.mask`."""
 
 FRAME_COST_US = 4.0
 """Execution time the program spends per CAN frame it handles (added to the load)."""
@@ -57,6 +61,16 @@ class SoMap:
     """The values' big-endian layout (built once, when the map is defined)."""
     arbitration_id: int
     countdown: int = 0
+    pick: Callable[[list[int]], tuple[int, ...]] = field(init=False, repr=False,
+                                                          compare=False)
+    """The map's values out of the SO list, as a tuple (built once)."""
+
+    def __post_init__(self) -> None:
+        if len(self.edges) == 1:
+            only = self.edges[0]
+            self.pick = lambda so: (so[only],)
+        else:
+            self.pick = itemgetter(*self.edges)
 
 
 @dataclass
@@ -67,6 +81,8 @@ class CiMap:
     """Four 16-bit slots, each signed as its edge (an unused slot unsigned)."""
     needs: int
     """Bytes a frame of this map must have: up to its last used slot."""
+    checks: tuple[tuple[int, int, int, int], ...] = ()
+    """Per used slot, in slot order: (slot, edge index, the edge's minimum, maximum)."""
 
 
 @dataclass
@@ -137,37 +153,41 @@ class McaRuntime:
         self._last_tick = t
         if self.plant is not None:
             self.plant.advance(dt)
-        if self.state is mca.RunState.RUNNING and \
-                t - self.last_alive > self.alive_ms * 1000.0 and self._watchdog:
+        running = self.state is mca.RunState.RUNNING
+        if running and t - self.last_alive > self.alive_ms * 1000.0 and self._watchdog:
             self._latch(t)
-        work = self.model.step(dt) + FRAME_COST_US * self.stats.frames
-        self.stats.frames = 0
-        loop = self.model.loop_us()
-        self._account(t, work, loop)
-        if self.state is mca.RunState.RUNNING:
-            self._send_maps(t + min(work, loop))
-        self.port.at(t + max(loop, work), self._tick)
-
-    def _account(self, t: float, work: float, loop: float) -> None:
-        s = self.stats
+            running = False
+        model, s = self.model, self.stats
+        work = model.step(dt) + FRAME_COST_US * s.frames
+        s.frames = 0
+        loop = model.loop_us()
+        # the cycle's accounting
         s.cycles += 1
         s.last_work_us = work
         s.work_us += work
-        s.span_us += max(loop, work)
+        span = work if work > loop else loop  # max(loop, work)
+        s.span_us += span
         if s.cycles % LOAD_WINDOW == 0:
             s.load = s.work_us / s.span_us if s.span_us else 0.0
             s.work_us = s.span_us = 0.0
         if work > loop:
-            s.overruns += 1
-            s.last_late_us = work - loop
-            self.overrun_at = t
-            # a cycle time of 0 or less only reaches a board that does not range-check
-            # (mutants.NO_RANGE_CHECK): then every cycle overruns in full
-            self.overrun_depth = min(1.0, (work - loop) / loop) if loop > 0 else 1.0
-            self.flags |= mca.FLAG_OVERRUN
-            if s.overruns == 1 or s.overruns % REPORT_EVERY == 0:
-                self.port.error(t, ErrorCode.OVERRUN, NO_FUNCTION,
-                                min(int(work - loop), 0xFFFFFFFF))
+            self._overrun(t, work, loop)
+        if running:
+            self._send_maps(t + (loop if loop < work else work))  # min(work, loop)
+        self.port.at(t + span, self._tick)
+
+    def _overrun(self, t: float, work: float, loop: float) -> None:
+        s = self.stats
+        s.overruns += 1
+        s.last_late_us = work - loop
+        self.overrun_at = t
+        # a cycle time of 0 or less only reaches a board that does not range-check
+        # (mutants.NO_RANGE_CHECK): then every cycle overruns in full
+        self.overrun_depth = min(1.0, (work - loop) / loop) if loop > 0 else 1.0
+        self.flags |= mca.FLAG_OVERRUN
+        if s.overruns == 1 or s.overruns % REPORT_EVERY == 0:
+            self.port.error(t, ErrorCode.OVERRUN, NO_FUNCTION,
+                            min(int(work - loop), 0xFFFFFFFF))
 
     def load(self) -> float:
         """The load over the last :data:`LOAD_WINDOW` cycles, or so far if fewer."""
@@ -195,13 +215,14 @@ class McaRuntime:
     # ------------------------------------------------------------------ SO maps
     def _send_maps(self, t: float) -> None:
         so = self.model.so
+        send = self.port.send_raw
         for m in self.so_maps.values():
-            m.countdown -= 1
-            if m.countdown > 0:
+            countdown = m.countdown - 1
+            if countdown > 0:
+                m.countdown = countdown
                 continue
             m.countdown = m.period
-            data = m.layout.pack(*[so[i] for i in m.edges])
-            self.port.send_raw(t, m.arbitration_id, mca.mask(data))
+            send(t, m.arbitration_id, m.layout.pack(*m.pick(so)).translate(_MASK_TABLE))
 
     def _send_maps_slow(self, t: float) -> None:
         """so-slow: :meth:`_send_maps` with each map's countdown in tenths of a cycle, so
@@ -227,19 +248,17 @@ class McaRuntime:
             self.can_error(t)
             self._map_error(t, ErrorCode.BAD_LENGTH, number << 8 | len(data))
             return
-        raws = m.layout.unpack(mca.mask(data[:8].ljust(8, b"\x55")))
-        edges = self._kinds[mca.Kind.CI]
-        for slot, (index, raw) in enumerate(zip(m.slots, raws, strict=True)):
-            if index != mca.NO_EDGE and not edges[index].minimum <= raw <= edges[index].maximum \
-                    and self._range_check:
+        raws = m.layout.unpack(data[:8].ljust(8, b"\x55").translate(_MASK_TABLE))
+        checks = m.checks
+        for slot, _index, minimum, maximum in checks:
+            if not minimum <= raws[slot] <= maximum and self._range_check:
                 # nothing of the frame is taken (a value cannot be trusted, its neighbours
                 # neither)
                 self._map_error(t, ErrorCode.OUT_OF_RANGE, number << 8 | slot)
                 return
         ci = self.model.ci
-        for index, raw in zip(m.slots, raws, strict=True):
-            if index != mca.NO_EDGE:
-                ci[index] = raw
+        for slot, index, _minimum, _maximum in checks:
+            ci[index] = raws[slot]
 
     def _map_error(self, t: float, code: ErrorCode, detail: int) -> None:
         """An Error about a CI map frame (function byte 0x80 | 13: process data), the
@@ -418,7 +437,10 @@ class McaRuntime:
                 layout = struct.Struct(">" + "".join(
                     "H" if i == mca.NO_EDGE else _FORMAT[2, ci[i].signed] for i in slots))
                 needs = 2 * (max(n for n, i in enumerate(slots) if i != mca.NO_EDGE) + 1)
-                self.ci_maps[msg.map_no] = CiMap(msg.map_no, tuple(slots), layout, needs)
+                checks = tuple((n, i, ci[i].minimum, ci[i].maximum)
+                               for n, i in enumerate(slots) if i != mca.NO_EDGE)
+                self.ci_maps[msg.map_no] = CiMap(msg.map_no, tuple(slots), layout, needs,
+                                                 checks)
         self._ready(t, function, bytes((msg.op, msg.args[0] if msg.args else 0)))
 
     # ------------------------------------------------------------------ shown

@@ -96,6 +96,8 @@ def _stuff_table() -> tuple[tuple[int, int], ...]:
 
 
 _STUFF_TABLE = _stuff_table()
+_STUFF_INDEXED = tuple((s * 256, added) for s, added in _STUFF_TABLE)
+""":data:`_STUFF_TABLE` with each next state as its index (state * 256)."""
 
 
 def stuff_bits(region: int, nbits: int) -> int:
@@ -112,13 +114,8 @@ def stuff_bits(region: int, nbits: int) -> int:
     return added
 
 
-@lru_cache(maxsize=65536)
-def frame_bits(arbitration_id: int, data: bytes, remote: bool = False,
-               extended: bool = False) -> int:
-    """Bits a data (or remote) frame occupies on the bus, IFS included; a standard
-    frame (11-bit identifier) unless ``extended`` (29-bit)."""
-    if extended:
-        return _extended_frame_bits(arbitration_id, data, remote)
+def _frame_bits_general(arbitration_id: int, data: bytes, remote: bool) -> int:
+    """:func:`frame_bits` computed over the whole frame (any frame it takes)."""
     dlc = len(data)
     header = (arbitration_id << 7) | ((1 if remote else 0) << 6) | dlc  # SOF=0, IDE=0, r0=0
     nbits = 19 + (0 if remote else 8 * dlc)
@@ -138,6 +135,55 @@ def _extended_frame_bits(arbitration_id: int, data: bytes, remote: bool) -> int:
     value = (header << (8 * dlc)) | int.from_bytes(data, "big") if not remote else header
     region = (value << 15) | crc15(value, nbits)
     return nbits + 15 + stuff_bits(region, nbits + 15) + FIXED_TAIL_BITS
+
+
+_HEADS: dict[int, tuple[int, int, int]] = {}
+"""Per identifier and DLC (``id << 4 | dlc``) of a data frame: the CRC register after the
+header (SOF to DLC, 19 bits, which :func:`crc15` pads to 3 bytes), and the stuffing state
+(index into the table) and stuff bits after its 17 bits behind SOF (up to DLC bit 0)."""
+
+
+def _head(arbitration_id: int, dlc: int) -> tuple[int, int, int]:
+    header = (arbitration_id << 7) | dlc  # 18 bits: ID, RTR=0, IDE=0, r0=0, DLC
+    crc = 0
+    for byte in header.to_bytes(3, "big"):
+        crc = ((crc << 8) & 0x7FFF) ^ _CRC_TABLE[((crc >> 7) ^ byte) & 0xFF]
+    state, added = 0, 0  # the SOF bit (dominant, 0) opens a run of length 1
+    for i in range(17, 0, -1):
+        state, a = _stuff_step(state, (header >> i) & 1)
+        added += a
+    return crc, state * 256, added
+
+
+@lru_cache(maxsize=65536)
+def frame_bits(arbitration_id: int, data: bytes, remote: bool = False,
+               extended: bool = False) -> int:
+    """Bits a data (or remote) frame occupies on the bus, IFS included; a standard frame
+    (11-bit identifier) unless ``extended`` (29-bit).
+
+    A data frame's header part (CRC register and stuffing state after SOF to DLC bit 1)
+    is computed once per identifier and DLC; the rest walks DLC bit 0, the data and the
+    CRC byte by byte: the same bits in the same order as over the whole frame
+    (:func:`_frame_bits_general`, which remote frames take)."""
+    if extended:
+        return _extended_frame_bits(arbitration_id, data, remote)
+    dlc = len(data)
+    if remote or dlc > 8 or not 0 <= arbitration_id <= 0x7FF:
+        return _frame_bits_general(arbitration_id, data, remote)
+    key = arbitration_id << 4 | dlc
+    head = _HEADS.get(key)
+    if head is None:
+        head = _HEADS[key] = _head(arbitration_id, dlc)
+    crc, state, added = head
+    table = _CRC_TABLE
+    for byte in data:
+        crc = ((crc << 8) & 0x7FFF) ^ table[((crc >> 7) ^ byte) & 0xFF]
+    tail = ((dlc & 1) << (8 * dlc + 15)) | (int.from_bytes(data, "big") << 15) | crc
+    stuff = _STUFF_INDEXED
+    for byte in tail.to_bytes(dlc + 2, "big"):
+        state, a = stuff[state + byte]
+        added += a
+    return 34 + 8 * dlc + added + FIXED_TAIL_BITS
 
 
 def worst_frame_bits(dlc: int, extended: bool = False) -> int:

@@ -152,7 +152,7 @@ def _clamp(value: float, low: float, high: float) -> float:
     return low if value < low else high if value > high else value
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class _Config:
     """One axis's parameters in controller units, derived from PAR (anew whenever a PAR
     value changes)."""
@@ -178,93 +178,54 @@ class _Config:
     """... and 2k+1."""
 
 
-class _Counter:
-    """One FPGA quadrature counter as the program sees it: direction, extension, view."""
-
-    def __init__(self, channel: int) -> None:
-        self.channel = channel
-        self.view = 0
-        """Counter value after the direction bit, signed 16 bit."""
-        self.position = 0
-        """The extended count."""
-        self._started = False
-
-    def read(self, counters: list[QuadratureDecoder], invert: bool) -> None:
-        """Read the FPGA's counter (``counters``: its decoders)."""
-        raw = counters[self.channel].count
-        view = _signed16(-raw if invert else raw)
-        if self._started:
-            self.position += _signed16(view - self.view)
-        else:
-            self.position, self._started = view, True
-        self.view = view
-
-    def set(self, hw: Hardware, invert: bool, value: int) -> None:
-        hw.fpga.write(_QUAD_COUNT0 + self.channel, -value if invert else value)
-        self.view = _signed16(value)
-        self.position = value
-
-
-class _VelocityEstimator:
-    """Counts/s from a counter: difference over the time since the count last changed."""
-
-    def __init__(self) -> None:
-        self.reset(0)
-
-    def reset(self, position: int) -> None:
-        self.anchor = position
-        self.since_us = 0.0
-        self.raw = 0.0
-        self.value = 0.0
-
-    def update(self, position: int, dt_us: float) -> None:
-        self.since_us += dt_us
-        if self.since_us <= 0:
-            return
-        if position != self.anchor:
-            self.raw = (position - self.anchor) * 1e6 / self.since_us
-            self.anchor, self.since_us = position, 0.0
-        elif self.since_us >= STANDSTILL_US:
-            self.raw = 0.0
-        elif abs(self.raw) * self.since_us > 1e6:  # slower than one count since the change
-            self.raw = math.copysign(1e6 / self.since_us, self.raw)
-        self.value += dt_us / (VELOCITY_FILTER_US + dt_us) * (self.raw - self.value)
-
-
-class _Pid:
-    """A discrete PID with per-cycle sum and difference and conditional integration."""
-
-    def __init__(self) -> None:
-        self.reset()
-
-    def reset(self) -> None:
-        self.sum = 0.0
-        self.previous: float | None = None
-
-    def update(self, error: float, p: float, i: float, d: float, limit: float,
-               offset: float = 0.0) -> float:
-        difference = 0.0 if self.previous is None else error - self.previous
-        self.previous = error
-        total = self.sum + error if i else 0.0
-        out = offset + p * error + i * total + d * difference
-        if abs(out) > limit and (out > 0) == (error > 0):
-            total = self.sum if i else 0.0  # anti-windup: hold the sum
-            out = offset + p * error + i * total + d * difference
-        self.sum = total
-        return _clamp(out, -limit, limit)
-
-
 class _Axis:
-    """Motor k's controller: mode, counters, loops, homing and Settled."""
+    """Motor k's controller: counters, velocity estimate, mode, loops, homing, Settled.
+
+    One :meth:`cycle` a control cycle does what the model's parts do in turn (every
+    quantity in the same IEEE operations and order):
+
+    - the joint and motor counters (channels 2k and 2k+1): direction bit, the signed
+      16-bit view, the extension to an unbounded position by the wrapped difference;
+    - the velocity estimate: the count difference over the time since the count last
+      changed, then the low-pass;
+    - the mode's controller: two discrete PIDs (position, velocity) with per-cycle sum and
+      difference and conditional integration (anti-windup);
+    - Settled, the PWM and the SO values.
+
+    The state is kept flat (no objects per counter or loop): the cycle runs 11 000 times
+    a virtual second in a fleet."""
+
+    __slots__ = ("active", "anchor", "ci_slots", "command", "hold", "homing_us",
+                 "joint_channel", "joint_position", "joint_view", "k", "motor_channel",
+                 "motor_position", "motor_view", "pos_previous", "pos_sum", "pwm", "raw",
+                 "reset_answer", "sensed", "settled", "settled_us", "since_us", "so_slots",
+                 "stall_anchor", "stall_us", "value", "vel_previous", "vel_sum")
 
     def __init__(self, k: int) -> None:
         self.k = k
-        self.joint = _Counter(2 * k)
-        self.motor = _Counter(2 * k + 1)
-        self.velocity = _VelocityEstimator()
+        self.joint_channel, self.motor_channel = 2 * k, 2 * k + 1
+        self.joint_view = 0
+        """Joint counter after the direction bit, signed 16 bit."""
+        self.joint_position = 0
+        """The extended joint count."""
+        self.motor_view = 0
+        self.motor_position = 0
         self.sensed = False
-        self.position_loop = _Pid()
-        self.velocity_loop = _Pid()
+        """The counters were read once (the first reading: no motion yet)."""
+        self.anchor = 0
+        """Velocity estimate: the joint count at its last change ..."""
+        self.since_us = 0.0
+        """... the time since ..."""
+        self.raw = 0.0
+        """... the unfiltered and ..."""
+        self.value = 0.0
+        """... the filtered velocity [counts/s]."""
+        self.pos_sum = 0.0
+        self.pos_previous: float | None = None
+        """Position loop: sum and last error (None: no difference yet)."""
+        self.vel_sum = 0.0
+        self.vel_previous: float | None = None
+        """Velocity loop: sum and last error."""
         self.command: int | None = None
         self.hold: int | None = None
         """Target of the position loop in HOMING (after the stall), else None."""
@@ -277,80 +238,203 @@ class _Axis:
         self.active = False
         self.pwm = 0.0
         """The program's PWM (before the direction bit)."""
+        self.ci_slots = (_COMMAND[k], _TARGET[k], _TARGET_VEL[k], _RESET_OFFSET[k])
+        self.so_slots = (_JOINT_ENCODER[k], _MOTOR_ENCODER[k], _VOLTAGE[k], _RESET_ANSWER[k],
+                         _VELOCITY[k], _SETTLED[k])
 
-    def sense(self, counters: list[QuadratureDecoder], c: _Config, dt_us: float) -> None:
-        self.joint.read(counters, c.invert_joint)
-        self.motor.read(counters, c.invert_motor)
-        if not self.sensed:  # the first reading: no motion yet
-            self.velocity.reset(self.joint.position)
+    def at_rest(self) -> bool:
+        """Could the cycle repeat itself (see :class:`_Quiet`): no velocity, the count where
+        it last changed, no homing under way."""
+        return (self.raw == 0.0 and self.value == 0.0 and self.joint_position == self.anchor
+                and self.sensed and self.since_us > 0
+                and not (self.command == Command.HOMING and self.hold is None))
+
+    def state(self) -> tuple[object, ...]:
+        """Everything a cycle reads or writes but the time since the count changed and
+        Settled's time (floats by their bits: 0.0 is not -0.0)."""
+        return tuple(v.hex() if isinstance(v, float) else (type(v), v)
+                     for v in (getattr(self, name) for name in _STATE))
+
+    def reset_velocity(self, position: int) -> None:
+        self.anchor = position
+        self.since_us = 0.0
+        self.raw = 0.0
+        self.value = 0.0
+
+    def _reset_loops(self) -> None:
+        self.pos_sum, self.pos_previous = 0.0, None
+        self.vel_sum, self.vel_previous = 0.0, None
+
+    def set_joint(self, hw: Hardware, invert: bool, value: int) -> None:
+        """Load the joint counter (FPGA channel 2k) with ``value``."""
+        hw.fpga.write(_QUAD_COUNT0 + self.joint_channel, -value if invert else value)
+        self.joint_view = _signed16(value)
+        self.joint_position = value
+
+    def cycle(self, hw: Hardware, counters: list[QuadratureDecoder], c: _Config,
+              ci: list[int], so: list[int], adc: list[int], dt_us: float, control: bool,
+              resumed: bool) -> int:
+        """Sense, control (if ``control``: else only sense and report) and report one
+        cycle; returns the PWM register's value (before the 16-bit mask)."""
+        # ---- the counters
+        raw_count = counters[self.joint_channel].count
+        view = (-raw_count if c.invert_joint else raw_count) & 0xFFFF
+        if view & 0x8000:
+            view -= 0x10000
+        raw_count = counters[self.motor_channel].count
+        mview = (-raw_count if c.invert_motor else raw_count) & 0xFFFF
+        if mview & 0x8000:
+            mview -= 0x10000
+        if self.sensed:
+            step = (view - self.joint_view) & 0xFFFF
+            position = self.joint_position + (step - 0x10000 if step & 0x8000 else step)
+            step = (mview - self.motor_view) & 0xFFFF
+            self.motor_position += step - 0x10000 if step & 0x8000 else step
+        else:  # the first reading: no motion yet
+            position = view
+            self.motor_position = mview
+            self.reset_velocity(position)
             self.sensed = True
-        self.velocity.update(self.joint.position, dt_us)
+        self.joint_view, self.joint_position, self.motor_view = view, position, mview
+        # ---- the velocity estimate
+        since = self.since_us + dt_us
+        self.since_us = since
+        if not since <= 0:  # (as written, for a nan as well)
+            raw = self.raw
+            anchor = self.anchor
+            if position != anchor:
+                self.raw = raw = (position - anchor) * 1e6 / since
+                self.anchor, self.since_us = position, 0.0
+            elif since >= STANDSTILL_US:
+                self.raw = raw = 0.0
+            elif (raw if raw >= 0 else -raw) * since > 1e6:  # slower than one count since
+                self.raw = raw = math.copysign(1e6 / since, raw)
+            value = self.value
+            self.value = value = value + dt_us / (VELOCITY_FILTER_US + dt_us) * (raw - value)
+        else:
+            value = self.value
+        # ---- control
+        if control:
+            command_slot, target_slot, target_vel_slot, reset_offset_slot = self.ci_slots
+            command = ci[command_slot]
+            if command not in _CONTROLLED:
+                command = Command.OFF
+            if command != self.command or resumed:
+                self._enter(command, resumed)
+                self.command = command
+            self.active = command != Command.OFF
+            goal: int | None = None
+            if command == Command.OFF:
+                pwm = 0.0
+            elif command == Command.HOMING and self.hold is None:
+                self._home(hw, c, ci[reset_offset_slot], dt_us)
+                pwm = self.pwm
+            elif command == Command.VELOCITY:
+                target_vel = ci[target_vel_slot]
+                v_cmd = _clamp(target_vel, -c.v_max, c.v_max)
+                if c.p > 0:
+                    gain = min(c.p, LIMIT_APPROACH_PER_S)
+                    high = max(0.0, gain * (c.max_position - position))
+                    low = min(0.0, gain * (c.min_position - position))
+                else:
+                    high = math.inf if position < c.max_position else 0.0
+                    low = -math.inf if position > c.min_position else 0.0
+                pwm = self._velocity_loop(_clamp(v_cmd, low, high) - value, c)
+            else:
+                hold = self.hold
+                if hold is not None:
+                    goal, feedforward = hold, 0.0
+                else:
+                    target, low_p, high_p = ci[target_slot], c.min_position, c.max_position
+                    goal = int(low_p if target < low_p else high_p if target > high_p
+                               else target)
+                    feedforward = c.feedforward * ci[target_vel_slot]
+                # the position loop (a discrete PID, see _velocity_loop)
+                error = goal - position
+                p, i, d, limit = c.p, c.i, c.d, c.v_max
+                previous = self.pos_previous
+                difference = 0.0 if previous is None else error - previous
+                self.pos_previous = error
+                total = self.pos_sum + error if i else 0.0
+                out = feedforward + p * error + i * total + d * difference
+                if (out if out >= 0 else -out) > limit and (out > 0) == (error > 0):
+                    total = self.pos_sum if i else 0.0  # anti-windup: hold the sum
+                    out = feedforward + p * error + i * total + d * difference
+                self.pos_sum = total
+                v_cmd = -limit if out < -limit else limit if out > limit else out
+                # the velocity loop (_velocity_loop, inline: it runs every cycle)
+                error_v = v_cmd - value
+                p, i, d, limit = c.vp, c.vi, c.vd, c.max_pwm
+                previous_v = self.vel_previous
+                difference = 0.0 if previous_v is None else error_v - previous_v
+                self.vel_previous = error_v
+                total = self.vel_sum + error_v if i else 0.0
+                out = 0.0 + p * error_v + i * total + d * difference
+                if (out if out >= 0 else -out) > limit and (out > 0) == (error_v > 0):
+                    total = self.vel_sum if i else 0.0
+                    out = 0.0 + p * error_v + i * total + d * difference
+                self.vel_sum = total
+                pwm = -limit if out < -limit else limit if out > limit else out
+            self.pwm = pwm
+            # ---- Settled
+            if goal is not None and abs(goal - self.joint_position) <= SETTLED_COUNTS \
+                    and abs(self.value) <= SETTLED_SPEED:
+                self.settled_us += dt_us
+            else:
+                self.settled_us = 0.0
+            self.settled = self.settled_us >= SETTLED_US
+        # ---- the SO values
+        joint_so, motor_so, voltage_so, answer_so, velocity_so, settled_so = self.so_slots
+        so[joint_so] = self.joint_view
+        so[motor_so] = self.motor_view
+        so[voltage_so] = min(3300, round(adc[self.k] * 3300 / 4095))
+        so[answer_so] = self.reset_answer
+        velocity = round(self.value)
+        so[velocity_so] = -32768 if velocity < -32768 else 32767 if velocity > 32767 \
+            else velocity
+        so[settled_so] = int(self.settled)
+        return round(-self.pwm if c.invert_pwm else self.pwm)
+
+    def _velocity_loop(self, error: float, c: _Config) -> float:
+        """The inner loop: a discrete PID ``u = P e + I sum(e) + D (e - e_prev)`` whose sum
+        does not grow while the output saturates in the error's direction (with I = 0 the
+        sum is held at 0)."""
+        p, i, d, limit = c.vp, c.vi, c.vd, c.max_pwm
+        previous = self.vel_previous
+        difference = 0.0 if previous is None else error - previous
+        self.vel_previous = error
+        total = self.vel_sum + error if i else 0.0
+        out = 0.0 + p * error + i * total + d * difference
+        if (out if out >= 0 else -out) > limit and (out > 0) == (error > 0):
+            total = self.vel_sum if i else 0.0  # anti-windup: hold the sum
+            out = 0.0 + p * error + i * total + d * difference
+        self.vel_sum = total
+        return -limit if out < -limit else limit if out > limit else out
 
     def stop(self) -> None:
         if self.reset_answer == HOMING:
             self.reset_answer = HOMING_FAILED
         self.command = None
         self.hold = None
-        self.position_loop.reset()
-        self.velocity_loop.reset()
+        self._reset_loops()
         self.pwm, self.active, self.settled, self.settled_us = 0.0, False, False, 0.0
 
     def _enter(self, command: int, resumed: bool) -> None:
-        self.position_loop.reset()
-        self.velocity_loop.reset()
+        self._reset_loops()
         self.settled_us = 0.0
         if self.reset_answer == HOMING:  # left HOMING before the stall
             self.reset_answer = HOMING_FAILED
         self.hold = None
         if command == Command.HOMING:
             if resumed:
-                self.hold = self.joint.position
+                self.hold = self.joint_position
             else:
                 self.reset_answer = HOMING
                 self.homing_us = 0.0
-                self.stall_anchor, self.stall_us = self.joint.position, 0.0
-
-    def control(self, hw: Hardware, command: int, target: int, target_vel: int,
-                reset_offset: int, c: _Config, dt_us: float, resumed: bool) -> None:
-        if command not in _CONTROLLED:
-            command = Command.OFF
-        if command != self.command or resumed:
-            self._enter(command, resumed)
-            self.command = command
-        position = self.joint.position
-        self.active = command != Command.OFF
-        goal: int | None = None
-        if command == Command.OFF:
-            self.pwm = 0.0
-        elif command == Command.HOMING and self.hold is None:
-            self._home(hw, c, reset_offset, dt_us)
-        elif command == Command.VELOCITY:
-            v_cmd = _clamp(target_vel, -c.v_max, c.v_max)
-            if c.p > 0:
-                gain = min(c.p, LIMIT_APPROACH_PER_S)
-                high = max(0.0, gain * (c.max_position - position))
-                low = min(0.0, gain * (c.min_position - position))
-            else:
-                high = math.inf if position < c.max_position else 0.0
-                low = -math.inf if position > c.min_position else 0.0
-            self.pwm = self._velocity(_clamp(v_cmd, low, high), c)
-        else:
-            if self.hold is not None:
-                goal, feedforward = self.hold, 0.0
-            else:
-                goal = int(_clamp(target, c.min_position, c.max_position))
-                feedforward = c.feedforward * target_vel
-            v_cmd = self.position_loop.update(goal - position, c.p, c.i, c.d, c.v_max,
-                                              feedforward)
-            self.pwm = self._velocity(v_cmd, c)
-        self._settle(goal, dt_us)
-
-    def _velocity(self, v_cmd: float, c: _Config) -> float:
-        return self.velocity_loop.update(v_cmd - self.velocity.value, c.vp, c.vi, c.vd,
-                                         c.max_pwm)
+                self.stall_anchor, self.stall_us = self.joint_position, 0.0
 
     def _home(self, hw: Hardware, c: _Config, offset: int, dt_us: float) -> None:
-        position = self.joint.position
+        position = self.joint_position
         self.homing_us += dt_us
         if abs(position - self.stall_anchor) > STALL_COUNTS:
             self.stall_anchor, self.stall_us = position, 0.0
@@ -362,20 +446,44 @@ class _Axis:
             self.reset_answer, self.hold = HOMING_FAILED, position
             self.pwm = 0.0
         elif self.stall_us >= STALL_US:
-            self.joint.set(hw, c.invert_joint, offset)
-            self.velocity.reset(offset)
+            self.set_joint(hw, c.invert_joint, offset)
+            self.reset_velocity(offset)
             self.reset_answer, self.hold = HOMED, offset
             self.pwm = 0.0
         else:
             self.pwm = _clamp(c.reset_pwm, -c.max_pwm, c.max_pwm)
 
-    def _settle(self, goal: int | None, dt_us: float) -> None:
-        if (goal is not None and abs(goal - self.joint.position) <= SETTLED_COUNTS
-                and abs(self.velocity.value) <= SETTLED_SPEED):
-            self.settled_us += dt_us
-        else:
-            self.settled_us = 0.0
-        self.settled = self.settled_us >= SETTLED_US
+
+_STATE = tuple(sorted(set(_Axis.__slots__) - {"since_us", "settled_us", "so_slots",
+                                                "ci_slots"}))
+"""What :meth:`_Axis.state` compares."""
+
+
+@dataclass(frozen=True, slots=True)
+class _Quiet:
+    """A cycle that left every axis as it found it but for two clocks: the time since the
+    count last changed (``since_us``) and Settled's time (``settled_us``).
+
+    The cycle is a function of the axes' state and its inputs (the counters, CI, the ADC,
+    dt, stopped or not; PAR through the configuration).  With the same inputs again the
+    next cycle repeats it exactly, because neither clock can change a branch here:
+    ``since_us`` only matters once the count moves or while a velocity is left (there is
+    none: :meth:`_Axis.at_rest`), and ``settled_us`` only while it has not reached
+    :data:`SETTLED_US` (so it is 0, or Settled is 1 already).  So such a cycle only adds
+    dt to the clocks that the full one adds it to, and writes the same PWM, output
+    enables and SO values (as they are)."""
+
+    counts: tuple[int, ...]
+    ci: list[int]
+    adc: list[int]
+    so: list[int]
+    dt_us: float
+    control: bool
+    settling: tuple[bool, ...]
+    """Per axis: the cycle adds dt to ``settled_us`` (else it holds it at 0)."""
+    registers: tuple[int, ...]
+    """PWM0..2 and OUTPUT_ENABLE as the cycle wrote them."""
+    work: float
 
 
 class Armar3Model:
@@ -396,6 +504,8 @@ class Armar3Model:
         self._configs: list[_Config] = []
         self._stopped = False
         self._resumed = False
+        self._quiet: _Quiet | None = None
+        """The last cycle, if the next one with the same inputs repeats it."""
 
     # ------------------------------------------------------------------ ProgramModel
     def loop_us(self) -> float:
@@ -404,17 +514,80 @@ class Armar3Model:
     def step(self, dt_us: float) -> float:
         if self.par != self._par_seen:
             self._configure()
-        counters = self.hw.fpga.quad
+        quiet = self._quiet
+        hw = self.hw
+        counters = hw.fpga.quad
+        if quiet is not None:
+            if (not self._resumed and dt_us == quiet.dt_us
+                    and tuple([q.count for q in counters]) == quiet.counts
+                    and self.ci == quiet.ci and hw.adc == quiet.adc and self.so == quiet.so
+                    and self._stopped != quiet.control):
+                return self._repeat(quiet)
+            self._quiet = None
+        # the cycle could repeat itself: compare the state before and after
+        check = dt_us > 0 and not self._resumed
+        for a in self.axes:  # (a loop: a moving axis ends it at once)
+            if a.value != 0.0 or not a.at_rest():
+                check = False
+                break
+        if check:
+            counts = tuple([q.count for q in counters])
+            ci, adc = list(self.ci), list(hw.adc)
+            before = [a.state() for a in self.axes]
+        work = self._cycle(dt_us)
+        if check and [a.state() for a in self.axes] == before and all(
+                [a.settled or a.settled_us == 0.0 for a in self.axes]):
+            registers = hw.fpga.registers
+            self._quiet = _Quiet(
+                counts, ci, adc, list(self.so), dt_us, not self._stopped,
+                tuple([a.settled_us != 0.0 for a in self.axes]),
+                (*registers[_PWM0:_PWM0 + len(AXES)], registers[_OUTPUT_ENABLE]),
+                work)
+        return work
+
+    def _repeat(self, quiet: _Quiet) -> float:
+        """The cycle again with the same inputs (:class:`_Quiet`)."""
+        dt_us = quiet.dt_us
+        for a, settling in zip(self.axes, quiet.settling, strict=True):
+            a.since_us = a.since_us + dt_us
+            if settling:
+                a.settled_us += dt_us
+                a.settled = a.settled_us >= SETTLED_US
+        registers = self.hw.fpga.registers
+        *pwms, enable = quiet.registers
+        for k, pwm in enumerate(pwms):
+            registers[_PWM0 + k] = pwm
+        registers[_OUTPUT_ENABLE] = enable
+        return quiet.work
+
+    def _cycle(self, dt_us: float) -> float:
+        hw = self.hw
+        fpga = hw.fpga
+        counters, registers = fpga.quad, fpga.registers
+        ci, so, adc = self.ci, self.so, hw.adc
+        control = not self._stopped
+        resumed = self._resumed
+        enable = active = 0
         for a, c in zip(self.axes, self._configs, strict=True):
-            a.sense(counters, c, dt_us)
-        if self._stopped:
-            self._outputs_off()
+            pwm = a.cycle(hw, counters, c, ci, so, adc, dt_us, control, resumed)
+            if control:
+                k = a.k
+                registers[_PWM0 + k] = pwm & 0xFFFF  # as VirtualFpga.write(PWM0 + k, pwm)
+                if a.command != Command.OFF:
+                    enable |= 1 << k
+            if a.active:
+                active += 1
+        if control:
+            registers[_OUTPUT_ENABLE] = enable
+            self._resumed = False
         else:
-            self._control(dt_us)
-        self._report()
-        return BASE_US + AXIS_US * sum([a.active for a in self.axes])
+            self._outputs_off()
+        so[_AD_CHANNEL6] = adc[6] & 0xFFF
+        so[_AD_CHANNEL7] = adc[7] & 0xFFF
+        return BASE_US + AXIS_US * active
 
     def stop(self) -> None:
+        self._quiet = None
         self._stopped = True
         for a in self.axes:
             a.stop()
@@ -422,29 +595,17 @@ class Armar3Model:
 
     def release(self) -> None:
         if self._stopped:
+            self._quiet = None
             self._stopped, self._resumed = False, True
 
     # ------------------------------------------------------------------ one cycle
     def _configure(self) -> None:
         """Derive every axis's :class:`_Config` from PAR and set the prescalers (in the
         first cycle and whenever a PAR value differs from the last cycle's)."""
+        self._quiet = None
         self._par_seen = list(self.par)
         self._configs = [self._config(name, k) for k, name in enumerate(AXES)]
         self._write_prescalers()
-
-    def _control(self, dt_us: float) -> None:
-        ci, registers = self.ci, self.hw.fpga.registers
-        enable = 0
-        for a, c in zip(self.axes, self._configs, strict=True):
-            k = a.k
-            a.control(self.hw, ci[_COMMAND[k]], ci[_TARGET[k]], ci[_TARGET_VEL[k]],
-                      ci[_RESET_OFFSET[k]], c, dt_us, self._resumed)
-            pwm = round(-a.pwm if c.invert_pwm else a.pwm)
-            registers[_PWM0 + k] = pwm & 0xFFFF  # as VirtualFpga.write(PWM0 + k, pwm)
-            if a.command != Command.OFF:
-                enable |= 1 << k
-        registers[_OUTPUT_ENABLE] = enable
-        self._resumed = False
 
     def _config(self, name: str, k: int) -> _Config:
         par = self.par
@@ -480,19 +641,6 @@ class Armar3Model:
         for k in range(len(AXES)):
             registers[_PWM0 + k] = 0
         registers[_OUTPUT_ENABLE] = 0
-
-    def _report(self) -> None:
-        so, adc = self.so, self.hw.adc
-        for a in self.axes:
-            k = a.k
-            so[_JOINT_ENCODER[k]] = a.joint.view
-            so[_MOTOR_ENCODER[k]] = a.motor.view
-            so[_VOLTAGE[k]] = min(3300, round(adc[k] * 3300 / 4095))
-            so[_RESET_ANSWER[k]] = a.reset_answer
-            so[_VELOCITY[k]] = int(_clamp(round(a.velocity.value), -32768, 32767))
-            so[_SETTLED[k]] = int(a.settled)
-        so[_AD_CHANNEL6] = adc[6] & 0xFFF
-        so[_AD_CHANNEL7] = adc[7] & 0xFFF
 
 
 def make(hardware: Hardware, placement: str = "", *,
