@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Iterator
 
 import pytest
@@ -12,6 +13,23 @@ from ucom_tools.protocol.link import Link
 from ucom_tools.virtual import fleet as fleet_mod
 from ucom_tools.virtual.canbus import VirtualUcomBus
 from ucom_tools.virtual.fleet import Fleet
+from ucom_tools.virtual.socketcand import FleetServer
+
+
+@pytest.fixture
+def served_armar3() -> Iterator[tuple[str, int]]:
+    """ARMAR-III served over socketcand from this process on 127.0.0.1 (paced): its
+    address."""
+    fleet = Fleet.load("armar3", realtime=True)
+    server = FleetServer(fleet, "127.0.0.1", 0)
+    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True,
+                              name="test-served-armar3")
+    thread.start()
+    try:
+        yield server.address
+    finally:
+        server.shutdown()
+        thread.join(timeout=10)
 
 
 @pytest.fixture(autouse=True)

@@ -67,7 +67,10 @@ def test_check_reports_every_broken_file_and_exits_3() -> None:
     bad1, bad2 = CORPUS / "index_gap.tree", CORPUS / "bad_close.tree"
     r = ucom("tree", "check", str(EYES), str(bad1), str(bad2), "--json")
     assert r.exit_code == 3
-    assert r.stdout == ""
+    report = json.loads(r.stdout)  # --json: a document even so, every mistake in it
+    assert [(e["file"], e["line"]) for e in report["errors"]] == [(str(bad1), 7),
+                                                                  (str(bad2), 13)]
+    assert report["error"]["exit_code"] == 3
     lines = r.stderr.splitlines()
     assert lines[0].startswith(f"ucom: bad input: {bad1}:7:7: index 2 out of sequence")
     assert lines[1].startswith(f"ucom: bad input: {bad2}:13:5: ")

@@ -364,3 +364,12 @@ def test_remote_run_refuses_nan_durations_and_values(tmp_path: Path) -> None:
              "--for", "0.05", "--set", "Right Eye Target=nan")
     assert r.exit_code == 3, r.stderr
     assert "Right Eye Target: nan is not a finite number" in r.stderr
+
+
+def test_dbc_into_a_full_device_is_one_line_and_exit_5(tmp_path: Path) -> None:
+    pytest.importorskip("cantools")
+    full = device(tmp_path / "full.dbc", 1, 7)
+    r = ucom("dbc", "-o", str(full), "--force")
+    assert r.exit_code == 5, r.stderr
+    assert r.stderr.strip() == f"ucom: cannot write: --output: {full}: No space left on device"
+    assert is_char_device(full)

@@ -5,15 +5,10 @@ the answer's time stamp lies between the request's sending and the answer's arri
 
 from __future__ import annotations
 
-import threading
 import time
-from collections.abc import Iterator
 
 import can
-import pytest
 
-from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.socketcand import FleetServer
 from ucom_tools.wire import messages
 from ucom_tools.wire import requests as rq
 from ucom_tools.wire.codes import InitOp
@@ -25,22 +20,9 @@ IDLE_S = 0.8
 TOLERANCE_S = 0.001
 
 
-@pytest.fixture
-def served() -> Iterator[tuple[str, int]]:
-    fleet = Fleet.load("armar3", realtime=True)
-    server = FleetServer(fleet, LOCAL, 0)
-    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
-    thread.start()
-    try:
-        yield server.address
-    finally:
-        server.shutdown()
-        thread.join(timeout=10)
-
-
 def test_an_answer_after_an_idle_bus_is_stamped_with_the_wall_time(
-        served: tuple[str, int]) -> None:
-    host, port = served
+        served_armar3: tuple[str, int]) -> None:
+    host, port = served_armar3
     bus = can.Bus(interface="socketcand", host=host, port=port, channel="CAN0")
     try:
         for round_ in range(2):

@@ -9,7 +9,6 @@ from __future__ import annotations
 import itertools
 import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import can
@@ -20,8 +19,6 @@ from tests.test_socketcand_client import FakeServer, Peer, within
 from ucom_tools.cli.main import cli
 from ucom_tools.ops.decode import decode_frames, read_trace
 from ucom_tools.transport.socketcand import SocketcandBus
-from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.socketcand import FleetServer
 
 LOCAL = "127.0.0.1"
 PACING_SLACK_S = 0.01
@@ -63,22 +60,9 @@ def test_frames_from_a_server_with_another_clock_are_stamped_on_ours() -> None:
     assert bus.clock_offset == pytest.approx(-SKEW_S, abs=1.0)
 
 
-@pytest.fixture
-def served() -> Iterator[tuple[str, int]]:
-    fleet = Fleet.load("armar3", realtime=True)
-    server = FleetServer(fleet, LOCAL, 0)
-    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
-    thread.start()
-    try:
-        yield server.address
-    finally:
-        server.shutdown()
-        thread.join(timeout=10)
-
-
 def test_a_log_over_socketcand_has_every_answer_after_its_request(
-        served: tuple[str, int], tmp_path: Path) -> None:
-    host, port = served
+        served_armar3: tuple[str, int], tmp_path: Path) -> None:
+    host, port = served_armar3
     log = tmp_path / "init.asc"
     r = CliRunner().invoke(cli, ["init", "-i", "socketcand", "--host", host, "--port",
                                  str(port), "--topology", "armar3", "--log", str(log)])

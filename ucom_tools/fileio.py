@@ -32,7 +32,7 @@ import tempfile
 import threading
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import IO, Any, BinaryIO, Literal
+from typing import IO, Any, BinaryIO, Literal, Self
 
 from ucom_tools.errors import InputError, WriteError
 
@@ -76,7 +76,26 @@ def _where(path: str, option: str | None) -> str:
     return f"{option}: {path}" if option else path
 
 
-class Output:
+class _Staged:
+    """Committed when a ``with`` block ends without an exception, discarded otherwise."""
+
+    def commit(self) -> None:
+        raise NotImplementedError
+
+    def discard(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, kind: Any, exc: Any, tb: Any) -> None:
+        if kind is None:
+            self.commit()
+        else:
+            self.discard()
+
+
+class Output(_Staged):
     """One file to write by the rules of the module docstring.
 
     Use as a context manager: :attr:`write_path` (or :meth:`open`) is where to write, and
@@ -210,15 +229,6 @@ class Output:
                 os.unlink(self._tmp)
             self._tmp = None
 
-    def __enter__(self) -> Output:
-        return self
-
-    def __exit__(self, kind: Any, exc: Any, tb: Any) -> None:
-        if kind is None:
-            self.commit()
-        else:
-            self.discard()
-
     def __del__(self) -> None:  # a forgotten output leaves no temporary file
         with contextlib.suppress(Exception):
             self.discard()
@@ -307,7 +317,7 @@ def _write_all(out: Output, data: bytes, mode: str) -> None:
         raise out.failed(err) from None
 
 
-class Batch:
+class Batch(_Staged):
     """Several files written all or none: each is staged in a temporary file beside its
     target, and only when every one is complete are they renamed into place.
 
@@ -357,14 +367,7 @@ class Batch:
         for out in self.outputs:
             out.discard()
 
-    def __enter__(self) -> Batch:
-        return self
 
-    def __exit__(self, kind: Any, exc: Any, tb: Any) -> None:
-        if kind is None:
-            self.commit()
-        else:
-            self.discard()
 
 
 def prepare_directory(path: str | os.PathLike[str], *, option: str | None = None,

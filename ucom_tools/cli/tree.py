@@ -91,6 +91,11 @@ def check(files: tuple[str, ...], robot: str | None, as_json: bool) -> None:
     result = attrtree.check(topology.load(robot)) if robot is not None else None
     if result is not None:
         errors += result.problems
+    if errors and as_json:  # every mistake in the document, the last also as its error
+        emit_json({"error": {"kind": "bad input", "message": str(errors[-1]),
+                             "exit_code": 3},
+                   "errors": [{"file": e.file, "line": e.line, "column": e.column,
+                               "message": e.reason} for e in errors]})
     _fail_all(errors)
     if as_json:
         if result is not None:
