@@ -15,8 +15,8 @@ import pytest
 from click.testing import CliRunner, Result
 
 from ucom_tools.cli.main import cli
-from ucom_tools.ops.decode import decode_frames, read_trace
-from ucom_tools.ops.record import channel_names
+from ucom_tools.trace.decode import decode_frames, read_trace
+from ucom_tools.trace.logs import channel_names
 
 
 def ucom(*args: str) -> Result:

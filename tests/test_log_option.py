@@ -12,9 +12,10 @@ import pytest
 from click.testing import CliRunner, Result
 
 from ucom_tools.cli.main import cli
-from ucom_tools.ops import robot as robot_mod
-from ucom_tools.ops.decode import decode_frames, read_trace
-from ucom_tools.ops.robot import ConnectSpec, FrameLog, LogError, open_robot
+from ucom_tools.ops.robot import ConnectSpec, open_robot
+from ucom_tools.trace import logs as logs_mod
+from ucom_tools.trace.decode import decode_frames, read_trace
+from ucom_tools.trace.logs import FrameLog, LogError
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -150,6 +151,6 @@ def test_a_recording_that_cannot_be_written_leaves_no_file(
 
 
 def test_check_log_names_the_option() -> None:
-    with pytest.raises(robot_mod.InputError) as e:
-        robot_mod.check_log("x.nope")
+    with pytest.raises(logs_mod.InputError) as e:
+        logs_mod.check_log("x.nope")
     assert e.value.key == "--log"

@@ -20,13 +20,8 @@ from ucom_tools.cli.main import UcomGroup
 from ucom_tools.cli.plot import PLOT_EXTRA, plot
 from ucom_tools.config.attrtree.model import Kind
 from ucom_tools.errors import InputError
-from ucom_tools.ops.record import (
-    VALUES_HEADER,
-    RecordError,
-    RunRecorder,
-    read_values,
-    values_path,
-)
+from ucom_tools.trace.logs import LogError
+from ucom_tools.trace.record import VALUES_HEADER, RunRecorder, read_values, values_path
 from ucom_tools.wire import mca
 
 CLI = UcomGroup("ucom", commands={"remote": UcomGroup("remote", commands={"plot": plot})})
@@ -266,9 +261,9 @@ def test_write_failure_removes_the_partial_files(tmp_path: Path) -> None:
 
     writer.on_message_received = fail  # type: ignore[method-assign]
     rec.on_message_received(can.Message(arbitration_id=1))  # never raises in a reader
-    with pytest.raises(RecordError, match="No space left"):
+    with pytest.raises(LogError, match="No space left"):
         rec.value(0.0, "CAN0", 1, "Eyes", "X", "SO", 1)
-    with pytest.raises(RecordError, match="No space left"):
+    with pytest.raises(LogError, match="No space left"):
         rec.close()
     assert os.listdir(tmp_path) == []
 

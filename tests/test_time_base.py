@@ -17,7 +17,7 @@ from click.testing import CliRunner
 
 from tests.test_socketcand_client import FakeServer, Peer, within
 from ucom_tools.cli.main import cli
-from ucom_tools.ops.decode import decode_frames, read_trace
+from ucom_tools.trace.decode import decode_frames, read_trace
 from ucom_tools.transport.socketcand import SocketcandBus
 
 LOCAL = "127.0.0.1"

@@ -1,5 +1,5 @@
 """``ucom decode TRACE``: a CAN trace read back as the UCoM conversation it carries, with
-the protocol violations found on the way (:mod:`ucom_tools.ops.decode`)."""
+the protocol violations found on the way (:mod:`ucom_tools.trace.decode`)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from ucom_tools.cli.exitcodes import EXIT_FAILED
 from ucom_tools.cli.options import Finite
 from ucom_tools.cli.output import emit_json, stderr
 from ucom_tools.errors import InputError
-from ucom_tools.ops.decode import DEFAULT_MARGIN, RULES, decode_frames, load_trees, read_trace
+from ucom_tools.trace.decode import DEFAULT_MARGIN, RULES, decode_frames, load_trees, read_trace
 
 _RULES = "; ".join(f"{name}: {text}" for name, text in RULES.items())
 

@@ -24,7 +24,8 @@ from rich.markup import escape
 from ucom_tools.cli.output import stderr
 from ucom_tools.config.topology import BUNDLED
 from ucom_tools.errors import InputError
-from ucom_tools.ops.robot import ConnectSpec, Robot, check_log, open_robot
+from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot
+from ucom_tools.trace.logs import check_log
 
 ENVIRONMENT = {
     "interface": "UCOM_INTERFACE", "channels": "UCOM_CHANNEL", "bitrate": "UCOM_BITRATE",

@@ -23,7 +23,7 @@ from rich.markup import escape
 from ucom_tools import fileio
 from ucom_tools.cli.output import emit_json, stderr
 from ucom_tools.errors import InputError
-from ucom_tools.ops.record import Series, Values, read_values
+from ucom_tools.trace.record import Series, Values, read_values
 
 PLOT_EXTRA = "plotting needs the plot extra: pip install 'ucom-tools[plot]'"
 """The message when matplotlib or plotext is not installed."""

@@ -329,7 +329,7 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
     with ExitStack() as stack:
         recorder = None
         if record is not None:  # checked up front; discarded if the run is refused
-            from ucom_tools.ops.record import RunRecorder
+            from ucom_tools.trace.record import RunRecorder
             recorder = stack.enter_context(RunRecorder(record))
         with _part(robot_or_trees, _one_bus(spec, bus_name), rate_hz=rate,
                    alive_ms=alive_ms, periods=cycles or None, realtime=realtime) as part:

@@ -236,8 +236,8 @@ def reopen(robot: Robot, name: str, within: float = RECONNECT_S) -> BusHandle | 
     with contextlib.suppress(Exception):
         old.bus.shutdown()
     if robot.log is not None:
-        robot.log.detach(old)
-        robot.log.attach(new)
+        robot.log.detach(name, old.link.dispatcher)
+        robot.log.attach(name, new.link.dispatcher)
     robot.buses[name] = new
     return new
 

@@ -115,7 +115,7 @@ def render(frames: Sequence[can.Message]) -> str:
     """The frames, decoded (the trace decoder when it is there, else plain)."""
     frames = list(frames)[-RENDER_FRAMES:]
     try:
-        from ucom_tools.ops.decode import decode_frames
+        from ucom_tools.trace.decode import decode_frames
         return str(decode_frames(frames).render())
     except Exception:  # the decoder is optional here: plain lines do too
         return "\n".join(f"{f.timestamp:.6f} {'rx' if f.is_rx else 'tx'} "

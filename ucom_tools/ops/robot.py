@@ -10,9 +10,6 @@ before any bus is opened.
 from __future__ import annotations
 
 import contextlib
-import copy
-import os
-import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -20,22 +17,17 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import can
-from can.io.generic import MessageWriter
 
 from ucom_tools.config import topology as topo_mod
 from ucom_tools.config.topology import BusSpec, Topology
 from ucom_tools.errors import BusError, InputError, UcomError, WriteError
-from ucom_tools.fileio import Output, reason
-from ucom_tools.ops.record import (
-    INT_CHANNELS,
-    channel_number,
-    check_buses,
-    log_extension,
-    log_writer,
-)
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
+from ucom_tools.trace.logs import (
+    FrameLog,
+    check_buses,
+)
 from ucom_tools.transport.socketcand import SocketcandBus
 
 T = TypeVar("T")
@@ -161,7 +153,7 @@ class Robot:
         unsaved: list[str] = []
         for h in self.buses.values():
             if self.log is not None:
-                self.log.detach(h)
+                self.log.detach(h.name, h.link.dispatcher)
             failures = getattr(h.bus, "state_failures", None)  # the virtual fleet's --state
             if callable(failures):
                 with contextlib.suppress(Exception):
@@ -182,122 +174,6 @@ class Robot:
 
 
 # ------------------------------------------------------------------------ --log
-class LogError(WriteError):
-    """The ``--log`` recording could not be written (a full disk, a lost directory); the
-    partial file was removed and a file it would have replaced keeps its content."""
-
-
-def check_log(path: str | os.PathLike[str]) -> str:
-    """Check ``--log FILE`` before anything is opened: a format python-can writes, in a
-    directory that exists, not a directory itself.  Returns the extension."""
-    ext = log_extension(path, key="--log")
-    p = Path(path)
-    if not p.parent.is_dir():
-        raise InputError(f"{os.fspath(p)}: directory {os.fspath(p.parent)} does not exist",
-                         key="--log")
-    if p.is_dir():
-        raise InputError(f"{os.fspath(p)} is a directory", key="--log")
-    return ext
-
-
-class FrameLog:
-    """``--log FILE``: every frame of the robot's buses, received and sent, into a
-    python-can log (:func:`can.Logger`, the format by the extension).
-
-    Written by the rules of ``ucom(1)``, FILES (:class:`ucom_tools.fileio.Output`): a
-    regular FILE under a temporary name beside it, renamed into place by :meth:`close`, so
-    it is a complete recording or keeps what it had (and its permissions); a device or FIFO
-    is written through.  Each frame carries its bus name as channel (as the bus's number in
-    the formats of :data:`INT_CHANNELS`) and its time on the bus's time base: a received
-    frame its own timestamp, a sent frame the time it was handed to the bus, on the same
-    base (the virtual fleet's virtual time in virtual time).  Thread-safe: the bus readers
-    record from their threads."""
-
-    def __init__(self, path: str | os.PathLike[str]) -> None:
-        self.path = Path(path)
-        self.extension = check_log(self.path)
-        self._int_channels = self.extension.removesuffix(".gz") in INT_CHANNELS
-        self.channels: dict[str, int] = {}
-        self._taps: dict[str, Callable[[can.Message], None]] = {}
-        self._lock = threading.Lock()
-        self._closed = False
-        self._failure: BaseException | None = None
-        self.frames = 0
-        self._out = Output(self.path, option="--log", suffix=self.extension)
-        try:
-            self._writer: MessageWriter = log_writer(self._out)
-        except Exception as err:
-            self._out.discard()
-            raise InputError(f"cannot write {os.fspath(self.path)}: {reason(err)}",
-                             key="--log") from None
-
-    def attach(self, handle: BusHandle) -> None:
-        """Record every frame ``handle``'s dispatcher receives or sends from now on, with
-        the bus's name as its channel."""
-        dispatcher = handle.link.dispatcher
-        name = handle.name
-
-        def tap(msg: can.Message) -> None:  # sent frames come stamped on the same base
-            self._record(msg, name)
-
-        self._taps[name] = tap
-        dispatcher.taps.append(tap)
-
-    def detach(self, handle: BusHandle) -> None:
-        """Stop recording ``handle``'s frames."""
-        tap = self._taps.pop(handle.name, None)
-        if tap is not None:
-            with contextlib.suppress(ValueError):
-                handle.link.dispatcher.taps.remove(tap)
-
-    def _record(self, msg: can.Message, bus: str) -> None:
-        """Record one frame of ``bus`` (sent frames have ``is_rx`` False)."""
-        with self._lock:
-            if self._closed or self._failure is not None:
-                return
-            try:
-                out = copy.copy(msg)
-                out.channel = channel_number(self.channels, bus) if self._int_channels \
-                    else bus
-                self._writer.on_message_received(out)
-                self.frames += 1
-            except Exception as err:  # a bus reader must not die of the recording
-                self._failure = err
-
-    def close(self) -> None:
-        """Flush the log and rename it into place (idempotent); :class:`LogError`, and no
-        file (the old one, if any, as it was), when writing failed."""
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-            try:
-                self._writer.stop()
-            except Exception as err:
-                self._failure = self._failure or err
-            if self._failure is None:
-                try:
-                    self._out.commit()
-                    return
-                except WriteError as err:
-                    raise LogError(f"{err}; nothing was kept", path=err.path) from None
-            self._out.discard()
-            failure = self._failure
-            raise LogError(f"--log: {os.fspath(self.path)}: "
-                           f"{reason(failure)}; nothing was kept", path=os.fspath(self.path))
-
-    def discard(self) -> None:
-        """End the recording and keep nothing (idempotent; after :meth:`close` the file
-        stays)."""
-        with self._lock:
-            if self._closed:
-                return
-            self._closed = True
-            with contextlib.suppress(Exception):
-                self._writer.stop()
-            self._out.discard()
-
-
 def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:
     """Open every bus of ``spec``; raises :class:`BusError` with one clear line.  With
     ``spec.log`` every frame of every bus is recorded until :meth:`Robot.close` (the file
@@ -318,7 +194,7 @@ def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:
             raise
         robot.log = log
         for h in robot.buses.values():
-            log.attach(h)
+            log.attach(h.name, h.link.dispatcher)
     return robot
 
 

@@ -22,26 +22,32 @@ from __future__ import annotations
 import contextlib
 import copy
 import csv
-import importlib.util
 import io
 import math
 import os
 import threading
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from decimal import Decimal, InvalidOperation
 from enum import Enum
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any
+from typing import IO
 
 import can
 from can.io.generic import MessageWriter
-from can.util import channel2int
 
 from ucom_tools import fileio
 from ucom_tools.errors import InputError, WriteError
 from ucom_tools.fileio import Batch, Output, reason
+from ucom_tools.trace.logs import (
+    INT_CHANNELS,
+    LogError,
+    channel_number,
+    check_buses,
+    log_extension,
+    log_writer,
+)
 
 VALUES_SUFFIX = ".values.csv"
 """Appended to the full name of the frame log: run.blf -> run.blf.values.csv."""
@@ -51,138 +57,6 @@ VALUES_HEADER = ("timestamp", "bus", "board", "prefix", "name", "kind", "value")
 
 KINDS = ("CI", "SO", "PAR")
 """The edge kinds of the ``kind`` column."""
-
-FORMATS: dict[str, str] = {
-    ".asc": "Vector ASCII log",
-    ".blf": "Vector binary log",
-    ".csv": "python-can CSV (no channel or direction column: one bus only)",
-    ".db": "SQLite database (no channel or direction column: one bus only)",
-    ".log": "can-utils candump -l log",
-    ".trc": "PEAK trace",
-}
-"""Extensions python-can writes (via :func:`can.Logger`) and what they are; the text
-formats also gzip-compressed (``.asc.gz``, ...).  ``.mf4`` when asammdf is installed."""
-
-INT_CHANNELS = frozenset({".asc", ".blf", ".trc", ".mf4"})
-"""Formats whose channel is a number: a bus name is stored as its number (CAN0 -> 0,
-i.e. channel 1 in Vector's and PEAK's counting), see :attr:`RunRecorder.channels`."""
-
-_GZIP_OK = frozenset({".asc", ".csv", ".log", ".trc"})
-
-ONE_BUS = frozenset({".csv", ".db", ".csv.gz"})
-"""Formats without a channel (or direction) column: refused for a recording of several
-buses, whose frames they could not tell apart."""
-
-NOT_READABLE = {".txt": "python-can writes .txt but cannot read it back; use .log "
-                        "(candump -l text) instead"}
-"""Formats python-can writes that no reader takes (ucom writes only what it reads)."""
-
-
-def check_buses(extension: str, buses: Iterable[str], path: str | os.PathLike[str],
-                key: str) -> None:
-    """InputError, before anything is recorded, when ``extension`` cannot keep apart the
-    frames of ``buses`` (:data:`ONE_BUS`)."""
-    names = list(buses)
-    if extension in ONE_BUS and len(names) > 1:
-        raise InputError(f"{os.fspath(path)}: {extension} has no channel column: the frames "
-                         f"of {', '.join(names)} could not be told apart; use .asc, .blf, "
-                         ".log or .trc" + (" (or --bus for one bus)" if key == "--record"
-                                           else ""), key=key)
-
-
-def channel_number(channels: dict[str, int], name: str) -> int:
-    """The number bus ``name`` is stored as in the formats of :data:`INT_CHANNELS`: its
-    own (CAN0 -> 0) unless taken, else the lowest free one; kept in ``channels``."""
-    number = channels.get(name)
-    if number is None:
-        taken = set(channels.values())
-        number = channel2int(name)
-        if number is None or number in taken:
-            number = next(n for n in range(len(taken) + 1) if n not in taken)
-        channels[name] = number
-    return number
-
-
-def log_writer(out: Output) -> MessageWriter:
-    """python-can's writer for the log ``out`` (the format by its extension), writing to
-    its temporary file but naming the final one where the format records its own name
-    (a PEAK trace's header)."""
-    writer: MessageWriter = can.Logger(out.write_path)
-    if isinstance(writer, can.TRCWriter) and out.kind != "stdout":
-        writer.filepath = os.path.abspath(out.target)
-    return writer
-
-
-DEFAULT_BUS = "CAN"
-"""The bus of frames without a channel (a one-bus trace)."""
-
-
-def channel_names(channels: Iterable[Any], buses: Sequence[str] = ()) -> dict[Any, str]:
-    """The robot bus each channel of a trace stands for: the rule that undoes
-    :func:`channel_number` and python-can's conversions, in one place.
-
-    - no channel: the robot's only bus, else :data:`DEFAULT_BUS`;
-    - a number n (the formats of :data:`INT_CHANNELS`): the bus whose name ends in n
-      (CAN0 for 0), else ``CANn``;
-    - a string: the bus of that name, also in another case (``can0`` from
-      ``can.logconvert`` is CAN0), else the string as it is;
-    - python-can counts a PEAK trace's channels from 1 and ``can.logconvert`` keeps that
-      count (``can1``-``can4`` for CAN0-CAN3): when the numbered channels of a trace are
-      exactly 1..n and the robot's ``buses`` are numbered 0..n-1, they are shifted.
-    """
-    chans = list(dict.fromkeys(channels))
-    numbered = {c: channel2int(c) for c in chans if c not in (None, "")
-                and not isinstance(c, bool)}
-    by_number = {channel2int(b): b for b in buses if channel2int(b) is not None}
-    by_folded = {b.casefold(): b for b in buses}
-    shift = 0
-    values = sorted(n for n in numbered.values() if n is not None)
-    known = sorted(n for n in by_number if n is not None)
-    if values and known and values == list(range(1, len(values) + 1)) and \
-            known == list(range(len(values))):
-        shift = 1
-    out: dict[Any, str] = {}
-    for c in chans:
-        if c is None or c == "":
-            out[c] = buses[0] if len(buses) == 1 else DEFAULT_BUS
-            continue
-        if isinstance(c, str) and c.casefold() in by_folded and not shift:
-            out[c] = by_folded[c.casefold()]
-            continue
-        n = numbered.get(c)
-        if n is not None and (isinstance(c, int) or shift or c.casefold().startswith(
-                ("can", "vcan"))):
-            n -= shift
-            out[c] = by_number.get(n, f"CAN{n}")
-            continue
-        out[c] = str(c)
-    return out
-
-
-def supported_extensions() -> list[str]:
-    """Every extension :class:`RunRecorder` accepts, as shown in messages."""
-    exts = list(FORMATS)
-    if importlib.util.find_spec("asammdf") is not None:
-        exts.append(".mf4")
-    return sorted(exts) + sorted(f"{e}.gz" for e in _GZIP_OK)
-
-
-def log_extension(path: str | os.PathLike[str], key: str = "--record") -> str:
-    """The format extension of ``path`` (lower case, ``.asc.gz`` for compressed ones);
-    InputError (naming ``key``) listing the supported ones when python-can cannot write
-    it."""
-    suffixes = [s.lower() for s in Path(path).suffixes]
-    ext = "".join(suffixes[-2:]) if suffixes[-1:] == [".gz"] else "".join(suffixes[-1:])
-    supported = supported_extensions()
-    if ext.removesuffix(".gz") in NOT_READABLE:
-        raise InputError(f"{os.fspath(path)}: {NOT_READABLE[ext.removesuffix('.gz')]}",
-                         key=key)
-    if ext not in supported:
-        shown = f"'{ext}'" if ext else "no extension"
-        raise InputError(f"{os.fspath(path)}: {shown} is not a CAN log format python-can "
-                         f"writes; use one of {', '.join(supported)}", key=key)
-    return ext
-
 
 def values_path(path: str | os.PathLike[str]) -> Path:
     """The values file recorded beside the frame log ``path``."""
@@ -214,11 +88,6 @@ def kind_text(kind: str | Enum) -> str:
     if text not in KINDS:
         raise ValueError(f"kind must be one of {', '.join(KINDS)}, not {kind!r}")
     return text
-
-
-class RecordError(WriteError):
-    """Writing the recording failed (a full disk, a lost directory); the partial files
-    were removed, files they would have replaced keep their content."""
 
 
 class RunRecorder(can.Listener):
@@ -351,12 +220,12 @@ class RunRecorder(can.Listener):
     def _raise_failure(self) -> None:
         if self._failure is not None:
             err = self._failure
-            raise RecordError(f"--record: {self.path}: {reason(err)}; nothing was kept",
+            raise LogError(f"--record: {self.path}: {reason(err)}; nothing was kept",
                               path=str(self.path)) from err
 
     # --------------------------------------------------------------------- end
     def close(self) -> None:
-        """Flush both files and rename them into place (idempotent).  RecordError, and
+        """Flush both files and rename them into place (idempotent).  LogError, and
         no files, when writing failed."""
         with self._lock:
             if self._closed:
@@ -378,7 +247,7 @@ class RunRecorder(can.Listener):
             except WriteError as err:
                 self._failure = err
                 self._discard()
-                raise RecordError(f"{err}; nothing was kept", path=err.path) from None
+                raise LogError(f"{err}; nothing was kept", path=err.path) from None
 
     def discard(self) -> None:
         """End the recording without keeping anything (idempotent; after :meth:`close`
@@ -532,7 +401,7 @@ def _decimal(text: str, file: str, line: int) -> Decimal:
 
 
 
-__all__ = ["FORMATS", "KINDS", "VALUES_HEADER", "VALUES_SUFFIX", "RecordError",
+__all__ = ["KINDS", "VALUES_HEADER", "VALUES_SUFFIX", "LogError",
            "RunRecorder", "Series", "Values", "log_extension", "read_values",
-           "supported_extensions", "value_text", "values_path"]
+           "value_text", "values_path"]
 

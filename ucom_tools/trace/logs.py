@@ -1,0 +1,307 @@
+"""CAN logs as other tools read them: the formats ucom writes (only those it reads back),
+one rule for a frame's channel and the robot's bus name in both directions, reading a
+trace, and the ``--log`` writer (a python-can log by the writing rules of ``ucom(1)``,
+FILES).  ``--record`` (:mod:`ucom_tools.trace.record`) writes its frames the same way."""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import importlib.util
+import os
+import threading
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any, Protocol
+
+import can
+from can.io.generic import MessageWriter
+from can.util import channel2int
+
+from ucom_tools.errors import InputError, WriteError
+from ucom_tools.fileio import Output, reason
+
+FORMATS: dict[str, str] = {
+    ".asc": "Vector ASCII log",
+    ".blf": "Vector binary log",
+    ".csv": "python-can CSV (no channel or direction column: one bus only)",
+    ".db": "SQLite database (no channel or direction column: one bus only)",
+    ".log": "can-utils candump -l log",
+    ".trc": "PEAK trace",
+}
+"""Extensions python-can writes (via :func:`can.Logger`) and what they are; the text
+formats also gzip-compressed (``.asc.gz``, ...).  ``.mf4`` when asammdf is installed."""
+
+INT_CHANNELS = frozenset({".asc", ".blf", ".trc", ".mf4"})
+"""Formats whose channel is a number: a bus name is stored as its number (CAN0 -> 0,
+i.e. channel 1 in Vector's and PEAK's counting), see :attr:`RunRecorder.channels`."""
+
+_GZIP_OK = frozenset({".asc", ".csv", ".log", ".trc"})
+
+ONE_BUS = frozenset({".csv", ".db", ".csv.gz"})
+"""Formats without a channel (or direction) column: refused for a recording of several
+buses, whose frames they could not tell apart."""
+
+NOT_READABLE = {".txt": "python-can writes .txt but cannot read it back; use .log "
+                        "(candump -l text) instead"}
+"""Formats python-can writes that no reader takes (ucom writes only what it reads)."""
+
+
+def check_buses(extension: str, buses: Iterable[str], path: str | os.PathLike[str],
+                key: str) -> None:
+    """InputError, before anything is recorded, when ``extension`` cannot keep apart the
+    frames of ``buses`` (:data:`ONE_BUS`)."""
+    names = list(buses)
+    if extension in ONE_BUS and len(names) > 1:
+        raise InputError(f"{os.fspath(path)}: {extension} has no channel column: the frames "
+                         f"of {', '.join(names)} could not be told apart; use .asc, .blf, "
+                         ".log or .trc" + (" (or --bus for one bus)" if key == "--record"
+                                           else ""), key=key)
+
+
+def channel_number(channels: dict[str, int], name: str) -> int:
+    """The number bus ``name`` is stored as in the formats of :data:`INT_CHANNELS`: its
+    own (CAN0 -> 0) unless taken, else the lowest free one; kept in ``channels``."""
+    number = channels.get(name)
+    if number is None:
+        taken = set(channels.values())
+        number = channel2int(name)
+        if number is None or number in taken:
+            number = next(n for n in range(len(taken) + 1) if n not in taken)
+        channels[name] = number
+    return number
+
+
+def log_writer(out: Output) -> MessageWriter:
+    """python-can's writer for the log ``out`` (the format by its extension), writing to
+    its temporary file but naming the final one where the format records its own name
+    (a PEAK trace's header)."""
+    writer: MessageWriter = can.Logger(out.write_path)
+    if isinstance(writer, can.TRCWriter) and out.kind != "stdout":
+        writer.filepath = os.path.abspath(out.target)
+    return writer
+
+
+DEFAULT_BUS = "CAN"
+"""The bus of frames without a channel (a one-bus trace)."""
+
+
+def channel_names(channels: Iterable[Any], buses: Sequence[str] = ()) -> dict[Any, str]:
+    """The robot bus each channel of a trace stands for: the rule that undoes
+    :func:`channel_number` and python-can's conversions, in one place.
+
+    - no channel: the robot's only bus, else :data:`DEFAULT_BUS`;
+    - a number n (the formats of :data:`INT_CHANNELS`): the bus whose name ends in n
+      (CAN0 for 0), else ``CANn``;
+    - a string: the bus of that name, also in another case (``can0`` from
+      ``can.logconvert`` is CAN0), else the string as it is;
+    - python-can counts a PEAK trace's channels from 1 and ``can.logconvert`` keeps that
+      count (``can1``-``can4`` for CAN0-CAN3): when the numbered channels of a trace are
+      exactly 1..n and the robot's ``buses`` are numbered 0..n-1, they are shifted.
+    """
+    chans = list(dict.fromkeys(channels))
+    numbered = {c: channel2int(c) for c in chans if c not in (None, "")
+                and not isinstance(c, bool)}
+    by_number = {channel2int(b): b for b in buses if channel2int(b) is not None}
+    by_folded = {b.casefold(): b for b in buses}
+    shift = 0
+    values = sorted(n for n in numbered.values() if n is not None)
+    known = sorted(n for n in by_number if n is not None)
+    if values and known and values == list(range(1, len(values) + 1)) and \
+            known == list(range(len(values))):
+        shift = 1
+    out: dict[Any, str] = {}
+    for c in chans:
+        if c is None or c == "":
+            out[c] = buses[0] if len(buses) == 1 else DEFAULT_BUS
+            continue
+        if isinstance(c, str) and c.casefold() in by_folded and not shift:
+            out[c] = by_folded[c.casefold()]
+            continue
+        n = numbered.get(c)
+        if n is not None and (isinstance(c, int) or shift or c.casefold().startswith(
+                ("can", "vcan"))):
+            n -= shift
+            out[c] = by_number.get(n, f"CAN{n}")
+            continue
+        out[c] = str(c)
+    return out
+
+
+def supported_extensions() -> list[str]:
+    """Every extension :class:`RunRecorder` accepts, as shown in messages."""
+    exts = list(FORMATS)
+    if importlib.util.find_spec("asammdf") is not None:
+        exts.append(".mf4")
+    return sorted(exts) + sorted(f"{e}.gz" for e in _GZIP_OK)
+
+
+def log_extension(path: str | os.PathLike[str], key: str = "--record") -> str:
+    """The format extension of ``path`` (lower case, ``.asc.gz`` for compressed ones);
+    InputError (naming ``key``) listing the supported ones when python-can cannot write
+    it."""
+    suffixes = [s.lower() for s in Path(path).suffixes]
+    ext = "".join(suffixes[-2:]) if suffixes[-1:] == [".gz"] else "".join(suffixes[-1:])
+    supported = supported_extensions()
+    if ext.removesuffix(".gz") in NOT_READABLE:
+        raise InputError(f"{os.fspath(path)}: {NOT_READABLE[ext.removesuffix('.gz')]}",
+                         key=key)
+    if ext not in supported:
+        shown = f"'{ext}'" if ext else "no extension"
+        raise InputError(f"{os.fspath(path)}: {shown} is not a CAN log format python-can "
+                         f"writes; use one of {', '.join(supported)}", key=key)
+    return ext
+
+
+
+# ============================================================================ input
+def read_trace(path: str | Path) -> list[can.Message]:
+    """Every frame of a python-can log (the format by the extension: .asc, .blf, .log,
+    .csv, .trc, .db, ...); InputError naming the file when it cannot be read.  Channel
+    numbers count from 0 as python-can's writers take them (a .trc file's PEAK channel 1
+    is channel 0)."""
+    file = str(path)
+    if not Path(file).is_file():
+        raise InputError("no such file" if not Path(file).exists() else "not a file",
+                         file=file)
+    try:
+        with can.LogReader(file) as reader:
+            frames = list(reader)
+    except InputError:
+        raise
+    except Exception as err:  # python-can raises anything from ValueError to struct.error
+        text = str(err).strip().splitlines()
+        reason = text[0] if text else type(err).__name__
+        raise InputError(f"cannot read as a CAN trace: {reason}", file=file) from None
+    if file.lower().endswith((".trc", ".trc.gz")):
+        # PEAK counts channels from 1: python-can writes channel n as n + 1 and reads the
+        # number as it stands; back to python-can's count (CAN0 is channel 0)
+        for f in frames:
+            if isinstance(f.channel, int) and f.channel > 0:
+                f.channel -= 1
+    return frames
+
+
+
+# ------------------------------------------------------------------------ --log
+class Tapped(Protocol):
+    """What a log taps: a bus's dispatcher, whose ``taps`` see every frame it receives
+    and sends (:class:`ucom_tools.protocol.dispatch.Dispatcher`)."""
+
+    taps: list[Callable[[can.Message], None]]
+
+
+class LogError(WriteError):
+    """The ``--log`` recording could not be written (a full disk, a lost directory); the
+    partial file was removed and a file it would have replaced keeps its content."""
+
+
+def check_log(path: str | os.PathLike[str]) -> str:
+    """Check ``--log FILE`` before anything is opened: a format python-can writes, in a
+    directory that exists, not a directory itself.  Returns the extension."""
+    ext = log_extension(path, key="--log")
+    p = Path(path)
+    if not p.parent.is_dir():
+        raise InputError(f"{os.fspath(p)}: directory {os.fspath(p.parent)} does not exist",
+                         key="--log")
+    if p.is_dir():
+        raise InputError(f"{os.fspath(p)} is a directory", key="--log")
+    return ext
+
+
+class FrameLog:
+    """``--log FILE``: every frame of the robot's buses, received and sent, into a
+    python-can log (:func:`can.Logger`, the format by the extension).
+
+    Written by the rules of ``ucom(1)``, FILES (:class:`ucom_tools.fileio.Output`): a
+    regular FILE under a temporary name beside it, renamed into place by :meth:`close`, so
+    it is a complete recording or keeps what it had (and its permissions); a device or FIFO
+    is written through.  Each frame carries its bus name as channel (as the bus's number in
+    the formats of :data:`INT_CHANNELS`) and its time on the bus's time base: a received
+    frame its own timestamp, a sent frame the time it was handed to the bus, on the same
+    base (the virtual fleet's virtual time in virtual time).  Thread-safe: the bus readers
+    record from their threads."""
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        self.extension = check_log(self.path)
+        self._int_channels = self.extension.removesuffix(".gz") in INT_CHANNELS
+        self.channels: dict[str, int] = {}
+        self._taps: dict[str, Callable[[can.Message], None]] = {}
+        self._lock = threading.Lock()
+        self._closed = False
+        self._failure: BaseException | None = None
+        self.frames = 0
+        self._out = Output(self.path, option="--log", suffix=self.extension)
+        try:
+            self._writer: MessageWriter = log_writer(self._out)
+        except Exception as err:
+            self._out.discard()
+            raise InputError(f"cannot write {os.fspath(self.path)}: {reason(err)}",
+                             key="--log") from None
+
+    def attach(self, name: str, dispatcher: Tapped) -> None:
+        """Record every frame ``dispatcher`` (bus ``name``'s) receives or sends from now
+        on, with the bus's name as its channel."""
+
+        def tap(msg: can.Message) -> None:  # sent frames come stamped on the same base
+            self._record(msg, name)
+
+        self._taps[name] = tap
+        dispatcher.taps.append(tap)
+
+    def detach(self, name: str, dispatcher: Tapped) -> None:
+        """Stop recording bus ``name``'s frames."""
+        tap = self._taps.pop(name, None)
+        if tap is not None:
+            with contextlib.suppress(ValueError):
+                dispatcher.taps.remove(tap)
+
+    def _record(self, msg: can.Message, bus: str) -> None:
+        """Record one frame of ``bus`` (sent frames have ``is_rx`` False)."""
+        with self._lock:
+            if self._closed or self._failure is not None:
+                return
+            try:
+                out = copy.copy(msg)
+                out.channel = channel_number(self.channels, bus) if self._int_channels \
+                    else bus
+                self._writer.on_message_received(out)
+                self.frames += 1
+            except Exception as err:  # a bus reader must not die of the recording
+                self._failure = err
+
+    def close(self) -> None:
+        """Flush the log and rename it into place (idempotent); :class:`LogError`, and no
+        file (the old one, if any, as it was), when writing failed."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            try:
+                self._writer.stop()
+            except Exception as err:
+                self._failure = self._failure or err
+            if self._failure is None:
+                try:
+                    self._out.commit()
+                    return
+                except WriteError as err:
+                    raise LogError(f"{err}; nothing was kept", path=err.path) from None
+            self._out.discard()
+            failure = self._failure
+            raise LogError(f"--log: {os.fspath(self.path)}: "
+                           f"{reason(failure)}; nothing was kept", path=os.fspath(self.path))
+
+    def discard(self) -> None:
+        """End the recording and keep nothing (idempotent; after :meth:`close` the file
+        stays)."""
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            with contextlib.suppress(Exception):
+                self._writer.stop()
+            self._out.discard()
+
+
