@@ -213,15 +213,18 @@ class BootDecoding(BusState):
             self._flush_info(bd)
             msg = self.add(bd.label, "Info", "(incomplete)", {}, direction=BOARD_TO_PC)
             msg.frames = 0
+            msg.members.clear()
             bd.info = (msg, {})
         msg, bodies = bd.info
         if frame.index in bodies:  # a new record without its frame 0
             self._flush_info(bd)
             msg = self.add(bd.label, "Info", "(incomplete)", {}, direction=BOARD_TO_PC)
             msg.frames = 0
+            msg.members.clear()
             bd.info = (msg, bodies := {})
         bodies[frame.index] = frame.body
         msg.frames += 1
+        msg.members.append(self.index)
         self.answer(bd.label, frame)
         if len(bodies) == INFO_FRAMES:
             bd.info = None
@@ -250,12 +253,14 @@ class BootDecoding(BusState):
             self._flush_text(bd)
             msg = self.add(bd.label, "Report 2", "", {}, direction=BOARD_TO_PC)
             msg.frames = 0
+            msg.members.clear()
             bd.text = (msg, [])
         msg, pieces = bd.text
         if piece.index != len(pieces):
             pieces.append(b"\x00?")  # a gap: shown, the text goes on
         pieces.append(piece.text)
         msg.frames += 1
+        msg.members.append(self.index)
         text = b"".join(p for p in pieces if p != b"\x00?").decode("latin-1")
         gaps = sum(1 for p in pieces if p == b"\x00?")
         msg.text = f"text: {text!r}" + (" (incomplete: pieces missing)" if gaps else

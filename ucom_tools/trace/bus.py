@@ -80,7 +80,7 @@ class BusState:
     def add(self, board: str, function: str, text: str, fields_: dict[str, Any] | None = None,
             *, direction: str = "-") -> Message:
         msg = Message(self.t, self.index, self.name, board, direction, function, text,
-                      jsonable(fields_ or {}), 1, self.raw)
+                      jsonable(fields_ or {}), 1, self.raw, [self.index])
         self.conv.messages.append(msg)
         return msg
 

@@ -51,6 +51,8 @@ class Message:
     """How many frames this message stands for."""
     raw: str = ""
     """The first frame, candump style (``0C1#00010010D92172BB``)."""
+    members: list[int] = field(default_factory=list)
+    """The positions in the trace of the frames it stands for (``index`` the first)."""
 
     def to_json(self) -> dict[str, Any]:
         return {"t": round(self.t, 6), "index": self.index, "dir": self.dir,

@@ -164,6 +164,7 @@ class ProgramDecoding(BusState):
         tr.data_frames += 1
         assert tr.block_msg is not None
         tr.block_msg.frames += 1
+        tr.block_msg.members.append(self.index)
 
     def _end_block(self) -> None:
         tr = self.transfer

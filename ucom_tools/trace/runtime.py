@@ -179,6 +179,7 @@ class RuntimeDecoding(BusState):
                 "frames": 1, "first_t": self.t, "last_t": self.t}, direction=PC_TO_BOARD)
             return
         msg.frames += 1
+        msg.members.append(self.index)
         first = msg.fields["first_t"]
         every = (self.t - first) / (msg.frames - 1)
         msg.fields.update(frames=msg.frames, last_t=self.t, every_ms=round(every * 1000, 3))
@@ -213,6 +214,7 @@ class RuntimeDecoding(BusState):
             self.periodic[id(agg)] = Periodic(agg)
         else:
             agg.frames += 1
+            agg.members.append(self.index)
         state = self.periodic[id(agg)]
         state.last_t, state.items, state.data = self.t, items, msg.data
         ranges = state.ranges
@@ -452,10 +454,12 @@ class RuntimeDecoding(BusState):
                            "(incomplete record)", {"kind": seg.kind, "index": seg.index},
                            direction=BOARD_TO_PC)
             msg.frames = 0
+            msg.members.clear()
             entry = bd.segments[key] = (msg, {})
         msg, parts = entry
         parts[seg.segment] = seg.data
         msg.frames += 1
+        msg.members.append(self.index)
         self.answer(bd.label, seg)
         if seg.last and all(i in parts for i in range(seg.segment + 1)):
             del bd.segments[key]
