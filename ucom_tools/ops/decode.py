@@ -130,6 +130,8 @@ class Message:
     """How many frames this message stands for."""
     raw: str = ""
     """The first frame, candump style (``0C1#00010010D92172BB``)."""
+    members: list[int] = field(default_factory=list)
+    """The positions in the trace of the frames it stands for (``index`` the first)."""
 
     def to_json(self) -> dict[str, Any]:
         return {"t": round(self.t, 6), "index": self.index, "dir": self.dir,
@@ -544,7 +546,7 @@ class _BusDecoder:
     def add(self, board: str, function: str, text: str, fields_: dict[str, Any] | None = None,
             *, direction: str = "-") -> Message:
         msg = Message(self.t, self.index, self.name, board, direction, function, text,
-                      jsonable(fields_ or {}), 1, self.raw)
+                      jsonable(fields_ or {}), 1, self.raw, [self.index])
         self.conv.messages.append(msg)
         return msg
 
@@ -988,6 +990,7 @@ class _BusDecoder:
         tr.data_frames += 1
         assert tr.block_msg is not None
         tr.block_msg.frames += 1
+        tr.block_msg.members.append(self.index)
 
     def _end_block(self) -> None:
         tr = self.transfer
@@ -1149,6 +1152,7 @@ class _BusDecoder:
                 "frames": 1, "first_t": self.t, "last_t": self.t}, direction=PC_TO_BOARD)
             return
         msg.frames += 1
+        msg.members.append(self.index)
         first = msg.fields["first_t"]
         every = (self.t - first) / (msg.frames - 1)
         msg.fields.update(frames=msg.frames, last_t=self.t, every_ms=round(every * 1000, 3))
@@ -1183,6 +1187,7 @@ class _BusDecoder:
             self.periodic[id(agg)] = _Periodic(agg)
         else:
             agg.frames += 1
+            agg.members.append(self.index)
         state = self.periodic[id(agg)]
         state.last_t, state.items, state.data = self.t, items, msg.data
         ranges = state.ranges
@@ -1506,15 +1511,18 @@ class _BusDecoder:
             self._flush_info(bd)
             msg = self.add(bd.label, "Info", "(incomplete)", {}, direction=BOARD_TO_PC)
             msg.frames = 0
+            msg.members.clear()
             bd.info = (msg, {})
         msg, bodies = bd.info
         if frame.index in bodies:  # a new record without its frame 0
             self._flush_info(bd)
             msg = self.add(bd.label, "Info", "(incomplete)", {}, direction=BOARD_TO_PC)
             msg.frames = 0
+            msg.members.clear()
             bd.info = (msg, bodies := {})
         bodies[frame.index] = frame.body
         msg.frames += 1
+        msg.members.append(self.index)
         self.answer(bd.label, frame)
         if len(bodies) == INFO_FRAMES:
             bd.info = None
@@ -1543,12 +1551,14 @@ class _BusDecoder:
             self._flush_text(bd)
             msg = self.add(bd.label, "Report 2", "", {}, direction=BOARD_TO_PC)
             msg.frames = 0
+            msg.members.clear()
             bd.text = (msg, [])
         msg, pieces = bd.text
         if piece.index != len(pieces):
             pieces.append(b"\x00?")  # a gap: shown, the text goes on
         pieces.append(piece.text)
         msg.frames += 1
+        msg.members.append(self.index)
         text = b"".join(p for p in pieces if p != b"\x00?").decode("latin-1")
         gaps = sum(1 for p in pieces if p == b"\x00?")
         msg.text = f"text: {text!r}" + (" (incomplete: pieces missing)" if gaps else
@@ -1573,10 +1583,12 @@ class _BusDecoder:
                            "(incomplete record)", {"kind": seg.kind, "index": seg.index},
                            direction=BOARD_TO_PC)
             msg.frames = 0
+            msg.members.clear()
             entry = bd.segments[key] = (msg, {})
         msg, parts = entry
         parts[seg.segment] = seg.data
         msg.frames += 1
+        msg.members.append(self.index)
         self.answer(bd.label, seg)
         if seg.last and all(i in parts for i in range(seg.segment + 1)):
             del bd.segments[key]
