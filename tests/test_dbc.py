@@ -16,7 +16,7 @@ from click.testing import CliRunner, Result
 from ucom_tools.cli import dbc as dbc_cli
 from ucom_tools.cli.main import UcomGroup, cli
 from ucom_tools.errors import InputError
-from ucom_tools.ops import dbc as dbc_ops
+from ucom_tools.trace import dbc as dbc_ops
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import (
@@ -139,20 +139,24 @@ def test_bootloader_messages(db: Any) -> None:
         "Address": 0x4000, "Word0": 0x0081, "Word1": 0x0400}
 
 
-def test_program_control_frames(db: Any) -> None:
-    """Examples of ucom-protocol(7): BLOCK and PREPARE, broadcast (shorter than 8)."""
-    assert decode(db, (0x2C0, bytes.fromhex("05400100011234"))) == {
-        "Op": "BLOCK", "Block_Space": "P", "Block_Frames": 64, "Block_Address": 0x100,
-        "Block_Index": 1, "Block_CRC": 0x1234}
-    assert decode(db, (0x2C0, bytes.fromhex("040018"))) == {"Op": "PREPARE",
-                                                             "Prepare_Pages": 24}
-    block = m.ProgramBlock(Space.X, 0x1000, 17, 47, 0xBEEF)
-    assert decode(db, m.encode(block, ALL)) == {
-        "Op": "BLOCK", "Block_Space": "X", "Block_Frames": 17, "Block_Address": 0x1000,
-        "Block_Index": 47, "Block_CRC": 0xBEEF}
-    begin = decode(db, m.encode(m.ProgramBegin(Target.FLASH, 50, 0x80), seq(2)))
-    assert begin == {"Op": "BEGIN", "Begin_Target": "FLASH", "Begin_Blocks": 50,
-                     "Begin_Entry": 0x80}
+def test_program_frames(db: Any) -> None:
+    """Program identifiers describe the data frame (DLC 8, four words low byte first); a
+    control frame (DLC < 8, first byte its op, the examples of ucom-protocol(7)) is not
+    decoded strictly and has no signal that fits it when truncation is allowed: a data
+    frame whose first byte is an op code is never read as a control frame, nor the
+    reverse."""
+    program_words = (0x0702, 0x1234, 0xBEEF, 0x0081)
+    data = m.ProgramData(b"".join(w.to_bytes(2, "little") for w in program_words), 9)
+    arbitration_id, payload = m.encode(data, ALL)
+    assert arbitration_id == 0x2C9 and payload[0] == 0x02  # looks like META
+    words = db.decode_message(arbitration_id, payload)["Words"]
+    assert [(words >> 16 * i) & 0xFFFF for i in range(4)] == list(program_words)
+    for control in ((0x2C0, bytes.fromhex("05400100011234")), (0x2C0, bytes.fromhex("040018")),
+                    m.encode(m.ProgramBlock(Space.X, 0x1000, 17, 47, 0xBEEF), ALL),
+                    m.encode(m.ProgramBegin(Target.FLASH, 50, 0x80), seq(2))):
+        with pytest.raises(cantools.database.DecodeError, match="Wrong data size"):
+            db.decode_message(*control)
+        assert decode(db, control) == {}
 
 
 def test_run_time_messages(db: Any) -> None:
@@ -160,10 +164,12 @@ def test_run_time_messages(db: Any) -> None:
     assert decode(db, (0x503, bytes.fromhex("0014 0000 0D142600".replace(" ", "")))) == {
         "State": "STOPPED", "Answers": "MCA Ready", "Echo0": 0, "Echo1": 0, "CountCI": 13,
         "CountSO": 20, "CountPAR": 38, "Overrun": 0, "LatchedByWatchdog": 0}
+    # values as raw bytes: an edge's width (2 or 4) is in its DumpIO Descr record
     assert decode(db, (0x3C3, bytes.fromhex("0003E836B00000"))) == {
-        "FirstIndex": 0, "Value0": 1000, "Value1": 14000, "Value2": 0}
+        "FirstIndex": 0, "Data1": 0x03, "Data2": 0xE8, "Data3": 0x36, "Data4": 0xB0,
+        "Data5": 0, "Data6": 0}
     assert decode(db, (0x343, bytes.fromhex("06CE4BD33F"))) == {
-        "FirstIndex": 6, "Value0": -12725, "Value1": -11457}
+        "FirstIndex": 6, "Data1": 0xCE, "Data2": 0x4B, "Data3": 0xD3, "Data4": 0x3F}
     assert decode(db, (0x643, bytes.fromhex("020100010002 0E0F".replace(" ", "")))) == {
         "Op": "SO_MAP", "SoMap_Map": 1, "SoMap_Period": 1, "SoMap_Edge0": 0,
         "SoMap_Edge1": 2, "SoMap_Edge2": 14, "SoMap_Edge3": 15}
@@ -173,7 +179,8 @@ def test_run_time_messages(db: Any) -> None:
         "Kind": "PAR", "Last": 1, "Segment": 7, "Index": 3, "RecordByte0": 0x73,
         "RecordByte1": 0x6B, "RecordByte2": 0x29, "RecordByte3": 0, "RecordByte4": 0}
     assert decode(db, (0x6C3, bytes.fromhex("020502FAF080"))) == {
-        "Kind": "PAR", "FirstIndex": 5, "Value0": 0x02FA, "Value1": -3968}
+        "Kind": "PAR", "FirstIndex": 5, "Data2": 0x02, "Data3": 0xFA, "Data4": 0xF0,
+        "Data5": 0x80}
     assert decode(db, (0x3A1, bytes.fromhex("56BDA94D55555555"))) == {
         "MaskedWord0": 0x56BD, "MaskedWord1": 0xA94D, "MaskedWord2": 0x5555,
         "MaskedWord3": 0x5555}

@@ -9,24 +9,39 @@ that can send or receive it (PC -> board: broadcast ``_All``, seq IDs ``_1``..``
 fixed IDs ``_F1``..``_F31``; board -> PC: the seq and fixed IDs, and ``InitAck_Unnumbered``
 for a board without a number), each with the same signals.  Within a payload, messages
 whose layout depends on a field use plain DBC multiplexing (``SG_ ... M`` / ``mN``,
-understood by SavvyCAN and cantools): Program (op), Program Finished (kind), Info (frame
-index), Ready (reason), MCA Admin Data (op).
+understood by SavvyCAN and cantools): Program Finished (kind), Info (frame index), Ready
+(reason), MCA Admin Data (op).
 
-Identifiers 0x2C0-0x2FF (Program) carry control frames (DLC < 8: op and fields, to the
-board in bits 5-0) and data frames (DLC 8: four program words, the slot 0-63 in bits
-5-0); a DBC message has one layout, so these messages describe the control frames and
-their comment says how to read a data frame.  The generic MCA value messages (Controller
-Input, Parameter, DSP CI) show their values as 16-bit signed words: an edge's real width,
-sign and scale come from its MCA DumpIO Descr record (``ucom decode`` names them).
-Process data (SO maps 0x3A1-0x3BF, CI maps 0x361-0x37F) are raw 8-byte messages of four
-masked 16-bit words: what a map carries depends on the Admin Data SO_MAP/CI_MAP frames
-sent at run time, and every byte travels XOR 0x55.
+What a frame is, and so which signals it has, the database says only where a stateless
+decoder can tell from the frame itself: a frame is never decoded as something it is not
+(``tests/test_dbc_interop.py`` compares cantools' decoding of recorded traces, frame by
+frame, with ``ucom decode``'s stateful reading).  A DBC message has one length, and strict
+decoding (``cantools decode``, ``decode_message`` by default) takes only frames of that
+length (the Python API also longer ones, which the protocol never sends); so every message
+has the length of its **longest form**, and the signals of each shorter form are a prefix
+of it that stays right for that form: a decoder that allows truncated frames (``cantools
+monitor``, SavvyCAN, ``decode_message(..., allow_truncated=True)``) shows the signals that
+fit, and they are right.  Where a field tells the forms apart it is the multiplexer
+(Program Finished: kind, Info: frame index, Ready: reason, MCA Admin Data: op); where none
+does, only what every form shares is described:
 
-Every message has the length of its longest form; a shorter frame (a Program control
-frame, an SO map of 4 bytes, a Text report piece) decodes to the signals that fit:
-``cantools monitor`` does so by itself, ``cantools decode`` with ``--no-strict``, Python
-with ``decode_message(..., allow_truncated=True)``; SavvyCAN shows the signals that
-fit.  Byte layouts: ``man/ucom-protocol.7`` and the codecs in :mod:`ucom_tools.wire`.
+- Program (0x2C0-0x2FF) carries data frames (DLC 8: four program words, the slot 0-63 in
+  identifier bits 5-0) and control frames (DLC 1-7: [0] op, to the board in bits 5-0).  A
+  data frame's first byte is any value, so no payload field tells them apart: the messages
+  describe the data frame, as one 64-bit signal of the four words, which no control frame
+  fits (strictly undecoded; truncated, no signals).  ``ucom decode`` reads the control
+  frames.
+- The generic MCA values (Controller Input, Parameter, DSP CI) are raw bytes after the
+  index: an edge is 2 or 4 bytes wide, signed or not, as its MCA DumpIO Descr record says,
+  which a frame does not carry.  Process data (SO maps 0x3A1-0x3BF, CI maps 0x361-0x37F)
+  are raw masked 16-bit words: what a map carries depends on the Admin Data SO_MAP/CI_MAP
+  frames sent at run time, and every byte travels XOR 0x55.
+- Shorter forms that strict decoding leaves undecoded: Program Finished MISSING and
+  PARTIAL (DLC 5), a Report MEMORY of 1 or 2 words, a Text report's last piece, MCA
+  DumpIO Descr Request for every edge (DLC 0), an edge record's last segment, Admin Data
+  but SO_MAP of four edges, MCA values and maps shorter than 8 bytes.
+
+Byte layouts: ``man/ucom-protocol.7`` and the codecs in :mod:`ucom_tools.wire`.
 
 cantools is an optional dependency (``pip install 'ucom-tools[dbc]'``), imported only
 here and only when a database is built.
@@ -51,8 +66,6 @@ from ucom_tools.wire.codes import (
     FinishedKind,
     InitAckKind,
     InitOp,
-    MetaField,
-    ProgramOp,
     ReadyReason,
     ReportChannel,
     ResultStatus,
@@ -119,8 +132,6 @@ def _choices(enum: type[IntEnum]) -> dict[int, str]:
 
 FUNCTION_CHOICES = {int(f): f.label for f in Function} | {
     0xFF: "none", mca.PROCESS_DATA | Function.MCA_CONTROLLER_INPUT: "CI map frame"}
-META_CHOICES = {0: "PROGID", 1: "SIZE", 2: "DATE"} | {
-    MetaField.NAME_0 + i: f"NAME_{4 * i}_{4 * i + 3}" for i in range(7)}
 _FUNC_COMMENT = "function code of the frame it is about (0xFF: none, 0x8D: a CI map frame)"
 
 
@@ -129,9 +140,9 @@ def _bit(name: str, byte: int, bit: int, comment: str = "", mux: int | None = No
 
 
 def _words(prefix: str, first_byte: int, count: int, *, little: bool = False,
-           signed: bool = False, mux: int | None = None, comment: str = "") -> tuple[Field, ...]:
-    return tuple(Field(f"{prefix}{i}", first_byte + 2 * i, 16, little=little, signed=signed,
-                       mux=mux, comment=comment) for i in range(count))
+           comment: str = "") -> tuple[Field, ...]:
+    return tuple(Field(f"{prefix}{i}", first_byte + 2 * i, 16, little=little,
+                       comment=comment) for i in range(count))
 
 
 def _bytes(prefix: str, first_byte: int, count: int, *, offset: int = 0,
@@ -140,8 +151,8 @@ def _bytes(prefix: str, first_byte: int, count: int, *, offset: int = 0,
                  for i in range(count))
 
 
-_VALUES_COMMENT = ("a value as a 16-bit signed word; the edge's width (2 or 4 bytes), sign "
-                   "and exponent are in its MCA DumpIO Descr record")
+_VALUES_COMMENT = ("a raw byte of the values (big endian, each edge 2 or 4 bytes wide: its "
+                   "width, sign and exponent are in its MCA DumpIO Descr record)")
 
 LAYOUTS: tuple[Layout, ...] = (
     # ------------------------------------------------------------------ PC -> board
@@ -166,30 +177,17 @@ LAYOUTS: tuple[Layout, ...] = (
         Field("Number", 1, comment="NEXT: the seq ID searched (2-31)"),
     ), "Init Request (10, PC -> every board, DLC 2): one step of the init chain."),
     Layout(Function.PROGRAM, "Program", 8, (
-        Field("Op", 0, is_mux=True, choices=_choices(ProgramOp),
-              comment="control frames (DLC < 8) only; a DLC 8 frame is a data frame"),
-        Field("Begin_Target", 1, mux=ProgramOp.BEGIN, choices=_choices(Target)),
-        Field("Begin_Blocks", 2, 16, mux=ProgramOp.BEGIN),
-        Field("Begin_Entry", 4, 16, mux=ProgramOp.BEGIN, comment="P: word address"),
-        Field("Meta_Field", 1, mux=ProgramOp.META, choices=META_CHOICES),
-        Field("Meta_Value", 2, 32, mux=ProgramOp.META,
-              comment="ProgID, size in words, date (seconds since 2000-01-01 UTC), or 4 "
-                      "Latin-1 characters of the program name"),
-        Field("Erase_Space", 1, mux=ProgramOp.ERASE, choices=_choices(Space)),
-        Field("Erase_FirstPage", 2, 16, mux=ProgramOp.ERASE),
-        Field("Erase_Count", 4, 16, mux=ProgramOp.ERASE),
-        Field("Prepare_Pages", 1, 16, mux=ProgramOp.PREPARE),
-        Field("Block_Space", 1, 1, 7, mux=ProgramOp.BLOCK, choices=_choices(Space)),
-        Field("Block_Frames", 1, 7, 0, mux=ProgramOp.BLOCK, comment="data frames 1-64"),
-        Field("Block_Address", 2, 16, mux=ProgramOp.BLOCK, comment="word address"),
-        Field("Block_Index", 4, mux=ProgramOp.BLOCK),
-        Field("Block_CRC", 5, 16, mux=ProgramOp.BLOCK,
-              comment="CRC-16/CCITT-FALSE of the block's data bytes"),
-    ), "Program (11, PC -> boards).  DLC < 8: a control frame, [0] op (the multiplexer), "
-       "to the board in identifier bits 5-0 (0: every ProgEnabled board).  DLC 8: a data "
-       "frame, four program words low byte first, at the slot given by identifier bits 5-0 "
-       "(0x2C0 + slot) of the block the last BLOCK frame opened; the op multiplexer does "
-       "not describe it (read its bytes as words, or use ucom decode)."),
+        Field("Words", 0, 64, little=True,
+              comment="four program words, low byte first: word n is bits 16n+15..16n "
+                      "(bytes 2n, 2n+1)"),
+    ), "Program (11, PC -> boards).  Described: the data frame (DLC 8), four program "
+       "words low byte first, at the slot given by identifier bits 5-0 (0x2C0 + slot) of "
+       "the block the last BLOCK frame opened.  Not described: the control frames (DLC "
+       "1-7: [0] op BEGIN, META, ERASE, PREPARE, BLOCK, END, ABORT, to the board in bits "
+       "5-0).  A data frame's first byte is any value, so no payload field tells the two "
+       "apart, and a DBC message has one length: strict decoding leaves a control frame "
+       "undecoded, and the single 64-bit signal does not fit one, so a decoder that "
+       "allows truncated frames shows it with no signals (ucom decode reads both)."),
     Layout(Function.START, "Start", 1, (Field("Target", 0, choices=_choices(Target)),),
            "Start (12, PC -> board, DLC 1): answered with Ready STARTED; a program then "
            "announces itself with a text report and an unsolicited MCA Ready."),
@@ -289,12 +287,12 @@ LAYOUTS: tuple[Layout, ...] = (
     # ------------------------------------------------------------------ run time
     Layout(Function.MCA_CONTROLLER_INPUT, "McaControllerInput", 8, (
         Field("FirstIndex", 0, comment="per-kind index of the first CI edge"),
-        *_words("Value", 1, 3, signed=True, comment=_VALUES_COMMENT),
+        *_bytes("Data", 1, 7, offset=1, comment=_VALUES_COMMENT),
     ), "MCA Controller Input (13, generic: PC -> board, DLC 3-8): values of consecutive CI "
        "edges from FirstIndex; answered with MCA Ready."),
     Layout(Function.MCA_PARAMETER, "McaParameter", 8, (
         Field("FirstIndex", 0, comment="per-kind index of the first PAR edge"),
-        *_words("Value", 1, 3, signed=True, comment=_VALUES_COMMENT),
+        *_bytes("Data", 1, 7, offset=1, comment=_VALUES_COMMENT),
     ), "MCA Parameter (15, PC -> board, DLC 3-8): values of consecutive PAR edges from "
        "FirstIndex; answered with MCA Ready."),
     Layout(Function.MCA_READY, "McaReady", 8, (
@@ -340,7 +338,7 @@ LAYOUTS: tuple[Layout, ...] = (
            "board, DLC 0): restarts the boards' watchdog."),
     Layout(Function.MCA_DSP_CI, "McaDspCI", 8, (
         Field("Kind", 0, choices=_choices(mca.Kind)), Field("FirstIndex", 1),
-        *_words("Value", 2, 3, signed=True, comment=_VALUES_COMMENT),
+        *_bytes("Data", 2, 6, offset=2, comment=_VALUES_COMMENT),
     ), "MCA DSP CI (27, board -> PC, DLC 4-8): values of consecutive edges from "
        "FirstIndex."),
 )
