@@ -364,7 +364,7 @@ def test_check_with_a_tree_file_of_ones_own_names_its_line(flashed, tmp_path) ->
     code, _, err = ucom("remote", "check", str(ROOT / "attribute_trees/lauron4/camera_head"
                                                       ".tree"), "--virtual", "armar3",
                         "--state", str(flashed))
-    assert code == 3 and "CameraHead" in err and "no board of robot" in err
+    assert code == 3 and "CameraHead" in err and "no board of ARMAR-III has prefix" in err
 
 
 def test_the_summary_marks_a_value_the_board_clipped_to_its_encoding(flashed) -> None:

@@ -15,6 +15,7 @@ from rich.table import Table
 from ucom_tools.cli.exitcodes import EXIT_FAILED
 from ucom_tools.cli.options import connection_json, connection_options, json_option, robot
 from ucom_tools.cli.output import emit_json, json_number, stderr, stdout
+from ucom_tools.config import attrtree
 from ucom_tools.config import topology as topology_mod
 from ucom_tools.config.attrtree import Kind
 from ucom_tools.ops import params as ops
@@ -140,7 +141,7 @@ def dump_cmd(ctx: click.Context, robot_name: str, output: Path, force: bool, spe
     says which attribute tree each board has.  The bus comes from the connection options
     (--virtual NAME, or -i/-c/--host/--port)."""
     topo = topology_mod.load(robot_name)
-    trees = ops.robot_trees(topo)
+    trees = attrtree.bind_present(topo)
     targets = ops.dump_targets(trees, output, force=force, bus=bus_name)
     with robot(_of_robot(spec, robot_name, bus_name)) as r:
         readout = ops.read_values(r, trees, bus=bus_name)
@@ -186,9 +187,9 @@ def load_cmd(ctx: click.Context, robot_name: str, files: tuple[str, ...], spec: 
     says which attribute tree each board has.  The bus comes from the connection options
     (--virtual NAME, or -i/-c/--host/--port)."""
     topo = topology_mod.load(robot_name)
-    trees = ops.robot_trees(topo)
+    trees = attrtree.bind_present(topo)
     if files:
-        trees = ops.bind_files(trees, files)
+        trees = attrtree.with_files(trees, files, only=True)
     with robot(_of_robot(spec, robot_name, bus_name)) as r:
         result = ops.load_values(r, trees, bus=bus_name)
     if as_json:

@@ -28,7 +28,7 @@ from ucom_tools import fileio
 from ucom_tools.config import attrtree
 from ucom_tools.config.attrtree import BoundBoard, Kind, RobotTrees, Tree, Value
 from ucom_tools.config.topology import Topology
-from ucom_tools.errors import BoardError, InputError, TreeError, UcomError, UcomTimeoutError
+from ucom_tools.errors import BoardError, InputError, UcomError, UcomTimeoutError
 from ucom_tools.ops.edges import spec_of
 from ucom_tools.ops.exchange import defaults_raw, write_runs
 from ucom_tools.ops.remote import BoardCheck, RemotePart
@@ -48,22 +48,6 @@ BITMASK = "(BitMask)"
 
 
 # ----------------------------------------------------------------------------- robot
-def robot_trees(topology: Topology) -> RobotTrees:
-    """The trees of every board of ``topology`` that names one (boards without a tree
-    are not part of the run time); TreeError for a tree that cannot be used, InputError
-    when no board has one."""
-    with_trees = replace(topology, buses=tuple(
-        replace(b, boards=tuple(s for s in b.boards if s.tree is not None))
-        for b in topology.buses))
-    result = attrtree.check(with_trees)
-    if result.problems:
-        raise result.problems[0]
-    if not result.boards:
-        raise InputError(f"no board of {topology.name} has an attribute tree (set "
-                         "tree = \"FILE\" in its [[bus.board]] table)", file=topology.source)
-    return replace(result, topology=topology)
-
-
 def on_bus(trees: RobotTrees, bus: str | None) -> RobotTrees:
     """The boards of ``trees`` on ``bus`` (all when None); InputError when none is."""
     if bus is None:
@@ -376,36 +360,6 @@ def write_dump(readout: Readout, targets: Sequence[DumpTarget]) -> list[Path]:
 
 
 # ----------------------------------------------------------------------------- load
-def bind_files(trees: RobotTrees, files: Sequence[str | Path]) -> RobotTrees:
-    """Tree files bound to the robot's boards by their prefix (the robot's trees say
-    which board has which prefix): only those boards, each with the given block.
-    TreeError naming the prefix line for a prefix no board has, or one given twice."""
-    by_prefix = {b.board.prefix: b for b in trees.boards}
-    given: dict[str, tuple[BoundBoard, Path]] = {}
-    loaded: list[Tree] = []
-    for f in files:
-        path = Path(f)
-        tree = attrtree.load(path)
-        loaded.append(tree)
-        for block in tree.boards:
-            b = by_prefix.get(block.prefix)
-            if b is None:
-                raise TreeError(f"no board of {trees.topology.name} has prefix "
-                                f"'{block.prefix}' (its prefixes: "
-                                f"{', '.join(sorted(by_prefix))})", file=str(path),
-                                line=block.prefix_line, column=block.prefix_column)
-            if block.prefix in given:
-                raise TreeError(f"prefix '{block.prefix}' is also in "
-                                f"{given[block.prefix][1]}: one block per board",
-                                file=str(path), line=block.prefix_line,
-                                column=block.prefix_column)
-            given[block.prefix] = (replace(b, file=path, board=block), path)
-    if not given:
-        raise InputError("the tree files hold no board block")
-    order = [b.board.prefix for b in trees.boards if b.board.prefix in given]
-    return replace(trees, boards=tuple(given[p][0] for p in order), trees=tuple(loaded))
-
-
 def select_prefixes(trees: RobotTrees, prefixes: Iterable[str]) -> RobotTrees:
     """Only the boards of ``trees`` with these prefixes."""
     wanted = set(prefixes)
@@ -545,7 +499,7 @@ def keep_before(robot: Robot, *, bus: str | None = None) -> Kept:
     if robot.topology is None:
         raise InputError("--keep-params needs the robot's topology (which tree each board "
                          "has): give --topology FILE or --virtual NAME", key="--keep-params")
-    trees = robot_trees(robot.topology)
+    trees = attrtree.bind_present(robot.topology)
     readout = read_values(robot, trees, bus=bus, running_only=True)
     if not readout.read:
         return Kept(trees, readout, None)
@@ -633,7 +587,7 @@ def keep_after(robot: Robot, kept: Kept, programmed: Mapping[tuple[str, int], st
             load.append(r)
     if load:
         assert kept.directory is not None
-        given = bind_files(kept.trees, kept.files)
+        given = attrtree.with_files(kept.trees, kept.files, only=True)
         chosen = select_prefixes(given, (r.prefix for r in load))
         result = load_values(robot, chosen, strict=False)
         by_key = {(b.bus, b.board): b for b in result.boards}

@@ -44,14 +44,12 @@ import can
 from ucom_tools.config import topology as topo_mod
 from ucom_tools.config.attrtree.match import Mismatch, differences
 from ucom_tools.config.attrtree.model import Board, Kind
-from ucom_tools.config.attrtree.parser import load as load_tree
-from ucom_tools.config.attrtree.robot import RobotTrees, bind
+from ucom_tools.config.attrtree.robot import RobotTrees, bind, with_files
 from ucom_tools.errors import (
     BoardError,
     BusError,
     FrameError,
     InputError,
-    TreeError,
     UcomError,
     UcomTimeoutError,
 )
@@ -849,19 +847,4 @@ def robot_trees(robot: Robot, files: Sequence[str | Path] = ()) -> RobotTrees:
     if robot.topology is None:
         raise InputError("the run time needs the robot's topology (which board runs which "
                          "tree)", key="--topology")
-    trees = bind(robot.topology)
-    if not files:
-        return trees
-    by_prefix = {b.board.prefix: i for i, b in enumerate(trees.boards)}
-    boards = list(trees.boards)
-    for f in files:
-        tree = load_tree(f)
-        for block in tree.boards:
-            if block.prefix not in by_prefix:
-                raise TreeError(f"Prefix '{block.prefix}' is no board of robot "
-                                f"{robot.topology.name!r} (its prefixes: "
-                                f"{', '.join(sorted(by_prefix))})", file=str(f),
-                                line=block.prefix_line or None)
-            i = by_prefix[block.prefix]
-            boards[i] = replace(boards[i], file=Path(f), board=block)
-    return replace(trees, boards=tuple(boards))
+    return with_files(bind(robot.topology), files)

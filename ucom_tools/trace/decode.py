@@ -314,8 +314,7 @@ def load_trees(args: Sequence[str]) -> RobotTrees:
     file whose boards name their trees) and/or tree files (``*.tree``), which replace the
     robot's blocks of the same Prefix; InputError (TreeError, TopologyError) otherwise."""
     from ucom_tools.config import topology as topo
-    from ucom_tools.ops.remote import robot_trees
-    from ucom_tools.ops.robot import ConnectSpec, Robot
+    from ucom_tools.config.attrtree.robot import bind, with_files
 
     files = [a for a in args if a.endswith(".tree")]
     robots = [a for a in args if not a.endswith(".tree")]
@@ -325,8 +324,7 @@ def load_trees(args: Sequence[str]) -> RobotTrees:
                                                              f"{', '.join(robots)}"
                                                              if robots else ""),
                          key="--trees")
-    topology = topo.load(robots[0])
-    return robot_trees(Robot(ConnectSpec(topology=robots[0]), {}, topology), files)
+    return with_files(bind(topo.load(robots[0])), files)
 
 
 __all__ = ["BOARD_TO_PC", "DEFAULT_BUS", "PC_TO_BOARD", "RULES", "BusConversation",

@@ -15,10 +15,34 @@ Pure code (no CLI):
 from ucom_tools.config.attrtree.diff import Change, ChangeKind, diff
 from ucom_tools.config.attrtree.model import KIND_ORDER, Board, Edge, Kind, Tree, Value
 from ucom_tools.config.attrtree.parser import load, parse
-from ucom_tools.config.attrtree.robot import BoundBoard, RobotTrees, bind, check
+from ucom_tools.config.attrtree.robot import (
+    BoundBoard,
+    RobotTrees,
+    bind,
+    bind_present,
+    check,
+    with_files,
+)
 from ucom_tools.config.attrtree.writer import dumps, save
 
 __all__ = [
-    "KIND_ORDER", "Board", "BoundBoard", "Change", "ChangeKind", "Edge", "Kind", "RobotTrees",
-    "Tree", "Value", "bind", "check", "diff", "dumps", "load", "parse", "save",
+    "KIND_ORDER",
+    "Board",
+    "BoundBoard",
+    "Change",
+    "ChangeKind",
+    "Edge",
+    "Kind",
+    "RobotTrees",
+    "Tree",
+    "Value",
+    "bind",
+    "bind_present",
+    "check",
+    "diff",
+    "dumps",
+    "load",
+    "parse",
+    "save",
+    "with_files",
 ]

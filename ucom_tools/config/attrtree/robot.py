@@ -9,13 +9,14 @@ that needs all trees or nothing.  Robot-wide identity of an edge is (prefix, uni
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ucom_tools.config.attrtree.model import Board, Edge, Tree
 from ucom_tools.config.attrtree.parser import load
 from ucom_tools.config.topology import BoardSpec, Topology
-from ucom_tools.errors import TreeError
+from ucom_tools.errors import InputError, TreeError
 
 
 @dataclass(frozen=True)
@@ -132,3 +133,55 @@ def bind(topology: Topology) -> RobotTrees:
     if result.problems:
         raise result.problems[0]
     return result
+
+
+def bind_present(topology: Topology) -> RobotTrees:
+    """The trees of every board of ``topology`` that names one (boards without a tree
+    are not part of the run time); TreeError for a tree that cannot be used, InputError
+    when no board has one."""
+    with_trees = replace(topology, buses=tuple(
+        replace(b, boards=tuple(s for s in b.boards if s.tree is not None))
+        for b in topology.buses))
+    result = check(with_trees)
+    if result.problems:
+        raise result.problems[0]
+    if not result.boards:
+        raise InputError(f"no board of {topology.name} has an attribute tree (set "
+                         "tree = \"FILE\" in its [[bus.board]] table)", file=topology.source)
+    return replace(result, topology=topology)
+
+
+def with_files(trees: RobotTrees, files: Sequence[str | Path], *, only: bool = False
+               ) -> RobotTrees:
+    """``trees`` with the board blocks of tree ``files`` in place of the robot's blocks of
+    the same Prefix (the robot's trees say which board has which prefix); ``only``: just
+    the boards the files name.  TreeError naming the prefix line for a prefix no board
+    has, or one given twice; InputError when ``only`` and the files hold no block."""
+    by_prefix = {b.board.prefix: b for b in trees.boards}
+    given: dict[str, tuple[BoundBoard, Path]] = {}
+    loaded: list[Tree] = []
+    for f in files:
+        path = Path(f)
+        tree = load(path)
+        loaded.append(tree)
+        for block in tree.boards:
+            b = by_prefix.get(block.prefix)
+            if b is None:
+                raise TreeError(f"no board of {trees.topology.name} has prefix "
+                                f"'{block.prefix}' (its prefixes: "
+                                f"{', '.join(sorted(by_prefix))})", file=str(path),
+                                line=block.prefix_line or None,
+                                column=block.prefix_column or None)
+            if block.prefix in given:
+                raise TreeError(f"prefix '{block.prefix}' is also in "
+                                f"{given[block.prefix][1]}: one block per board",
+                                file=str(path), line=block.prefix_line or None,
+                                column=block.prefix_column or None)
+            given[block.prefix] = (replace(b, file=path, board=block), path)
+    if only:
+        if not given:
+            raise InputError("the tree files hold no board block")
+        order = [b.board.prefix for b in trees.boards if b.board.prefix in given]
+        return replace(trees, boards=tuple(given[p][0] for p in order), trees=tuple(loaded))
+    return replace(trees, boards=tuple(given[b.board.prefix][0] if b.board.prefix in given
+                                       else b for b in trees.boards))
