@@ -4,9 +4,14 @@ requests and answers every part of the decoder uses: messages, violations, deadl
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+from ucom_tools.config.attrtree.match import program_of
+from ucom_tools.config.attrtree.robot import BoundBoard, RobotTrees
+from ucom_tools.programs import known
+from ucom_tools.programs.model import ProgramSpec
 from ucom_tools.protocol.link import SHARED_BUS_FACTOR
+from ucom_tools.protocol.timeouts import Timeouts
 from ucom_tools.trace.conversation import (
     BusConversation,
     Message,
@@ -14,6 +19,7 @@ from ucom_tools.trace.conversation import (
 )
 from ucom_tools.trace.state import (
     ANSWERS,
+    DEFAULT_BITRATE,
     BoardState,
     Expect,
     Periodic,
@@ -29,8 +35,36 @@ from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.canbits import worst_frame_bits
 
-if TYPE_CHECKING:
-    from ucom_tools.trace.decode import Decoder
+
+class Decoder:
+    """What every bus of one trace shares: the trees, the deadlines' parameters, the
+    violations found, the programs bound to boards."""
+
+    def __init__(self, trees: RobotTrees | None, bitrate: int | None, margin: float,
+                 timeouts: Timeouts) -> None:
+        self.trees = trees
+        self.bitrate = bitrate
+        self.margin = margin
+        self.timeouts = timeouts
+        self.violations: list[Violation] = []
+        self.cycle_edges = {s.cycle_edge for s in known().values() if s.cycle_edge}
+        self._programs: dict[int, ProgramSpec | None] = {}
+
+    def bitrate_of(self, bus: str) -> int:
+        if self.bitrate:
+            return self.bitrate
+        if self.trees is not None:
+            for b in self.trees.topology.buses:
+                if b.name == bus:
+                    return b.bitrate
+        return DEFAULT_BITRATE
+
+    def program(self, bound: BoundBoard) -> ProgramSpec | None:
+        key = id(bound.board)
+        if key not in self._programs:
+            self._programs[key] = program_of(bound.board)
+        return self._programs[key]
+
 
 
 # ============================================================================ decoder

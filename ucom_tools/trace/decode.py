@@ -41,13 +41,11 @@ from typing import Any
 
 import can
 
-from ucom_tools.config.attrtree.match import program_of
-from ucom_tools.config.attrtree.robot import BoundBoard, RobotTrees
+from ucom_tools.config.attrtree.robot import RobotTrees
 from ucom_tools.errors import FrameError, InputError
-from ucom_tools.programs import known
-from ucom_tools.programs.model import ProgramSpec
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.trace.boot import BootDecoding
+from ucom_tools.trace.bus import Decoder
 from ucom_tools.trace.conversation import (
     BOARD_TO_PC,
     PC_TO_BOARD,
@@ -66,7 +64,6 @@ from ucom_tools.trace.runtime import (
 )
 from ucom_tools.trace.state import (
     BACKWARDS_S,
-    DEFAULT_BITRATE,
     DEFAULT_MARGIN,
 )
 from ucom_tools.trace.text import (
@@ -215,33 +212,6 @@ class BusDecoder(BootDecoding, ProgramDecoding, RuntimeDecoding):
             self._state_of(bd, message)
             if not itself:  # after VERSION_MISMATCH the board resets unasked
                 self.answer(board, message)
-
-
-class Decoder:
-    def __init__(self, trees: RobotTrees | None, bitrate: int | None, margin: float,
-                 timeouts: Timeouts) -> None:
-        self.trees = trees
-        self.bitrate = bitrate
-        self.margin = margin
-        self.timeouts = timeouts
-        self.violations: list[Violation] = []
-        self.cycle_edges = {s.cycle_edge for s in known().values() if s.cycle_edge}
-        self._programs: dict[int, ProgramSpec | None] = {}
-
-    def bitrate_of(self, bus: str) -> int:
-        if self.bitrate:
-            return self.bitrate
-        if self.trees is not None:
-            for b in self.trees.topology.buses:
-                if b.name == bus:
-                    return b.bitrate
-        return DEFAULT_BITRATE
-
-    def program(self, bound: BoundBoard) -> ProgramSpec | None:
-        key = id(bound.board)
-        if key not in self._programs:
-            self._programs[key] = program_of(bound.board)
-        return self._programs[key]
 
 
 def decode_frames(frames: Iterable[can.Message], trees: RobotTrees | None = None, *,
