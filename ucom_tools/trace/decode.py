@@ -36,7 +36,8 @@ As a library (a test that recorded its frames with a dispatcher tap)::
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+import typing
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 import can
@@ -65,6 +66,7 @@ from ucom_tools.trace.runtime import (
 from ucom_tools.trace.state import (
     BACKWARDS_S,
     DEFAULT_MARGIN,
+    BoardState,
 )
 from ucom_tools.trace.text import (
     _to,
@@ -159,60 +161,79 @@ class BusDecoder(BootDecoding, ProgramDecoding, RuntimeDecoding):
         self._summarise()
 
     # ------------------------------------------------------------------ requests
+    # ------------------------------------------------------------------ dispatch
     def _host(self, board: str, address: Address, message: object) -> None:
-        if isinstance(message, m.ProgramFrame):
-            self._program(message, None if board == "all" else board)
-            return
-        label = Function(message.FUNCTION).label  # type: ignore[attr-defined]
+        """A request from the PC, to the part that reads it (:data:`HOST`, by type)."""
         target = None if board == "all" else board
-        t = self.owner.timeouts
-        if isinstance(message, m.Reset | m.XReset):
-            self.add(board, label, "", direction=PC_TO_BOARD)
-            self._reset(target)
-            self.expect(f"{label}{_to(board)}", message.FUNCTION, target, t.reset,
-                        lambda _b, a: isinstance(a, m.Ready) and a.reason is ReadyReason.BOOT)
-        elif isinstance(message, m.SetStatus):
-            self._set_status(board, target, message)
-        elif isinstance(message, m.InfoRequest):
-            self.add(board, label, "" if target else "every board with a number",
-                     direction=PC_TO_BOARD)
-            self.expect(f"Info Request{_to(board)}", Function.INFO_REQUEST, target,
-                        t.reply, lambda _b, a: isinstance(a, m.InfoFrame),
-                        needed=INFO_FRAMES)
-        elif isinstance(message, m.ReportRequest):
-            self._report_request(board, target, message)
-        elif isinstance(message, m.InitRequest):
-            self._init_request(message)
-        elif isinstance(message, m.Start):
-            self._start(board, target, message)
+        read = HOST.get(type(message))
+        if read is None:
+            self._mca_request(board, target, message)  # the MCA requests, by function
         else:
-            self._mca_request(board, target, message)
+            read(self, board, target, message)
+
+    def _reset_request(self, board: str, target: str | None, message: m.Reset | m.XReset
+                       ) -> None:
+        label = Function(message.FUNCTION).label
+        self.add(board, label, "", direction=PC_TO_BOARD)
+        self._reset(target)
+        self.expect(f"{label}{_to(board)}", message.FUNCTION, target,
+                    self.owner.timeouts.reset,
+                    lambda _b, a: isinstance(a, m.Ready) and a.reason is ReadyReason.BOOT)
+
+    def _info_request(self, board: str, target: str | None, message: m.InfoRequest
+                      ) -> None:
+        self.add(board, Function.INFO_REQUEST.label,
+                 "" if target else "every board with a number", direction=PC_TO_BOARD)
+        self.expect(f"Info Request{_to(board)}", Function.INFO_REQUEST, target,
+                    self.owner.timeouts.reply, lambda _b, a: isinstance(a, m.InfoFrame),
+                    needed=INFO_FRAMES)
 
     def _from_board(self, board: str, address: Address, message: object) -> None:
+        """A board's frame, to the part that reads it (:data:`FROM_BOARD`, by type); a
+        single-frame answer is described, changes what is known of the board, and
+        answers its request."""
         if isinstance(message, mca.MapFrame):
             self._so_map(board, message)
             return
         bd = self.board(board)
+        read = FROM_BOARD.get(type(message))
+        if read is not None:
+            read(self, bd, message)
+            return
         fn = Function(message.FUNCTION)  # type: ignore[attr-defined]
-        if isinstance(message, m.Error):
-            self._error(bd, message)
-        elif isinstance(message, m.InitAck):
-            self._init_ack(bd, message)
-        elif isinstance(message, m.InfoFrame):
-            self._info(bd, message)
-        elif isinstance(message, m.TextReport):
-            self._text(bd, message)
-        elif isinstance(message, mca.DescrSegment):
-            self._segment(bd, message)
-        else:
-            text, fields_ = self._describe(bd, message)
-            self.add(board, fn.label, text, fields_, direction=BOARD_TO_PC)
-            itself = bd.resets_itself and isinstance(message, m.Ready) and \
-                message.reason is ReadyReason.BOOT
-            self._state_of(bd, message)
-            if not itself:  # after VERSION_MISMATCH the board resets unasked
-                self.answer(board, message)
+        text, fields_ = self._describe(bd, message)
+        self.add(board, fn.label, text, fields_, direction=BOARD_TO_PC)
+        itself = bd.resets_itself and isinstance(message, m.Ready) and \
+            message.reason is ReadyReason.BOOT
+        self._state_of(bd, message)
+        if not itself:  # after VERSION_MISMATCH the board resets unasked
+            self.answer(board, message)
 
+
+def _program_frame(d: BusDecoder, board: str, target: str | None, message: Any) -> None:
+    d._program(message, target)
+
+
+HOST: dict[type, Callable[[BusDecoder, str, str | None, Any], None]] = {
+    **{kind: _program_frame for kind in typing.get_args(m.ProgramFrame)},
+    m.Reset: BusDecoder._reset_request,
+    m.XReset: BusDecoder._reset_request,
+    m.SetStatus: BusDecoder._set_status,
+    m.InfoRequest: BusDecoder._info_request,
+    m.ReportRequest: BusDecoder._report_request,
+    m.InitRequest: lambda d, _board, _target, msg: d._init_request(msg),
+    m.Start: BusDecoder._start,
+}
+"""Who reads which request of the PC (the rest are MCA requests: ``_mca_request``)."""
+
+FROM_BOARD: dict[type, Callable[[BusDecoder, BoardState, Any], None]] = {
+    m.Error: BusDecoder._error,
+    m.InitAck: BusDecoder._init_ack,
+    m.InfoFrame: BusDecoder._info,
+    m.TextReport: BusDecoder._text,
+    mca.DescrSegment: BusDecoder._segment,
+}
+"""Who reads which multi-frame or stateful answer of a board (the rest: ``_describe``)."""
 
 def decode_frames(frames: Iterable[can.Message], trees: RobotTrees | None = None, *,
                   bitrate: int | None = None, margin: float = DEFAULT_MARGIN,
