@@ -29,9 +29,6 @@ from ucom_tools.wire.codes import (
 from ucom_tools.wire.ids import ALL, MAX_BOARD_NUMBER, Address, IdType
 from ucom_tools.wire.info import INFO_FRAMES, BoardInfo
 
-STARTUP = 0.001
-"""A started program decides within this time whether it fits its board (COMPATIBILITY)."""
-
 
 @dataclass(frozen=True)
 class ChainAck:
@@ -313,7 +310,7 @@ class BootloaderClient:
         attempts = self._attempts() if not address.is_broadcast else range(1)
         for _ in attempts:
             self.link.send(m.Start(target), address)
-            board_time = self.timeouts.reply + STARTUP + self.timeouts.reset
+            board_time = self.timeouts.reply + self.timeouts.startup + self.timeouts.reset
             deadline = self.link.deadline(board_time, answers=2 * MAX_BOARD_NUMBER)
             for got in self.link.until(deadline):
                 self._absorb(got)
@@ -353,7 +350,8 @@ class BootloaderClient:
         words: dict[int, int] = {}
         for _ in self._attempts():
             self.link.send(m.ReportRequest(ReportChannel.MEMORY, space, start, count), address)
-            deadline = self.link.deadline(self.timeouts.reply, answers=(count + 2) // 3)
+            deadline = self.link.deadline(self.timeouts.reply,
+                                          answers=m.memory_report_frames(count))
             for got in self.link.until(deadline):
                 msg = got.message
                 if isinstance(msg, m.MemoryReport) and got.address == address:

@@ -28,6 +28,9 @@ class Timeouts:
     """After Program END: Program Finished within this time ..."""
     verify_per_word: float = 1e-6
     """... plus this per word the board stored (it reads them back for the ProgID)."""
+    startup: float = 0.001
+    """A started program decides within this time whether it fits its board
+    (COMPATIBILITY): its Error or MCA Ready comes within ``reply`` plus this."""
     retries: int = 2
     """A request whose answer did not come is asked again this many times: a lost frame
     costs a second question, not a board."""

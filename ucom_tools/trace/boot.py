@@ -3,7 +3,6 @@ and what the boards answer (Ready, Error, Init Ack, Info records, texts)."""
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 from ucom_tools.errors import FrameError
@@ -15,7 +14,6 @@ from ucom_tools.trace.conversation import (
     PC_TO_BOARD,
 )
 from ucom_tools.trace.state import (
-    STARTUP,
     BoardState,
     Expect,
 )
@@ -76,7 +74,7 @@ class BootDecoding(BusState):
         needed = 1
         if msg.channel is ReportChannel.MEMORY:
             text += f" {msg.space.name}:{msg.address:04X}, {msg.count} words"
-            needed = max(1, math.ceil(msg.count / 3))
+            needed = m.memory_report_frames(msg.count)
         self.add(board, "Report Request", text, {"channel": msg.channel, "space": msg.space,
                  "address": msg.address, "count": msg.count}, direction=PC_TO_BOARD)
         function = Function.report(msg.channel) if msg.channel <= 3 else None
@@ -129,7 +127,8 @@ class BootDecoding(BusState):
                 return
             bd = self.board(b)
             if b in was_stopped:  # a program comes up: it announces itself (RUN TIME)
-                e = Expect(start_index, start_t, start_pos, start_base, reply + STARTUP,
+                startup = reply + self.owner.timeouts.startup
+                e = Expect(start_index, start_t, start_pos, start_base, startup,
                             f"program start on board {b} (its unsolicited MCA Ready)",
                             Function.START, b, lambda _x, y: isinstance(y, mca.McaReady)
                             and y.answers == Function.MCA_READY, key=(Function.START, b, "up"),

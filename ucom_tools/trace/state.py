@@ -27,8 +27,6 @@ BACKWARDS_S = 0.05
 """How far a frame may be stamped before one written earlier on its bus (a recorder writes
 frames as its threads take them; a paced server's clock may lag by milliseconds) before
 the trace is taken to mix time bases (``time-backwards``)."""
-STARTUP = 0.001
-"""A started program decides within this time whether it fits (TIMEOUTS)."""
 MAP_PERIODS_LATE = 3
 """An SO map is reported as stopped when no frame of it came for this many periods
 (plus :data:`MAP_SLACK` and the margin)."""

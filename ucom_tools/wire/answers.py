@@ -265,6 +265,16 @@ class StatusReport:
         return cls(check_enum(BoardState, "Status state", st), pins, leds, tec, rec, sid, ovr)
 
 
+MEMORY_REPORT_WORDS = 3
+"""Words one Report 1 frame carries."""
+
+
+def memory_report_frames(count: int) -> int:
+    """Report 1 frames that answer a memory Report Request of ``count`` words (3 words a
+    frame; a request of 0 words is still answered by one)."""
+    return max(1, -(-count // MEMORY_REPORT_WORDS))
+
+
 @dataclass(frozen=True, slots=True)
 class MemoryReport:
     """Report channel 1: up to 3 words read from ``address`` (low byte first)."""

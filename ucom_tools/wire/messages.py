@@ -25,6 +25,7 @@ from ucom_tools.wire.answers import (
     StatusReport,
     TextReport,
     decode_finished,
+    memory_report_frames,
     text_reports,
 )
 from ucom_tools.wire.ids import Address, Direction, Function, data_frame_id, decode_id, encode_id
@@ -83,6 +84,7 @@ __all__ = [
     "decode_finished",
     "decode_program",
     "encode",
+    "memory_report_frames",
     "text_reports",
 ]
 
