@@ -18,7 +18,6 @@ from ucom_tools.trace.conversation import (
     Violation,
 )
 from ucom_tools.trace.state import (
-    ANSWERS,
     DEFAULT_BITRATE,
     BoardState,
     Expect,
@@ -34,6 +33,7 @@ from ucom_tools.trace.text import (
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.canbits import worst_frame_bits
+from ucom_tools.wire.ids import ANSWER
 
 
 class Decoder:
@@ -160,7 +160,7 @@ class BusState:
                     target, accepts, needed,
                     optional=target is None if optional is None else optional,
                     key=full_key, init_number=init_number, on_answer=on_answer,
-                    answer_fn=ANSWERS[function] if answer_fn is None else answer_fn)
+                    answer_fn=ANSWER[function] if answer_fn is None else answer_fn)
         self.expects.append(e)
         return e
 

@@ -102,21 +102,6 @@ class Expect:
     """The function of the answer it waits for (its identifier sets its bus priority)."""
 
 
-ANSWERS: dict[int, int] = {
-    Function.RESET: Function.READY, Function.XRESET: Function.READY,
-    Function.SET_STATUS: Function.READY, Function.START: Function.READY,
-    Function.INFO_REQUEST: Function.INFO, Function.INIT_REQUEST: Function.INIT_ACK,
-    Function.REPORT_REQUEST: Function.REPORT_3, Function.PROGRAM: Function.READY,
-    Function.MCA_CONTROLLER_INPUT: Function.MCA_READY, Function.MCA_PARAMETER:
-    Function.MCA_READY, Function.MCA_START: Function.MCA_READY,
-    Function.MCA_ADMIN_DATA: Function.MCA_READY,
-    Function.MCA_DUMPIO_DESCR_REQUEST: Function.MCA_DUMPIO_DESCR,
-    Function.MCA_DUMP_CI: Function.MCA_DSP_CI,
-}
-"""The function that answers each request (Program: PREPARE's; END waits for Program
-Finished, a Report Request for the Report of its channel)."""
-
-
 def expected_answer(e: Expect) -> int:
     """The identifier of the answer ``e`` waits for; from an unknown board the lowest
     priority of that function."""

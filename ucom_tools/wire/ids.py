@@ -176,3 +176,18 @@ def data_frame_id(slot: int) -> int:
     if not 0 <= slot < DATA_SLOTS:
         raise FrameError("data frame slot", f"must be 0..{DATA_SLOTS - 1}, got {slot}")
     return (int(Function.PROGRAM) << 6) | slot
+
+
+ANSWER: dict[int, int] = {
+    Function.RESET: Function.READY, Function.XRESET: Function.READY,
+    Function.SET_STATUS: Function.READY, Function.START: Function.READY,
+    Function.INFO_REQUEST: Function.INFO, Function.INIT_REQUEST: Function.INIT_ACK,
+    Function.REPORT_REQUEST: Function.REPORT_3, Function.PROGRAM: Function.READY,
+    Function.MCA_CONTROLLER_INPUT: Function.MCA_READY, Function.MCA_PARAMETER:
+    Function.MCA_READY, Function.MCA_START: Function.MCA_READY,
+    Function.MCA_ADMIN_DATA: Function.MCA_READY,
+    Function.MCA_DUMPIO_DESCR_REQUEST: Function.MCA_DUMPIO_DESCR,
+    Function.MCA_DUMP_CI: Function.MCA_DSP_CI,
+}
+"""The function that answers each request (Program: PREPARE's; END waits for Program
+Finished, a Report Request for the Report of its channel)."""
