@@ -6,6 +6,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from tests import canref
 from ucom_tools.wire import canbits
 
 # Tab. B.2: effective payload rate at 1 Mbit/s with standard identifiers, in kbit/s
@@ -18,25 +19,7 @@ def test_unstuffed_rate_reproduces_table_b2(dlc: int, kbits: int) -> None:
 
 
 def _reference_bits(arb: int, data: bytes) -> int:
-    bits = [0] + [(arb >> i) & 1 for i in range(10, -1, -1)] + [0, 0, 0]
-    bits += [(len(data) >> i) & 1 for i in range(3, -1, -1)]
-    for byte in data:
-        bits += [(byte >> i) & 1 for i in range(7, -1, -1)]
-    crc = 0
-    for b in bits:  # CRC-15/CAN, polynomial 0x4599, bit by bit
-        top = (crc >> 14) & 1
-        crc = (crc << 1) & 0x7FFF
-        if b ^ top:
-            crc ^= 0x4599
-    bits += [(crc >> i) & 1 for i in range(14, -1, -1)]
-    stuffed, run, last = 0, 0, None
-    for b in bits:
-        run = run + 1 if b == last else 1
-        last = b
-        if run == 5:
-            stuffed += 1
-            last, run = 1 - b, 1
-    return len(bits) + stuffed + 13
+    return canref.standard(arb, data)
 
 
 @given(st.integers(0, 0x7FF), st.binary(max_size=8))

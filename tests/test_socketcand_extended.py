@@ -34,6 +34,7 @@ from click.testing import CliRunner
 from hypothesis import given
 from hypothesis import strategies as st
 
+from tests import canref
 from ucom_tools.cli import fleet as fleet_cli
 from ucom_tools.cli.main import cli
 from ucom_tools.config import topology as topo
@@ -319,28 +320,8 @@ class ExtendedRecorder(Recorder):
 
 
 def _reference_extended_bits(arb: int, data: bytes) -> int:
-    """An extended data frame bit by bit: fields, CRC-15, stuffing, fixed tail."""
-    base, low = arb >> 18, arb & 0x3FFFF
-    bits = [0] + [(base >> i) & 1 for i in range(10, -1, -1)] + [1, 1]  # SOF ID SRR IDE
-    bits += [(low >> i) & 1 for i in range(17, -1, -1)] + [0, 0, 0]     # ID RTR r1 r0
-    bits += [(len(data) >> i) & 1 for i in range(3, -1, -1)]
-    for byte in data:
-        bits += [(byte >> i) & 1 for i in range(7, -1, -1)]
-    crc = 0
-    for b in bits:
-        top = (crc >> 14) & 1
-        crc = (crc << 1) & 0x7FFF
-        if b ^ top:
-            crc ^= 0x4599
-    bits += [(crc >> i) & 1 for i in range(14, -1, -1)]
-    stuffed, run, last = 0, 0, None
-    for b in bits:
-        run = run + 1 if b == last else 1
-        last = b
-        if run == 5:
-            stuffed += 1
-            last, run = 1 - b, 1
-    return len(bits) + stuffed + 13
+    """An extended data frame bit by bit (tests/canref.py)."""
+    return canref.extended(arb, data)
 
 
 @given(st.integers(0, canbits.MAX_EXTENDED_ID), st.binary(max_size=8))
