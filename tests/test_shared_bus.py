@@ -36,7 +36,7 @@ from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.dispatch import share_clock
 from ucom_tools.protocol.link import Link
-from ucom_tools.protocol.programmer import ProgrammingWatch
+from ucom_tools.protocol.watch import ProgrammingWatch
 from ucom_tools.transport.socketcand import SocketcandBus
 from ucom_tools.virtual.canbus import VirtualUcomBus
 from ucom_tools.virtual.fleet import Fleet

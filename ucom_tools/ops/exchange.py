@@ -31,8 +31,8 @@ from ucom_tools.protocol.dispatch import Periodic
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import BoardEdges, McaClient, values_of
 from ucom_tools.protocol.plan import BusPlan, CiMapPlan, needs_of, plan
-from ucom_tools.protocol.programmer import OtherHosts
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
+from ucom_tools.protocol.watch import OtherHosts
 from ucom_tools.wire import mca
 from ucom_tools.wire.ids import ALL, Address, Function, seq
 

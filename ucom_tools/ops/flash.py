@@ -31,7 +31,8 @@ from ucom_tools.ops.enumerate import (
     missing_expected,
 )
 from ucom_tools.ops.robot import BusHandle, Robot
-from ucom_tools.protocol.programmer import Programmer, ProgrammingWatch, quiet_time
+from ucom_tools.protocol.programmer import Programmer
+from ucom_tools.protocol.watch import ProgrammingWatch, quiet_time
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import BoardState, StatusOp, Target
 from ucom_tools.wire.descriptor import ImageDescriptor
