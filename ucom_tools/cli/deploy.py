@@ -70,7 +70,7 @@ def print_plan(c: Console, p: ops.Plan) -> None:
     for col in ("bus", "seq", "placement", "image", "before", "action", "why"):
         t.add_column(col, overflow="fold")
     for r in p.rows:
-        why = r.reason + "".join(f"; warning: {w}" for w in r.warnings)
+        why = "; ".join([r.reason] * bool(r.reason) + [f"warning: {w}" for w in r.warnings])
         t.add_row(r.bus, str(r.seq_id or "-"), escape(r.placement), escape(r.image),
                   escape(_seen(r.before)), f"[{STYLE[r.action]}]{r.action}[/]", escape(why))
     c.print(t)

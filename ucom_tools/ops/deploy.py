@@ -38,7 +38,6 @@ import contextlib
 import json
 import os
 import re
-import shutil
 import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
@@ -447,6 +446,9 @@ def _judge(base: PlanRow, w: Wanted, info: BoardInfo, entry: dict[str, Any] | No
     if entry and entry.get("params") and stage in ("dumped", "programming", "verified"):
         return replace(row, action=RESTORE, reason="interrupted after programming: its "
                        "saved parameters are still to be loaded back")
+    if stage in ("programming", "verified"):
+        return replace(row, action=START, reason="interrupted after programming: AutoStart "
+                       "and its start are still to be done")
     if info.autostart != w.spec.autostart:
         return replace(row, action=START, reason="AutoStart is " + ("on" if info.autostart
                                                                       else "off"))
@@ -526,21 +528,22 @@ def _dump(part: Robot, manifest: Manifest, journal: Journal, rows: list[PlanRow]
         events(f"reading the parameters of {len(trees.boards)} board(s)")
         readout = params_ops.read_values(part, trees, running_only=True)
         by_source = {t.source: t for t in trees.trees}
-        for r in readout.boards:
-            key = f"{r.bus}:{r.board}"
-            if r.error:
-                failed[key] = f"its parameters could not be read: {r.error}"
+        for read in readout.boards:
+            key = f"{read.bus}:{read.board}"
+            if read.error:
+                failed[key] = f"its parameters could not be read: {read.error}"
                 continue
-            if not r.ok:
+            if not read.ok:
                 continue
-            tree = _one_block(params_ops.live_tree(by_source[str(r.tree)], [r]), r.block)
-            name = f"{PARAMS_DIR}/{safe_name(r.bus)}-{r.board}.tree"
+            tree = _one_block(params_ops.live_tree(by_source[str(read.tree)], [read]),
+                              read.block)
+            name = f"{PARAMS_DIR}/{safe_name(read.bus)}-{read.board}.tree"
             text = attrtree.dumps(tree)
             if attrtree.parse(text, name) != tree:  # never keep what does not read back
                 failed[key] = "its dumped parameters do not read back as written"
                 continue
             files[name] = text
-            journal.update(key, params=name, prefix=r.prefix, values=len(r.values))
+            journal.update(key, params=name, prefix=read.prefix, values=len(read.values))
     for r in rows:
         if r.key not in failed:
             e = journal.entry(r.key, r.serial) or {}
