@@ -632,6 +632,8 @@ def _finish_bus(h: BusHandle, manifest: Manifest, rows: list[PlanRow]) -> dict[s
     """AutoStart as the manifest says, and a start, for the boards of ``rows``; returns
     why a board could not be (by key)."""
     out: dict[str, str] = {}
+    if not rows:
+        return out
     infos = h.client.info_many(ALL, expect=[seq(r.seq_id) for r in rows])
     for r in rows:
         w = manifest.board(r.bus, r.position)
@@ -656,9 +658,11 @@ def _finish_bus(h: BusHandle, manifest: Manifest, rows: list[PlanRow]) -> dict[s
 
 def _after(part: Robot, manifest: Manifest, rows: list[PlanRow]
            ) -> dict[str, BoardInfo]:
-    """Every planned board's Info as the deploy leaves it."""
+    """The Info of the boards of ``rows`` as the deploy leaves them."""
     def one(h: BusHandle) -> dict[str, BoardInfo]:
         mine = [r for r in rows if r.bus == h.name and r.seq_id]
+        if not mine:
+            return {}
         infos = h.client.info_many(ALL, expect=[seq(r.seq_id) for r in mine])
         return {r.key: infos[seq(r.seq_id)] for r in mine if seq(r.seq_id) in infos}
 
@@ -694,9 +698,10 @@ def execute(robot: Robot, the_plan: Plan, journal: Journal, *,
         to_program = [r for r in to_program if r.key not in failed]
         programmed: dict[str, str] = {}
         if to_program:
-            listen_first(part)  # another host programming: BusError, nothing programmed
             buses = sorted({r.bus for r in to_program},
                            key=lambda b: list(part.buses).index(b))
+            # another host programming: BusError, nothing programmed
+            listen_first(replace(part, buses={n: part.buses[n] for n in buses}))
             for outcome in part.each(lambda h: _program_bus(
                     h, part, manifest, journal, [r for r in to_program if r.bus == h.name],
                     progress, cancel, say) if h.name in buses else {}):
@@ -714,7 +719,7 @@ def execute(robot: Robot, the_plan: Plan, journal: Journal, *,
         for outcome in part.each(lambda h: _finish_bus(
                 h, manifest, [r for r in ready if r.bus == h.name])):
             failed.update(outcome)
-    after = _after(part, manifest, rows) if work else {}
+    after = _after(part, manifest, work) if work else {}
     boards = []
     for r in rows:
         w = manifest.board(r.bus, r.position)
