@@ -338,6 +338,22 @@ def test_boards_selects_what_is_deployed_and_json_tells_every_board(tmp_path: Pa
     assert code == 0 and doc["boards"][0]["action"] == "program"
 
 
+def test_a_missing_board_is_named_and_the_others_are_deployed(tmp_path: Path) -> None:
+    env = env_for(tmp_path)
+    text = manifest_file(tmp_path, "kairo2").read_text()
+    cut = text.index('placement = "segment 6 drive"')
+    path = tmp_path / "k2-unpowered.toml"
+    path.write_text(text[:cut] + "powered = false\n" + text[cut:])
+    done = ucom(env, "deploy", str(path), "--virtual", str(path))
+    assert done.returncode == 1
+    assert "segment 6 drive" in done.stderr and "missing" in done.stderr
+    code, doc = deploy_json(env, str(path), "--virtual", str(path), "--dry-run")
+    assert code == 1
+    outcomes = {b["placement"]: b["action"] for b in doc["boards"]}
+    assert outcomes.pop("segment 6 drive") == "refused"
+    assert set(outcomes.values()) == {"program"}  # a new process: a new, empty fleet
+
+
 # ----------------------------------------------------------------------------- killed
 KILLS = [
     pytest.param("CAN0: programming", 50, id="CAN0-transfer-start"),

@@ -515,12 +515,12 @@ def _one_block(tree: attrtree.Tree, number: int) -> attrtree.Tree:
 
 def _dump(part: Robot, manifest: Manifest, journal: Journal, rows: list[PlanRow],
           events: EventFn) -> dict[str, str]:
-    """Save the parameters of the boards in ``rows`` that run a program and have a tree
-    (and none saved by an earlier, unfinished deploy) into the journal; returns why a
-    board's values could not be read (it is then not programmed)."""
-    keys = {r.key for r in rows if r.before is not None and r.before.state in
-            (s.text for s in RUNNING) and not (journal.entry(r.key, r.serial) or {}).get(
-                "params")}
+    """Record ``rows`` in the journal, with the parameters of the boards to program that
+    run a program and have a tree (and none saved by an earlier, unfinished deploy);
+    returns why a board's values could not be read (it is then not programmed)."""
+    keys = {r.key for r in rows if r.action == PROGRAM and r.before is not None
+            and r.before.state in (s.text for s in RUNNING)
+            and not (journal.entry(r.key, r.serial) or {}).get("params")}
     trees = _trees_of(manifest, keys)
     failed: dict[str, str] = {}
     files: dict[str, str] = {}
