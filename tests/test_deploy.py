@@ -157,6 +157,9 @@ class Killer:
                 proc.stderr.close()
             if self.stream is not None:
                 self.stream.close()  # type: ignore[attr-defined]
+            else:  # the deploy never opened its log: let the reader's open() return
+                with contextlib.suppress(OSError):
+                    os.close(os.open(self.fifo, os.O_WRONLY | os.O_NONBLOCK))
             reader.join(timeout=DEADLINE_S)
         assert proc.returncode == -signal.SIGKILL
         return "".join(seen)
@@ -355,25 +358,32 @@ def test_a_missing_board_is_named_and_the_others_are_deployed(tmp_path: Path) ->
 
 
 # ----------------------------------------------------------------------------- killed
-KILLS = [
-    pytest.param("CAN0: programming", 50, id="CAN0-transfer-start"),
-    pytest.param("CAN1: programming", 1500, id="CAN1-mid-transfer"),
-    pytest.param("CAN2: armar3_fpga1.1.fl.S verified", 0, id="after-CAN2-verified"),
-    pytest.param("CAN3: programming", 2600, id="CAN3-transfer-end"),
-    pytest.param("loading the parameters", 0, id="restoring-parameters"),
+KILLS = [  # (after the line, frames more, where the journal says it was: board, stages)
+    pytest.param("CAN0: programming", 50, "CAN0:1", {"programming"},
+                 id="CAN0-transfer-start"),
+    pytest.param("CAN1: programming", 1500, "CAN1:1", {"programming"},
+                 id="CAN1-mid-transfer"),
+    pytest.param("CAN2: armar3_fpga1.1.fl.S verified", 0, "CAN2:1", {"verified"},
+                 id="after-CAN2-verified"),
+    pytest.param("CAN3: programming", 2600, "CAN3:1", {"programming", "verified"},
+                 id="CAN3-transfer-end"),
+    pytest.param("loading the parameters", 0, "CAN3:2", {"verified", "restored"},
+                 id="restoring-parameters"),
 ]
 
 
-@pytest.mark.parametrize(("after", "frames"), KILLS)
-def test_a_deploy_killed_anywhere_is_finished_by_the_next(tmp_path: Path, after: str,
-                                                         frames: int) -> None:
+@pytest.mark.parametrize(("after", "frames", "board", "stages"), KILLS)
+def test_a_deploy_killed_anywhere_is_finished_by_the_next(
+        tmp_path: Path, after: str, frames: int, board: str, stages: set[str]) -> None:
     env = env_for(tmp_path)
     conn = ("--virtual", "armar3", "--state", str(tmp_path / "state"))
     assert ucom(env, "deploy", "armar3", *conn).returncode == 0
     new = manifest_file(tmp_path, "armar3", every=f"{ROOT}/firmware_images/armar3_fpga1.1.fl.S")
     Killer(tmp_path, env, (str(new), *conn)).run(after, frames)
     journal = tmp_path / "xdg" / "ucom" / "deploy" / "ARMAR-III"
-    assert (journal / "journal.json").exists()
+    saved = json.loads((journal / "journal.json").read_text())["boards"]
+    assert saved[board]["stage"] in stages, saved[board]
+    assert all(e["params"] for e in saved.values())  # every board's values were saved
     code, doc = deploy_json(env, str(new), *conn)
     assert code == 0, doc
     assert doc["resumed"] is True and doc["journal"] is None and not journal.exists()
@@ -434,3 +444,17 @@ def test_served_lauron4_keeps_tuned_values_through_a_killed_and_resumed_deploy(
         assert code == 0 and doc["up_to_date"] == 7
         assert all(b["before"]["state"] == BoardState.RUNNING_FLASH.text
                    for b in doc["boards"])
+
+
+def test_served_kairo2_gets_two_broadcasts_on_its_bus_then_is_up_to_date(
+        tmp_path: Path) -> None:
+    env = env_for(tmp_path)
+    with served(Path("kairo2")) as port:
+        conn = ("-i", "socketcand", "--host", LOCAL, "--port", str(port))
+        code, doc = deploy_json(env, "kairo2", *conn)
+        assert code == 0, doc
+        assert [b["after"]["program"] for b in doc["boards"]] == [
+            ALPHA if i % 2 == 0 else GAMMA for i in range(11)]
+        again = ucom(env, "deploy", "kairo2", *conn)
+        assert again.returncode == 0, again.stderr
+        assert "11 of 11 up to date" in again.stdout and "programming" not in again.stderr
