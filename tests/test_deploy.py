@@ -18,9 +18,10 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from types import ModuleType
+from typing import Any
 
 import pytest
 
@@ -156,7 +157,7 @@ class Killer:
             if proc.stderr is not None:
                 proc.stderr.close()
             if self.stream is not None:
-                self.stream.close()  # type: ignore[attr-defined]
+                self.stream.close()
             else:  # the deploy never opened its log: let the reader's open() return
                 with contextlib.suppress(OSError):
                     os.close(os.open(self.fifo, os.O_WRONLY | os.O_NONBLOCK))
@@ -174,7 +175,7 @@ def in_process(state: Path, virtual: str = "armar3") -> Iterator[Robot]:
         r.close()
 
 
-def boards_of(r: Robot) -> dict[str, object]:
+def boards_of(r: Robot) -> dict[str, Any]:
     """The virtual boards by ``BUS:position``."""
     out = {}
     for name, h in r.buses.items():
@@ -267,14 +268,14 @@ def test_armar3_deploys_then_a_second_deploy_touches_no_board_within_2x_of_init(
         assert first.ok and first.journal is None and not (tmp_path / "j").exists()
         assert {b.outcome for b in first.boards} == {"done"}
         boards = boards_of(r)
-        running = {k: b.application for k, b in boards.items()}  # type: ignore[attr-defined]
+        running = {k: b.application for k, b in boards.items()}
         assert all(running.values())
 
-        def timed(work: object) -> float:
+        def timed(work: Callable[[], object]) -> float:
             best = float("inf")
             for _ in range(3):
                 t0 = time.perf_counter()
-                work()  # type: ignore[operator]
+                work()
                 best = min(best, time.perf_counter() - t0)
             return best
 
@@ -286,7 +287,7 @@ def test_armar3_deploys_then_a_second_deploy_touches_no_board_within_2x_of_init(
         deploy_s = timed(again)
         init_s = timed(lambda: r.each(enumerate_bus))
         # nothing was reset, stopped or restarted: the same program objects run
-        assert {k: b.application for k, b in boards.items()} == running  # type: ignore
+        assert {k: b.application for k, b in boards.items()} == running
         assert deploy_s < 2 * init_s, (deploy_s, init_s)
 
 
@@ -304,7 +305,7 @@ def test_a_changed_image_programs_only_its_board_and_its_tuned_values_survive(
         loaded = params_ops.load_values(r, params_ops.bind_files(trees, [tuned]))
         assert loaded.ok
         boards = boards_of(r)
-        running = {k: b.application for k, b in boards.items()}  # type: ignore[attr-defined]
+        running = {k: b.application for k, b in boards.items()}
         journal = ops.Journal.open(tmp_path / "j", topo.name)
         the_plan = ops.plan(r, ops.load_manifest(changed), journal)
         assert [(x.key, x.action) for x in the_plan.changes] == [("CAN0:1", "program")]
@@ -314,7 +315,7 @@ def test_a_changed_image_programs_only_its_board_and_its_tuned_values_survive(
         neck = next(b for b in result.boards if b.row.key == "CAN0:1")
         assert neck.outcome == "done" and neck.params.outcome == "kept"
         assert neck.after is not None and neck.after.program == "armar3_fpga1.1.fl.S"
-        after = {k: b.application for k, b in boards.items()}  # type: ignore[attr-defined]
+        after = {k: b.application for k, b in boards.items()}
         assert after.pop("CAN0:1") is not running.pop("CAN0:1")  # reprogrammed, restarted
         assert after == running  # the ten others never noticed
         readout = params_ops.read_values(r, params_ops.select_prefixes(trees, ["Neck"]))
