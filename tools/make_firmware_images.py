@@ -36,6 +36,11 @@ IMAGES = {
     "kairo2_alpha.fl.S": (0x0080, 7_680, 256, (7, 1, 1, 0, (1, 4), "kairo2 alpha drive")),
     "kairo2_gamma.fl.S": (0x0080, 8_704, 384, (8, 1, 1, 0, (1, 4), "kairo2 gamma joint")),
     "rosi.fl.S": (0x0080, 4_096, 128, (1, 3, 1, 0, (1, 0), "rosi rotation")),
+    # Odete and Puma200 had no image of their own (ucom deploy's manifests name these)
+    "odete_drive.fl.S": (0x0080, 3_072, 128, (5, 1, 1, 0, (1, 0), "odete drive")),
+    "odete_odometry.fl.S": (0x0080, 2_048, 128, (4, 1, 1, 0, (1, 0), "odete odometry")),
+    "puma200.fl.S": (0x0080, 6_144, 256, (1, 4, 1, 0, (1, 0), "puma200 joint")),
+    "puma200_brakes.fl.S": (0x0080, 2_048, 64, (3, 1, 1, 0, (1, 0), "puma200 brakes")),
     # built for a newer FPGA minor version: runs with a warning
     "armar3_fpga1.1.fl.S": (0x0080, 11_520, 768, (1, 1, 1, 1, (3, 3), "armar3 cascaded PID")),
     # built for FPGA 2.x: refused before programming, aborted at start

@@ -25,6 +25,7 @@ from ucom_tools.cli import (
     console,
     dbc,
     decode,
+    deploy,
     fleet,
     image,
     output,
@@ -116,6 +117,7 @@ cli.add_command(params.params)
 cli.add_command(conformance.conformance)
 cli.add_command(decode.decode)
 cli.add_command(dbc.dbc)
+cli.add_command(deploy.deploy_cmd)
 
 
 class GuardedStdout(io.TextIOBase):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -12,7 +13,8 @@ from rich.table import Table
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.config import attrtree, topology
 from ucom_tools.config.attrtree import Board, Change, Kind, RobotTrees, Tree
-from ucom_tools.errors import TreeError
+from ucom_tools.errors import InputError, TreeError
+from ucom_tools.ops.deploy import image_problems
 
 EXIT_DIFFERENT = 1
 """``tree diff``: the trees differ (like diff(1))."""
@@ -60,7 +62,7 @@ def _summary(b: Board) -> str:
             f"{len(b.defaults(Kind.PAR))} PAR + {len(b.defaults(Kind.CI))} CI defaults")
 
 
-def _fail_all(errors: list[TreeError]) -> None:
+def _fail_all(errors: Sequence[InputError]) -> None:
     """Every error on its own line, the last through the error boundary (exit 3)."""
     for e in errors[:-1]:
         stderr().print(f"[bold red]ucom: bad input:[/] {escape(str(e))}", highlight=False,
@@ -82,15 +84,17 @@ def check(files: tuple[str, ...], robot: str | None, as_json: bool) -> None:
     if not files and robot is None:
         raise click.UsageError("give tree FILEs, --topology ROBOT, or both")
     trees: list[Tree] = []
-    errors: list[TreeError] = []
+    errors: list[InputError] = []
     for f in files:
         try:
             trees.append(attrtree.load(f))
         except TreeError as err:
             errors.append(err)
-    result = attrtree.check(topology.load(robot)) if robot is not None else None
-    if result is not None:
+    topo = topology.load(robot) if robot is not None else None
+    result = attrtree.check(topo) if topo is not None else None
+    if result is not None and topo is not None:
         errors += result.problems
+        errors += image_problems(topo)  # the manifest's images too (ucom deploy)
     if errors and as_json:  # every mistake in the document, the last also as its error
         emit_json({"error": {"kind": "bad input", "message": str(errors[-1]),
                              "exit_code": 3},
@@ -109,6 +113,10 @@ def check(files: tuple[str, ...], robot: str | None, as_json: bool) -> None:
             escape(_summary(b)) for b in t.boards), soft_wrap=True)
     if result is not None:
         _print_robot(result)
+        images = {b.image for bus in result.topology.buses for b in bus.boards if b.image}
+        if images:
+            out.print(f"[green]ok[/] {len(images)} image file(s) of the manifest parse and "
+                      "fit their boards", soft_wrap=True)
 
 
 def _shown(path: Path) -> str:

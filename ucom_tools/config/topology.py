@@ -47,6 +47,9 @@ SOURCE_ROOT = bundled_root()
 """Relative paths in a bundled topology (programs, attribute trees) are relative to this
 folder: the ucom-tools source tree (where ``firmware_images/`` and ``attribute_trees/``
 are), or where an installed wheel put them."""
+IMAGE_FOLDERS = (SOURCE_ROOT, SOURCE_ROOT / "firmware_images")
+"""Where an ``image = "..."`` not found beside the topology file is looked for: the
+bundled images (``image = "armar3.fl.S"`` or ``"firmware_images/armar3.fl.S"``)."""
 MAX_BOARDS = 31
 """Boards one bus can hold: the protocol addresses seq IDs 1-31 (``ucom-protocol(7)``)."""
 MAX_BUSES = 16
@@ -99,6 +102,9 @@ class BoardSpec:
     fault: str | None = None
     """The documented fault of a mutant board (:mod:`ucom_tools.virtual.mutants`); None =
     the board conforms (or takes its fleet's fault)."""
+    image: Path | None = None
+    """The image this board should run (the manifest ``ucom deploy`` brings the robot to,
+    with :attr:`autostart`); None = deploy leaves the board alone."""
 
 
 @dataclass(frozen=True)
@@ -333,14 +339,20 @@ def _fpga(c: _Checker, path: tuple[Any, ...], raw: dict[str, Any], board_id: int
 
 
 def _file(c: _Checker, raw: dict[str, Any], path: tuple[Any, ...], key: str,
-          base: Path | None, what: str) -> Path | None:
-    """The file a board's ``key`` names (relative to ``base``), which must exist."""
+          base: Path | None, what: str, fallback: tuple[Path, ...] = ()) -> Path | None:
+    """The file a board's ``key`` names (relative to ``base``, else to one of the
+    ``fallback`` folders), which must exist."""
     text = c.take(raw, path, key, str, "")
     if not text:
         return None
-    file = Path(text)
-    if not file.is_absolute() and base is not None:
-        file = base / file
+    given = Path(text)
+    file = given
+    if not given.is_absolute() and base is not None:
+        file = base / given
+    if not file.is_file() and not given.is_absolute():
+        for folder in fallback:
+            if (folder / given).is_file():
+                return folder / given
     if not file.is_file():
         raise c.fail(path, key, f"no such {what}: {file}")
     return file
@@ -353,7 +365,7 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
         raise c.fail(path[:2], "board", "must be [[bus.board]] tables")
     c.no_extra(raw, path, {"placement", "board", "fixed_id", "serial", "program", "autostart",
                            "powered", "init_link", "joints", "fpga", "tree", "tree_block",
-                           "fault"})
+                           "fault", "image"})
     placement = c.take(raw, path, "placement", str)
     board = c.take(raw, path, "board", str)
     if board not in PLUG_ON_BOARDS:
@@ -372,6 +384,7 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
         raise c.fail(path, "serial", f"0x{serial:08X} is used by another board")
     serials.add(serial)
     program = _file(c, raw, path, "program", base, "S-record file")
+    image = _file(c, raw, path, "image", base, "firmware image", IMAGE_FOLDERS)
     tree = _file(c, raw, path, "tree", base, "attribute tree file")
     tree_block = c.take(raw, path, "tree_block", int, None)
     if tree_block is not None:
@@ -394,4 +407,4 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
         program=program, autostart=c.take(raw, path, "autostart", bool, False),
         powered=c.take(raw, path, "powered", bool, True), init_link_broken=link == "broken",
         joints=tuple(joints), line=c.lines.of(*path) or 0, serial_explicit="serial" in raw,
-        tree=tree, tree_block=tree_block, fault=fault)
+        tree=tree, tree_block=tree_block, fault=fault, image=image)

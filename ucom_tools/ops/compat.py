@@ -35,9 +35,22 @@ def compare(desc: ImageDescriptor | None, info: BoardInfo, *, what: str = "image
             ) -> list[Finding]:
     """What keeps a program with descriptor ``desc`` from running on the board ``info``
     describes: errors (Board-ID, App-ID, FPGA major) and warnings (minor, unchecked)."""
+    return judge(desc, info.fpga, info.measured_board_id, what=what)
+
+
+def fits(desc: ImageDescriptor | None, board_id: int, fpga: FpgaVersion, *,
+         what: str = "image") -> list[Finding]:
+    """:func:`compare` before anything is sent: the image against the plug-on board
+    (``board_id``) and FPGA configuration a topology gives a board (``ucom deploy``'s
+    manifest check)."""
+    return judge(desc, fpga, board_id, what=what)
+
+
+def judge(desc: ImageDescriptor | None, fpga: FpgaVersion | None, measured: int, *,
+          what: str = "image") -> list[Finding]:
+    """The findings of :func:`compare`: the descriptor ``desc`` against an FPGA
+    configuration (None: its registers do not decode) and a measured Board-ID."""
     out: list[Finding] = []
-    fpga = info.fpga
-    measured = info.measured_board_id
     neutral = fpga is not None and measured != fpga.board_id
     if neutral:
         assert fpga is not None

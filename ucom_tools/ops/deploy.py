@@ -1,0 +1,753 @@
+"""Bringing a robot to its manifest: ``ucom deploy``.
+
+The manifest is the robot's topology: per board the image it should run (``image =``)
+and whether it starts by itself (``autostart =``), and its attribute tree.  A deploy
+
+1. plans (:func:`plan`): every bus's init chain and every board's Info (with its FPGA
+   registers), compared with its image: *up to date*, *program* (another ProgID, no
+   program, interrupted by an earlier deploy), *restore* (the right program, but the
+   parameters an interrupted deploy saved are still to be loaded back), *start* (the
+   right program, only its AutoStart flag or its start missing), or *refused* (the image
+   does not fit the board, the board is missing, the chain is faulty);
+2. executes (:func:`execute`), each phase on every bus in parallel: the parameters of the
+   boards to program that run a program are dumped into the journal; each image is sent
+   once per bus to the boards that need it (one broadcast per image; KAIRO-II has two on
+   its bus), verified and read back; the saved parameters are loaded back; AutoStart is
+   set as the manifest says and the programs are started.
+
+Boards that are up to date are never reset, stopped or sent anything but the init
+chain's and Info's requests: the init chain renumbers a running board without touching
+its program (``man/ucom-protocol.7``), the programming job resets (XReset) and
+ProgEnables only the seq IDs it programs, and the data frames of a transfer are ignored
+by a board that runs its program.
+
+The journal (:class:`Journal`, a directory: ``journal.json`` and ``params/``) records
+the plan, each board's progress and the parameter dumps, every change written
+atomically (:mod:`ucom_tools.fileio`).  A deploy killed at any point leaves it behind;
+the next one resumes from it (boards left in their bootloader or unverified are
+programmed again, their saved parameters loaded back although no program ran to dump
+them from) and removes it when the robot matches its manifest.
+
+Exit codes follow ``ucom(1)``: a manifest whose image is missing, unreadable or does not
+fit its board is :class:`~ucom_tools.errors.TopologyError` before anything is sent.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+import threading
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from ucom_tools import fileio
+from ucom_tools.boards import PLUG_ON_BOARDS
+from ucom_tools.config import attrtree
+from ucom_tools.config.attrtree import RobotTrees
+from ucom_tools.config.topology import BoardSpec, Topology
+from ucom_tools.errors import ImageError, InputError, TopologyError, UcomError
+from ucom_tools.image import Image, load_image
+from ucom_tools.ops import params as params_ops
+from ucom_tools.ops.compat import compare, fits
+from ucom_tools.ops.enumerate import (
+    BusEnumeration,
+    describe_missing,
+    enumerate_bus,
+    missing_expected,
+)
+from ucom_tools.ops.flash import ProgressFn, Selection, flash, listen_first
+from ucom_tools.ops.robot import BusHandle, Robot
+from ucom_tools.wire.codes import BoardState, StatusOp
+from ucom_tools.wire.ids import ALL, seq
+from ucom_tools.wire.info import BoardInfo
+from ucom_tools.wire.transfer import TransferPlan
+
+JOURNAL_FILE = "journal.json"
+PARAMS_DIR = "params"
+JOURNAL_VERSION = 1
+RUNNING = (BoardState.RUNNING_FLASH, BoardState.RUNNING_EXTRAM)
+
+UP_TO_DATE = "up to date"
+PROGRAM = "program"
+RESTORE = "restore"
+START = "start"
+REFUSED = "refused"
+SKIPPED = "skipped"
+WORK = (PROGRAM, RESTORE, START)
+"""The actions that send something to a board."""
+
+EventFn = Callable[[str], None]
+"""Told one line at each step (``CAN0: programming kairo2_alpha.fl.S into 1, 3, 5``)."""
+
+
+# ----------------------------------------------------------------------------- manifest
+@dataclass(frozen=True)
+class Wanted:
+    """One board of the manifest: where it is and what it should run."""
+
+    bus: str
+    spec: BoardSpec
+    image: Image
+    plan: TransferPlan
+
+    @property
+    def key(self) -> str:
+        """``BUS:position`` (1-based, the seq ID of a sound chain)."""
+        return f"{self.bus}:{self.spec.position + 1}"
+
+    @property
+    def image_path(self) -> Path:
+        assert self.spec.image is not None
+        return self.spec.image
+
+
+@dataclass(frozen=True)
+class Manifest:
+    topology: Topology
+    boards: tuple[Wanted, ...]
+    trees: RobotTrees | None
+    """The trees of the boards that have one (their parameters are kept); None: no
+    board has one."""
+
+    def on(self, bus: str) -> list[Wanted]:
+        return [w for w in self.boards if w.bus == bus]
+
+    def board(self, bus: str, position: int) -> Wanted | None:
+        for w in self.boards:
+            if w.bus == bus and w.spec.position == position:
+                return w
+        return None
+
+
+def image_problems(topology: Topology) -> list[TopologyError]:
+    """Every board's image checked without a bus: it exists (the topology did that), it
+    parses, and its descriptor fits the plug-on board and FPGA the topology gives the
+    board (:func:`~ucom_tools.ops.compat.fits`; a minor version or a missing descriptor
+    is fine).  One error per board, naming the topology's line and key."""
+    problems: list[TopologyError] = []
+    images: dict[Path, Image | ImageError] = {}
+    for bus in topology.buses:
+        for spec in bus.boards:
+            if spec.image is None:
+                continue
+            if spec.image not in images:
+                try:
+                    images[spec.image] = load_image(spec.image)
+                except ImageError as err:
+                    images[spec.image] = err
+            img = images[spec.image]
+            where = f"{bus.name} board {spec.position + 1} ({spec.placement})"
+            if isinstance(img, ImageError):
+                problems.append(TopologyError(f"{where}: image {spec.image}: {err_text(img)}",
+                                              file=topology.source, line=spec.line or None,
+                                              key="image"))
+                continue
+            errors = [f for f in fits(img.descriptor, PLUG_ON_BOARDS[spec.board].board_id,
+                                      spec.fpga) if f.severity == "error"]
+            if errors:
+                why = "; ".join(f.message for f in errors)
+                problems.append(TopologyError(
+                    f"{where}: image {spec.image.name} does not fit the board: {why}",
+                    file=topology.source, line=spec.line or None, key="image"))
+    return problems
+
+
+def err_text(err: UcomError) -> str:
+    return getattr(err, "reason", None) or str(err)
+
+
+def load_manifest(topology: Topology) -> Manifest:
+    """The manifest of ``topology``: TopologyError (exit code 3, nothing sent) for the
+    first board whose image cannot be used, or whose tree cannot; InputError when no
+    board names an image."""
+    problems = image_problems(topology)
+    if problems:
+        raise problems[0]
+    images: dict[Path, Image] = {}
+    plans: dict[Path, TransferPlan] = {}
+    boards = []
+    for bus in topology.buses:
+        for spec in bus.boards:
+            if spec.image is None:
+                continue
+            if spec.image not in images:
+                images[spec.image] = load_image(spec.image)
+                plans[spec.image] = images[spec.image].plan()
+            boards.append(Wanted(bus.name, spec, images[spec.image], plans[spec.image]))
+    if not boards:
+        raise InputError(f"no board of {topology.name} names an image (set image = "
+                         "\"FILE\" in its [[bus.board]] tables)", file=topology.source)
+    trees = None
+    if any(w.spec.tree is not None for w in boards):
+        trees = params_ops.robot_trees(topology)  # TreeError: exit code 3
+    return Manifest(topology, tuple(boards), trees)
+
+
+# ----------------------------------------------------------------------------- journal
+def default_journal(robot_name: str, environ: Mapping[str, str] | None = None) -> Path:
+    """``$XDG_STATE_HOME/ucom/deploy/<robot>``, else ``~/.local/state/ucom/deploy/<robot>``
+    (``<robot>`` the topology's name, made a safe file name)."""
+    env = os.environ if environ is None else environ
+    base = Path(env["XDG_STATE_HOME"]) if env.get("XDG_STATE_HOME") else \
+        Path(env.get("HOME") or Path.home()) / ".local" / "state"
+    return base / "ucom" / "deploy" / safe_name(robot_name)
+
+
+def safe_name(name: str) -> str:
+    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._") or "robot"
+
+
+@dataclass
+class Journal:
+    """An unfinished deploy: per board (``BUS:position``) its serial, image, ProgID, stage
+    (planned, dumped, programming, verified, failed, restored, done) and the file of its
+    saved parameters.  Every :meth:`save` replaces ``journal.json`` atomically, together
+    with the parameter files it brings."""
+
+    directory: Path
+    robot: str
+    boards: dict[str, dict[str, Any]] = field(default_factory=dict)
+    resumed: bool = False
+    """It was found on disk: a deploy before this one did not finish."""
+    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
+
+    @property
+    def path(self) -> Path:
+        return self.directory / JOURNAL_FILE
+
+    @classmethod
+    def open(cls, directory: Path, robot: str) -> Journal:
+        """The journal in ``directory`` (resumed), or a new, unsaved one.  InputError
+        (exit 3) for a journal that cannot be read or is not one."""
+        path = directory / JOURNAL_FILE
+        if not path.exists():
+            return cls(directory, robot)
+        data = fileio.read_input(path, limit=fileio.TEXT_LIMIT, what="a deploy journal",
+                                 option="--journal")
+        try:
+            doc = json.loads(data)
+            if doc.get("version") != JOURNAL_VERSION or not isinstance(doc.get("boards"), dict):
+                raise ValueError("not a deploy journal of this version")
+        except (ValueError, AttributeError) as err:
+            raise InputError(f"{path}: {err}; remove it to start afresh",
+                             key="--journal") from None
+        if doc.get("robot") != robot:
+            raise InputError(f"{path} is the journal of {doc.get('robot')!r}, not of "
+                             f"{robot!r}; give another --journal", key="--journal")
+        return cls(directory, robot, doc["boards"], resumed=True)
+
+    def entry(self, key: str, serial: int | None) -> dict[str, Any] | None:
+        """The record of board ``key``, if it is that board (same serial)."""
+        e = self.boards.get(key)
+        if e is None or (serial is not None and e.get("serial") not in (None, serial)):
+            return None
+        return e
+
+    def update(self, key: str, **values: Any) -> None:
+        with self._lock:
+            self.boards.setdefault(key, {}).update(values)
+
+    def save(self, files: Mapping[str, str] | None = None) -> None:
+        """Write ``journal.json`` (and ``files``, names relative to the directory, e.g.
+        ``params/CAN0-1.tree``): all or none."""
+        with self._lock:
+            fileio.prepare_directory(self.directory, option="--journal")
+            if files:
+                fileio.prepare_directory(self.directory / PARAMS_DIR, option="--journal")
+            doc = {"version": JOURNAL_VERSION, "robot": self.robot, "boards": self.boards}
+            with fileio.Batch(option="--journal") as batch:
+                for name, text in (files or {}).items():
+                    batch.write_text(self.directory / name, text)
+                batch.write_text(self.path, json.dumps(doc, indent=1, sort_keys=True) + "\n")
+
+    def remove(self) -> None:
+        """Remove what the journal wrote (its file, the parameter files) and its
+        directories when they are empty."""
+        params = self.directory / PARAMS_DIR
+        for e in self.boards.values():
+            if e.get("params"):
+                with contextlib.suppress(OSError):
+                    (self.directory / e["params"]).unlink()
+        with contextlib.suppress(OSError):
+            self.path.unlink()
+        for d in (params, self.directory):
+            with contextlib.suppress(OSError):
+                d.rmdir()
+        self.boards = {}
+
+
+# ----------------------------------------------------------------------------- plan
+@dataclass(frozen=True)
+class Seen:
+    """A board as it was found (``before``) or left (``after``)."""
+
+    state: str
+    progid: int | None
+    program: str
+    autostart: bool
+
+    @classmethod
+    def of(cls, info: BoardInfo) -> Seen:
+        return cls(info.state.text, info.progid if info.flash_valid else None,
+                   info.name if info.flash_valid else "", info.autostart)
+
+
+@dataclass(frozen=True)
+class PlanRow:
+    bus: str
+    seq_id: int
+    """0: the board did not answer."""
+    position: int
+    placement: str
+    serial: int | None
+    image: str
+    progid: int
+    autostart: bool
+    before: Seen | None
+    action: str
+    reason: str
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def key(self) -> str:
+        return f"{self.bus}:{self.position + 1}"
+
+    @property
+    def where(self) -> str:
+        return f"{self.bus}:{self.seq_id or '-'} ({self.placement})"
+
+
+@dataclass(frozen=True)
+class Plan:
+    manifest: Manifest
+    rows: tuple[PlanRow, ...]
+    enumerations: tuple[BusEnumeration, ...]
+    resumed: bool = False
+
+    def on(self, bus: str, *actions: str) -> list[PlanRow]:
+        return [r for r in self.rows if r.bus == bus and (not actions or r.action in actions)]
+
+    @property
+    def up_to_date(self) -> list[PlanRow]:
+        return [r for r in self.rows if r.action == UP_TO_DATE]
+
+    @property
+    def changes(self) -> list[PlanRow]:
+        return [r for r in self.rows if r.action != UP_TO_DATE]
+
+    @property
+    def work(self) -> list[PlanRow]:
+        return [r for r in self.rows if r.action in WORK]
+
+    @property
+    def refused(self) -> list[PlanRow]:
+        return [r for r in self.rows if r.action == REFUSED]
+
+    @property
+    def matches(self) -> bool:
+        """Nothing to do: every (selected) board is up to date."""
+        return all(r.action in (UP_TO_DATE, SKIPPED) for r in self.rows) and \
+            any(r.action == UP_TO_DATE for r in self.rows)
+
+
+def robot_for(robot: Robot, manifest: Manifest) -> Robot:
+    """``robot`` with each bus expecting the manifest's boards; InputError for a bus of
+    the manifest the connection does not have."""
+    buses: dict[str, BusHandle] = {}
+    for bus in manifest.topology.buses:
+        if not any(w.bus == bus.name for w in manifest.boards):
+            continue
+        h = robot.buses.get(bus.name)
+        if h is None:
+            raise InputError(f"{manifest.topology.name} has boards on bus {bus.name}; the "
+                             f"connection has {', '.join(robot.buses) or 'none'}", key="--bus")
+        buses[bus.name] = replace(h, expected=bus)
+    return replace(robot, buses=buses, topology=manifest.topology)
+
+
+def plan(robot: Robot, manifest: Manifest, journal: Journal, *,
+         only: set[str] | None = None) -> Plan:
+    """Init every bus of the manifest, read each board's Info and compare it with its
+    image (and with the journal of an unfinished deploy).  ``only``: keys ``BUS:n`` of
+    the boards to deploy; the others are shown up to date or not, never changed."""
+    part = robot_for(robot, manifest)
+
+    def one(h: BusHandle) -> tuple[BusEnumeration, list[PlanRow]]:
+        enum = enumerate_bus(h)
+        return enum, _plan_bus(h, enum, manifest, journal)
+
+    done = part.each(one)
+    rows = [r for _, bus_rows in done for r in bus_rows]
+    if only is not None:
+        rows = [r if r.key in only or r.action == UP_TO_DATE else
+                replace(r, action=SKIPPED, reason=f"not selected (else: {r.action}"
+                        + (f", {r.reason})" if r.reason else ")")) for r in rows]
+    return Plan(manifest, tuple(rows), tuple(e for e, _ in done), journal.resumed)
+
+
+def _plan_bus(h: BusHandle, enum: BusEnumeration, manifest: Manifest,
+              journal: Journal) -> list[PlanRow]:
+    wanted = manifest.on(h.name)
+    rows: dict[int, PlanRow] = {}
+    faulty = any(b.duplicate for b in enum.boards) or any(
+        d.kind == "fixed-id-clash" for d in enum.diagnosis)
+    found = {b.position - 1: b for b in enum.boards if b.position is not None}
+    expected = len(h.expected.boards) if h.expected is not None else 0
+    missing = {s.position: s for s in
+               missing_expected(h, [b.serial for b in enum.boards], enum.found)}
+    for w in wanted:
+        pos = w.spec.position
+        base = PlanRow(h.name, 0, pos, w.spec.placement, None, w.image_path.name,
+                       w.plan.progid, w.spec.autostart, None, REFUSED, "")
+        b = found.get(pos)
+        if b is None or pos in missing:
+            rows[pos] = replace(base, reason="missing: " + describe_missing(h.name, w.spec,
+                                                                             expected))
+            continue
+        base = replace(base, seq_id=b.seq_id, serial=b.serial)
+        if faulty:
+            why = "; ".join(d.message for d in enum.diagnosis)
+            rows[pos] = replace(base, reason=f"the init chain is faulty ({why})")
+            continue
+        if b.info is None:
+            rows[pos] = replace(base, reason="its Info record did not arrive")
+            continue
+        rows[pos] = _judge(base, w, b.info, journal.entry(base.key, b.serial))
+    return [rows[w.spec.position] for w in wanted]
+
+
+def _judge(base: PlanRow, w: Wanted, info: BoardInfo, entry: dict[str, Any] | None
+           ) -> PlanRow:
+    before = Seen.of(info)
+    row = replace(base, before=before)
+    findings = compare(w.image.descriptor, info)
+    errors = [f for f in findings if f.severity == "error"]
+    warnings = tuple(f.message for f in findings if f.severity != "error")
+    if errors:
+        why = "; ".join(f"{f.field}: expected {f.expected}, found {f.found}" for f in errors)
+        return replace(row, reason=f"the image does not fit: {why}", warnings=warnings)
+    row = replace(row, warnings=warnings)
+    right = info.flash_valid and info.progid == w.plan.progid
+    stage = entry.get("stage") if entry else None
+    if not right:
+        if stage in ("programming", "dumped", "failed", "verified", "restored"):
+            why = "interrupted (the last deploy did not finish it"
+            why += f"; {before.state}" + (f", ProgID 0x{info.progid:08X})"
+                                         if info.flash_valid else ", no program)")
+        elif not info.flash_valid:
+            why = "no program"
+        else:
+            why = f"other ProgID 0x{info.progid:08X} ({info.name})"
+        return replace(row, action=PROGRAM, reason=why)
+    if entry and entry.get("params") and stage in ("dumped", "programming", "verified"):
+        return replace(row, action=RESTORE, reason="interrupted after programming: its "
+                       "saved parameters are still to be loaded back")
+    if stage in ("programming", "verified"):
+        return replace(row, action=START, reason="interrupted after programming: AutoStart "
+                       "and its start are still to be done")
+    if info.autostart != w.spec.autostart:
+        return replace(row, action=START, reason="AutoStart is " + ("on" if info.autostart
+                                                                      else "off"))
+    if w.spec.autostart and info.state not in RUNNING:
+        return replace(row, action=START, reason=f"not running ({info.state.text})")
+    return replace(row, action=UP_TO_DATE, reason="")
+
+
+# ----------------------------------------------------------------------------- execute
+@dataclass(frozen=True)
+class Params:
+    """What became of one board's parameters."""
+
+    outcome: str
+    """kept (saved and loaded back, read back), none (nothing to keep: no tree, or no
+    program ran), failed."""
+    values: int = 0
+    detail: str = ""
+
+
+@dataclass(frozen=True)
+class BoardDeploy:
+    row: PlanRow
+    outcome: str
+    """up to date, done (it matches its manifest now), failed, refused, untouched."""
+    detail: str = ""
+    after: Seen | None = None
+    params: Params = Params("none")
+
+    @property
+    def ok(self) -> bool:
+        return self.outcome in (UP_TO_DATE, "done", SKIPPED)
+
+
+@dataclass(frozen=True)
+class DeployResult:
+    plan: Plan
+    boards: tuple[BoardDeploy, ...]
+    journal: Path | None
+    """Where the journal is left (None: removed, the robot matches its manifest)."""
+    frames: int = 0
+
+    @property
+    def ok(self) -> bool:
+        return bool(self.boards) and all(b.ok for b in self.boards)
+
+    @property
+    def failed(self) -> list[BoardDeploy]:
+        return [b for b in self.boards if not b.ok]
+
+
+def _trees_of(manifest: Manifest, keys: set[str]) -> RobotTrees | None:
+    """The manifest's trees of the boards ``keys`` (None: none of them has a tree)."""
+    if manifest.trees is None:
+        return None
+    chosen = tuple(b for b in manifest.trees.boards
+                   if f"{b.bus}:{b.spec.position + 1}" in keys)
+    return replace(manifest.trees, boards=chosen) if chosen else None
+
+
+def _one_block(tree: attrtree.Tree, number: int) -> attrtree.Tree:
+    return replace(tree, boards=tuple(b for b in tree.boards if b.number == number))
+
+
+def _dump(part: Robot, manifest: Manifest, journal: Journal, rows: list[PlanRow],
+          events: EventFn) -> dict[str, str]:
+    """Record ``rows`` in the journal, with the parameters of the boards to program that
+    run a program and have a tree (and none saved by an earlier, unfinished deploy);
+    returns why a board's values could not be read (it is then not programmed)."""
+    keys = {r.key for r in rows if r.action == PROGRAM and r.before is not None
+            and r.before.state in (s.text for s in RUNNING)
+            and not (journal.entry(r.key, r.serial) or {}).get("params")}
+    trees = _trees_of(manifest, keys)
+    failed: dict[str, str] = {}
+    files: dict[str, str] = {}
+    if trees is not None:
+        events(f"reading the parameters of {len(trees.boards)} board(s)")
+        readout = params_ops.read_values(part, trees, running_only=True)
+        by_source = {t.source: t for t in trees.trees}
+        for read in readout.boards:
+            key = f"{read.bus}:{read.board}"
+            if read.error:
+                failed[key] = f"its parameters could not be read: {read.error}"
+                continue
+            if not read.ok:
+                continue
+            tree = _one_block(params_ops.live_tree(by_source[str(read.tree)], [read]),
+                              read.block)
+            name = f"{PARAMS_DIR}/{safe_name(read.bus)}-{read.board}.tree"
+            text = attrtree.dumps(tree)
+            if attrtree.parse(text, name) != tree:  # never keep what does not read back
+                failed[key] = "its dumped parameters do not read back as written"
+                continue
+            files[name] = text
+            journal.update(key, params=name, prefix=read.prefix, values=len(read.values))
+    for r in rows:
+        if r.key not in failed:
+            e = journal.entry(r.key, r.serial) or {}
+            journal.update(r.key, serial=r.serial, placement=r.placement, image=r.image,
+                           progid=f"0x{r.progid:08X}", action=r.action,
+                           stage=e.get("stage") if e.get("stage") not in (None, "planned")
+                           else "dumped")
+    journal.save(files)
+    return failed
+
+
+def _program_bus(h: BusHandle, part: Robot, manifest: Manifest, journal: Journal,
+                 rows: list[PlanRow], progress: ProgressFn | None,
+                 cancel: threading.Event | None, events: EventFn) -> dict[str, str]:
+    """Each image once to the boards of ``rows`` on bus ``h`` that need it; returns the
+    outcome by key (verified, or why not)."""
+    out: dict[str, str] = {}
+    groups: dict[Path, list[PlanRow]] = {}
+    for r in rows:
+        w = manifest.board(r.bus, r.position)
+        assert w is not None
+        groups.setdefault(w.image_path, []).append(r)
+    for path, group in groups.items():
+        w = manifest.board(group[0].bus, group[0].position)
+        assert w is not None
+        numbers = tuple(r.seq_id for r in group)
+        for r in group:
+            journal.update(r.key, stage="programming")
+        journal.save()
+        events(f"{h.name}: programming {path.name} into "
+               f"{', '.join(map(str, numbers))}")
+        result = flash(part, w.image, selection=Selection("list", numbers), bus=h.name,
+                       init=False, verify=True, plan=w.plan, progress=progress,
+                       cancel=cancel, what="deploying")
+        by_seq = {b.seq_id: b for b in result.boards}
+        for r in group:
+            b = by_seq.get(r.seq_id)
+            if b is not None and b.verified:
+                out[r.key] = "verified"
+                journal.update(r.key, stage="verified")
+            else:
+                out[r.key] = b.detail if b is not None else "not programmed"
+                journal.update(r.key, stage="failed")
+        journal.save()
+        ok = [r.seq_id for r in group if out[r.key] == "verified"]
+        events(f"{h.name}: {path.name} verified on {', '.join(map(str, ok)) or 'no board'}")
+    return out
+
+
+def _restore(part: Robot, manifest: Manifest, journal: Journal, keys: list[str],
+             events: EventFn) -> dict[str, Params]:
+    """Load the saved parameters of the boards ``keys`` back (their programs started)."""
+    out: dict[str, Params] = {}
+    files = []
+    prefixes = []
+    for key in keys:
+        e = journal.boards.get(key, {})
+        if e.get("params"):
+            files.append(journal.directory / e["params"])
+            prefixes.append(e["prefix"])
+    if not files or manifest.trees is None:
+        return out
+    events(f"loading the parameters of {len(files)} board(s) back")
+    try:
+        given = params_ops.bind_files(manifest.trees, files)
+    except InputError as err:
+        return {k: Params("failed", 0, f"the saved parameters cannot be used: {err}")
+                for k in keys if journal.boards.get(k, {}).get("params")}
+    chosen = params_ops.select_prefixes(given, prefixes)
+    result = params_ops.load_values(part, chosen, strict=False)
+    for b in result.boards:
+        key = f"{b.bus}:{b.board}"
+        if b.ok:
+            out[key] = Params("kept", b.written, f"{b.written} values loaded back and read "
+                              "back")
+            journal.update(key, stage="restored")
+        else:
+            why = b.error or ", ".join(f"{x.unique} reads {x.read}, not {x.sent}"
+                                       for x in b.not_taken)
+            out[key] = Params("failed", 0, f"not loaded back: {why}")
+    journal.save()
+    return out
+
+
+def _finish_bus(h: BusHandle, manifest: Manifest, rows: list[PlanRow]) -> dict[str, str]:
+    """AutoStart as the manifest says, and a start, for the boards of ``rows``; returns
+    why a board could not be (by key)."""
+    out: dict[str, str] = {}
+    if not rows:
+        return out
+    infos = h.client.info_many(ALL, expect=[seq(r.seq_id) for r in rows])
+    for r in rows:
+        w = manifest.board(r.bus, r.position)
+        assert w is not None
+        n = r.seq_id
+        info = infos.get(seq(n))
+        try:
+            if info is None or info.autostart != w.spec.autostart:
+                ok = h.client.set_status(seq(n), StatusOp.AUTOSTART, int(w.spec.autostart))
+                if not (ok and ok[0].ok):
+                    out[r.key] = "AutoStart could not be set"
+                    continue
+            if info is None or info.state not in RUNNING:
+                answers = h.client.start(seq(n))
+                if not (answers and answers[0].ok):
+                    texts = [e.describe() for a in answers for e in a.errors]
+                    out[r.key] = "did not start" + (f": {'; '.join(texts)}" if texts else "")
+        except UcomError as err:
+            out[r.key] = str(err)
+    return out
+
+
+def _after(part: Robot, manifest: Manifest, rows: list[PlanRow]
+           ) -> dict[str, BoardInfo]:
+    """The Info of the boards of ``rows`` as the deploy leaves them."""
+    def one(h: BusHandle) -> dict[str, BoardInfo]:
+        mine = [r for r in rows if r.bus == h.name and r.seq_id]
+        if not mine:
+            return {}
+        infos = h.client.info_many(ALL, expect=[seq(r.seq_id) for r in mine])
+        return {r.key: infos[seq(r.seq_id)] for r in mine if seq(r.seq_id) in infos}
+
+    out: dict[str, BoardInfo] = {}
+    for part_out in part.each(one):
+        out.update(part_out)
+    return out
+
+
+def matches(w: Wanted, info: BoardInfo) -> bool:
+    """The board runs (or, without AutoStart, holds) its manifest's image, AutoStart as
+    the manifest says."""
+    return (info.flash_valid and info.progid == w.plan.progid
+            and info.autostart == w.spec.autostart
+            and (not w.spec.autostart or info.state in RUNNING))
+
+
+def execute(robot: Robot, the_plan: Plan, journal: Journal, *,
+            progress: ProgressFn | None = None, cancel: threading.Event | None = None,
+            events: EventFn | None = None) -> DeployResult:
+    """Carry ``the_plan`` out (see the module docstring); the journal records every step
+    and is removed when every board of the manifest matches it."""
+    say = events or (lambda _text: None)
+    manifest = the_plan.manifest
+    part = robot_for(robot, manifest)
+    rows = list(the_plan.rows)
+    work = [r for r in rows if r.action in WORK]
+    failed: dict[str, str] = {}
+    params: dict[str, Params] = {}
+    if work:
+        to_program = [r for r in work if r.action == PROGRAM]
+        failed.update(_dump(part, manifest, journal, work, say))
+        to_program = [r for r in to_program if r.key not in failed]
+        programmed: dict[str, str] = {}
+        if to_program:
+            buses = sorted({r.bus for r in to_program},
+                           key=lambda b: list(part.buses).index(b))
+            # another host programming: BusError, nothing programmed
+            listen_first(replace(part, buses={n: part.buses[n] for n in buses}))
+            for outcome in part.each(lambda h: _program_bus(
+                    h, part, manifest, journal, [r for r in to_program if r.bus == h.name],
+                    progress, cancel, say) if h.name in buses else {}):
+                programmed.update(outcome)
+        for k, v in programmed.items():
+            if v != "verified":
+                failed[k] = f"not verified: {v}"
+        ready = [r for r in work if r.key not in failed]
+        params = _restore(part, manifest, journal, [r.key for r in ready], say)
+        for k, p in params.items():
+            if p.outcome == "failed":
+                failed[k] = f"parameters {p.detail}"
+        ready = [r for r in ready if r.key not in failed]
+        say("setting AutoStart and starting the programs")
+        for outcome in part.each(lambda h: _finish_bus(
+                h, manifest, [r for r in ready if r.bus == h.name])):
+            failed.update(outcome)
+    after = _after(part, manifest, work) if work else {}
+    boards = []
+    for r in rows:
+        w = manifest.board(r.bus, r.position)
+        assert w is not None
+        p = params.get(r.key, Params("none"))
+        if r.action == UP_TO_DATE:
+            boards.append(BoardDeploy(r, UP_TO_DATE, "", r.before, p))
+            continue
+        if r.action in (REFUSED, SKIPPED):
+            boards.append(BoardDeploy(r, r.action, r.reason, r.before, p))
+            continue
+        info = after.get(r.key)
+        seen = Seen.of(info) if info is not None else None
+        if r.key in failed:
+            boards.append(BoardDeploy(r, "failed", failed[r.key], seen, p))
+        elif info is None or not matches(w, info):
+            boards.append(BoardDeploy(r, "failed", "does not match its manifest afterwards"
+                                      + (f" ({seen.state})" if seen else " (no Info)"), seen, p))
+        else:
+            boards.append(BoardDeploy(r, "done", "", seen, p))
+            journal.update(r.key, stage="done")
+    skipped = {b.row.key for b in boards if b.outcome == SKIPPED}
+    left: Path | None = journal.directory
+    if all(b.ok for b in boards) and not skipped & set(journal.boards):
+        journal.remove()  # the robot (the selected part of it) matches its manifest
+        left = None
+    elif work:
+        journal.save()
+    elif not journal.boards:
+        left = None
+    return DeployResult(the_plan, tuple(boards), left)
