@@ -289,7 +289,8 @@ class RobotShare:
                 "cyclic": part.cyclic(ref), "writable": ref.kind is not mca.Kind.SO,
                 "key": keys.edge_key(self.robot, ref.bus, ref.board, ref.unique)})
         assert part.robot.topology is not None
-        return {"robot": self.robot, "name": part.robot.topology.name, "host": socket.gethostname(), "pid": os.getpid(),
+        return {"robot": self.robot, "name": part.robot.topology.name,
+                "host": socket.gethostname(), "pid": os.getpid(),
                 "listen": self.endpoint if self.joined is None else None,
                 "started": round(self.started, 3), "rate_hz": round(1 / part.period_s, 3),
                 "publish_hz": round(self.publish_hz, 3), "allow_writes": self.allow_writes,
