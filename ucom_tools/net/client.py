@@ -243,10 +243,10 @@ class RobotClient:
         """``callback()`` when the robot's liveliness token goes (its loop ended, its host
         died or the network between is gone)."""
         def on_sample(sample: zenoh.Sample) -> None:
-            if sample.kind is zenoh.SampleKind.DELETE:
+            if sample.kind == zenoh.SampleKind.DELETE:
                 callback()
         return Subscription([self.session.liveliness().declare_subscriber(
-            keys.robot_key(self.robot, "alive"), on_sample)])
+            keys.robot_key(self.robot, "alive"), on_sample, history=True)])
 
     def alive(self) -> bool:
         """Is the robot's liveliness token there now?"""
