@@ -20,6 +20,7 @@ from rich.markup import escape
 
 from ucom_tools import __version__
 from ucom_tools.cli import (
+    browse,
     commands,
     conformance,
     console,
@@ -113,6 +114,7 @@ cli.add_command(srec.srec)
 cli.add_command(fleet.fleet)
 cli.add_command(tree.tree)
 cli.add_command(remote.remote)
+cli.add_command(browse.browse)
 cli.add_command(params.params)
 cli.add_command(conformance.conformance)
 cli.add_command(decode.decode)

@@ -21,13 +21,16 @@ from ucom_tools.cli.options import Finite, connection_json, connection_options, 
 from ucom_tools.cli.output import emit_json, json_number, stderr, stdout
 from ucom_tools.config import topology as topo
 from ucom_tools.errors import InputError
+from ucom_tools.net.keys import DEFAULT_ENDPOINT
 from ucom_tools.ops.remote import (
     RECENT_SAMPLES,
     BoardEvent,
     CheckReport,
     MappingError,
     RemotePart,
+    RemoteStop,
     Summary,
+    WriteEvent,
     robot_trees,
 )
 from ucom_tools.ops.robot import ConnectSpec, open_robot
@@ -300,12 +303,28 @@ def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) 
               help="Run the PC's loop under SCHED_FIFO (Linux; needs CAP_SYS_NICE or an "
                    "rtprio limit), so other busy processes cannot make it miss cycles; "
                    "where not permitted it runs as usual and says why.")
+@click.option("--zenoh", "zenoh_endpoint", is_flag=False, flag_value=DEFAULT_ENDPOINT,
+              default=None, metavar="[ENDPOINT]",
+              help="Share the running robot on Zenoh, listening on ENDPOINT (alone: "
+                   f"{DEFAULT_ENDPOINT}, this host only): its structure, values and events "
+                   "for 'ucom browse' on other hosts (ucom-network(7)).")
+@click.option("--zenoh-config", "zenoh_config", type=click.Path(dir_okay=False),
+              metavar="FILE", help="Share it with this Zenoh JSON5 configuration (TLS, "
+                   "authentication, access control, routers); --zenoh replaces its listen "
+                   "endpoints.")
+@click.option("--allow-writes", is_flag=True,
+              help="Take writes (CI, PAR) and a stop from the network, checked as a local "
+                   "--set; without it they are refused.  Starting is never taken.")
+@click.option("--publish-rate", "publish_hz", type=Finite(0, min_open=True), default=100.0,
+              show_default=True, metavar="HZ",
+              help="How often the shared values go out (at most the loop's rate).")
 @connection_options
 @json_option
 @click.pass_context
 def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ...],
         seconds: float | None, rate: float, alive_ms: int, record: str | None,
-        periods: tuple[str, ...], force: bool, realtime: bool, spec: ConnectSpec,
+        periods: tuple[str, ...], force: bool, realtime: bool, zenoh_endpoint: str | None,
+        zenoh_config: str | None, allow_writes: bool, publish_hz: float, spec: ConnectSpec,
         bus_name: str | None, as_json: bool) -> None:
     """Run the robot's boards in the cyclic exchange.
 
@@ -323,6 +342,10 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
     leaves them to their watchdog."""
     wanted = _parse_sets(sets)
     cycles = _parse_periods(periods)
+    sharing = zenoh_endpoint is not None or zenoh_config is not None
+    if allow_writes and not sharing:
+        raise InputError("writes from the network need the network: give --zenoh",
+                         key="--allow-writes")
     summary = Summary()
     interrupted = 0  # the exit code of an interrupt
     how = ""
@@ -339,6 +362,18 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                 recorder.check_buses(part.robot.buses)  # exit 3 before the exchange starts
                 for h in part.robot.buses.values():
                     h.link.dispatcher.taps.append(recorder.on_message_received)
+            if sharing:  # the robot already on the network: exit 4 before the buses
+                from ucom_tools.net.share import share
+
+                net = share(part, endpoint=zenoh_endpoint, config_file=zenoh_config,
+                            allow_writes=allow_writes, publish_hz=publish_hz, force=force)
+                if not as_json:
+                    stderr().print(f"[dim]zenoh: robot {escape(net.robot)} "
+                                   + (f"joined through {escape(net.joined)}" if net.joined
+                                      else f"on {escape(net.where)}")
+                                   + f", values at {net.publish_hz:g} Hz, writes "
+                                   + ("allowed" if allow_writes else "refused") + "[/]",
+                                   soft_wrap=True)
             part.claim(force=force)  # another host's exchange: exit 4, nothing sent
             report = part.check()
             if not report.ok:
@@ -351,6 +386,8 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                     raise MappingError(report)
                 stderr().print("[yellow]ucom: --force: starting only the boards that match "
                                "their trees[/]")
+            if part.share is not None:
+                part.share.declare()  # the names known: declared before the boards start
             refs = [(part.names.resolve(n, key="--set", kinds=(mca.Kind.CI, mca.Kind.PAR)),
                      v) for n, v in wanted]
             raws = [(ref, ref.raw(v, what="--set")) for ref, v in refs]
@@ -374,10 +411,12 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
             except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM, SIGHUP: stop every board
                 interrupted = interrupt_exit_code(e)
                 how = f"terminated ({e.name})" if isinstance(e, Terminated) else "interrupted"
+            except RemoteStop as e:  # from the network, with --allow-writes
+                how = str(e)
             loads = part.load_between(before, part.traffic())
             problems = part.stop()
-            if interrupted:
-                stderr().print(f"[yellow]{how}: "
+            if how:
+                stderr().print(f"[yellow]{escape(how)}: "
                                + (f"{len(problems)} board(s) could not be stopped"
                                   if problems else "every board stopped") + "[/]")
             if part.scheduling is not None and part.scheduling.refused:
@@ -388,17 +427,37 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                 emit_json({"connection": connection_json(spec), "started": True,
                            "interrupted": bool(interrupted), "boards": _boards_json(part),
                            "run": _stats_json(part, loads), "not_stopped": problems,
-                           "events": [_event_json(e) for e in part.events]})
+                           "events": [_event_json(e) for e in part.events],
+                           "network": None if part.share is None else part.share.stats(),
+                           "writes": [_write_json(w) for w in part.writes]})
             else:
                 _print_summary(part, summary, loads)
                 for p in problems:
                     stderr().print(f"[red]ucom: could not stop {escape(p)}: its watchdog "
                                    "stops it[/]", soft_wrap=True)
                 _print_events(part.events)
+                _print_writes(part.writes)
     if stopped and not interrupted:
         ctx.exit(EXIT_FAILED)
     if interrupted:
         ctx.exit(interrupted)
+
+
+def _write_json(w: WriteEvent) -> dict[str, Any]:
+    return {"time": w.time, "name": w.name or None, "value": w.value, "origin": w.origin,
+            "result": w.result}
+
+
+def _print_writes(writes: list[WriteEvent]) -> None:
+    """What the network set (a line per refused write, a count of the rest)."""
+    done = sum(w.done for w in writes)
+    if done:
+        stderr().print(f"[dim]{done} value(s) set or stops asked from the network[/]")
+    for w in writes:
+        if not w.done:
+            stderr().print(f"[yellow]ucom: refused from the network ({escape(w.origin)}) at "
+                           f"{w.time:.3f} s: {escape(w.name)}={escape(w.value)}: "
+                           f"{escape(w.result)}[/]", soft_wrap=True)
 
 
 def _event_json(e: BoardEvent) -> dict[str, Any]:

@@ -183,7 +183,7 @@ def load_manifest(topology: Topology) -> Manifest:
                          "\"FILE\" in its [[bus.board]] tables)", file=topology.source)
     trees = None
     if any(w.spec.tree is not None for w in boards):
-        trees = params_ops.robot_trees(topology)  # TreeError: exit code 3
+        trees = attrtree.bind_present(topology)  # TreeError: exit code 3
     return Manifest(topology, tuple(boards), trees)
 
 
@@ -608,7 +608,7 @@ def _restore(part: Robot, manifest: Manifest, journal: Journal, keys: list[str],
         return out
     events(f"loading the parameters of {len(files)} board(s) back")
     try:
-        given = params_ops.bind_files(manifest.trees, files)
+        given = attrtree.with_files(manifest.trees, files, only=True)
     except InputError as err:
         return {k: Params("failed", 0, f"the saved parameters cannot be used: {err}")
                 for k in keys if journal.boards.get(k, {}).get("params")}

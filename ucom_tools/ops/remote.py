@@ -121,6 +121,49 @@ class BoardEvent:
 
 
 @dataclass(frozen=True)
+class RawSnapshot:
+    """:meth:`RemotePart.snapshot`: the raw values at one moment, decoded elsewhere."""
+
+    clock: float
+    frames: dict[str, dict[int, bytes]]
+    """Bus -> SO map number -> the map's latest frame data."""
+    stamps: dict[str, dict[int, float]]
+    ci: dict[str, dict[tuple[int, int], int]]
+    par: dict[EdgeRef, int]
+
+
+@dataclass(frozen=True)
+class WriteEvent:
+    """A value set, or a stop asked for, from the network (``ucom/<robot>/set``): kept in
+    :attr:`RemotePart.writes` with where it came from and what came of it."""
+
+    time: float
+    """Seconds since the exchange started (the bus clock)."""
+    name: str
+    """The edge's name as it was asked for ('' for a stop)."""
+    value: str
+    """The value as it was asked for ('stop' for a stop)."""
+    origin: str
+    """Who asked, as the asking client says it (host, process, user) and its Zenoh id."""
+    result: str
+    """'done', or why it was refused (the range, the closest names)."""
+
+    @property
+    def done(self) -> bool:
+        return self.result == "done"
+
+
+class RemoteStop(UcomError):
+    """The boards were asked to stop from the network (``ucom/<robot>/stop``, allowed with
+    ``--allow-writes``): raised out of :meth:`RemotePart.cycle`; leaving the part stops
+    every board."""
+
+    def __init__(self, origin: str) -> None:
+        super().__init__(f"stopped from the network by {origin}")
+        self.origin = origin
+
+
+@dataclass(frozen=True)
 class BoardCheck:
     """One board of the robot against its tree block."""
 
@@ -246,6 +289,17 @@ class RemotePart:
         where the loop drives the clock and nothing waits for the wall."""
         """The buses' sockets when every bus has one (select() waits on them), else []."""
         self._owns_robot = False
+        self.each_cycle: list[Callable[[], None]] = []
+        """Called on the loop's thread at the end of every cycle, after the sends (the
+        network share, :mod:`ucom_tools.net.share`: writes from the network are applied
+        here, and a snapshot handed to its publishing thread every few cycles).  What is
+        called here must not wait for anything."""
+        self.writes: list[WriteEvent] = []
+        """Values set from elsewhere than this process (the network), with their origin and
+        what came of them: kept as the run's events."""
+        self.share: Any = None
+        """The network share (:class:`ucom_tools.net.share.RobotShare`) when the part is
+        shared (:meth:`open` with ``zenoh``); closed with the part."""
         self.on_values: Callable[[float, EdgeRef, Value], None] | None = None
         """Called with (time, edge, value) for every SO value a cycle saw change (and its
         first), and for every CI or PAR value set (recorders); the time on the base of the
@@ -256,13 +310,21 @@ class RemotePart:
              interface: str | None = None, channels: Sequence[str] = (),
              host: str | None = None, port: int | None = None, bitrate: int | None = None,
              trees: Sequence[str | Path] = (), start: bool = True, force: bool = False,
+             zenoh: str | None = None, zenoh_config: str | Path | None = None,
+             allow_writes: bool = False, publish_hz: float = 100.0,
              **kwargs: Any) -> RemotePart:
         """The run-time part of ``robot`` (a bundled topology or a topology file) on its
         buses: the in-process virtual fleet (``virtual``, flash kept in ``state_dir``),
         or a python-can ``interface`` with ``channels`` (or a socketcand ``host`` and
         ``port``).  ``trees`` replace the robot's trees of the same Prefix.  Started
         (:meth:`start`, with ``force``) unless ``start`` is false; as a context manager
-        it always stops the boards and closes the buses at the end."""
+        it always stops the boards and closes the buses at the end.
+
+        ``zenoh`` (an endpoint, ``"tcp/127.0.0.1:7447"``) and/or ``zenoh_config`` (a Zenoh
+        JSON5 file) share the running part on the network (:func:`ucom_tools.net.share.
+        share`: structure, values at ``publish_hz``, writes only with ``allow_writes``);
+        refused (BusError) where the robot already runs on that network, unless
+        ``force``."""
         if virtual:
             spec = ConnectSpec(virtual=robot,
                                state_dir=Path(state_dir) if state_dir is not None else None)
@@ -276,6 +338,19 @@ class RemotePart:
             r.close()
             raise
         part._owns_robot = True
+        if zenoh is not None or zenoh_config is not None:
+            from ucom_tools.net.share import share  # the engine only where it is asked for
+
+            try:
+                s = share(part, endpoint=zenoh, config_file=zenoh_config,
+                          allow_writes=allow_writes, publish_hz=publish_hz, force=force)
+                if start:  # the names known before the start: declared while nothing runs
+                    part.claim(force=force)
+                    part.check()
+                    s.declare()
+            except BaseException:
+                part.close()
+                raise
         if start:
             try:
                 part.start(force=force)
@@ -510,6 +585,8 @@ class RemotePart:
         self._deadline += self.period_s
         if self.on_values is not None:
             self._report_so()
+        for hook in self.each_cycle:
+            hook()
         return self.so
 
     def _listen_for_events(self, started: float) -> None:
@@ -622,6 +699,51 @@ class RemotePart:
                 if ref is not None and last.get(ref) != raw:
                     last[ref] = raw
                     self.on_values(stamp, ref, ref.value(raw))
+
+    def snapshot(self) -> RawSnapshot:
+        """Every value's raw state as it is now, for another thread to decode
+        (:meth:`decode`): references to the maps' latest frames (bytes, never changed in
+        place) and copies of the CI and PAR values, a few dict copies per bus.  The loop's
+        thread takes it (:attr:`each_cycle`); nothing is decoded here."""
+        frames, stamps, ci = {}, {}, {}
+        for bus, x in self.exchanges.items():
+            image = x.mca.image
+            frames[bus] = dict(image.frames)
+            stamps[bus] = dict(image.stamps)
+            ci[bus] = dict(x.ci)
+        return RawSnapshot(self._clock(), frames, stamps, ci, dict(self._par))
+
+    def decode(self, snap: RawSnapshot) -> dict[EdgeRef, tuple[float, Value]]:
+        """(time stamp, value) of every edge a :meth:`snapshot` holds a value of: an SO's
+        stamped with its map's frame, a CI's and a PAR's with the snapshot's time (both
+        on the base of the bus's frame time stamps).  Reads only what :meth:`start` set
+        up, so any thread may call it while the loop runs."""
+        out: dict[EdgeRef, tuple[float, Value]] = {}
+        for (bus, number), refs in self._map_refs.items():
+            frame = snap.frames[bus].get(number)
+            if frame is None:
+                continue
+            x = self.exchanges[bus]
+            m = next(m for m in x.plan.so_maps if m.number == number)
+            records = x.configured[m.board].edges.so
+            raws = values_of(frame, [records[i] for i in m.edges])
+            stamp = snap.stamps[bus].get(number, snap.clock)
+            for ref, raw in zip(refs, raws, strict=True):
+                if ref is not None:
+                    out[ref] = (stamp, ref.value(raw))
+        for ref in self.names:
+            if ref.kind is mca.Kind.CI:
+                sent = snap.ci[ref.bus].get((ref.board, ref.index))
+                if sent is not None:
+                    out[ref] = (snap.clock, ref.value(sent))
+            elif ref.kind is mca.Kind.PAR and ref in snap.par:
+                out[ref] = (snap.clock, ref.value(snap.par[ref]))
+        return out
+
+    @property
+    def running(self) -> bool:
+        """Between :meth:`start` and :meth:`stop`."""
+        return self._running
 
     def raw(self, name: str | EdgeRef) -> int | None:
         """The raw value of an edge: SO the latest from its map (None before the first,
@@ -738,10 +860,13 @@ class RemotePart:
 
     def close(self) -> None:
         """Stop the boards (see :meth:`stop`) and let go of the buses (closing them if
-        :meth:`open` opened them)."""
+        :meth:`open` opened them) and of the network share."""
         try:
             self.stop()
         finally:
+            if self.share is not None:
+                share, self.share = self.share, None
+                share.close()
             for x in self.exchanges.values():
                 x.close()
             if self._owns_robot:

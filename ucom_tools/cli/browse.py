@@ -1,0 +1,153 @@
+"""``ucom browse``: a running robot's edges from another host, over Zenoh (the mcabrowser of
+ucom-tools; ``man/ucom-network.7``): read, set, watch, or the whole structure."""
+
+from __future__ import annotations
+
+import json
+import sys
+from decimal import Decimal, InvalidOperation
+from typing import Any
+
+import click
+from rich.markup import escape
+
+from ucom_tools.cli.options import Finite, json_option
+from ucom_tools.cli.output import emit_json, stderr, stdout
+from ucom_tools.errors import InputError
+from ucom_tools.net.keys import DEFAULT_ENDPOINT
+
+
+def _value_of(text: str) -> int | float | str:
+    """A value for the robot: a number where the text is one (exactly), else the text
+    itself (``0x444``), which the robot reads as a local ``--set`` does."""
+    try:
+        return int(text, 10)
+    except ValueError:
+        pass
+    try:
+        d = Decimal(text)
+    except InvalidOperation:
+        return text
+    f = float(d)
+    return f if Decimal(repr(f)) == d else text
+
+
+def _parse_sets(sets: tuple[str, ...]) -> list[tuple[str, str]]:
+    out = []
+    for s in sets:
+        name, sep, value = s.partition("=")
+        if not sep or not name.strip() or not value.strip():
+            raise InputError(f"{s!r}: expected NAME=VALUE (e.g. 'Right Eye Target=1000')",
+                             key="--set")
+        out.append((name.strip(), value.strip()))
+    return out
+
+
+def _line(name: str, value: object, unit: str) -> str:
+    return f"{name} = {value}{' ' + unit if unit else ''}"
+
+
+@click.command("browse")
+@click.argument("robot", required=False)
+@click.option("--zenoh", "endpoint", default=DEFAULT_ENDPOINT, show_default=True,
+              metavar="ENDPOINT", help="Where the robot's loop listens (its 'remote run "
+              "--zenoh'); this connects as a peer, multicast scouting off.")
+@click.option("--zenoh-config", "config_file", type=click.Path(dir_okay=False),
+              metavar="FILE", help="A Zenoh JSON5 configuration (TLS, authentication, "
+              "routers); --zenoh, where given, replaces its connect endpoints.")
+@click.option("--get", "gets", multiple=True, metavar="NAME",
+              help="Print the edge's current value (repeatable) and exit.")
+@click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
+              help="Set a CI or PAR on the robot (repeatable; the robot must run with "
+                   "--allow-writes) and exit with its answer.")
+@click.option("--watch", "watches", multiple=True, metavar="NAME",
+              help="Print 'time name value' lines as the edge's values come (repeatable), "
+                   "until Ctrl-C or --for.")
+@click.option("--for", "seconds", type=Finite(0, min_open=True), metavar="SECONDS",
+              help="Watch this long.")
+@click.option("--stop", "stop", is_flag=True,
+              help="Stop the robot's boards (motors off) and its loop (needs "
+                   "--allow-writes there); starting is never done from here.")
+@click.option("--timeout", type=Finite(0, min_open=True), default=5.0, show_default=True,
+              metavar="SECONDS", help="How long to wait for the robot to be found and to "
+              "answer.")
+@json_option
+def browse(robot: str | None, endpoint: str, config_file: str | None, gets: tuple[str, ...],
+           sets: tuple[str, ...], watches: tuple[str, ...], seconds: float | None,
+           stop: bool, timeout: float, as_json: bool) -> None:
+    """A running robot's edges from this host, over Zenoh.
+
+    ROBOT is the robot's name in the keys (its topology's file name: armar3); not needed
+    where one robot runs there.  --set writes (exit 3 where the robot refuses the value,
+    naming its range or the closest names; 1 where it takes no writes), --get prints
+    values, --watch streams them; without these it prints the structure and every value
+    (--json: as one document).  Exit 4 where no robot answers on the endpoint within
+    --timeout.  See ucom-network(7)."""
+    from ucom_tools.net.client import RobotClient
+
+    wanted = _parse_sets(sets)
+    if seconds is not None and not watches:
+        raise InputError("--for is the length of a --watch", key="--for")
+    with RobotClient.connect(endpoint if config_file is None or endpoint != DEFAULT_ENDPOINT
+                             else None, robot=robot, config_file=config_file,
+                             timeout=timeout) as client:
+        out: dict[str, Any] = {"robot": client.robot, "endpoint": client.where}
+        for name, text in wanted:
+            answer = client.write(name, _value_of(text), timeout=timeout)
+            out.setdefault("set", []).append(answer)
+            if not as_json:
+                stdout().print(escape(_line(answer["name"], answer["value"],
+                                            answer.get("unit", ""))) + ": set",
+                               soft_wrap=True)
+        if gets:
+            values = client.read(list(gets), timeout=timeout)
+            out["values"] = {n: {"t": t, "value": v} for n, (t, v) in values.items()}
+            if not as_json:
+                for n, (_, v) in values.items():
+                    stdout().print(escape(_line(n, v, client.resolve(n).spec.unit)),
+                                   soft_wrap=True)
+        if stop:
+            out["stop"] = client.stop(timeout=timeout)
+            if not as_json:
+                stdout().print(f"robot {escape(client.robot)}: stopping every board")
+        if watches:
+            if as_json and (wanted or gets or stop):
+                emit_json(out)  # the document first, then the watch's lines
+            for t, n, v in client.watch(list(watches), seconds):
+                if as_json:
+                    sys.stdout.write(json.dumps({"t": t, "name": n, "value": v}) + "\n")
+                else:
+                    sys.stdout.write(f"{t:.6f} {n} {v}\n")
+                sys.stdout.flush()
+            return
+        if not (wanted or gets or stop):
+            values = client.read(timeout=timeout)
+            if as_json:
+                out["structure"] = client.structure
+                out["values"] = {n: {"t": t, "value": v} for n, (t, v) in values.items()}
+            else:
+                _print_tree(client.structure, values, client)
+        if as_json:
+            emit_json(out)
+
+
+def _print_tree(structure: dict[str, Any], values: dict[str, tuple[float, Any]],
+                client: Any) -> None:
+    s = structure
+    stdout().print(f"[bold]{escape(s.get('name', s['robot']))}[/] ({escape(s['robot'])}) on "
+                   f"{escape(str(s.get('host')))}, pid {s.get('pid')}: {s.get('rate_hz'):g} Hz, "
+                   f"published at {s.get('publish_hz'):g} Hz, writes "
+                   + ("allowed" if s.get("allow_writes") else "not allowed"))
+    for bus in s["buses"]:
+        stdout().print(f"{escape(bus['name'])}")
+        for b in bus["boards"]:
+            stdout().print(f"  {escape(b['where'])} [{escape(b['prefix'])}] "
+                           f"{escape(b.get('program') or '')}")
+            for e in b["edges"]:
+                v = values.get(e["robot_name"])
+                shown = "-" if v is None else v[1]
+                stdout().print(f"    {e['kind']:<3} {escape(e['robot_name'])} = {shown}"
+                               + (f" {escape(e['unit'])}" if e["unit"] else ""),
+                               soft_wrap=True)
+    if not values:
+        stderr().print("[dim]no values yet (the robot is starting)[/]")
