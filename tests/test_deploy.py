@@ -26,6 +26,7 @@ from typing import Any
 import pytest
 
 from tests.test_shared_bus import LOCAL, served
+from ucom_tools.config import attrtree
 from ucom_tools.config import topology as topo_mod
 from ucom_tools.ops import deploy as ops
 from ucom_tools.ops import params as params_ops
@@ -301,8 +302,8 @@ def test_a_changed_image_programs_only_its_board_and_its_tuned_values_survive(
     with in_process(tmp_path / "state") as r:
         journal = ops.Journal.open(tmp_path / "j", topo.name)
         assert ops.execute(r, ops.plan(r, ops.load_manifest(topo), journal), journal).ok
-        trees = params_ops.robot_trees(topo)
-        loaded = params_ops.load_values(r, params_ops.bind_files(trees, [tuned]))
+        trees = attrtree.bind_present(topo)
+        loaded = params_ops.load_values(r, attrtree.with_files(trees, [tuned], only=True))
         assert loaded.ok
         boards = boards_of(r)
         running = {k: b.application for k, b in boards.items()}
