@@ -14,7 +14,7 @@ from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.config import attrtree, topology
 from ucom_tools.config.attrtree import Board, Change, Kind, RobotTrees, Tree
 from ucom_tools.errors import InputError, TreeError
-from ucom_tools.ops.deploy import image_problems
+from ucom_tools.ops.manifest import image_problems
 
 EXIT_DIFFERENT = 1
 """``tree diff``: the trees differ (like diff(1))."""

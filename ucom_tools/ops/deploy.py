@@ -34,25 +34,17 @@ fit its board is :class:`~ucom_tools.errors.TopologyError` before anything is se
 
 from __future__ import annotations
 
-import contextlib
-import json
-import os
-import re
 import threading
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from ucom_tools import fileio
-from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.config import attrtree
 from ucom_tools.config.attrtree import RobotTrees
-from ucom_tools.config.topology import BoardSpec, Topology
-from ucom_tools.errors import ImageError, InputError, TopologyError, UcomError
-from ucom_tools.image import Image, load_image
+from ucom_tools.errors import InputError, UcomError
 from ucom_tools.ops import params as params_ops
-from ucom_tools.ops.compat import compare, fits
+from ucom_tools.ops.compat import compare
 from ucom_tools.ops.enumerate import (
     BusEnumeration,
     describe_missing,
@@ -60,15 +52,18 @@ from ucom_tools.ops.enumerate import (
     missing_expected,
 )
 from ucom_tools.ops.flash import ProgressFn, Selection, flash, listen_first
+from ucom_tools.ops.journal import (
+    PARAMS_DIR,
+    Journal,
+    default_journal,
+    safe_name,
+)
+from ucom_tools.ops.manifest import Manifest, Wanted, image_problems, load_manifest
 from ucom_tools.ops.robot import BusHandle, Robot
 from ucom_tools.wire.codes import BoardState, StatusOp
 from ucom_tools.wire.ids import ALL, seq
 from ucom_tools.wire.info import BoardInfo
-from ucom_tools.wire.transfer import TransferPlan
 
-JOURNAL_FILE = "journal.json"
-PARAMS_DIR = "params"
-JOURNAL_VERSION = 1
 RUNNING = (BoardState.RUNNING_FLASH, BoardState.RUNNING_EXTRAM)
 
 UP_TO_DATE = "up to date"
@@ -82,202 +77,6 @@ WORK = (PROGRAM, RESTORE, START)
 
 EventFn = Callable[[str], None]
 """Told one line at each step (``CAN0: programming kairo2_alpha.fl.S into 1, 3, 5``)."""
-
-
-# ----------------------------------------------------------------------------- manifest
-@dataclass(frozen=True)
-class Wanted:
-    """One board of the manifest: where it is and what it should run."""
-
-    bus: str
-    spec: BoardSpec
-    image: Image
-    plan: TransferPlan
-
-    @property
-    def key(self) -> str:
-        """``BUS:position`` (1-based, the seq ID of a sound chain)."""
-        return f"{self.bus}:{self.spec.position + 1}"
-
-    @property
-    def image_path(self) -> Path:
-        assert self.spec.image is not None
-        return self.spec.image
-
-
-@dataclass(frozen=True)
-class Manifest:
-    topology: Topology
-    boards: tuple[Wanted, ...]
-    trees: RobotTrees | None
-    """The trees of the boards that have one (their parameters are kept); None: no
-    board has one."""
-
-    def on(self, bus: str) -> list[Wanted]:
-        return [w for w in self.boards if w.bus == bus]
-
-    def board(self, bus: str, position: int) -> Wanted | None:
-        for w in self.boards:
-            if w.bus == bus and w.spec.position == position:
-                return w
-        return None
-
-
-def image_problems(topology: Topology) -> list[TopologyError]:
-    """Every board's image checked without a bus: it exists (the topology did that), it
-    parses, and its descriptor fits the plug-on board and FPGA the topology gives the
-    board (:func:`~ucom_tools.ops.compat.fits`; a minor version or a missing descriptor
-    is fine).  One error per board, naming the topology's line and key."""
-    problems: list[TopologyError] = []
-    images: dict[Path, Image | ImageError] = {}
-    for bus in topology.buses:
-        for spec in bus.boards:
-            if spec.image is None:
-                continue
-            if spec.image not in images:
-                try:
-                    images[spec.image] = load_image(spec.image)
-                except ImageError as err:
-                    images[spec.image] = err
-            img = images[spec.image]
-            where = f"{bus.name} board {spec.position + 1} ({spec.placement})"
-            if isinstance(img, ImageError):
-                problems.append(TopologyError(f"{where}: image {spec.image}: {err_text(img)}",
-                                              file=topology.source, line=spec.line or None,
-                                              key="image"))
-                continue
-            errors = [f for f in fits(img.descriptor, PLUG_ON_BOARDS[spec.board].board_id,
-                                      spec.fpga) if f.severity == "error"]
-            if errors:
-                why = "; ".join(f.message for f in errors)
-                problems.append(TopologyError(
-                    f"{where}: image {spec.image.name} does not fit the board: {why}",
-                    file=topology.source, line=spec.line or None, key="image"))
-    return problems
-
-
-def err_text(err: UcomError) -> str:
-    return getattr(err, "reason", None) or str(err)
-
-
-def load_manifest(topology: Topology) -> Manifest:
-    """The manifest of ``topology``: TopologyError (exit code 3, nothing sent) for the
-    first board whose image cannot be used, or whose tree cannot; InputError when no
-    board names an image."""
-    problems = image_problems(topology)
-    if problems:
-        raise problems[0]
-    images: dict[Path, Image] = {}
-    plans: dict[Path, TransferPlan] = {}
-    boards = []
-    for bus in topology.buses:
-        for spec in bus.boards:
-            if spec.image is None:
-                continue
-            if spec.image not in images:
-                images[spec.image] = load_image(spec.image)
-                plans[spec.image] = images[spec.image].plan()
-            boards.append(Wanted(bus.name, spec, images[spec.image], plans[spec.image]))
-    if not boards:
-        raise InputError(f"no board of {topology.name} names an image (set image = "
-                         "\"FILE\" in its [[bus.board]] tables)", file=topology.source)
-    trees = None
-    if any(w.spec.tree is not None for w in boards):
-        trees = attrtree.bind_present(topology)  # TreeError: exit code 3
-    return Manifest(topology, tuple(boards), trees)
-
-
-# ----------------------------------------------------------------------------- journal
-def default_journal(robot_name: str, environ: Mapping[str, str] | None = None) -> Path:
-    """``$XDG_STATE_HOME/ucom/deploy/<robot>``, else ``~/.local/state/ucom/deploy/<robot>``
-    (``<robot>`` the topology's name, made a safe file name)."""
-    env = os.environ if environ is None else environ
-    base = Path(env["XDG_STATE_HOME"]) if env.get("XDG_STATE_HOME") else \
-        Path(env.get("HOME") or Path.home()) / ".local" / "state"
-    return base / "ucom" / "deploy" / safe_name(robot_name)
-
-
-def safe_name(name: str) -> str:
-    return re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._") or "robot"
-
-
-@dataclass
-class Journal:
-    """An unfinished deploy: per board (``BUS:position``) its serial, image, ProgID, stage
-    (planned, dumped, programming, verified, failed, restored, done) and the file of its
-    saved parameters.  Every :meth:`save` replaces ``journal.json`` atomically, together
-    with the parameter files it brings."""
-
-    directory: Path
-    robot: str
-    boards: dict[str, dict[str, Any]] = field(default_factory=dict)
-    resumed: bool = False
-    """It was found on disk: a deploy before this one did not finish."""
-    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
-
-    @property
-    def path(self) -> Path:
-        return self.directory / JOURNAL_FILE
-
-    @classmethod
-    def open(cls, directory: Path, robot: str) -> Journal:
-        """The journal in ``directory`` (resumed), or a new, unsaved one.  InputError
-        (exit 3) for a journal that cannot be read or is not one."""
-        path = directory / JOURNAL_FILE
-        if not path.exists():
-            return cls(directory, robot)
-        data = fileio.read_input(path, limit=fileio.TEXT_LIMIT, what="a deploy journal",
-                                 option="--journal")
-        try:
-            doc = json.loads(data)
-            if doc.get("version") != JOURNAL_VERSION or not isinstance(doc.get("boards"), dict):
-                raise ValueError("not a deploy journal of this version")
-        except (ValueError, AttributeError) as err:
-            raise InputError(f"{path}: {err}; remove it to start afresh",
-                             key="--journal") from None
-        if doc.get("robot") != robot:
-            raise InputError(f"{path} is the journal of {doc.get('robot')!r}, not of "
-                             f"{robot!r}; give another --journal", key="--journal")
-        return cls(directory, robot, doc["boards"], resumed=True)
-
-    def entry(self, key: str, serial: int | None) -> dict[str, Any] | None:
-        """The record of board ``key``, if it is that board (same serial)."""
-        e = self.boards.get(key)
-        if e is None or (serial is not None and e.get("serial") not in (None, serial)):
-            return None
-        return e
-
-    def update(self, key: str, **values: Any) -> None:
-        with self._lock:
-            self.boards.setdefault(key, {}).update(values)
-
-    def save(self, files: Mapping[str, str] | None = None) -> None:
-        """Write ``journal.json`` (and ``files``, names relative to the directory, e.g.
-        ``params/CAN0-1.tree``): all or none."""
-        with self._lock:
-            fileio.prepare_directory(self.directory, option="--journal")
-            if files:
-                fileio.prepare_directory(self.directory / PARAMS_DIR, option="--journal")
-            doc = {"version": JOURNAL_VERSION, "robot": self.robot, "boards": self.boards}
-            with fileio.Batch(option="--journal") as batch:
-                for name, text in (files or {}).items():
-                    batch.write_text(self.directory / name, text)
-                batch.write_text(self.path, json.dumps(doc, indent=1, sort_keys=True) + "\n")
-
-    def remove(self) -> None:
-        """Remove what the journal wrote (its file, the parameter files) and its
-        directories when they are empty."""
-        params = self.directory / PARAMS_DIR
-        for e in self.boards.values():
-            if e.get("params"):
-                with contextlib.suppress(OSError):
-                    (self.directory / e["params"]).unlink()
-        with contextlib.suppress(OSError):
-            self.path.unlink()
-        for d in (params, self.directory):
-            with contextlib.suppress(OSError):
-                d.rmdir()
-        self.boards = {}
 
 
 # ----------------------------------------------------------------------------- plan
@@ -751,3 +550,8 @@ def execute(robot: Robot, the_plan: Plan, journal: Journal, *,
     elif not journal.boards:
         left = None
     return DeployResult(the_plan, tuple(boards), left)
+
+
+__all__ = ["PROGRAM", "REFUSED", "RESTORE", "SKIPPED", "START", "UP_TO_DATE", "WORK",
+           "BoardDeploy", "DeployResult", "Journal", "Manifest", "Plan", "PlanRow", "Seen",
+           "Wanted", "default_journal", "execute", "image_problems", "load_manifest", "plan"]
