@@ -25,8 +25,8 @@ import pytest
 
 import ucom_tools.virtual.programs.armar3 as armar3_model
 from ucom_tools.config.attrtree import Board, Value, load
-from ucom_tools.programs.armar3 import SPEC, Command
-from ucom_tools.programs.model import EdgeKind, EdgeSpec
+from ucom_tools.edgelists.armar3 import SPEC, Command
+from ucom_tools.edgelists.model import EdgeKind, EdgeSpec
 from ucom_tools.virtual.fpga import VirtualFpga
 from ucom_tools.virtual.plant import (
     CURRENT_LIMIT_A,

@@ -19,9 +19,9 @@ import pytest
 from tests.helpers import image_words, plan_of, program
 from ucom_tools.config import topology
 from ucom_tools.config.topology import SOURCE_ROOT, parse
+from ucom_tools.edgelists import armar3
+from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.errors import BoardError, InputError, TopologyError
-from ucom_tools.programs import armar3
-from ucom_tools.programs.model import EdgeKind
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import McaClient

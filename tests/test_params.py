@@ -20,12 +20,12 @@ from ucom_tools.config import attrtree
 from ucom_tools.config.attrtree import Kind
 from ucom_tools.config.attrtree.robot import bind
 from ucom_tools.config.topology import SOURCE_ROOT, load
+from ucom_tools.edgelists import armar3
+from ucom_tools.edgelists.model import EdgeKind, EdgeSpec
 from ucom_tools.ops.edges import spec_of
 from ucom_tools.ops.params import value_text
 from ucom_tools.ops.remote import RemotePart
 from ucom_tools.ops.robot import ConnectSpec, open_robot
-from ucom_tools.programs import armar3
-from ucom_tools.programs.model import EdgeKind, EdgeSpec
 from ucom_tools.virtual.fleet import release_shared, shared_fleet
 from ucom_tools.virtual.runtime import McaRuntime
 from ucom_tools.wire import mca

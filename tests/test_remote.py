@@ -16,10 +16,10 @@ from click.testing import CliRunner
 from tests.runtime_rig import programmed, robot_of
 from ucom_tools.cli.main import cli
 from ucom_tools.config.attrtree.robot import bind
+from ucom_tools.edgelists.armar3 import SPEC
+from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.errors import InputError
 from ucom_tools.ops.remote import MappingError, RemotePart
-from ucom_tools.programs.armar3 import SPEC
-from ucom_tools.programs.model import EdgeKind
 from ucom_tools.virtual.faults import LossyBus
 from ucom_tools.wire import mca
 from ucom_tools.wire.fpga import Reg

@@ -13,10 +13,10 @@ import pytest
 from tests.runtime_rig import RunHost, bring_up_robot, programmed, run_robot
 from ucom_tools.config.attrtree.match import compare, spec_edges
 from ucom_tools.config.attrtree.robot import bind
+from ucom_tools.edgelists import armar3, lauron4
+from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.errors import BoardError, InputError
 from ucom_tools.ops.exchange import ExchangeError, configure
-from ucom_tools.programs import armar3, lauron4
-from ucom_tools.programs.model import EdgeKind
 from ucom_tools.virtual.programs import armar3 as armar3_model
 from ucom_tools.virtual.runtime import CAN_ERROR_FLASH_US, FRAME_COST_US, OVERRUN_FLASH_US
 from ucom_tools.wire import mca

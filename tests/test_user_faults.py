@@ -111,7 +111,7 @@ def test_flash_fails_naming_an_expected_board_that_never_answered(tmp_path: Path
 
 # ----------------------------------------------------------------------------- A3
 def test_set_seqid_refuses_a_seq_id_another_board_holds_and_sends_nothing() -> None:
-    from ucom_tools.ops import boards as ops
+    from ucom_tools.ops import options as ops
     from ucom_tools.ops.robot import ConnectSpec, open_robot
 
     robot = open_robot(ConnectSpec(virtual="armar3"))

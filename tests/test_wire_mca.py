@@ -7,8 +7,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from ucom_tools.edgelists import armar3, lauron4
 from ucom_tools.errors import FrameError
-from ucom_tools.programs import armar3, lauron4
 from ucom_tools.wire import mca
 from ucom_tools.wire.ids import ALL, Function, seq
 

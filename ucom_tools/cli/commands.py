@@ -28,7 +28,7 @@ from ucom_tools.cli.options import (
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.errors import InputError, UcomError
 from ucom_tools.image import load_image
-from ucom_tools.ops import boards as ops
+from ucom_tools.ops import options as ops
 from ucom_tools.ops import params as params_ops
 from ucom_tools.ops.enumerate import enumerate_bus
 from ucom_tools.ops.flash import FlashResult, Selection, listen_first

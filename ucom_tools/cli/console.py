@@ -27,7 +27,7 @@ from ucom_tools.cli.options import connection_options
 from ucom_tools.cli.output import stderr, stdout
 from ucom_tools.errors import InputError, UcomError
 from ucom_tools.image import Image, load_image
-from ucom_tools.ops import boards as ops
+from ucom_tools.ops import options as ops
 from ucom_tools.ops.enumerate import enumerate_bus
 from ucom_tools.ops.flash import Selection
 from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot

@@ -12,12 +12,12 @@ import click
 from rich.markup import escape
 from rich.table import Table
 
-from ucom_tools.boards import board_name
 from ucom_tools.cli.output import emit_json, leds, stderr, stdout
 from ucom_tools.config import mutants
 from ucom_tools.config import topology as topo
 from ucom_tools.config.topology import BUNDLED, Topology
 from ucom_tools.errors import BusError
+from ucom_tools.plugons import board_name
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.virtual.multiserve import (
     LOG_FORMAT,

@@ -13,12 +13,12 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from ucom_tools.boards import app_name, board_name
 from ucom_tools.image import Image
-from ucom_tools.ops.boards import ProbeResult, Row
 from ucom_tools.ops.compat import CheckRow
 from ucom_tools.ops.enumerate import BusEnumeration
 from ucom_tools.ops.flash import FlashResult
+from ucom_tools.ops.options import ProbeResult, Row
+from ucom_tools.plugons import app_name, board_name
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.descriptor import ImageDescriptor
 from ucom_tools.wire.fpga import FpgaVersion

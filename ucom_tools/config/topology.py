@@ -20,9 +20,9 @@ from pathlib import Path
 from typing import Any
 
 from ucom_tools import fileio
-from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.config import mutants
 from ucom_tools.errors import TopologyError
+from ucom_tools.plugons import PLUG_ON_BOARDS
 from ucom_tools.wire.fpga import FpgaVersion
 
 BUNDLED = ("armar3", "lauron4", "kairo2", "odete", "puma200", "rosi")

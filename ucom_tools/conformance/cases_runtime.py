@@ -13,9 +13,9 @@ import can
 
 from ucom_tools.conformance.bench import Bench
 from ucom_tools.conformance.case import case
+from ucom_tools.edgelists import by_name
+from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.errors import BoardError, UcomTimeoutError
-from ucom_tools.programs import by_name
-from ucom_tools.programs.model import EdgeKind
 from ucom_tools.protocol.dispatch import Periodic
 from ucom_tools.protocol.mca import BoardEdges
 from ucom_tools.wire import mca
@@ -24,7 +24,7 @@ from ucom_tools.wire.codes import ErrorCode
 from ucom_tools.wire.ids import ALL, Function, seq
 
 PROGRAM = "armar3 cascaded PID"
-"""The run-time program the suite loads (its edges are known: ucom_tools.programs)."""
+"""The run-time program the suite loads (its edges are known: ucom_tools.edgelists)."""
 PERIOD_TOLERANCE = 0.02
 """SO frames may come this share of their period early or late (p99), beyond one frame
 time of arbitration."""

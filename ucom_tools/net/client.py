@@ -28,12 +28,12 @@ from typing import Any
 
 import zenoh
 
+from ucom_tools.edgelists.model import EdgeKind, EdgeSpec
 from ucom_tools.errors import BusError, InputError, UcomError
 from ucom_tools.net import keys
 from ucom_tools.net.session import check_endpoint, config, open_session
 from ucom_tools.net.share import origin
 from ucom_tools.ops.edges import EdgeRef, Names
-from ucom_tools.programs.model import EdgeKind, EdgeSpec
 from ucom_tools.wire import mca
 
 JSON = zenoh.Encoding.APPLICATION_JSON

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from ucom_tools.boards import app_name, board_name
 from ucom_tools.ops.enumerate import describe_missing, enumerate_bus, missing_expected
 from ucom_tools.ops.robot import Robot
+from ucom_tools.plugons import app_name, board_name
 from ucom_tools.wire.descriptor import ImageDescriptor
 from ucom_tools.wire.fpga import FpgaVersion
 from ucom_tools.wire.info import BoardInfo

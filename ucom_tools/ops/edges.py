@@ -15,8 +15,8 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from decimal import Decimal, InvalidOperation
 
+from ucom_tools.edgelists.model import EdgeKind, EdgeSpec
 from ucom_tools.errors import InputError
-from ucom_tools.programs.model import EdgeKind, EdgeSpec
 from ucom_tools.wire import mca
 
 

@@ -23,9 +23,9 @@ from ucom_tools.config.attrtree.match import compare, program_of
 from ucom_tools.config.attrtree.model import Board, Kind
 from ucom_tools.config.attrtree.robot import RobotTrees
 from ucom_tools.config.topology import BusSpec
+from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.errors import BoardError, BusError, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import spec_of
-from ucom_tools.programs.model import EdgeKind
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.dispatch import Periodic
 from ucom_tools.protocol.link import Link

@@ -21,7 +21,6 @@ from dataclasses import dataclass, field, replace
 
 from ucom_tools.errors import InputError, UcomTimeoutError
 from ucom_tools.image import Image
-from ucom_tools.ops.boards import NotInitialised
 from ucom_tools.ops.compat import compare
 from ucom_tools.ops.enumerate import (
     BusEnumeration,
@@ -30,6 +29,7 @@ from ucom_tools.ops.enumerate import (
     expected_positions,
     missing_expected,
 )
+from ucom_tools.ops.options import NotInitialised
 from ucom_tools.ops.robot import BusHandle, Robot
 from ucom_tools.protocol.programmer import Programmer
 from ucom_tools.protocol.watch import ProgrammingWatch, quiet_time

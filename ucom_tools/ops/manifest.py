@@ -8,13 +8,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.config import attrtree
 from ucom_tools.config.attrtree import RobotTrees
 from ucom_tools.config.topology import BoardSpec, Topology
 from ucom_tools.errors import ImageError, InputError, TopologyError, UcomError
 from ucom_tools.image import Image, load_image
 from ucom_tools.ops.compat import fits
+from ucom_tools.plugons import PLUG_ON_BOARDS
 from ucom_tools.wire.transfer import TransferPlan
 
 

@@ -28,12 +28,12 @@ from ucom_tools import fileio
 from ucom_tools.config import attrtree
 from ucom_tools.config.attrtree import BoundBoard, Kind, RobotTrees, Tree, Value
 from ucom_tools.config.topology import Topology
+from ucom_tools.edgelists.model import EdgeSpec
 from ucom_tools.errors import BoardError, InputError, UcomError, UcomTimeoutError
 from ucom_tools.ops.edges import spec_of
 from ucom_tools.ops.exchange import defaults_raw, write_runs
 from ucom_tools.ops.remote import BoardCheck, RemotePart
 from ucom_tools.ops.robot import Robot
-from ucom_tools.programs.model import EdgeSpec
 from ucom_tools.protocol.mca import BoardEdges, McaClient
 from ucom_tools.wire import mca
 from ucom_tools.wire.codes import BoardState

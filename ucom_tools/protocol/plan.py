@@ -21,8 +21,8 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
+from ucom_tools.edgelists.model import EdgeKind, EdgeSpec, ProgramSpec
 from ucom_tools.errors import InputError
-from ucom_tools.programs.model import EdgeKind, EdgeSpec, ProgramSpec
 from ucom_tools.wire.canbits import unstuffed_bits, worst_frame_bits
 
 MAX_MAPS = 31

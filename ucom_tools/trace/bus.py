@@ -8,8 +8,8 @@ from typing import Any
 
 from ucom_tools.config.attrtree.match import program_of
 from ucom_tools.config.attrtree.robot import BoundBoard, RobotTrees
-from ucom_tools.programs import known
-from ucom_tools.programs.model import ProgramSpec
+from ucom_tools.edgelists import known
+from ucom_tools.edgelists.model import ProgramSpec
 from ucom_tools.protocol.link import SHARED_BUS_FACTOR
 from ucom_tools.protocol.timeouts import Timeouts
 from ucom_tools.trace.conversation import (

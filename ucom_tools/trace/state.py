@@ -10,7 +10,7 @@ from decimal import Decimal
 from typing import Any
 
 from ucom_tools.config.attrtree.robot import BoundBoard
-from ucom_tools.programs.model import ProgramSpec
+from ucom_tools.edgelists.model import ProgramSpec
 from ucom_tools.trace.conversation import Message
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m

@@ -18,8 +18,8 @@ it announces itself with MCA Ready and serves the run-time protocol.
 
 from __future__ import annotations
 
-from ucom_tools.boards import board_name
 from ucom_tools.errors import FrameError
+from ucom_tools.plugons import board_name
 from ucom_tools.virtual.port import ProgramHost
 from ucom_tools.virtual.programs import make as make_model
 from ucom_tools.virtual.runtime import McaRuntime

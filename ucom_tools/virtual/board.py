@@ -17,9 +17,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.config.topology import Timing
 from ucom_tools.errors import FrameError
+from ucom_tools.plugons import PLUG_ON_BOARDS
 from ucom_tools.virtual import mutants
 from ucom_tools.virtual.application import DspProgram
 from ucom_tools.virtual.fpga import ExternalMemory, VirtualFpga

@@ -18,10 +18,10 @@ from typing import Any
 
 import can
 
-from ucom_tools.boards import PLUG_ON_BOARDS
 from ucom_tools.config import topology as topo
 from ucom_tools.config.topology import BoardSpec, Topology
 from ucom_tools.errors import InputError, TopologyError, UcomError
+from ucom_tools.plugons import PLUG_ON_BOARDS
 from ucom_tools.virtual import mutants
 from ucom_tools.virtual.board import Identity, VirtualBoard
 from ucom_tools.virtual.clock import FleetClock, RealtimeDriver

@@ -10,7 +10,7 @@ tree's gains give a well-damped cascade on this plant (see
 Drive of motor k (from the FPGA, read once per :meth:`ThreeAxisPlant.advance`):
 
 - ``PWM0 + k`` (0x20-0x22) holds a signed 16-bit duty in two's complement; full scale
-  :data:`~ucom_tools.programs.armar3.PWM_FULL` = 16000 = 100 % of :data:`SUPPLY_V`
+  :data:`~ucom_tools.edgelists.armar3.PWM_FULL` = 16000 = 100 % of :data:`SUPPLY_V`
   (larger values saturate at 100 %).
 - The stage drives only while bit k of OUTPUT_ENABLE is set and the FPGA is not neutral
   (:meth:`VirtualFpga.outputs_enabled`); otherwise it is high impedance: no current, the
@@ -73,7 +73,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from ucom_tools.programs.armar3 import PWM_FULL
+from ucom_tools.edgelists.armar3 import PWM_FULL
 from ucom_tools.virtual.fpga import QuadratureDecoder, VirtualFpga
 from ucom_tools.wire.fpga import Reg
 

@@ -20,8 +20,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from operator import itemgetter
 
+from ucom_tools.edgelists.model import EdgeKind, EdgeSpec, ProgramSpec
 from ucom_tools.errors import FrameError
-from ucom_tools.programs.model import EdgeKind, EdgeSpec, ProgramSpec
 from ucom_tools.virtual import mutants
 from ucom_tools.virtual.port import BoardPort
 from ucom_tools.virtual.programs.base import Plant, ProgramModel

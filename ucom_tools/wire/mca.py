@@ -10,7 +10,7 @@ Two kinds of frames:
   maps to them (function 13), for the cyclic exchange.
 
 Values are raw integers of 2 or 4 bytes, big endian; which edge a value belongs to (its
-width, sign and scale) comes from the program's edge list (:mod:`ucom_tools.programs`),
+width, sign and scale) comes from the program's edge list (:mod:`ucom_tools.edgelists`),
 so the codecs here carry values as bytes and :func:`pack_values`/:func:`unpack_values`
 convert them.
 """
@@ -39,7 +39,7 @@ not a generic MCA Controller Input frame."""
 
 
 class Kind(IntEnum):
-    """Edge kinds as numbered on the wire (== ucom_tools.programs.EdgeKind)."""
+    """Edge kinds as numbered on the wire (== ucom_tools.edgelists.EdgeKind)."""
 
     CI = 0
     SO = 1

@@ -13,8 +13,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from ucom_tools.config.attrtree.model import Board, Kind
-from ucom_tools.programs import known
-from ucom_tools.programs.model import EdgeKind, ProgramSpec
+from ucom_tools.edgelists import known
+from ucom_tools.edgelists.model import EdgeKind, ProgramSpec
 
 _KIND = {EdgeKind.CI: Kind.CI, EdgeKind.SO: Kind.SO, EdgeKind.PAR: Kind.PAR}
 

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from ucom_tools.programs import by_name
-from ucom_tools.programs.model import ProgramSpec
+from ucom_tools.edgelists import by_name
+from ucom_tools.edgelists.model import ProgramSpec
 from ucom_tools.virtual.programs.base import Hardware, Plant, ProgramModel
 from ucom_tools.virtual.programs.idle import IdleModel
 

@@ -1,5 +1,5 @@
 """Model of ``armar3.fl.S``: three cascaded position-velocity controllers (dissertation 5.2.2,
-5.4.2, B.5) on a virtual UCoM, for :data:`ucom_tools.programs.armar3.SPEC`.
+5.4.2, B.5) on a virtual UCoM, for :data:`ucom_tools.edgelists.armar3.SPEC`.
 
 The dissertation fixes the structure (a cascade with settable PID gains for both parts,
 1 kHz, Target = target position); everything below is our definition.
@@ -19,7 +19,7 @@ Sensing, every cycle, axis k (Motor A/B/C = 0/1/2):
   speed: at most one count per elapsed time while the count stands still), then a
   first-order low-pass of :data:`VELOCITY_FILTER_US`.  ``Velocity X`` reports it.
 
-Control of axis k by ``MotorX Command`` (:class:`~ucom_tools.programs.armar3.Command`),
+Control of axis k by ``MotorX Command`` (:class:`~ucom_tools.edgelists.armar3.Command`),
 gains = raw * 1e-6, sums and differences per cycle (discrete PID ``u = P e + I sum(e) +
 D (e - e_prev)``; so I / T_loop is the continuous integral gain):
 
@@ -73,8 +73,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ucom_tools.programs.armar3 import AXES, SPEC, Command
-from ucom_tools.programs.model import EdgeKind, ProgramSpec
+from ucom_tools.edgelists.armar3 import AXES, SPEC, Command
+from ucom_tools.edgelists.model import EdgeKind, ProgramSpec
 from ucom_tools.virtual.fpga import QuadratureDecoder
 from ucom_tools.virtual.plant import ARMAR3_BOARD, AxisParams, ThreeAxisPlant
 from ucom_tools.virtual.programs.base import Hardware
@@ -489,7 +489,7 @@ class _Quiet:
 class Armar3Model:
     """``armar3.fl.S`` on a virtual board: implements
     :class:`~ucom_tools.virtual.programs.base.ProgramModel` for
-    :data:`ucom_tools.programs.armar3.SPEC`."""
+    :data:`ucom_tools.edgelists.armar3.SPEC`."""
 
     def __init__(self, hardware: Hardware) -> None:
         self.spec: ProgramSpec = SPEC

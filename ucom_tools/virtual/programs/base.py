@@ -3,7 +3,7 @@
 The run-time (:mod:`ucom_tools.virtual.runtime`) owns the CAN side: it decodes MCA
 messages, range-checks values, keeps the process-data maps, the watchdog and the LEDs.
 A program model owns the control: the edges' raw values (per kind, in the order of its
-:class:`~ucom_tools.programs.model.ProgramSpec`), one control cycle at a time, and the
+:class:`~ucom_tools.edgelists.model.ProgramSpec`), one control cycle at a time, and the
 hardware it drives through the board's FPGA (PWM, output enables, quadrature counters)
 and ADC.  Models never read a clock: time is what :meth:`ProgramModel.step` is given.
 """
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Protocol
 
-from ucom_tools.programs.model import ProgramSpec
+from ucom_tools.edgelists.model import ProgramSpec
 from ucom_tools.virtual.fpga import VirtualFpga
 
 

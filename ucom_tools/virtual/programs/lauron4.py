@@ -1,5 +1,5 @@
 """Model of ``lauron4.fl.S``, the LAURON-IV leg program (dissertation 5.5.1; design in
-``attribute_trees/lauron4/README.md``), for :data:`ucom_tools.programs.lauron4.SPEC`, and
+``attribute_trees/lauron4/README.md``), for :data:`ucom_tools.edgelists.lauron4.SPEC`, and
 :class:`LegPlant`, the leg (or camera head) it drives.
 
 The dissertation names only "the velocity cascade of every leg and of the head"; all
@@ -24,7 +24,7 @@ Sensing, every cycle, axis k:
   (0: unfiltered); supply [mV] = ADC 6 x 10 (a divider on the board's analog input 1);
 - reference switch of axis k = digital input bit k (closed above the reference mark).
 
-Control of axis k (``Leg Mode``, :class:`~ucom_tools.programs.lauron4.LegMode`), gains as
+Control of axis k (``Leg Mode``, :class:`~ucom_tools.edgelists.lauron4.LegMode`), gains as
 the spec's units, limits read every cycle (a PAR or CI change acts in the next cycle):
 
 - velocity command: POSITION and COMPLIANT ``Kp (clamp(set point, lower, upper) - pos)
@@ -72,8 +72,8 @@ import math
 from collections.abc import Sequence
 from dataclasses import replace
 
-from ucom_tools.programs.lauron4 import AXES, PWM_FULL, SPEC, LegMode, Status
-from ucom_tools.programs.model import EdgeKind
+from ucom_tools.edgelists.lauron4 import AXES, PWM_FULL, SPEC, LegMode, Status
+from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.virtual.fpga import VirtualFpga
 from ucom_tools.virtual.plant import (
     ADC_FULL_SCALE_V,
@@ -234,7 +234,7 @@ class _Axis:
 class Lauron4Model:
     """``lauron4.fl.S`` on a virtual board: implements
     :class:`~ucom_tools.virtual.programs.base.ProgramModel` for
-    :data:`ucom_tools.programs.lauron4.SPEC`."""
+    :data:`ucom_tools.edgelists.lauron4.SPEC`."""
 
     spec = SPEC
 

@@ -11,7 +11,7 @@ PWM in 1/16000 of the supply (16000 = 100 %); gains as plain numbers with six de
 
 from __future__ import annotations
 
-from ucom_tools.programs.model import EdgeKind, EdgeSpec, ProgramSpec
+from ucom_tools.edgelists.model import EdgeKind, EdgeSpec, ProgramSpec
 
 NAME = "armar3 cascaded PID"
 AXES = "ABC"

@@ -4,14 +4,14 @@ virtual boards run models of them (:mod:`ucom_tools.virtual.programs`)."""
 
 from __future__ import annotations
 
-from ucom_tools.programs.model import EdgeKind, EdgeSpec, ProgramSpec
+from ucom_tools.edgelists.model import EdgeKind, EdgeSpec, ProgramSpec
 
 __all__ = ["EdgeKind", "EdgeSpec", "ProgramSpec", "by_name", "known"]
 
 
 def known() -> dict[str, ProgramSpec]:
     """Every program, by the name its image descriptor carries."""
-    from ucom_tools.programs import armar3, lauron4
+    from ucom_tools.edgelists import armar3, lauron4
 
     return {p.name: p for p in (armar3.SPEC, lauron4.SPEC)}
 

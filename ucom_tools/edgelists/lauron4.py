@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from enum import IntEnum, IntFlag
 
-from ucom_tools.programs.model import EdgeKind, EdgeSpec, ProgramSpec
+from ucom_tools.edgelists.model import EdgeKind, EdgeSpec, ProgramSpec
 
 NAME = "lauron4 leg"
 """The program name of the ``lauron4.fl.S`` image descriptor."""
