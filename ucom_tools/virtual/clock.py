@@ -32,6 +32,16 @@ INF = float("inf")
 MAX_STEP_US = 10_000.0
 """The most virtual time one step of the paced driver runs (a fleet that keeps up never
 needs more than a fraction of it)."""
+STEP_MIN_S = 0.0005
+"""The least wall time between two steps of the paced driver: the events due meanwhile run
+together in the next step (in virtual time, in their order, as always), so a busy fleet
+wakes its driver at most 2,000 times a second, not once per frame start and end; a
+frame reaches a client at most this much later than it ended on the bus (its timestamp
+still says when it ended)."""
+WAKE_SLACK_S = 0.001
+"""Work handed to the driver (:meth:`RealtimeDriver.submit`) wakes it only when it would
+otherwise sleep longer than this: a busy fleet takes a client's frames at its next step,
+without a thread wake-up per frame, an idle one at once."""
 LAG_WARN_US = 50_000.0
 """A paced fleet this far behind the wall clock after a step is reported: the machine
 cannot run it in real time (its frames reach clients late, its timing is off)."""
@@ -101,7 +111,13 @@ class RealtimeDriver:
 
     Other threads (a socketcand client's, a paced in-process host's) hand it work with
     :meth:`submit` instead of taking the fleet's lock: the driver runs it at the start of
-    its next step, so a busy fleet never keeps a client's frame waiting for the lock."""
+    its next step, so a busy fleet never keeps a client's frame waiting for the lock.
+
+    The driver wakes when the next event is due, but at most every :data:`STEP_MIN_S`
+    (the events due meanwhile run in one step); work handed to it wakes it only when it
+    would sleep longer than :data:`WAKE_SLACK_S`.  Code that runs in a step may ask for
+    a call after it (:meth:`after_step`: a client's frames of the step, written in one
+    go), outside the fleet's lock."""
 
     def __init__(self, clock: FleetClock, name: str = "fleet") -> None:
         self.clock = clock
@@ -112,7 +128,10 @@ class RealtimeDriver:
         self._next_lag_report = 0.0
         self._behind_since: float | None = None
         self._stop = False
-        self._pending: deque[Callable[[], None]] = deque()
+        self._pending: deque[tuple[float, Callable[[], None]]] = deque()
+        self._after: list[Callable[[], None]] = []
+        self._sleep_until = 0.0
+        """Until when (``time.monotonic()``) the driver sleeps; 0 while it steps."""
         self._wake = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"ucom-clock-{name}",
                                         daemon=True)
@@ -129,28 +148,40 @@ class RealtimeDriver:
         self._wake.set()
         self._thread.join(timeout=2)
 
-    def submit(self, work: Callable[[], None]) -> None:
-        """Run ``work()`` in the driver thread, holding the fleet's lock, as soon as it can
-        (before the fleet's next step)."""
-        self._pending.append(work)
-        self._wake.set()
+    def submit(self, work: Callable[[], None], t: float | None = None) -> None:
+        """Run ``work()`` in the driver thread, holding the fleet's lock, before the
+        fleet's next step (at once when the driver would sleep longer than
+        :data:`WAKE_SLACK_S`).  ``t``: the virtual time the work belongs to (default:
+        now); an idle fleet's clock is brought there first."""
+        self._pending.append((self.now_us() if t is None else t, work))
+        if self._sleep_until - time.monotonic() > WAKE_SLACK_S:
+            self._wake.set()
+
+    def after_step(self, work: Callable[[], None]) -> None:
+        """Call ``work()`` once the running step is over, outside the fleet's lock (only
+        from code that runs in the driver thread: a node's ``on_frame``, a callback)."""
+        self._after.append(work)
 
     def _run(self) -> None:
         clock = self.clock
         pending = self._pending
+        after = self._after
+        last = 0.0
         while not self._stop:
             self._wake.clear()
+            self._sleep_until = 0.0
+            last = time.monotonic()
             with clock.lock:
                 if pending:
                     # an idle fleet's clock stands where its last step left it (up to a
-                    # wait ago): bring it to the wall clock first, so that a client's
-                    # frame is taken in the present, not stamped in the past
-                    wall = self.now_us()
-                    if clock.quiet_until(wall):
-                        clock.advance_to(wall)
+                    # wait ago): bring it to the time of the first work first, so that a
+                    # client's frame is taken when it came, not stamped in the past
+                    first_t = pending[0][0]
+                    if clock.quiet_until(first_t):
+                        clock.advance_to(first_t)
                 while pending:
                     try:
-                        pending.popleft()()
+                        pending.popleft()[1]()
                     except Exception:
                         log.exception("work handed to the fleet failed")
                 now = self.now_us()
@@ -161,12 +192,27 @@ class RealtimeDriver:
                                                          + MAX_STEP_US)
                 self._advance(target)
                 nxt = clock.next_event_time()
+            if after:
+                self._run_after()
             self._note_lag(self.now_us() - clock.now)
             if target < now:
                 continue
             wait = 0.5 if nxt is None else min(0.5, max(0.0, (nxt - now) / 1e6))
-            if wait > 0 and not pending:
-                self._wake.wait(timeout=wait)
+            wait = max(wait, STEP_MIN_S - (time.monotonic() - last))
+            if wait > 0:
+                self._sleep_until = time.monotonic() + wait
+                if not pending:
+                    self._wake.wait(timeout=wait)
+
+    def _run_after(self) -> None:
+        """The calls :meth:`after_step` asked for, in order; one that raises is logged."""
+        work = self._after[:]
+        self._after.clear()
+        for call in work:
+            try:
+                call()
+            except Exception:
+                log.exception("work after a step of the fleet failed")
 
     def _note_lag(self, behind_us: float) -> None:
         """``behind_us``: how far the fleet is behind the wall clock after a step;

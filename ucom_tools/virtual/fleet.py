@@ -119,6 +119,16 @@ class Fleet:
             return self._driver.now_us()
         return self.clock.now
 
+    def after_step(self, work: Callable[[], None]) -> bool:
+        """Call ``work()`` after the paced driver's running step, outside the fleet's lock
+        (only from the driver thread: a node's ``on_frame``); False when the fleet is not
+        paced (then nothing is called: the caller does its work itself)."""
+        driver = self._driver
+        if driver is None:
+            return False
+        driver.after_step(work)
+        return True
+
     def send_paced(self, sim: SimBus, sender: object, arbitration_id: int, data: bytes,
                    *, timeout: float | None, alive: Callable[[], bool] | None = None,
                    extended: bool = False) -> None:
@@ -154,7 +164,7 @@ class Fleet:
             _send(sim, sender, min(t, self.clock.now + HOST_AHEAD_US), arbitration_id, data,
                   extended)
 
-        driver.submit(queue)
+        driver.submit(queue, t)
 
     def run_for(self, seconds: float) -> None:
         """Let ``seconds`` of virtual time pass (a fleet not paced to real time)."""

@@ -104,8 +104,9 @@ CAN_EFF_FLAG = 0x80000000
 (what socketcand passes to the kernel): :func:`parse_send` returns it, the lines of a
 client's :class:`Outbox` carry it."""
 CAN_EFF_MASK = 0x1FFFFFFF
-_PLAIN_SEND = re.compile(rb" ?send ([0-9A-Fa-f]{1,3}) ([0-8])((?: [0-9A-Fa-f]{1,2}){0,8}) ?")
-"""A ``send`` element as clients write it (single spaces), parsed in one match."""
+_HEX_SPACE = b"0123456789ABCDEFabcdef "
+"""The bytes of a plain ``send`` element after its verb (:func:`_plain_send`)."""
+_BLANKS = b" " * 8
 _DONTWAIT = getattr(socket, "MSG_DONTWAIT", 0)
 NO_BUS_OPEN = "no bus open: send < open BUS > first"
 """The answer to ``rawmode`` and ``send`` before a bus is open."""
@@ -255,22 +256,35 @@ def _data_byte(text: str) -> int:
 
 def _plain_send(element: bytes) -> tuple[int, bytes] | None:
     """Identifier and data of a well-formed ``send`` element in the form clients write
-    (``send 280 2 01 00``, single spaces), or None: then the general way decides,
-    :func:`element_words` and :func:`parse_send`, which accept the same frames."""
-    m = _PLAIN_SEND.fullmatch(element)
-    if m is None:
+    (``send 280 2 01 00``, single spaces, one blank allowed at either end), or None: then
+    the general way decides, :func:`element_words` and :func:`parse_send`, which accept
+    the same frames.  Without regular expressions: a split and a few length checks."""
+    if element[:1] == b" ":
+        element = element[1:]
+    if element[-1:] == b" ":
+        element = element[:-1]
+    parts = element.split(b" ")
+    n = len(parts)
+    if n < 3 or n > 11 or parts[0] != b"send" or element[5:].translate(None, _HEX_SPACE):
         return None
-    arbitration_id = int(m[1], 16)
+    ident, dlc_text = parts[1], parts[2]
+    if not 0 < len(ident) <= 3 or len(dlc_text) != 1 or not b"0" <= dlc_text <= b"8":
+        return None
+    if n - 3 != dlc_text[0] - 48:
+        return None
+    arbitration_id = int(ident, 16)
     if arbitration_id > 0x7FF:
         return None
-    dlc = int(m[2])
-    text = m[3]
-    if len(text) == 3 * dlc and text.count(b" ") == dlc:  # every byte two digits
+    if n == 3:
+        return arbitration_id, b""
+    data = parts[3:]
+    text = element[len(ident) + 8:]
+    if len(text) == 3 * len(data) - 1 and text[2::3] == _BLANKS[:len(data) - 1]:
+        # every byte two digits
         return arbitration_id, bytes.fromhex(text.decode("ascii"))
-    words = text.split()
-    if len(words) != dlc:
+    if not all(0 < len(w) <= 2 for w in data):
         return None
-    return arbitration_id, bytes([int(w, 16) for w in words])
+    return arbitration_id, bytes([int(w, 16) for w in data])
 
 
 def _quote(text: str, limit: int = 16) -> str:
@@ -289,11 +303,14 @@ def _peer(address: Any) -> str:
 
 # ---------------------------------------------------------------------- output
 class Outbox:
-    """Lines waiting for one client's writer thread.  Bounded, and :meth:`put` never
-    blocks, so the bus thread hands each frame to every client without waiting for any.
+    """Lines waiting for one client.  Bounded, and :meth:`put` never blocks, so the bus
+    thread hands each frame to every client without waiting for any.
 
-    The writer is woken only when a line arrives in an empty queue (it waits only then);
-    the lines that follow while it is awake go out with the next batch."""
+    Replies (:meth:`put`) go to the client's writer thread, woken only when a line arrives
+    in an empty queue (it waits only then).  Frames of a paced fleet (:meth:`put_quiet`)
+    wake nobody: after the driver's step, :meth:`flush` writes every line waiting in one
+    non-blocking send from the driver's thread; what the socket does not take then goes
+    to the writer thread, which waits until it can write it."""
 
     def __init__(self, limit: int) -> None:
         self.limit = limit
@@ -301,6 +318,11 @@ class Outbox:
         self._cond = threading.Condition(threading.Lock())
         self._closed = False
         self._writing = False
+        self._flushing = False
+        self._watchers = 0
+        """Threads in :meth:`wait_written`."""
+        self.deferred = False
+        """A :meth:`flush` after the running step is asked for (the bus thread's flag)."""
 
     def put(self, line: Line) -> bool:
         """Queue ``line``; false if the queue is full (a closed outbox drops lines)."""
@@ -315,12 +337,52 @@ class Outbox:
                 self._cond.notify_all()
             return True
 
+    def put_quiet(self, line: Line) -> bool:
+        """Queue ``line`` without waking the writer (:meth:`flush` or :meth:`wake`
+        follows); false if the queue is full.  One deque operation: no lock."""
+        lines = self._lines
+        if len(lines) >= self.limit:
+            return self._closed
+        lines.append(line)
+        return True
+
+    def wake(self) -> None:
+        """Wake the writer for the lines :meth:`put_quiet` queued."""
+        with self._cond:
+            self.deferred = False
+            if self._lines:
+                self._cond.notify_all()
+
+    def flush(self, send: Callable[[bytes], int], epoch: float) -> None:
+        """Write every line waiting with one call of ``send`` (non-blocking: it returns
+        how many bytes the socket took), unless the writer is busy (then it takes them);
+        the rest goes to the writer.  ``OSError`` from ``send`` passes through."""
+        with self._cond:
+            self.deferred = False
+            lines = self._lines
+            if self._closed or self._writing or self._flushing or not lines:
+                return
+            batch = [lines.popleft() for _ in range(len(lines))]
+            self._flushing = True
+        data = b"".join([encode_line(line, epoch) for line in batch])
+        sent = 0
+        try:
+            sent = send(data)
+        finally:
+            with self._cond:
+                self._flushing = False
+                if sent < len(data) and not self._closed:
+                    self._lines.appendleft(data[sent:])
+                if self._lines or self._watchers:
+                    self._cond.notify_all()
+
     def take(self) -> list[Line] | None:
         """The writer's next batch (waits for one); None once the outbox is closed."""
         with self._cond:
             self._writing = False
-            self._cond.notify_all()
-            while not self._lines and not self._closed:
+            if self._watchers:
+                self._cond.notify_all()
+            while (not self._lines or self._flushing) and not self._closed:
                 self._cond.wait()
             if self._closed:
                 return None
@@ -331,8 +393,13 @@ class Outbox:
     def wait_written(self, timeout: float) -> bool:
         """Wait until everything queued so far is written or the outbox is closed."""
         with self._cond:
-            return self._cond.wait_for(
-                lambda: self._closed or not (self._lines or self._writing), timeout)
+            self._watchers += 1
+            try:
+                return self._cond.wait_for(
+                    lambda: self._closed or not (self._lines or self._writing
+                                                 or self._flushing), timeout)
+            finally:
+                self._watchers -= 1
 
     def close(self) -> None:
         with self._cond:
@@ -365,17 +432,34 @@ class ClientPort:
     queues the frame, and reports an overflowing queue."""
 
     def __init__(self, sim: SimBus, outbox: Outbox, on_overflow: Callable[[], None],
-                 loss: Loss | None = None) -> None:
+                 loss: Loss | None = None, *,
+                 later: Callable[[Callable[[], None]], bool] | None = None,
+                 flush: Callable[[], None] | None = None) -> None:
         self.sim = sim
         self.outbox = outbox
         self.on_overflow = on_overflow
         self.loss = loss
+        self.later = later
+        """Asks for a call after the paced driver's step (:meth:`Fleet.after_step`; false:
+        not paced); with ``flush`` the frames of a step are written together."""
+        self.flush = flush
 
     def on_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None:
         if self.loss is not None and self.loss.lost("to"):
             return
-        if not self.outbox.put((arbitration_id, data, t_end)):
+        outbox = self.outbox
+        later, flush = self.later, self.flush
+        if later is None or flush is None:
+            if not outbox.put((arbitration_id, data, t_end)):
+                self.on_overflow()
+            return
+        if not outbox.put_quiet((arbitration_id, data, t_end)):
             self.on_overflow()
+            return
+        if not outbox.deferred:
+            outbox.deferred = True
+            if not later(flush):  # the fleet stopped pacing (closing)
+                outbox.wake()
 
     def on_extended_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None:
         """A frame with a 29-bit identifier: to the client as socketcand writes it."""
@@ -508,7 +592,8 @@ class Connection:
         if self.fleet.client_loss and self.loss is None:
             self.loss = Loss(self.fleet.client_loss,
                              f"{self.fleet.seed}/{sim.name}/{next(_CLIENT_NUMBERS)}")
-        self.port = ClientPort(sim, self.outbox, self._overflow, self.loss)
+        self.port = ClientPort(sim, self.outbox, self._overflow, self.loss,
+                               later=self.fleet.after_step, flush=self._flush)
         self.reply("< ok >")
         log.info("client %s opened %s", self.peer, sim.name)
 
@@ -569,6 +654,25 @@ class Connection:
         except Exception:
             log.exception("client %s: writer failed", self.peer)
             self.drop("writer failed")
+
+    def _flush(self) -> None:
+        """After a step of the paced fleet: the frames it queued, in one write from the
+        driver's thread (:meth:`Outbox.flush`); without ``MSG_DONTWAIT`` the writer
+        thread writes them."""
+        if not _DONTWAIT:
+            self.outbox.wake()
+            return
+        try:
+            self.outbox.flush(self._send_now, self.fleet.epoch)
+        except OSError as err:
+            self._end(f"connection lost ({type(err).__name__})", dropped=False)
+
+    def _send_now(self, data: bytes) -> int:
+        """What of ``data`` the socket takes without waiting."""
+        try:
+            return self.sock.send(data, _DONTWAIT)
+        except (BlockingIOError, InterruptedError):
+            return 0
 
     def _overflow(self) -> None:
         self.drop(f"stopped reading ({self.outbox.limit} frames waiting)")
