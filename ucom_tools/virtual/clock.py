@@ -16,9 +16,12 @@ failed is not retried.
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import itertools
 import logging
+import selectors
+import socket
 import threading
 import time
 from collections import deque
@@ -117,7 +120,13 @@ class RealtimeDriver:
     (the events due meanwhile run in one step); work handed to it wakes it only when it
     would sleep longer than :data:`WAKE_SLACK_S`.  Code that runs in a step may ask for
     a call after it (:meth:`after_step`: a client's frames of the step, written in one
-    go), outside the fleet's lock."""
+    go), outside the fleet's lock.
+
+    The driver waits in a selector: sockets :meth:`watch` ed (a socketcand client's) wake
+    it when readable, and their callbacks run at the start of the next step, holding the
+    lock, before the fleet runs on: a client's frames are read by the thread that steps
+    the fleet, without a reader thread, and a fleet that catches up after a stall takes
+    them before it runs its boards past them."""
 
     def __init__(self, clock: FleetClock, name: str = "fleet") -> None:
         self.clock = clock
@@ -132,7 +141,15 @@ class RealtimeDriver:
         self._after: list[Callable[[], None]] = []
         self._sleep_until = 0.0
         """Until when (``time.monotonic()``) the driver sleeps; 0 while it steps."""
-        self._wake = threading.Event()
+        self._selector = selectors.DefaultSelector()
+        self._waker, self._wake_end = socket.socketpair()
+        self._waker.setblocking(False)
+        self._wake_end.setblocking(False)
+        self._selector.register(self._waker, selectors.EVENT_READ, None)
+        self._readable: list[Callable[[], None]] = []
+        self._watched: dict[socket.socket, Callable[[], None]] = {}
+        """Each watched socket and what to call when the driver stops."""
+        self._rooms: list[Callable[[], bool]] = []
         self._thread = threading.Thread(target=self._run, name=f"ucom-clock-{name}",
                                         daemon=True)
 
@@ -144,9 +161,50 @@ class RealtimeDriver:
         self._thread.start()
 
     def stop(self) -> None:
+        """Stop the thread; every socket still watched is given back (its ``on_stop``)."""
         self._stop = True
-        self._wake.set()
+        self.poke()
         self._thread.join(timeout=2)
+        if self._thread.is_alive():
+            return
+        watched = list(self._watched.values())
+        self._watched.clear()
+        self._selector.close()
+        self._waker.close()
+        self._wake_end.close()
+        for on_stop in watched:
+            try:
+                on_stop()
+            except Exception:
+                log.exception("giving a socket back failed")
+
+    @property
+    def running(self) -> bool:
+        return not self._stop
+
+    def poke(self) -> None:
+        """Wake the driver from its wait."""
+        with contextlib.suppress(OSError):  # full (it is awake anyway) or closed
+            self._wake_end.send(b"\0")
+
+    def watch(self, sock: socket.socket, on_readable: Callable[[], None],
+              on_stop: Callable[[], None]) -> None:
+        """From the driver's thread: call ``on_readable()`` (holding the lock, at the start
+        of a step) whenever ``sock`` is readable, until :meth:`unwatch`; ``on_stop()``
+        when the driver stops meanwhile (in the stopping thread)."""
+        self._selector.register(sock, selectors.EVENT_READ, on_readable)
+        self._watched[sock] = on_stop
+
+    def unwatch(self, sock: socket.socket) -> None:
+        """From the driver's thread: stop watching ``sock`` (idempotent)."""
+        if self._watched.pop(sock, None) is not None:
+            with contextlib.suppress(KeyError, ValueError, OSError):
+                self._selector.unregister(sock)
+
+    def wait_for_room(self, check: Callable[[], bool]) -> None:
+        """From the driver's thread: call ``check()`` at the start of every step (holding
+        the lock) until it returns true."""
+        self._rooms.append(check)
 
     def submit(self, work: Callable[[], None], t: float | None = None) -> None:
         """Run ``work()`` in the driver thread, holding the fleet's lock, before the
@@ -155,7 +213,7 @@ class RealtimeDriver:
         now); an idle fleet's clock is brought there first."""
         self._pending.append((self.now_us() if t is None else t, work))
         if self._sleep_until - time.monotonic() > WAKE_SLACK_S:
-            self._wake.set()
+            self.poke()
 
     def after_step(self, work: Callable[[], None]) -> None:
         """Call ``work()`` once the running step is over, outside the fleet's lock (only
@@ -166,9 +224,9 @@ class RealtimeDriver:
         clock = self.clock
         pending = self._pending
         after = self._after
+        readable = self._readable
         last = 0.0
         while not self._stop:
-            self._wake.clear()
             self._sleep_until = 0.0
             last = time.monotonic()
             with clock.lock:
@@ -184,6 +242,10 @@ class RealtimeDriver:
                         pending.popleft()[1]()
                     except Exception:
                         log.exception("work handed to the fleet failed")
+                if readable:
+                    self._run_readable()
+                if self._rooms:
+                    self._run_rooms()
                 now = self.now_us()
                 first = clock.next_event_time()
                 # a fleet behind the wall clock catches up in steps of MAX_STEP_US, so
@@ -201,8 +263,45 @@ class RealtimeDriver:
             wait = max(wait, STEP_MIN_S - (time.monotonic() - last))
             if wait > 0:
                 self._sleep_until = time.monotonic() + wait
-                if not pending:
-                    self._wake.wait(timeout=wait)
+            self._select(wait if wait > 0 and not pending else 0.0)
+
+    def _select(self, timeout: float) -> None:
+        """Wait up to ``timeout`` for a watched socket or a poke; note what is readable."""
+        try:
+            events = self._selector.select(timeout)
+        except (OSError, ValueError):  # closed meanwhile (stopping)
+            return
+        for key, _ in events:
+            if key.data is None:
+                with contextlib.suppress(OSError):
+                    self._waker.recv(4096)
+            else:
+                self._readable.append(key.data)
+
+    def _run_readable(self) -> None:
+        """The callbacks of the sockets found readable (a socket unwatched meanwhile is
+        not called)."""
+        calls = self._readable[:]
+        self._readable.clear()
+        watched = self._selector.get_map()
+        for call in calls:
+            if not any(key.data is call for key in watched.values()):
+                continue
+            try:
+                call()
+            except Exception:
+                log.exception("reading a watched socket failed")
+
+    def _run_rooms(self) -> None:
+        rooms, self._rooms = self._rooms, []
+        for check in rooms:
+            try:
+                done = check()
+            except Exception:
+                log.exception("a wait for room failed")
+                done = True
+            if not done:
+                self._rooms.append(check)
 
     def _run_after(self) -> None:
         """The calls :meth:`after_step` asked for, in order; one that raises is logged."""

@@ -78,8 +78,8 @@ from typing import Any
 
 import can
 
-from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.simbus import SimBus
+from ucom_tools.virtual.fleet import HOST_AHEAD_US, Fleet, _send
+from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
 
 log = logging.getLogger("ucom.serve")
 
@@ -506,6 +506,19 @@ class Connection:
         self._dropped = False
         self._writer = threading.Thread(target=self._write_loop, daemon=True,
                                         name=f"ucom-serve-writer-{self.peer}")
+        self._want_driver = False
+        """Raw mode began: the paced driver shall read the socket from now on."""
+        self._handed = False
+        """The driver reads the socket (:meth:`_read_by_driver`): elements run in its
+        thread."""
+        self._handback = threading.Event()
+        """Set when the driver gives the socket back, or the connection ends."""
+        self._returned: BaseException | None = None
+        """Why the driver gave the socket back: EOF (:class:`EOFError`), a lost
+        connection, an element too long; None: the driver stopped."""
+        self._backlog: deque[tuple[int, bytes]] = deque()
+        """Frames read by the driver while this client's transmit queue was full."""
+        self._room_checked = 0.0
         self._commands: dict[str, Callable[[list[str]], None]] = {
             "open": self._open, "rawmode": self._rawmode, "send": self._send,
             "echo": self._echo}
@@ -566,10 +579,134 @@ class Connection:
                 self._execute(element)
             if not self.alive:
                 return
+            if self._want_driver:
+                self._want_driver = False
+                if self._read_by_driver():
+                    return
+                continue
             chunk = self.sock.recv(_RECV_SIZE)
             if not chunk:
                 return
             self._splitter.feed(chunk)
+
+    # ------------------------------------------------------------------ read by the driver
+    def _read_by_driver(self) -> bool:
+        """In raw mode on a paced fleet the driver's thread reads the socket
+        (:meth:`RealtimeDriver.watch`) and runs the elements, while this thread waits;
+        True when the client is done (EOF, dropped), False when the driver gave the socket
+        back because it stopped (then this thread reads on).  Raises what made the driver
+        give it back (a lost connection, an element too long)."""
+        fleet = self.fleet
+        self._handback.clear()
+        self._returned = None
+        self._handed = True  # before the driver may read: its elements run as its own
+        if not _DONTWAIT or not fleet.watch(self.sock, self._on_readable,
+                                            self._handback.set):
+            self._handed = False
+            return False
+        try:
+            while not self._handback.wait(ROOM_POLL_S):
+                driver = fleet.driver
+                if driver is None or not driver.running:
+                    break
+        finally:
+            fleet.unwatch(self.sock)
+            self._handed = False
+        returned, self._returned = self._returned, None
+        if isinstance(returned, EOFError):
+            return True
+        if returned is not None:
+            raise returned
+        if not self.alive:
+            return True
+        port = self.port
+        while self._backlog and port is not None and self.alive:  # the driver stopped
+            self._transmit(port, *self._backlog.popleft(), lossy=False)
+        self._backlog.clear()
+        return False
+
+    def _give_back(self, why: BaseException) -> None:
+        """In the driver's thread: stop reading, wake the connection's thread."""
+        self._returned = why
+        driver = self.fleet.driver
+        if driver is not None:
+            driver.unwatch(self.sock)
+        self._handback.set()
+
+    def _on_readable(self) -> None:
+        """In the driver's thread, holding the lock: read what came, run its elements."""
+        if not self.alive:
+            self._give_back(EOFError())
+            return
+        try:
+            chunk = self.sock.recv(_RECV_SIZE, _DONTWAIT)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as err:
+            self._give_back(err)
+            return
+        if not chunk:
+            self._give_back(EOFError())
+            return
+        self._splitter.feed(chunk)
+        self._run_elements()
+        driver = self.fleet.driver
+        if self._backlog and driver is not None:
+            driver.unwatch(self.sock)  # TCP slows the client meanwhile (back-pressure)
+            self._room_checked = time.monotonic()
+            driver.wait_for_room(self._room)
+
+    def _run_elements(self) -> None:
+        """In the driver's thread: the elements fed, until the transmit queue is full."""
+        try:
+            while self.alive and not self._backlog and \
+                    (element := self._splitter.next()) is not None:
+                self._execute(element)
+        except ElementTooLong as err:
+            self._give_back(err)
+
+    def _room(self) -> bool:
+        """In the driver's thread, every step while frames wait for the transmit queue:
+        queue them as room comes, then read on; True when done waiting."""
+        port = self.port
+        driver = self.fleet.driver
+        if not self.alive or not self._handed or port is None or driver is None:
+            return True
+        sim = port.sim
+        backlog = self._backlog
+        while backlog and sim.queued.get(port, 0) < TX_QUEUE:
+            self._put_on_bus(port, *backlog.popleft())
+        if not backlog:
+            self._run_elements()
+        if backlog:
+            now = time.monotonic()
+            if now - self._room_checked >= ROOM_POLL_S:
+                self._room_checked = now
+                if _peer_gone(self.sock):
+                    self._end("disconnected while waiting for the bus", dropped=False)
+                    return True
+            return False
+        if self.alive and self._returned is None:
+            driver.watch(self.sock, self._on_readable, self._handback.set)
+        return True
+
+    def _queue_now(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
+        """In the driver's thread: a frame onto the bus, ready now (a lagging fleet takes
+        it in its own present, as :meth:`Fleet.send_paced` does), or into the backlog."""
+        if self._backlog or port.sim.queued.get(port, 0) >= TX_QUEUE:
+            self._backlog.append((arbitration_id, data))
+            return
+        self._put_on_bus(port, arbitration_id, data)
+
+    def _put_on_bus(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
+        sim = port.sim
+        driver = self.fleet.driver
+        clock = sim.clock
+        t = clock.now if driver is None else driver.now_us()
+        if clock.quiet_until(t):
+            clock.advance_to(t)  # an idle fleet's clock stands still: bring it to now
+        _send(sim, port, min(t, clock.now + HOST_AHEAD_US), arbitration_id & CAN_EFF_MASK,
+              data, bool(arbitration_id & CAN_EFF_FLAG))
 
     def _execute(self, element: bytes) -> None:
         port = self.port
@@ -610,6 +747,7 @@ class Connection:
         time.sleep(RAWMODE_SETTLE_S)
         if self.alive:
             port.sim.attach(port)
+            self._want_driver = True
 
     def _send(self, args: list[str]) -> None:
         port = self._require_open()
@@ -624,12 +762,17 @@ class Connection:
             raise ElementError(NO_BUS_OPEN)
         return self.port
 
-    def _transmit(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
+    def _transmit(self, port: ClientPort, arbitration_id: int, data: bytes, *,
+                  lossy: bool = True) -> None:
         """Queue a frame (identifier with :data:`CAN_EFF_FLAG` if extended) once the
         client's transmit queue has room.  Meanwhile this client's socket is not read
-        (back-pressure); the wait releases the bus lock."""
-        if self.loss is not None and self.loss.lost("from"):
+        (back-pressure); the wait releases the bus lock.  In the driver's thread the
+        frame goes onto the bus at once, or waits in the backlog."""
+        if lossy and self.loss is not None and self.loss.lost("from"):
             return  # lost on the way (--loss): the client cannot tell
+        if self._handed:
+            self._queue_now(port, arbitration_id, data)
+            return
         extended = bool(arbitration_id & CAN_EFF_FLAG)
         arbitration_id &= CAN_EFF_MASK
         sim = port.sim
@@ -683,6 +826,7 @@ class Connection:
             if self._reason is not None:
                 return
             self._reason, self._dropped = reason, dropped
+        self._handback.set()
         self.outbox.close()
         with contextlib.suppress(OSError):
             self.sock.shutdown(socket.SHUT_RDWR)  # wakes a blocked recv and sendall
