@@ -129,24 +129,36 @@ PINGS = 3
 PING_WAIT_S = 0.1
 """The least an echo is waited for (more on a slow connection: 20 rawmode round trips)."""
 
-_FRAME = re.compile(r"< frame ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) (\d+\.\d+) ([0-9A-Fa-f]{0,16}) ?>\Z",
-                    re.ASCII)
-"""The common case, a frame with contiguous data, parsed in one match."""
+_HEX_DIGITS = str.maketrans("", "", "0123456789ABCDEFabcdef")
+"""Deletes hex digits (what is left of a hex field is what is wrong with it)."""
 
 
 def parse_element_frame(element: str, channel: str) -> can.Message | None:
-    """A frame element in the usual form (identifier of 3 hex digits, or 8 for an
-    extended frame), or None (then :func:`parse_frame`)."""
-    m = _FRAME.match(element)
-    if m is None or len(m.group(3)) % 2:
+    """A frame element in the usual form, ``< frame ID SEC.USEC DATA >`` with single
+    blanks (identifier of 3 hex digits, or 8 for an extended frame; data contiguous hex
+    digits, or none), or None (then :func:`parse_frame`).  A split and a few checks, no
+    regular expression: this runs for every frame received."""
+    parts = element.split(" ")
+    n = len(parts)
+    if n == 6:
+        start, kind, ident, stamp, data, end = parts
+    elif n == 5:
+        start, kind, ident, stamp, end = parts
+        data = ""
+    else:
         return None
-    ident = m.group(1)
+    if start != "<" or kind != "frame" or end != ">" or len(data) % 2 or len(data) > 16 \
+            or (len(ident) != 3 and len(ident) != 8) or (ident + data).translate(_HEX_DIGITS):
+        return None
+    whole, dot, fraction = stamp.partition(".")
+    if not (dot and whole.isdigit() and fraction.isdigit() and stamp.isascii()):
+        return None
     arbitration_id = int(ident, 16)
     extended = len(ident) == 8
     if extended and arbitration_id > 0x1FFFFFFF:
         return None
-    return can.Message(timestamp=float(m.group(2)), arbitration_id=arbitration_id,
-                       data=bytes.fromhex(m.group(3)), is_extended_id=extended, is_rx=True,
+    return can.Message(timestamp=float(stamp), arbitration_id=arbitration_id,
+                       data=bytes.fromhex(data), is_extended_id=extended, is_rx=True,
                        channel=channel)
 
 
@@ -183,6 +195,25 @@ def parse_frame(words: list[str], channel: str) -> can.Message:
 
 def send_element(msg: can.Message) -> str:
     """The ``< send ID DLC B0 B1 ... >`` element for a message; ``ValueError`` if it has none."""
+    return send_bytes(msg).decode("ascii")
+
+
+def send_bytes(msg: can.Message) -> bytes:
+    """:func:`send_element` as the bytes written; the usual standard data frame in a few
+    operations (this runs for every frame sent)."""
+    data = msg.data
+    dlc = msg.dlc
+    ident = msg.arbitration_id
+    if not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame or msg.is_fd) \
+            and 0 <= ident <= 0x7FF and 0 <= dlc <= 8 and len(data) == dlc:
+        if not dlc:
+            return b"< send %03X 0 >" % ident
+        return b"< send %03X %d %s >" % (ident, dlc, bytes(data).hex(" ").upper().encode())
+    return _send_element(msg).encode("ascii")
+
+
+def _send_element(msg: can.Message) -> str:
+    """:func:`send_element` in general, with a reason for every frame it cannot send."""
     if msg.is_remote_frame:
         raise ValueError("remote frames")
     if msg.is_error_frame:
@@ -339,6 +370,25 @@ class SocketcandBus(can.BusABC):
             if not self._read_more(remaining):
                 return None, False
 
+    def recv_ready(self, limit: int = 1000) -> list[can.Message] | None:
+        """Every frame that has arrived, without waiting (at most about ``limit``): what
+        a loop that polls its buses takes in one call, not one ``recv`` per frame.  None
+        when the bus has filters (then ``recv`` applies them)."""
+        if self._filters:
+            return None
+        if self._closed:
+            raise self._shut_down()
+        pending = self._pending
+        pop, take = self._pop_element, self._take
+        while len(pending) < limit:
+            while (element := pop()) is not None:
+                take(element)
+            if not self._read_more(0):
+                break
+        out = list(pending)
+        pending.clear()
+        return out
+
     def _take(self, element: str) -> None:
         fast = parse_element_frame(element, self.channel)
         if fast is not None:
@@ -402,10 +452,9 @@ class SocketcandBus(can.BusABC):
         """Send one data frame; the write must complete within ``timeout`` (default
         ``send_timeout``), otherwise :class:`can.CanOperationError`."""
         try:
-            element = send_element(msg)
+            data = send_bytes(msg)
         except ValueError as err:
             raise can.CanOperationError(f"socketcand {self._where} cannot send {err}") from err
-        data = element.encode("ascii")
         if self._batch is not None and self._batch_thread == threading.get_ident():
             self._batch.append(data)
         else:
