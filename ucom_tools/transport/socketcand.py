@@ -129,36 +129,24 @@ PINGS = 3
 PING_WAIT_S = 0.1
 """The least an echo is waited for (more on a slow connection: 20 rawmode round trips)."""
 
-_HEX_DIGITS = str.maketrans("", "", "0123456789ABCDEFabcdef")
-"""Deletes hex digits (what is left of a hex field is what is wrong with it)."""
+_FRAME = re.compile(r"< frame ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) (\d+\.\d+) ([0-9A-Fa-f]{0,16}) ?>\Z",
+                    re.ASCII)
+"""The common case, a frame with contiguous data, parsed in one match."""
 
 
 def parse_element_frame(element: str, channel: str) -> can.Message | None:
-    """A frame element in the usual form, ``< frame ID SEC.USEC DATA >`` with single
-    blanks (identifier of 3 hex digits, or 8 for an extended frame; data contiguous hex
-    digits, or none), or None (then :func:`parse_frame`).  A split and a few checks, no
-    regular expression: this runs for every frame received."""
-    parts = element.split(" ")
-    n = len(parts)
-    if n == 6:
-        start, kind, ident, stamp, data, end = parts
-    elif n == 5:
-        start, kind, ident, stamp, end = parts
-        data = ""
-    else:
+    """A frame element in the usual form (identifier of 3 hex digits, or 8 for an
+    extended frame), or None (then :func:`parse_frame`)."""
+    m = _FRAME.match(element)
+    if m is None or len(m.group(3)) % 2:
         return None
-    if start != "<" or kind != "frame" or end != ">" or len(data) % 2 or len(data) > 16 \
-            or (len(ident) != 3 and len(ident) != 8) or (ident + data).translate(_HEX_DIGITS):
-        return None
-    whole, dot, fraction = stamp.partition(".")
-    if not (dot and whole.isdigit() and fraction.isdigit() and stamp.isascii()):
-        return None
+    ident = m.group(1)
     arbitration_id = int(ident, 16)
     extended = len(ident) == 8
     if extended and arbitration_id > 0x1FFFFFFF:
         return None
-    return can.Message(timestamp=float(stamp), arbitration_id=arbitration_id,
-                       data=bytes.fromhex(data), is_extended_id=extended, is_rx=True,
+    return can.Message(timestamp=float(m.group(2)), arbitration_id=arbitration_id,
+                       data=bytes.fromhex(m.group(3)), is_extended_id=extended, is_rx=True,
                        channel=channel)
 
 

@@ -104,9 +104,8 @@ CAN_EFF_FLAG = 0x80000000
 (what socketcand passes to the kernel): :func:`parse_send` returns it, the lines of a
 client's :class:`Outbox` carry it."""
 CAN_EFF_MASK = 0x1FFFFFFF
-_HEX_SPACE = b"0123456789ABCDEFabcdef "
-"""The bytes of a plain ``send`` element after its verb (:func:`_plain_send`)."""
-_BLANKS = b" " * 8
+_PLAIN_SEND = re.compile(rb" ?send ([0-9A-Fa-f]{1,3}) ([0-8])((?: [0-9A-Fa-f]{1,2}){0,8}) ?")
+"""A ``send`` element as clients write it (single spaces), parsed in one match."""
 _DONTWAIT = getattr(socket, "MSG_DONTWAIT", 0)
 NO_BUS_OPEN = "no bus open: send < open BUS > first"
 """The answer to ``rawmode`` and ``send`` before a bus is open."""
@@ -256,35 +255,22 @@ def _data_byte(text: str) -> int:
 
 def _plain_send(element: bytes) -> tuple[int, bytes] | None:
     """Identifier and data of a well-formed ``send`` element in the form clients write
-    (``send 280 2 01 00``, single spaces, one blank allowed at either end), or None: then
-    the general way decides, :func:`element_words` and :func:`parse_send`, which accept
-    the same frames.  Without regular expressions: a split and a few length checks."""
-    if element[:1] == b" ":
-        element = element[1:]
-    if element[-1:] == b" ":
-        element = element[:-1]
-    parts = element.split(b" ")
-    n = len(parts)
-    if n < 3 or n > 11 or parts[0] != b"send" or element[5:].translate(None, _HEX_SPACE):
+    (``send 280 2 01 00``, single spaces), or None: then the general way decides,
+    :func:`element_words` and :func:`parse_send`, which accept the same frames."""
+    m = _PLAIN_SEND.fullmatch(element)
+    if m is None:
         return None
-    ident, dlc_text = parts[1], parts[2]
-    if not 0 < len(ident) <= 3 or len(dlc_text) != 1 or not b"0" <= dlc_text <= b"8":
-        return None
-    if n - 3 != dlc_text[0] - 48:
-        return None
-    arbitration_id = int(ident, 16)
+    arbitration_id = int(m[1], 16)
     if arbitration_id > 0x7FF:
         return None
-    if n == 3:
-        return arbitration_id, b""
-    data = parts[3:]
-    text = element[len(ident) + 8:]
-    if len(text) == 3 * len(data) - 1 and text[2::3] == _BLANKS[:len(data) - 1]:
-        # every byte two digits
+    dlc = int(m[2])
+    text = m[3]
+    if len(text) == 3 * dlc and text.count(b" ") == dlc:  # every byte two digits
         return arbitration_id, bytes.fromhex(text.decode("ascii"))
-    if not all(0 < len(w) <= 2 for w in data):
+    words = text.split()
+    if len(words) != dlc:
         return None
-    return arbitration_id, bytes([int(w, 16) for w in data])
+    return arbitration_id, bytes([int(w, 16) for w in words])
 
 
 def _quote(text: str, limit: int = 16) -> str:
