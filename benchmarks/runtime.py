@@ -21,7 +21,8 @@ every 10 ms), the loop at 1 kHz for ``--seconds`` (default 10).  Figures:
   per frame carried, the PC side's and the served fleet's (all its processes);
 - ``bus_load_pct``: per bus, measured from the frames the PC saw;
 - ``watchdog_stops``: boards whose watchdog stopped them during the run (0 when the
-  loop and the fleet kept up);
+  loop and the fleet kept up); ``watchdog_stop_times_s``: when (seconds since the
+  exchange started, the first ten);
 - ``baseline_jitter_p99_ms``: measured in the same run on the same machine, python-can's
   ``send_periodic`` at 1 kHz (its thread-based cyclic task, on python-can's virtual
   bus): how long after its schedule each frame was sent; ``baseline_missed_pct``: the
@@ -61,6 +62,8 @@ from ucom_tools.ops.realtime import RealtimeScheduling  # noqa: E402
 from ucom_tools.ops.remote import RemotePart  # noqa: E402
 
 IMAGE = ROOT / "firmware_images" / "armar3.fl.S"
+WARM_UP_CYCLES = 200
+"""Cycles run before the measurement starts (the exchange has just started)."""
 
 
 def percentile(values: list[float], p: float) -> float:
@@ -128,30 +131,44 @@ def serve(state: Path, processes: str) -> tuple[subprocess.Popen[str], int]:
     return proc, int(line.rsplit(":", 1)[1])
 
 
-def cpu_seconds(root: int) -> dict[int, float]:
-    """CPU time (user + system) of process ``root`` and each of its descendants, by pid,
-    from /proc (empty where /proc is not there)."""
-    tick = os.sysconf("SC_CLK_TCK")
-    stats: dict[int, tuple[int, float]] = {}
+def process_tree(root: int) -> set[int]:
+    """Process ``root`` and its descendants, from /proc (just ``root`` where /proc is not
+    there)."""
+    parents: dict[int, int] = {}
     for entry in Path("/proc").glob("[0-9]*"):
         try:
-            fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
-        except OSError:
+            parents[int(entry.name)] = int((entry / "stat").read_text().rsplit(")", 1)[1]
+                                           .split()[1])
+        except (OSError, IndexError, ValueError):
             continue
-        stats[int(entry.name)] = (int(fields[1]), (int(fields[11]) + int(fields[12])) / tick)
     tree, grown = {root}, True
     while grown:
         grown = False
-        for pid, (ppid, _) in stats.items():
+        for pid, ppid in parents.items():
             if ppid in tree and pid not in tree:
                 tree.add(pid)
                 grown = True
-    return {pid: stats[pid][1] for pid in tree if pid in stats}
+    return tree
+
+
+def cpu_seconds(pids: set[int]) -> dict[int, float]:
+    """CPU time (user + system) of each of ``pids`` that still runs, from /proc: a few
+    file reads (the loop must not pause for long: the boards' watchdogs are 50 ms)."""
+    tick = os.sysconf("SC_CLK_TCK")
+    out: dict[int, float] = {}
+    for pid in pids:
+        try:
+            fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        out[pid] = (int(fields[11]) + int(fields[12])) / tick
+    return out
 
 
 def run(port: int, seconds: float, buses: tuple[str, ...], server: int, realtime: bool,
         ) -> dict[str, Any]:
     ages: list[float] = []
+    serving = process_tree(server)  # the bus processes run already
     with RemotePart.open("armar3", interface="socketcand", host="127.0.0.1", port=port,
                          channels=buses, rate_hz=1000.0, realtime=realtime) as part:
         for h in part.robot.buses.values():
@@ -160,6 +177,8 @@ def run(port: int, seconds: float, buses: tuple[str, ...], server: int, realtime
                     ages.append(time.time() - msg.timestamp)
             h.link.dispatcher.taps.append(age)
         joints = [r for r in part.names if r.kind.name == "CI" and part.cyclic(r)]
+        for _ in range(WARM_UP_CYCLES):  # the loop goes on at once (watchdogs: 50 ms)
+            part.cycle()
         part.stats.late.clear()
         cycles0, missed0 = part.stats.cycles, part.stats.missed
         traffic = part.traffic()
@@ -167,7 +186,7 @@ def run(port: int, seconds: float, buses: tuple[str, ...], server: int, realtime
         frames0 = sum(d.received + d.sent for d in dispatchers)
         ages.clear()
         cpu, wall = time.process_time(), time.perf_counter()
-        served = cpu_seconds(server)
+        served = cpu_seconds(serving)
         k = 0
         end = wall + seconds
         while time.perf_counter() < end:
@@ -179,13 +198,14 @@ def run(port: int, seconds: float, buses: tuple[str, ...], server: int, realtime
             k += 1
         wall = time.perf_counter() - wall
         cpu = time.process_time() - cpu
-        after = cpu_seconds(server)
+        after = cpu_seconds(serving)
         served = {pid: t - served.get(pid, 0.0) for pid, t in after.items()}
         frames = sum(d.received + d.sent for d in dispatchers) - frames0
         loads = part.load_between(traffic, part.traffic())
         s = part.stats
         cycles, missed = s.cycles - cycles0, s.missed - missed0
         late = list(s.late)
+        stops = [e for e in part.events if e.stopped_motors]
     serve_cpu = sum(served.values())
     return {"rate_hz": round(cycles / wall, 1),
             "missed_pct": round(100 * missed / max(1, cycles + missed), 3),
@@ -201,8 +221,8 @@ def run(port: int, seconds: float, buses: tuple[str, ...], server: int, realtime
             "serve_cpu_us_per_frame": round(1e6 * serve_cpu / max(1, frames), 2),
             "bus_load_pct": {n: round(100 * v, 1) for n, v in loads.items()},
             "realtime": "normal" if part.scheduling is None else part.scheduling.describe(),
-            "watchdog_stops": len({(e.bus, e.board) for e in part.events
-                                   if e.stopped_motors})}
+            "watchdog_stops": len({(e.bus, e.board) for e in stops}),
+            "watchdog_stop_times_s": sorted({round(e.time, 2) for e in stops})[:10]}
 
 
 def main() -> None:
