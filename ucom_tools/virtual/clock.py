@@ -149,6 +149,8 @@ class RealtimeDriver:
         self._readable: list[Callable[[], None]] = []
         self._watched: dict[socket.socket, Callable[[], None]] = {}
         """Each watched socket and what to call when the driver stops."""
+        self._callbacks: dict[socket.socket, Callable[[], None]] = {}
+        """Each watched socket's ``on_readable``."""
         self._rooms: list[Callable[[], bool]] = []
         self._thread = threading.Thread(target=self._run, name=f"ucom-clock-{name}",
                                         daemon=True)
@@ -194,9 +196,11 @@ class RealtimeDriver:
         when the driver stops meanwhile (in the stopping thread)."""
         self._selector.register(sock, selectors.EVENT_READ, on_readable)
         self._watched[sock] = on_stop
+        self._callbacks[sock] = on_readable
 
     def unwatch(self, sock: socket.socket) -> None:
         """From the driver's thread: stop watching ``sock`` (idempotent)."""
+        self._callbacks.pop(sock, None)
         if self._watched.pop(sock, None) is not None:
             with contextlib.suppress(KeyError, ValueError, OSError):
                 self._selector.unregister(sock)
@@ -283,9 +287,8 @@ class RealtimeDriver:
         not called)."""
         calls = self._readable[:]
         self._readable.clear()
-        watched = self._selector.get_map()
         for call in calls:
-            if not any(key.data is call for key in watched.values()):
+            if not any(c is call for c in self._callbacks.values()):
                 continue
             try:
                 call()
