@@ -338,6 +338,19 @@ class Dispatcher:
             for d in self.group:  # the periodic frames due, once (not once per frame)
                 d._run_due()
             recv, dispatch = self.bus.recv, self.dispatch
+            ready = getattr(self.bus, "recv_ready", None)
+            if callable(ready):  # a bus that hands over what has arrived in one call
+                try:
+                    msgs = ready(limit)
+                except can.CanError as err:
+                    raise self._fail(f"{self.name}: cannot receive: {err}") from err
+                except OSError as err:
+                    raise self._fail(f"{self.name}: cannot receive: "
+                                     f"{err.strerror or err}") from err
+                if msgs is not None:
+                    for msg in msgs:
+                        dispatch(msg)
+                    return len(msgs)
             while count < limit:
                 try:
                     msg = recv(0.0)

@@ -183,6 +183,25 @@ def parse_frame(words: list[str], channel: str) -> can.Message:
 
 def send_element(msg: can.Message) -> str:
     """The ``< send ID DLC B0 B1 ... >`` element for a message; ``ValueError`` if it has none."""
+    return send_bytes(msg).decode("ascii")
+
+
+def send_bytes(msg: can.Message) -> bytes:
+    """:func:`send_element` as the bytes written; the usual standard data frame in a few
+    operations (this runs for every frame sent)."""
+    data = msg.data
+    dlc = msg.dlc
+    ident = msg.arbitration_id
+    if not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame or msg.is_fd) \
+            and 0 <= ident <= 0x7FF and 0 <= dlc <= 8 and len(data) == dlc:
+        if not dlc:
+            return b"< send %03X 0 >" % ident
+        return b"< send %03X %d %s >" % (ident, dlc, bytes(data).hex(" ").upper().encode())
+    return _send_element(msg).encode("ascii")
+
+
+def _send_element(msg: can.Message) -> str:
+    """:func:`send_element` in general, with a reason for every frame it cannot send."""
     if msg.is_remote_frame:
         raise ValueError("remote frames")
     if msg.is_error_frame:
@@ -339,6 +358,25 @@ class SocketcandBus(can.BusABC):
             if not self._read_more(remaining):
                 return None, False
 
+    def recv_ready(self, limit: int = 1000) -> list[can.Message] | None:
+        """Every frame that has arrived, without waiting (at most about ``limit``): what
+        a loop that polls its buses takes in one call, not one ``recv`` per frame.  None
+        when the bus has filters (then ``recv`` applies them)."""
+        if self._filters:
+            return None
+        if self._closed:
+            raise self._shut_down()
+        pending = self._pending
+        pop, take = self._pop_element, self._take
+        while len(pending) < limit:
+            while (element := pop()) is not None:
+                take(element)
+            if not self._read_more(0):
+                break
+        out = list(pending)
+        pending.clear()
+        return out
+
     def _take(self, element: str) -> None:
         fast = parse_element_frame(element, self.channel)
         if fast is not None:
@@ -402,10 +440,9 @@ class SocketcandBus(can.BusABC):
         """Send one data frame; the write must complete within ``timeout`` (default
         ``send_timeout``), otherwise :class:`can.CanOperationError`."""
         try:
-            element = send_element(msg)
+            data = send_bytes(msg)
         except ValueError as err:
             raise can.CanOperationError(f"socketcand {self._where} cannot send {err}") from err
-        data = element.encode("ascii")
         if self._batch is not None and self._batch_thread == threading.get_ident():
             self._batch.append(data)
         else:

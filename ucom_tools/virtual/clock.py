@@ -16,9 +16,12 @@ failed is not retried.
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import itertools
 import logging
+import selectors
+import socket
 import threading
 import time
 from collections import deque
@@ -32,6 +35,16 @@ INF = float("inf")
 MAX_STEP_US = 10_000.0
 """The most virtual time one step of the paced driver runs (a fleet that keeps up never
 needs more than a fraction of it)."""
+STEP_MIN_S = 0.0005
+"""The least wall time between two steps of the paced driver: the events due meanwhile run
+together in the next step (in virtual time, in their order, as always), so a busy fleet
+wakes its driver at most 2,000 times a second, not once per frame start and end; a
+frame reaches a client at most this much later than it ended on the bus (its timestamp
+still says when it ended)."""
+WAKE_SLACK_S = 0.001
+"""Work handed to the driver (:meth:`RealtimeDriver.submit`) wakes it only when it would
+otherwise sleep longer than this: a busy fleet takes a client's frames at its next step,
+without a thread wake-up per frame, an idle one at once."""
 LAG_WARN_US = 50_000.0
 """A paced fleet this far behind the wall clock after a step is reported: the machine
 cannot run it in real time (its frames reach clients late, its timing is off)."""
@@ -101,7 +114,19 @@ class RealtimeDriver:
 
     Other threads (a socketcand client's, a paced in-process host's) hand it work with
     :meth:`submit` instead of taking the fleet's lock: the driver runs it at the start of
-    its next step, so a busy fleet never keeps a client's frame waiting for the lock."""
+    its next step, so a busy fleet never keeps a client's frame waiting for the lock.
+
+    The driver wakes when the next event is due, but at most every :data:`STEP_MIN_S`
+    (the events due meanwhile run in one step); work handed to it wakes it only when it
+    would sleep longer than :data:`WAKE_SLACK_S`.  Code that runs in a step may ask for
+    a call after it (:meth:`after_step`: a client's frames of the step, written in one
+    go), outside the fleet's lock.
+
+    The driver waits in a selector: sockets :meth:`watch` ed (a socketcand client's) wake
+    it when readable, and their callbacks run at the start of the next step, holding the
+    lock, before the fleet runs on: a client's frames are read by the thread that steps
+    the fleet, without a reader thread, and a fleet that catches up after a stall takes
+    them before it runs its boards past them."""
 
     def __init__(self, clock: FleetClock, name: str = "fleet") -> None:
         self.clock = clock
@@ -112,8 +137,21 @@ class RealtimeDriver:
         self._next_lag_report = 0.0
         self._behind_since: float | None = None
         self._stop = False
-        self._pending: deque[Callable[[], None]] = deque()
-        self._wake = threading.Event()
+        self._pending: deque[tuple[float, Callable[[], None]]] = deque()
+        self._after: list[Callable[[], None]] = []
+        self._sleep_until = 0.0
+        """Until when (``time.monotonic()``) the driver sleeps; 0 while it steps."""
+        self._selector = selectors.DefaultSelector()
+        self._waker, self._wake_end = socket.socketpair()
+        self._waker.setblocking(False)
+        self._wake_end.setblocking(False)
+        self._selector.register(self._waker, selectors.EVENT_READ, None)
+        self._readable: list[Callable[[], None]] = []
+        self._watched: dict[socket.socket, Callable[[], None]] = {}
+        """Each watched socket and what to call when the driver stops."""
+        self._callbacks: dict[socket.socket, Callable[[], None]] = {}
+        """Each watched socket's ``on_readable``."""
+        self._rooms: list[Callable[[], bool]] = []
         self._thread = threading.Thread(target=self._run, name=f"ucom-clock-{name}",
                                         daemon=True)
 
@@ -125,34 +163,93 @@ class RealtimeDriver:
         self._thread.start()
 
     def stop(self) -> None:
+        """Stop the thread; every socket still watched is given back (its ``on_stop``)."""
         self._stop = True
-        self._wake.set()
+        self.poke()
         self._thread.join(timeout=2)
+        if self._thread.is_alive():
+            return
+        watched = list(self._watched.values())
+        self._watched.clear()
+        self._selector.close()
+        self._waker.close()
+        self._wake_end.close()
+        for on_stop in watched:
+            try:
+                on_stop()
+            except Exception:
+                log.exception("giving a socket back failed")
 
-    def submit(self, work: Callable[[], None]) -> None:
-        """Run ``work()`` in the driver thread, holding the fleet's lock, as soon as it can
-        (before the fleet's next step)."""
-        self._pending.append(work)
-        self._wake.set()
+    @property
+    def running(self) -> bool:
+        return not self._stop
+
+    def poke(self) -> None:
+        """Wake the driver from its wait."""
+        with contextlib.suppress(OSError):  # full (it is awake anyway) or closed
+            self._wake_end.send(b"\0")
+
+    def watch(self, sock: socket.socket, on_readable: Callable[[], None],
+              on_stop: Callable[[], None]) -> None:
+        """From the driver's thread: call ``on_readable()`` (holding the lock, at the start
+        of a step) whenever ``sock`` is readable, until :meth:`unwatch`; ``on_stop()``
+        when the driver stops meanwhile (in the stopping thread)."""
+        self._selector.register(sock, selectors.EVENT_READ, on_readable)
+        self._watched[sock] = on_stop
+        self._callbacks[sock] = on_readable
+
+    def unwatch(self, sock: socket.socket) -> None:
+        """From the driver's thread: stop watching ``sock`` (idempotent)."""
+        self._callbacks.pop(sock, None)
+        if self._watched.pop(sock, None) is not None:
+            with contextlib.suppress(KeyError, ValueError, OSError):
+                self._selector.unregister(sock)
+
+    def wait_for_room(self, check: Callable[[], bool]) -> None:
+        """From the driver's thread: call ``check()`` at the start of every step (holding
+        the lock) until it returns true."""
+        self._rooms.append(check)
+
+    def submit(self, work: Callable[[], None], t: float | None = None) -> None:
+        """Run ``work()`` in the driver thread, holding the fleet's lock, before the
+        fleet's next step (at once when the driver would sleep longer than
+        :data:`WAKE_SLACK_S`).  ``t``: the virtual time the work belongs to (default:
+        now); an idle fleet's clock is brought there first."""
+        self._pending.append((self.now_us() if t is None else t, work))
+        if self._sleep_until - time.monotonic() > WAKE_SLACK_S:
+            self.poke()
+
+    def after_step(self, work: Callable[[], None]) -> None:
+        """Call ``work()`` once the running step is over, outside the fleet's lock (only
+        from code that runs in the driver thread: a node's ``on_frame``, a callback)."""
+        self._after.append(work)
 
     def _run(self) -> None:
         clock = self.clock
         pending = self._pending
+        after = self._after
+        readable = self._readable
+        last = 0.0
         while not self._stop:
-            self._wake.clear()
+            self._sleep_until = 0.0
+            last = time.monotonic()
             with clock.lock:
                 if pending:
                     # an idle fleet's clock stands where its last step left it (up to a
-                    # wait ago): bring it to the wall clock first, so that a client's
-                    # frame is taken in the present, not stamped in the past
-                    wall = self.now_us()
-                    if clock.quiet_until(wall):
-                        clock.advance_to(wall)
+                    # wait ago): bring it to the time of the first work first, so that a
+                    # client's frame is taken when it came, not stamped in the past
+                    first_t = pending[0][0]
+                    if clock.quiet_until(first_t):
+                        clock.advance_to(first_t)
                 while pending:
                     try:
-                        pending.popleft()()
+                        pending.popleft()[1]()
                     except Exception:
                         log.exception("work handed to the fleet failed")
+                if readable:
+                    self._run_readable()
+                if self._rooms:
+                    self._run_rooms()
                 now = self.now_us()
                 first = clock.next_event_time()
                 # a fleet behind the wall clock catches up in steps of MAX_STEP_US, so
@@ -161,12 +258,63 @@ class RealtimeDriver:
                                                          + MAX_STEP_US)
                 self._advance(target)
                 nxt = clock.next_event_time()
+            if after:
+                self._run_after()
             self._note_lag(self.now_us() - clock.now)
             if target < now:
                 continue
             wait = 0.5 if nxt is None else min(0.5, max(0.0, (nxt - now) / 1e6))
-            if wait > 0 and not pending:
-                self._wake.wait(timeout=wait)
+            wait = max(wait, STEP_MIN_S - (time.monotonic() - last))
+            if wait > 0:
+                self._sleep_until = time.monotonic() + wait
+            self._select(wait if wait > 0 and not pending else 0.0)
+
+    def _select(self, timeout: float) -> None:
+        """Wait up to ``timeout`` for a watched socket or a poke; note what is readable."""
+        try:
+            events = self._selector.select(timeout)
+        except (OSError, ValueError):  # closed meanwhile (stopping)
+            return
+        for key, _ in events:
+            if key.data is None:
+                with contextlib.suppress(OSError):
+                    self._waker.recv(4096)
+            else:
+                self._readable.append(key.data)
+
+    def _run_readable(self) -> None:
+        """The callbacks of the sockets found readable (a socket unwatched meanwhile is
+        not called)."""
+        calls = self._readable[:]
+        self._readable.clear()
+        for call in calls:
+            if not any(c is call for c in self._callbacks.values()):
+                continue
+            try:
+                call()
+            except Exception:
+                log.exception("reading a watched socket failed")
+
+    def _run_rooms(self) -> None:
+        rooms, self._rooms = self._rooms, []
+        for check in rooms:
+            try:
+                done = check()
+            except Exception:
+                log.exception("a wait for room failed")
+                done = True
+            if not done:
+                self._rooms.append(check)
+
+    def _run_after(self) -> None:
+        """The calls :meth:`after_step` asked for, in order; one that raises is logged."""
+        work = self._after[:]
+        self._after.clear()
+        for call in work:
+            try:
+                call()
+            except Exception:
+                log.exception("work after a step of the fleet failed")
 
     def _note_lag(self, behind_us: float) -> None:
         """``behind_us``: how far the fleet is behind the wall clock after a step;

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import re
+import socket
 import threading
 import time
 from collections.abc import Callable
@@ -119,6 +120,49 @@ class Fleet:
             return self._driver.now_us()
         return self.clock.now
 
+    @property
+    def driver(self) -> RealtimeDriver | None:
+        """The thread that paces the fleet (None: not paced, or closed)."""
+        return self._driver
+
+    def watch(self, sock: socket.socket, on_readable: Callable[[], None],
+              on_stop: Callable[[], None]) -> bool:
+        """Have the paced driver read ``sock``: ``on_readable()`` in its thread, holding
+        the lock, whenever it is readable (:meth:`RealtimeDriver.watch`); False when the
+        fleet is not paced (then the caller reads it)."""
+        driver = self._driver
+        if driver is None:
+            return False
+        driver.submit(lambda: driver.watch(sock, on_readable, on_stop))
+        driver.poke()  # at once, not at its next step
+        return True
+
+    def unwatch(self, sock: socket.socket, timeout: float = 1.0) -> None:
+        """The driver no longer reads ``sock`` once this returns (or the driver is gone,
+        or ``timeout`` passed): then it may be closed."""
+        driver = self._driver
+        if driver is None or not driver.running:
+            return
+        done = threading.Event()
+
+        def unwatch() -> None:
+            driver.unwatch(sock)
+            done.set()
+
+        driver.submit(unwatch)
+        driver.poke()
+        done.wait(timeout)
+
+    def after_step(self, work: Callable[[], None]) -> bool:
+        """Call ``work()`` after the paced driver's running step, outside the fleet's lock
+        (only from the driver thread: a node's ``on_frame``); False when the fleet is not
+        paced (then nothing is called: the caller does its work itself)."""
+        driver = self._driver
+        if driver is None:
+            return False
+        driver.after_step(work)
+        return True
+
     def send_paced(self, sim: SimBus, sender: object, arbitration_id: int, data: bytes,
                    *, timeout: float | None, alive: Callable[[], bool] | None = None,
                    extended: bool = False) -> None:
@@ -154,7 +198,7 @@ class Fleet:
             _send(sim, sender, min(t, self.clock.now + HOST_AHEAD_US), arbitration_id, data,
                   extended)
 
-        driver.submit(queue)
+        driver.submit(queue, t)
 
     def run_for(self, seconds: float) -> None:
         """Let ``seconds`` of virtual time pass (a fleet not paced to real time)."""

@@ -78,8 +78,8 @@ from typing import Any
 
 import can
 
-from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.simbus import SimBus
+from ucom_tools.virtual.fleet import HOST_AHEAD_US, Fleet, _send
+from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
 
 log = logging.getLogger("ucom.serve")
 
@@ -289,11 +289,14 @@ def _peer(address: Any) -> str:
 
 # ---------------------------------------------------------------------- output
 class Outbox:
-    """Lines waiting for one client's writer thread.  Bounded, and :meth:`put` never
-    blocks, so the bus thread hands each frame to every client without waiting for any.
+    """Lines waiting for one client.  Bounded, and :meth:`put` never blocks, so the bus
+    thread hands each frame to every client without waiting for any.
 
-    The writer is woken only when a line arrives in an empty queue (it waits only then);
-    the lines that follow while it is awake go out with the next batch."""
+    Replies (:meth:`put`) go to the client's writer thread, woken only when a line arrives
+    in an empty queue (it waits only then).  Frames of a paced fleet (:meth:`put_quiet`)
+    wake nobody: after the driver's step, :meth:`flush` writes every line waiting in one
+    non-blocking send from the driver's thread; what the socket does not take then goes
+    to the writer thread, which waits until it can write it."""
 
     def __init__(self, limit: int) -> None:
         self.limit = limit
@@ -301,6 +304,11 @@ class Outbox:
         self._cond = threading.Condition(threading.Lock())
         self._closed = False
         self._writing = False
+        self._flushing = False
+        self._watchers = 0
+        """Threads in :meth:`wait_written`."""
+        self.deferred = False
+        """A :meth:`flush` after the running step is asked for (the bus thread's flag)."""
 
     def put(self, line: Line) -> bool:
         """Queue ``line``; false if the queue is full (a closed outbox drops lines)."""
@@ -315,12 +323,52 @@ class Outbox:
                 self._cond.notify_all()
             return True
 
+    def put_quiet(self, line: Line) -> bool:
+        """Queue ``line`` without waking the writer (:meth:`flush` or :meth:`wake`
+        follows); false if the queue is full.  One deque operation: no lock."""
+        lines = self._lines
+        if len(lines) >= self.limit:
+            return self._closed
+        lines.append(line)
+        return True
+
+    def wake(self) -> None:
+        """Wake the writer for the lines :meth:`put_quiet` queued."""
+        with self._cond:
+            self.deferred = False
+            if self._lines:
+                self._cond.notify_all()
+
+    def flush(self, send: Callable[[bytes], int], epoch: float) -> None:
+        """Write every line waiting with one call of ``send`` (non-blocking: it returns
+        how many bytes the socket took), unless the writer is busy (then it takes them);
+        the rest goes to the writer.  ``OSError`` from ``send`` passes through."""
+        with self._cond:
+            self.deferred = False
+            lines = self._lines
+            if self._closed or self._writing or self._flushing or not lines:
+                return
+            batch = [lines.popleft() for _ in range(len(lines))]
+            self._flushing = True
+        data = b"".join([encode_line(line, epoch) for line in batch])
+        sent = 0
+        try:
+            sent = send(data)
+        finally:
+            with self._cond:
+                self._flushing = False
+                if sent < len(data) and not self._closed:
+                    self._lines.appendleft(data[sent:])
+                if self._lines or self._watchers:
+                    self._cond.notify_all()
+
     def take(self) -> list[Line] | None:
         """The writer's next batch (waits for one); None once the outbox is closed."""
         with self._cond:
             self._writing = False
-            self._cond.notify_all()
-            while not self._lines and not self._closed:
+            if self._watchers:
+                self._cond.notify_all()
+            while (not self._lines or self._flushing) and not self._closed:
                 self._cond.wait()
             if self._closed:
                 return None
@@ -331,8 +379,13 @@ class Outbox:
     def wait_written(self, timeout: float) -> bool:
         """Wait until everything queued so far is written or the outbox is closed."""
         with self._cond:
-            return self._cond.wait_for(
-                lambda: self._closed or not (self._lines or self._writing), timeout)
+            self._watchers += 1
+            try:
+                return self._cond.wait_for(
+                    lambda: self._closed or not (self._lines or self._writing
+                                                 or self._flushing), timeout)
+            finally:
+                self._watchers -= 1
 
     def close(self) -> None:
         with self._cond:
@@ -365,17 +418,34 @@ class ClientPort:
     queues the frame, and reports an overflowing queue."""
 
     def __init__(self, sim: SimBus, outbox: Outbox, on_overflow: Callable[[], None],
-                 loss: Loss | None = None) -> None:
+                 loss: Loss | None = None, *,
+                 later: Callable[[Callable[[], None]], bool] | None = None,
+                 flush: Callable[[], None] | None = None) -> None:
         self.sim = sim
         self.outbox = outbox
         self.on_overflow = on_overflow
         self.loss = loss
+        self.later = later
+        """Asks for a call after the paced driver's step (:meth:`Fleet.after_step`; false:
+        not paced); with ``flush`` the frames of a step are written together."""
+        self.flush = flush
 
     def on_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None:
         if self.loss is not None and self.loss.lost("to"):
             return
-        if not self.outbox.put((arbitration_id, data, t_end)):
+        outbox = self.outbox
+        later, flush = self.later, self.flush
+        if later is None or flush is None:
+            if not outbox.put((arbitration_id, data, t_end)):
+                self.on_overflow()
+            return
+        if not outbox.put_quiet((arbitration_id, data, t_end)):
             self.on_overflow()
+            return
+        if not outbox.deferred:
+            outbox.deferred = True
+            if not later(flush):  # the fleet stopped pacing (closing)
+                outbox.wake()
 
     def on_extended_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None:
         """A frame with a 29-bit identifier: to the client as socketcand writes it."""
@@ -422,6 +492,19 @@ class Connection:
         self._dropped = False
         self._writer = threading.Thread(target=self._write_loop, daemon=True,
                                         name=f"ucom-serve-writer-{self.peer}")
+        self._want_driver = False
+        """Raw mode began: the paced driver shall read the socket from now on."""
+        self._handed = False
+        """The driver reads the socket (:meth:`_read_by_driver`): elements run in its
+        thread."""
+        self._handback = threading.Event()
+        """Set when the driver gives the socket back, or the connection ends."""
+        self._returned: BaseException | None = None
+        """Why the driver gave the socket back: EOF (:class:`EOFError`), a lost
+        connection, an element too long; None: the driver stopped."""
+        self._backlog: deque[tuple[int, bytes]] = deque()
+        """Frames read by the driver while this client's transmit queue was full."""
+        self._room_checked = 0.0
         self._commands: dict[str, Callable[[list[str]], None]] = {
             "open": self._open, "rawmode": self._rawmode, "send": self._send,
             "echo": self._echo}
@@ -482,10 +565,134 @@ class Connection:
                 self._execute(element)
             if not self.alive:
                 return
+            if self._want_driver:
+                self._want_driver = False
+                if self._read_by_driver():
+                    return
+                continue
             chunk = self.sock.recv(_RECV_SIZE)
             if not chunk:
                 return
             self._splitter.feed(chunk)
+
+    # ------------------------------------------------------------------ read by the driver
+    def _read_by_driver(self) -> bool:
+        """In raw mode on a paced fleet the driver's thread reads the socket
+        (:meth:`RealtimeDriver.watch`) and runs the elements, while this thread waits;
+        True when the client is done (EOF, dropped), False when the driver gave the socket
+        back because it stopped (then this thread reads on).  Raises what made the driver
+        give it back (a lost connection, an element too long)."""
+        fleet = self.fleet
+        self._handback.clear()
+        self._returned = None
+        self._handed = True  # before the driver may read: its elements run as its own
+        if not _DONTWAIT or not fleet.watch(self.sock, self._on_readable,
+                                            self._handback.set):
+            self._handed = False
+            return False
+        try:
+            while not self._handback.wait(ROOM_POLL_S):
+                driver = fleet.driver
+                if driver is None or not driver.running:
+                    break
+        finally:
+            fleet.unwatch(self.sock)
+            self._handed = False
+        returned, self._returned = self._returned, None
+        if isinstance(returned, EOFError):
+            return True
+        if returned is not None:
+            raise returned
+        if not self.alive:
+            return True
+        port = self.port
+        while self._backlog and port is not None and self.alive:  # the driver stopped
+            self._transmit(port, *self._backlog.popleft(), lossy=False)
+        self._backlog.clear()
+        return False
+
+    def _give_back(self, why: BaseException) -> None:
+        """In the driver's thread: stop reading, wake the connection's thread."""
+        self._returned = why
+        driver = self.fleet.driver
+        if driver is not None:
+            driver.unwatch(self.sock)
+        self._handback.set()
+
+    def _on_readable(self) -> None:
+        """In the driver's thread, holding the lock: read what came, run its elements."""
+        if not self.alive:
+            self._give_back(EOFError())
+            return
+        try:
+            chunk = self.sock.recv(_RECV_SIZE, _DONTWAIT)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as err:
+            self._give_back(err)
+            return
+        if not chunk:
+            self._give_back(EOFError())
+            return
+        self._splitter.feed(chunk)
+        self._run_elements()
+        driver = self.fleet.driver
+        if self._backlog and driver is not None:
+            driver.unwatch(self.sock)  # TCP slows the client meanwhile (back-pressure)
+            self._room_checked = time.monotonic()
+            driver.wait_for_room(self._room)
+
+    def _run_elements(self) -> None:
+        """In the driver's thread: the elements fed, until the transmit queue is full."""
+        try:
+            while self.alive and not self._backlog and \
+                    (element := self._splitter.next()) is not None:
+                self._execute(element)
+        except ElementTooLong as err:
+            self._give_back(err)
+
+    def _room(self) -> bool:
+        """In the driver's thread, every step while frames wait for the transmit queue:
+        queue them as room comes, then read on; True when done waiting."""
+        port = self.port
+        driver = self.fleet.driver
+        if not self.alive or not self._handed or port is None or driver is None:
+            return True
+        sim = port.sim
+        backlog = self._backlog
+        while backlog and sim.queued.get(port, 0) < TX_QUEUE:
+            self._put_on_bus(port, *backlog.popleft())
+        if not backlog:
+            self._run_elements()
+        if backlog:
+            now = time.monotonic()
+            if now - self._room_checked >= ROOM_POLL_S:
+                self._room_checked = now
+                if _peer_gone(self.sock):
+                    self._end("disconnected while waiting for the bus", dropped=False)
+                    return True
+            return False
+        if self.alive and self._returned is None:
+            driver.watch(self.sock, self._on_readable, self._handback.set)
+        return True
+
+    def _queue_now(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
+        """In the driver's thread: a frame onto the bus, ready now (a lagging fleet takes
+        it in its own present, as :meth:`Fleet.send_paced` does), or into the backlog."""
+        if self._backlog or port.sim.queued.get(port, 0) >= TX_QUEUE:
+            self._backlog.append((arbitration_id, data))
+            return
+        self._put_on_bus(port, arbitration_id, data)
+
+    def _put_on_bus(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
+        sim = port.sim
+        driver = self.fleet.driver
+        clock = sim.clock
+        t = clock.now if driver is None else driver.now_us()
+        if clock.quiet_until(t):
+            clock.advance_to(t)  # an idle fleet's clock stands still: bring it to now
+        _send(sim, port, min(t, clock.now + HOST_AHEAD_US), arbitration_id & CAN_EFF_MASK,
+              data, bool(arbitration_id & CAN_EFF_FLAG))
 
     def _execute(self, element: bytes) -> None:
         port = self.port
@@ -508,7 +715,8 @@ class Connection:
         if self.fleet.client_loss and self.loss is None:
             self.loss = Loss(self.fleet.client_loss,
                              f"{self.fleet.seed}/{sim.name}/{next(_CLIENT_NUMBERS)}")
-        self.port = ClientPort(sim, self.outbox, self._overflow, self.loss)
+        self.port = ClientPort(sim, self.outbox, self._overflow, self.loss,
+                               later=self.fleet.after_step, flush=self._flush)
         self.reply("< ok >")
         log.info("client %s opened %s", self.peer, sim.name)
 
@@ -525,6 +733,7 @@ class Connection:
         time.sleep(RAWMODE_SETTLE_S)
         if self.alive:
             port.sim.attach(port)
+            self._want_driver = True
 
     def _send(self, args: list[str]) -> None:
         port = self._require_open()
@@ -539,12 +748,17 @@ class Connection:
             raise ElementError(NO_BUS_OPEN)
         return self.port
 
-    def _transmit(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
+    def _transmit(self, port: ClientPort, arbitration_id: int, data: bytes, *,
+                  lossy: bool = True) -> None:
         """Queue a frame (identifier with :data:`CAN_EFF_FLAG` if extended) once the
         client's transmit queue has room.  Meanwhile this client's socket is not read
-        (back-pressure); the wait releases the bus lock."""
-        if self.loss is not None and self.loss.lost("from"):
+        (back-pressure); the wait releases the bus lock.  In the driver's thread the
+        frame goes onto the bus at once, or waits in the backlog."""
+        if lossy and self.loss is not None and self.loss.lost("from"):
             return  # lost on the way (--loss): the client cannot tell
+        if self._handed:
+            self._queue_now(port, arbitration_id, data)
+            return
         extended = bool(arbitration_id & CAN_EFF_FLAG)
         arbitration_id &= CAN_EFF_MASK
         sim = port.sim
@@ -570,6 +784,25 @@ class Connection:
             log.exception("client %s: writer failed", self.peer)
             self.drop("writer failed")
 
+    def _flush(self) -> None:
+        """After a step of the paced fleet: the frames it queued, in one write from the
+        driver's thread (:meth:`Outbox.flush`); without ``MSG_DONTWAIT`` the writer
+        thread writes them."""
+        if not _DONTWAIT:
+            self.outbox.wake()
+            return
+        try:
+            self.outbox.flush(self._send_now, self.fleet.epoch)
+        except OSError as err:
+            self._end(f"connection lost ({type(err).__name__})", dropped=False)
+
+    def _send_now(self, data: bytes) -> int:
+        """What of ``data`` the socket takes without waiting."""
+        try:
+            return self.sock.send(data, _DONTWAIT)
+        except (BlockingIOError, InterruptedError):
+            return 0
+
     def _overflow(self) -> None:
         self.drop(f"stopped reading ({self.outbox.limit} frames waiting)")
 
@@ -579,6 +812,7 @@ class Connection:
             if self._reason is not None:
                 return
             self._reason, self._dropped = reason, dropped
+        self._handback.set()
         self.outbox.close()
         with contextlib.suppress(OSError):
             self.sock.shutdown(socket.SHUT_RDWR)  # wakes a blocked recv and sendall
