@@ -114,3 +114,29 @@ def test_params_load_stops_on_sigterm_seen_on_its_bus_traffic(state: Path,
         proc.kill()
     assert proc.returncode == 143, "".join(seen[-5:]) + err
     assert "terminated (SIGTERM)" in err and "Traceback" not in err
+
+
+def test_a_signal_waits_for_the_fleet_step_it_comes_in() -> None:
+    """A signal that comes while the in-process fleet runs an event (a board in the middle
+    of a frame) is raised after the step, never inside it: an event taken off the clock
+    and not finished would leave the board half-way (it then ignored the stop)."""
+    from ucom_tools.signals import Terminated, stop_signals
+    from ucom_tools.virtual.canbus import VirtualUcomBus
+    from ucom_tools.virtual.fleet import Fleet
+
+    fleet = Fleet.load("tests/data/armar3_can0.toml")
+    bus = VirtualUcomBus("CAN0", fleet=fleet)
+    finished: list[bool] = []
+
+    def event(t: float) -> None:  # a board's work, interrupted by a signal in its middle
+        os.kill(os.getpid(), signal.SIGTERM)
+        finished.append(True)
+
+    try:
+        with stop_signals(), pytest.raises(Terminated):
+            fleet.clock.at(fleet.clock.now + 100.0, event)
+            bus.recv(timeout=0.001)
+        assert finished == [True]  # the event ran to its end, then the signal was raised
+    finally:
+        bus.shutdown()
+        fleet.close()

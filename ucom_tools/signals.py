@@ -19,6 +19,9 @@ from typing import Any
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
 """The signals that end a job as Ctrl-C does."""
 
+_MAIN = threading.main_thread().ident
+_state: dict[str, int] = {"depth": 0, "pending": 0}
+
 
 class Terminated(KeyboardInterrupt):
     """The job was ended by ``signum`` (SIGTERM or SIGHUP); handled as Ctrl-C."""
@@ -41,10 +44,42 @@ def interrupt_exit_code(exc: KeyboardInterrupt) -> int:
     return exc.exit_code if isinstance(exc, Terminated) else 130
 
 
+class _Deferred:
+    """See :data:`deferred`."""
+
+    __slots__ = ()
+
+    def __enter__(self) -> None:
+        if threading.get_ident() == _MAIN:
+            _state["depth"] += 1
+
+    def __exit__(self, kind: Any, exc: Any, tb: Any) -> None:
+        if threading.get_ident() != _MAIN:
+            return
+        _state["depth"] -= 1
+        if _state["depth"] == 0 and _state["pending"]:
+            signum, _state["pending"] = _state["pending"], 0
+            if kind is None:
+                raise _stop(signum)
+
+
+deferred = _Deferred()
+"""``with deferred:``: a stop signal (Ctrl-C, SIGTERM, SIGHUP, under :func:`stop_signals`)
+that comes meanwhile is raised when the block ends, not inside it: for work that must not
+be cut in the middle, such as one step of the in-process fleet's simulation (an event
+taken off the clock and not run would leave a board half-way through a frame)."""
+
+
+def _stop(signum: int) -> KeyboardInterrupt:
+    return KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
+
+
 @contextlib.contextmanager
 def stop_signals() -> Iterator[None]:
-    """Meanwhile SIGTERM and SIGHUP raise :class:`Terminated` in the main thread (outside
-    it, or where a signal is ignored by the parent, as ``nohup`` does, nothing changes).
+    """Meanwhile SIGTERM and SIGHUP raise :class:`Terminated` in the main thread, and
+    Ctrl-C its KeyboardInterrupt, each deferred to the end of a :data:`deferred` block
+    (outside the main thread, or where a signal is ignored by the parent, as ``nohup``
+    does, nothing changes).
     The second signal of a kind is raised too: a job stuck in its clean-up can still be
     ended, with the same exit code."""
     if threading.current_thread() is not threading.main_thread():
@@ -52,13 +87,18 @@ def stop_signals() -> Iterator[None]:
         return
 
     def terminate(signum: int, frame: Any) -> None:
-        raise Terminated(signum)
+        if _state["depth"]:
+            _state["pending"] = _state["pending"] or signum  # raised when the block ends
+            return
+        raise _stop(signum)
 
     previous: dict[signal.Signals, Any] = {}
-    for sig in STOP_SIGNALS:
+    for sig in (signal.SIGINT, *STOP_SIGNALS):
         current = signal.getsignal(sig)
         if current is signal.SIG_IGN:  # nohup: the user asked us to survive it
             continue
+        if sig == signal.SIGINT and current is not signal.default_int_handler:
+            continue  # someone else's Ctrl-C handling: left alone
         previous[sig] = signal.signal(sig, terminate)
     try:
         yield

@@ -22,6 +22,7 @@ from typing import Any
 import can
 
 from ucom_tools.errors import UcomError
+from ucom_tools.signals import deferred
 from ucom_tools.virtual.fleet import Fleet, release_shared, shared_fleet
 from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
 from ucom_tools.wire.canbits import MAX_EXTENDED_ID
@@ -129,7 +130,7 @@ class VirtualUcomBus(can.BusABC):
             if self.receive_own_messages:
                 port.on_frame(ident, data, self.fleet.now_us(sim), extended)
             return
-        with sim.lock:
+        with deferred, sim.lock:  # a signal waits for the step (ucom_tools.signals)
             if sim.send_alone(port, sim.now, ident, data, extended=extended) is None:
                 # virtual time: queue the frame like an adapter's TX queue; the clock
                 # runs on when the host waits (or here, while the queue is full)
@@ -145,7 +146,7 @@ class VirtualUcomBus(can.BusABC):
         if self.realtime:
             return super().recv(timeout)
         sim = self.sim
-        with sim.lock:
+        with deferred, sim.lock:
             deadline = INF if timeout is None else sim.now + timeout * 1e6
             while True:
                 got = self._next_virtual(deadline)
@@ -171,7 +172,7 @@ class VirtualUcomBus(can.BusABC):
                 return self.port.rt_inbox.get(timeout=timeout), False
             except queue.Empty:
                 return None, False
-        with self.sim.lock:
+        with deferred, self.sim.lock:
             deadline = INF if timeout is None else self.sim.now + timeout * 1e6
             got = self._next_virtual(deadline)
         return (got[0], False) if got else (None, False)
