@@ -29,7 +29,8 @@ test: lint
 	$(BIN)/python -m pytest
 
 bench: $(STAMP)
-	@for b in benchmarks/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
+	@fail=""; for b in benchmarks/*.py; do echo "== $$b"; $(BIN)/python $$b || fail="$$fail $$b"; \
+	done; if [ -n "$$fail" ]; then echo "targets not met in:$$fail"; exit 1; fi
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .mypy_cache .ruff_cache
