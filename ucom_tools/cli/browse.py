@@ -11,7 +11,7 @@ from typing import Any
 import click
 from rich.markup import escape
 
-from ucom_tools.cli.options import Finite, json_option
+from ucom_tools.cli.options import Finite, json_option, parse_sets
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.errors import InputError
 from ucom_tools.net.keys import DEFAULT_ENDPOINT
@@ -30,17 +30,6 @@ def _value_of(text: str) -> int | float | str:
         return text
     f = float(d)
     return f if Decimal(repr(f)) == d else text
-
-
-def _parse_sets(sets: tuple[str, ...]) -> list[tuple[str, str]]:
-    out = []
-    for s in sets:
-        name, sep, value = s.partition("=")
-        if not sep or not name.strip() or not value.strip():
-            raise InputError(f"{s!r}: expected NAME=VALUE (e.g. 'Right Eye Target=1000')",
-                             key="--set")
-        out.append((name.strip(), value.strip()))
-    return out
 
 
 def _line(name: str, value: object, unit: str) -> str:
@@ -85,7 +74,7 @@ def browse(robot: str | None, endpoint: str, config_file: str | None, gets: tupl
     --timeout.  See ucom-network(7)."""
     from ucom_tools.net.client import RobotClient
 
-    wanted = _parse_sets(sets)
+    wanted = parse_sets(sets)
     if seconds is not None and not watches:
         raise InputError("--for is the length of a --watch", key="--for")
     with RobotClient.connect(endpoint if config_file is None or endpoint != DEFAULT_ENDPOINT

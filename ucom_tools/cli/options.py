@@ -53,6 +53,19 @@ class Finite(click.FloatRange):
         return super().convert(number, param, ctx)
 
 
+def parse_sets(sets: tuple[str, ...]) -> list[tuple[str, str]]:
+    """``--set NAME=VALUE`` options as (name, value text); InputError naming the option
+    for one without ``=``, a name or a value."""
+    out = []
+    for s in sets:
+        name, sep, value = s.partition("=")
+        if not sep or not name.strip() or not value.strip():
+            raise InputError(f"{s!r}: expected NAME=VALUE (e.g. 'Right Eye Target=1000')",
+                             key="--set")
+        out.append((name.strip(), value.strip()))
+    return out
+
+
 def connection_options(f: Callable[..., Any]) -> Callable[..., Any]:
     """Add -i/-c/-b/--host/--port/--virtual/--topology/--state/--pace/--bus/--log to a
     command."""

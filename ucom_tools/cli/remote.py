@@ -17,7 +17,13 @@ from rich.markup import escape
 from rich.table import Table
 
 from ucom_tools.cli.exitcodes import EXIT_FAILED
-from ucom_tools.cli.options import Finite, connection_json, connection_options, json_option
+from ucom_tools.cli.options import (
+    Finite,
+    connection_json,
+    connection_options,
+    json_option,
+    parse_sets,
+)
 from ucom_tools.cli.output import emit_json, json_number, stderr, stdout
 from ucom_tools.config import topology as topo
 from ucom_tools.errors import InputError
@@ -155,17 +161,6 @@ def _one_bus(spec: ConnectSpec, bus_name: str | None) -> ConnectSpec:
 
 
 # ---------------------------------------------------------------------- run
-def _parse_sets(sets: tuple[str, ...]) -> list[tuple[str, str]]:
-    out = []
-    for s in sets:
-        name, sep, value = s.partition("=")
-        if not sep or not name.strip() or not value.strip():
-            raise InputError(f"{s!r}: expected NAME=VALUE (e.g. 'Right Eye Target=1000')",
-                             key="--set")
-        out.append((name.strip(), value.strip()))
-    return out
-
-
 def _parse_periods(periods: tuple[str, ...]) -> dict[str, int]:
     out = {}
     for p in periods:
@@ -340,7 +335,7 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
     seconds and prints what the joints did (--json: every edge's last value and the
     loop's figures).  Ctrl-C or the end stops every board (motors off); a PC that dies
     leaves them to their watchdog."""
-    wanted = _parse_sets(sets)
+    wanted = parse_sets(sets)
     cycles = _parse_periods(periods)
     sharing = zenoh_endpoint is not None or zenoh_config is not None
     if allow_writes and not sharing:
