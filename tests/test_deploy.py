@@ -371,7 +371,18 @@ KILLS = [  # (after the line, frames more, where the journal says it was: board,
                  id="CAN3-transfer-end"),
     pytest.param("loading the parameters", 0, "CAN3:2", {"verified", "restored"},
                  id="restoring-parameters"),
+    pytest.param("CAN0: programming", 800, "CAN0:2", {"programming"},
+                 id="CAN0-early-transfer"),
+    pytest.param("CAN0: programming", 2200, "CAN0:3", {"programming", "verified"},
+                 id="CAN0-late-transfer"),
+    pytest.param("CAN1: armar3_fpga1.1.fl.S verified", 0, "CAN1:2", {"verified"},
+                 id="after-CAN1-verified"),
+    pytest.param("CAN2: programming", 300, "CAN2:1", {"programming"},
+                 id="CAN2-transfer-start"),
+    pytest.param("CAN2: programming", 1800, "CAN2:2", {"programming", "verified"},
+                 id="CAN2-mid-transfer"),
 ]
+"""Ten points spread over the transfer of all four buses and the parameters' restore."""
 
 
 @pytest.mark.parametrize(("after", "frames", "board", "stages"), KILLS)
