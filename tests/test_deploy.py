@@ -471,3 +471,17 @@ def test_served_kairo2_gets_two_broadcasts_on_its_bus_then_is_up_to_date(
         again = ucom(env, "deploy", "kairo2", *conn)
         assert again.returncode == 0, again.stderr
         assert "11 of 11 up to date" in again.stdout and "programming" not in again.stderr
+
+
+def test_served_armar3_is_deployed_on_its_four_buses_at_once_then_is_up_to_date(
+        tmp_path: Path) -> None:
+    env = env_for(tmp_path)
+    with served(Path("armar3")) as port:
+        conn = ("-i", "socketcand", "--host", LOCAL, "--port", str(port))
+        code, doc = deploy_json(env, "armar3", *conn)
+        assert code == 0, doc
+        assert len(doc["boards"]) == 11
+        assert {b["after"]["program"] for b in doc["boards"]} == {"armar3.fl.S"}
+        again = ucom(env, "deploy", "armar3", *conn)
+        assert again.returncode == 0, again.stderr
+        assert "11 of 11 up to date" in again.stdout and "programming" not in again.stderr
