@@ -24,11 +24,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from pathlib import Path
@@ -37,7 +35,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.runtime import IMAGE, percentile, serve  # noqa: E402
+from benchmarks.runtime import percentile, served_armar3  # noqa: E402
 from ucom_tools.ops.remote import RemotePart  # noqa: E402
 
 SIGNAL = "Right Eye Joint Sensor"
@@ -123,24 +121,9 @@ def main() -> None:
     ap.add_argument("--publish-rate", type=float, default=100.0)
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
-    with tempfile.TemporaryDirectory() as tmp:
-        state = Path(tmp) / "state"
-        flash = subprocess.run([sys.executable, "-m", "ucom_tools", "flash", str(IMAGE),
-                                "--virtual", "armar3", "--state", str(state)],
-                               capture_output=True, text=True)
-        if flash.returncode:
-            raise SystemExit(f"flash failed: {flash.stderr}")
-        proc, port = serve(state, "1")
-        try:
-            plain = loop(port, args.seconds, None, args.publish_rate)
-            shared = loop(port, args.seconds, f"tcp/127.0.0.1:{free_port()}",
-                          args.publish_rate)
-        finally:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+    with served_armar3("1") as (_proc, port):
+        plain = loop(port, args.seconds, None, args.publish_rate)
+        shared = loop(port, args.seconds, f"tcp/127.0.0.1:{free_port()}", args.publish_rate)
     lat = shared.pop("latency")
     plain.pop("latency")
     published = shared["values"] * args.publish_rate * shared["wall_s"]

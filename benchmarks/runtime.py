@@ -42,6 +42,7 @@ load under 70 % on every bus.  ``--json`` prints the figures as one JSON object.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -50,6 +51,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -129,6 +131,28 @@ def serve(state: Path, processes: str) -> tuple[subprocess.Popen[str], int]:
         proc.kill()
         raise SystemExit(f"fleet serve did not start: {line}{proc.stderr.read()}")
     return proc, int(line.rsplit(":", 1)[1])
+
+
+@contextlib.contextmanager
+def served_armar3(processes: str) -> Iterator[tuple[subprocess.Popen[str], int]]:
+    """ARMAR-III with armar3.fl.S flashed, served by ``ucom fleet serve --processes
+    PROCESSES`` in another process: the process and its port; stopped afterwards."""
+    with tempfile.TemporaryDirectory() as tmp:
+        state = Path(tmp) / "state"
+        flash = subprocess.run([sys.executable, "-m", "ucom_tools", "flash", str(IMAGE),
+                                "--virtual", "armar3", "--state", str(state)],
+                               capture_output=True, text=True)
+        if flash.returncode:
+            raise SystemExit(f"flash failed: {flash.stderr}")
+        proc, port = serve(state, processes)
+        try:
+            yield proc, port
+        finally:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
 
 
 def process_tree(root: int) -> set[int]:
@@ -241,22 +265,8 @@ def main() -> None:
     figures: dict[str, Any] = {"cores": os.cpu_count(), "buses": list(buses),
                                "processes": args.processes}
     figures.update(baseline(min(args.seconds, 5.0), args.realtime))
-    with tempfile.TemporaryDirectory() as tmp:
-        state = Path(tmp) / "state"
-        flash = subprocess.run([sys.executable, "-m", "ucom_tools", "flash", str(IMAGE),
-                                "--virtual", "armar3", "--state", str(state)],
-                               capture_output=True, text=True)
-        if flash.returncode:
-            raise SystemExit(f"flash failed: {flash.stderr}")
-        proc, port = serve(state, args.processes)
-        try:
-            figures.update(run(port, args.seconds, buses, proc.pid, args.realtime))
-        finally:
-            proc.send_signal(signal.SIGINT)
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+    with served_armar3(args.processes) as (proc, port):
+        figures.update(run(port, args.seconds, buses, proc.pid, args.realtime))
     targets = {
         "missed < 0.1 % (or <= baseline's)": figures["missed_pct"] < 0.1
         or figures["missed_pct"] <= figures["baseline_missed_pct"],
