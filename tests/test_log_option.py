@@ -142,9 +142,9 @@ def test_a_recording_that_cannot_be_written_leaves_no_file(
     def full(msg: can.Message) -> None:
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(log._writer, "on_message_received", full)
-    log._record(can.Message(arbitration_id=0x200, is_extended_id=False, is_rx=False),
-                "CAN0")
+    monkeypatch.setattr(log._frames._writer, "on_message_received", full)
+    log._frames.write(can.Message(arbitration_id=0x200, is_extended_id=False, is_rx=False),
+                      "CAN0")
     with pytest.raises(LogError, match="No space left"):
         log.close()
     assert os.listdir(tmp_path) == []

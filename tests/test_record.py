@@ -253,7 +253,8 @@ def test_existing_file_is_replaced_only_by_a_complete_recording(tmp_path: Path) 
 def test_write_failure_removes_the_partial_files(tmp_path: Path) -> None:
     path = tmp_path / "run.asc"
     rec = RunRecorder(path)
-    writer = rec._writer
+    assert rec._frames is not None
+    writer = rec._frames._writer
     assert writer is not None
 
     def fail(msg: can.Message) -> None:

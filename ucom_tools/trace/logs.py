@@ -1,7 +1,8 @@
 """CAN logs as other tools read them: the formats ucom writes (only those it reads back),
 one rule for a frame's channel and the robot's bus name in both directions, reading a
-trace, and the ``--log`` writer (a python-can log by the writing rules of ``ucom(1)``,
-FILES).  ``--record`` (:mod:`ucom_tools.trace.record`) writes its frames the same way."""
+trace, and the one frame writer (:class:`FrameWriter`, a :class:`can.Listener`) of both
+``--log`` (:class:`FrameLog`) and ``--record`` (:mod:`ucom_tools.trace.record`), on files
+opened by the writing rules of ``ucom(1)``, FILES (:mod:`ucom_tools.fileio`)."""
 
 from __future__ import annotations
 
@@ -34,7 +35,7 @@ formats also gzip-compressed (``.asc.gz``, ...).  ``.mf4`` when asammdf is insta
 
 INT_CHANNELS = frozenset({".asc", ".blf", ".trc", ".mf4"})
 """Formats whose channel is a number: a bus name is stored as its number (CAN0 -> 0,
-i.e. channel 1 in Vector's and PEAK's counting), see :attr:`RunRecorder.channels`."""
+i.e. channel 1 in Vector's and PEAK's counting), see :attr:`FrameWriter.channels`."""
 
 _GZIP_OK = frozenset({".asc", ".csv", ".log", ".trc"})
 
@@ -209,6 +210,63 @@ def check_log(path: str | os.PathLike[str]) -> str:
     return ext
 
 
+class FrameWriter(can.Listener):
+    """The one frame writer of ``--log`` and ``--record``: frames into python-can's writer
+    for ``out`` (:func:`log_writer`), each with its bus name as channel (as the bus's
+    number, :func:`channel_number`, in the formats of :data:`INT_CHANNELS`).
+
+    Thread-safe (the bus readers write from their threads).  A writing error does not
+    reach the bus reader that handed in the frame: it is kept (:attr:`failure`), and the
+    frames after it are dropped, so the owner discards the file instead of keeping a log
+    with a gap.  Committing or discarding ``out`` is the owner's business."""
+
+    def __init__(self, out: Output, extension: str) -> None:
+        self._int_channels = extension.removesuffix(".gz") in INT_CHANNELS
+        self.channels: dict[str, int] = {}
+        """Bus name -> channel number stored in the formats of :data:`INT_CHANNELS`."""
+        self.frames = 0
+        self.failure: BaseException | None = None
+        """The first error writing met (then nothing more was written)."""
+        self._lock = threading.Lock()
+        self._stopped = False
+        self._writer: MessageWriter = log_writer(out)
+
+    def write(self, msg: can.Message, bus: str | None = None) -> None:
+        """Write one frame of bus ``bus`` (default: its ``channel``, a bus name)."""
+        with self._lock:
+            if self._stopped or self.failure is not None:
+                return
+            try:
+                channel = msg.channel if bus is None else bus
+                if self._int_channels and isinstance(channel, str):
+                    channel = channel_number(self.channels, channel)
+                if channel != msg.channel:
+                    msg = copy.copy(msg)
+                    msg.channel = channel
+                self._writer.on_message_received(msg)
+                self.frames += 1
+            except Exception as err:  # a bus reader must not die of the recording
+                self.failure = err
+
+    def on_message_received(self, msg: can.Message) -> None:
+        self.write(msg)
+
+    def on_error(self, exc: Exception) -> None:
+        """A bus reader's error is the reader's business; the recording goes on."""
+
+    def stop(self) -> None:
+        """Flush and close python-can's writer (idempotent); an error doing so becomes
+        :attr:`failure`."""
+        with self._lock:
+            if self._stopped:
+                return
+            self._stopped = True
+            try:
+                self._writer.stop()
+            except Exception as err:
+                self.failure = self.failure or err
+
+
 class FrameLog:
     """``--log FILE``: every frame of the robot's buses, received and sent, into a
     python-can log (:func:`can.Logger`, the format by the extension).
@@ -225,27 +283,33 @@ class FrameLog:
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
         self.extension = check_log(self.path)
-        self._int_channels = self.extension.removesuffix(".gz") in INT_CHANNELS
-        self.channels: dict[str, int] = {}
         self._taps: dict[str, Callable[[can.Message], None]] = {}
         self._lock = threading.Lock()
         self._closed = False
-        self._failure: BaseException | None = None
-        self.frames = 0
         self._out = Output(self.path, option="--log", suffix=self.extension)
         try:
-            self._writer: MessageWriter = log_writer(self._out)
+            self._frames = FrameWriter(self._out, self.extension)
         except Exception as err:
             self._out.discard()
             raise InputError(f"cannot write {os.fspath(self.path)}: {reason(err)}",
                              key="--log") from None
+
+    @property
+    def frames(self) -> int:
+        """Frames recorded so far."""
+        return self._frames.frames
+
+    @property
+    def channels(self) -> dict[str, int]:
+        """Bus name -> channel number stored in the formats of :data:`INT_CHANNELS`."""
+        return self._frames.channels
 
     def attach(self, name: str, dispatcher: Tapped) -> None:
         """Record every frame ``dispatcher`` (bus ``name``'s) receives or sends from now
         on, with the bus's name as its channel."""
 
         def tap(msg: can.Message) -> None:  # sent frames come stamped on the same base
-            self._record(msg, name)
+            self._frames.write(msg, name)
 
         self._taps[name] = tap
         dispatcher.taps.append(tap)
@@ -257,20 +321,6 @@ class FrameLog:
             with contextlib.suppress(ValueError):
                 dispatcher.taps.remove(tap)
 
-    def _record(self, msg: can.Message, bus: str) -> None:
-        """Record one frame of ``bus`` (sent frames have ``is_rx`` False)."""
-        with self._lock:
-            if self._closed or self._failure is not None:
-                return
-            try:
-                out = copy.copy(msg)
-                out.channel = channel_number(self.channels, bus) if self._int_channels \
-                    else bus
-                self._writer.on_message_received(out)
-                self.frames += 1
-            except Exception as err:  # a bus reader must not die of the recording
-                self._failure = err
-
     def close(self) -> None:
         """Flush the log and rename it into place (idempotent); :class:`LogError`, and no
         file (the old one, if any, as it was), when writing failed."""
@@ -278,18 +328,15 @@ class FrameLog:
             if self._closed:
                 return
             self._closed = True
-            try:
-                self._writer.stop()
-            except Exception as err:
-                self._failure = self._failure or err
-            if self._failure is None:
+            self._frames.stop()
+            failure = self._frames.failure
+            if failure is None:
                 try:
                     self._out.commit()
                     return
                 except WriteError as err:
                     raise LogError(f"{err}; nothing was kept", path=err.path) from None
             self._out.discard()
-            failure = self._failure
             raise LogError(f"--log: {os.fspath(self.path)}: "
                            f"{reason(failure)}; nothing was kept", path=os.fspath(self.path))
 
@@ -300,8 +347,5 @@ class FrameLog:
             if self._closed:
                 return
             self._closed = True
-            with contextlib.suppress(Exception):
-                self._writer.stop()
+            self._frames.stop()
             self._out.discard()
-
-

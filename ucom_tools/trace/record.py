@@ -20,7 +20,6 @@ reads it back (for ``ucom remote plot``), naming FILE:LINE of what does not fit.
 from __future__ import annotations
 
 import contextlib
-import copy
 import csv
 import io
 import math
@@ -35,19 +34,11 @@ from types import TracebackType
 from typing import IO
 
 import can
-from can.io.generic import MessageWriter
 
 from ucom_tools import fileio
 from ucom_tools.errors import InputError, WriteError
 from ucom_tools.fileio import Batch, Output, reason
-from ucom_tools.trace.logs import (
-    INT_CHANNELS,
-    LogError,
-    channel_number,
-    check_buses,
-    log_extension,
-    log_writer,
-)
+from ucom_tools.trace.logs import FrameWriter, LogError, check_buses, log_extension
 
 VALUES_SUFFIX = ".values.csv"
 """Appended to the full name of the frame log: run.blf -> run.blf.values.csv."""
@@ -106,21 +97,17 @@ class RunRecorder(can.Listener):
         self.path = Path(path)
         self.values_path = values_path(self.path)
         self.extension = log_extension(self.path)
-        self.channels: dict[str, int] = {}
-        """Bus name -> channel number stored in the formats of :data:`INT_CHANNELS`."""
-        self._int_channels = self.extension.removesuffix(".gz") in INT_CHANNELS
         self._lock = threading.Lock()
-        self._frames = 0
         self._rows = 0
         self._last: dict[tuple[str, int, str], Decimal] = {}
         self._closed = False
         self._failure: BaseException | None = None
         self._batch = Batch(option="--record")
-        self._writer: MessageWriter | None = None
+        self._frames: FrameWriter | None = None
         self._values_file: IO[str] | None = None
         try:
             log_out = self._output(self.path, self.extension)
-            self._writer = log_writer(log_out)
+            self._frames = FrameWriter(log_out, self.extension)
             values_out = self._output(self.values_path, VALUES_SUFFIX)
             self._values_file = values_out.open("w", encoding="utf-8", newline="")
             self._csv = csv.writer(self._values_file, lineterminator="\n")
@@ -146,8 +133,12 @@ class RunRecorder(can.Listener):
     @property
     def frames(self) -> int:
         """Frames recorded so far."""
-        with self._lock:
-            return self._frames
+        return self._frames.frames if self._frames is not None else 0
+
+    @property
+    def channels(self) -> dict[str, int]:
+        """Bus name -> channel number stored in the formats of :data:`INT_CHANNELS`."""
+        return self._frames.channels if self._frames is not None else {}
 
     @property
     def rows(self) -> int:
@@ -160,9 +151,6 @@ class RunRecorder(can.Listener):
         return self._closed
 
     # --------------------------------------------------------------------- frames
-    def _channel(self, name: str) -> int:
-        return channel_number(self.channels, name)
-
     def check_buses(self, buses: Iterable[str]) -> None:
         """InputError when this recording's format cannot keep ``buses`` apart."""
         check_buses(self.extension, buses, self.path, "--record")
@@ -170,18 +158,8 @@ class RunRecorder(can.Listener):
     def on_message_received(self, msg: can.Message) -> None:
         """Record one frame (its ``channel``, the bus name, is kept: verbatim in the
         text formats, as the bus's number in :data:`INT_CHANNELS`)."""
-        with self._lock:
-            if self._closed or self._failure is not None or self._writer is None:
-                return
-            try:
-                channel = msg.channel
-                if self._int_channels and isinstance(channel, str):
-                    msg = copy.copy(msg)
-                    msg.channel = self._channel(channel)
-                self._writer.on_message_received(msg)
-                self._frames += 1
-            except Exception as err:  # a bus reader thread must not die of the recording
-                self._failure = err
+        if self._frames is not None:  # after close, it drops the frame
+            self._frames.write(msg)
 
     def on_error(self, exc: Exception) -> None:
         """A bus reader's error is the reader's business; the recording goes on."""
@@ -218,8 +196,8 @@ class RunRecorder(can.Listener):
             return True
 
     def _raise_failure(self) -> None:
-        if self._failure is not None:
-            err = self._failure
+        err = self._failure or (self._frames.failure if self._frames is not None else None)
+        if err is not None:
             raise LogError(f"--record: {self.path}: {reason(err)}; nothing was kept",
                               path=str(self.path)) from err
 
@@ -231,15 +209,16 @@ class RunRecorder(can.Listener):
             if self._closed:
                 return
             self._closed = True
+            if self._frames is not None:
+                self._frames.stop()
             try:
-                if self._writer is not None:
-                    self._writer.stop()
                 if self._values_file is not None:
                     self._values_file.close()
             except Exception as err:
                 if self._failure is None:
                     self._failure = err
-            if self._failure is not None:
+            if self._failure is not None or (self._frames is not None
+                                             and self._frames.failure is not None):
                 self._discard()
                 self._raise_failure()
             try:
@@ -259,9 +238,8 @@ class RunRecorder(can.Listener):
             self._discard()
 
     def _discard(self) -> None:
-        with contextlib.suppress(Exception):
-            if self._writer is not None:
-                self._writer.stop()
+        if self._frames is not None:
+            self._frames.stop()
         with contextlib.suppress(Exception):
             if self._values_file is not None:
                 self._values_file.close()
