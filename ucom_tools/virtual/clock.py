@@ -257,6 +257,12 @@ class RealtimeDriver:
                 target = now if first is None else min(now, max(first, clock.now)
                                                          + MAX_STEP_US)
                 self._advance(target)
+                if self._rooms:
+                    # the step may have emptied a transmit queue that a client's frames
+                    # wait for: fill it now, not after the sleep (a late wake-up on a
+                    # busy machine drains the whole queue, and the bus would then stand
+                    # idle until the next board event)
+                    self._run_rooms()
                 nxt = clock.next_event_time()
             if after:
                 self._run_after()

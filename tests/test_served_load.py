@@ -1,0 +1,56 @@
+"""A served fleet on a busy machine: its driver wakes later than asked (the scheduler
+gave the core to someone else), a step then carries every frame of a client's transmit
+queue, and the frames still waiting in the client's backlog must go onto the bus in that
+same step, not after the driver's next long sleep (which stalled a flash: the boards got
+a tenth of the image, then nothing, and never answered its END)."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from ucom_tools.image import load_image
+from ucom_tools.ops.flash import flash
+from ucom_tools.ops.robot import ConnectSpec, open_robot
+from ucom_tools.virtual import clock as clock_mod
+from ucom_tools.virtual.fleet import Fleet
+from ucom_tools.virtual.simbus import TX_QUEUE
+from ucom_tools.virtual.socketcand import FleetServer
+
+REPO = Path(__file__).resolve().parent.parent
+
+LATE_WAKE_S = 0.02
+"""The driver's shortest sleep, made longer than the bus takes to carry a full transmit
+queue (TX_QUEUE frames of at most 160 bits at 1 Mbit/s: about 5 ms)."""
+
+
+@pytest.fixture
+def late_waking_fleet(monkeypatch: pytest.MonkeyPatch) -> Iterator[tuple[Fleet, int]]:
+    assert LATE_WAKE_S > 2 * TX_QUEUE * 160e-6
+    monkeypatch.setattr(clock_mod, "STEP_MIN_S", LATE_WAKE_S)
+    fleet = Fleet.load(str(REPO / "tests/data/armar3_can0.toml"), realtime=True)
+    server = FleetServer(fleet, "127.0.0.1", 0)
+    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
+    thread.start()
+    try:
+        yield fleet, server.address[1]
+    finally:
+        server.shutdown()
+        thread.join(timeout=10)
+        fleet.close()
+
+
+def test_a_late_waking_driver_still_feeds_the_bus_a_whole_image(
+        late_waking_fleet: tuple[Fleet, int]) -> None:
+    fleet, port = late_waking_fleet
+    robot = open_robot(ConnectSpec(interface="socketcand", host="127.0.0.1", port=port,
+                                   channels=("CAN0",)))
+    try:
+        result = flash(robot, load_image(REPO / "firmware_images/armar3.fl.S"))
+    finally:
+        robot.close()
+    assert result.all_verified, [b.detail for b in result.failed]
+    assert len(result.boards) == len(fleet.boards["CAN0"]) == 3
