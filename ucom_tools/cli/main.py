@@ -2,39 +2,27 @@
 
 Every error a user can cause ends here as one line on stderr and an exit code of
 :mod:`ucom_tools.cli.exitcodes`; a traceback only with ``-vv``.  The subcommands live in
-their own modules (commands, console, srec, fleet, tree), which never import this one.
+their own modules (commands, console, srec, fleet, tree, ...), which never import this
+one; each is imported when its command is looked up (:class:`LazyCommands`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import importlib
 import io
 import os
 import sys
 import traceback
+from collections.abc import Iterator, MutableMapping
 from typing import Any
 
 import click
 from rich.markup import escape
 
 from ucom_tools import __version__
-from ucom_tools.cli import (
-    browse,
-    commands,
-    conformance,
-    console,
-    dbc,
-    decode,
-    deploy,
-    fleet,
-    image,
-    output,
-    params,
-    remote,
-    srec,
-    tree,
-)
+from ucom_tools.cli import output
 from ucom_tools.cli.exitcodes import (
     EXIT_BAD_INPUT,
     EXIT_BUS,
@@ -45,6 +33,56 @@ from ucom_tools.cli.exitcodes import (
 from ucom_tools.cli.output import stderr
 from ucom_tools.errors import BusError, InputError, UcomError, WriteError
 from ucom_tools.signals import Terminated, interrupt_exit_code, stop_signals
+
+BOOTLOADER_COMMANDS = ("check", "reset", "init", "info", "prog-enable", "program",
+                       "extram-load", "start", "autostart", "xreset", "set-init-in",
+                       "set-init-out", "set-seqid", "count", "first", "last", "list",
+                       "reset-one", "flash")
+"""The commands of :mod:`ucom_tools.cli.commands` (its ``COMMANDS``)."""
+
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    **{name: ("commands", "") for name in BOOTLOADER_COMMANDS},
+    "console": ("console", "console"), "image": ("image", "image"),
+    "srec": ("srec", "srec"), "fleet": ("fleet", "fleet"), "tree": ("tree", "tree"),
+    "remote": ("remote", "remote"), "browse": ("browse", "browse"),
+    "params": ("params", "params"), "conformance": ("conformance", "conformance"),
+    "decode": ("decode", "decode"), "dbc": ("dbc", "dbc"), "deploy": ("deploy", "deploy_cmd"),
+}
+"""Each subcommand: its module in :mod:`ucom_tools.cli` and the command's name there."""
+
+
+class LazyCommands(MutableMapping[str, click.Command]):
+    """The root's subcommands, each imported when it is first looked up: ``ucom init``
+    does not import the fleet server, the decoder or Zenoh (half of the start-up time of
+    a command; ``ucom --help`` imports them all to list them)."""
+
+    def __init__(self, specs: dict[str, tuple[str, str]]) -> None:
+        self._specs = dict(specs)
+        self._loaded: dict[str, click.Command] = {}
+
+    def __getitem__(self, name: str) -> click.Command:
+        command = self._loaded.get(name)
+        if command is None:
+            module_name, attr = self._specs[name]  # KeyError: no such command
+            module = importlib.import_module(f"ucom_tools.cli.{module_name}")
+            command = getattr(module, attr) if attr else \
+                next(c for c in module.COMMANDS if c.name == name)
+            self._loaded[name] = command
+        return command
+
+    def __setitem__(self, name: str, command: click.Command) -> None:
+        self._specs[name] = ("", "")
+        self._loaded[name] = command
+
+    def __delitem__(self, name: str) -> None:
+        del self._specs[name]
+        self._loaded.pop(name, None)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._specs)
+
+    def __len__(self) -> int:
+        return len(self._specs)
 
 
 class UcomGroup(click.Group):
@@ -86,7 +124,8 @@ class UcomGroup(click.Group):
         ctx.exit(code)
 
 
-@click.group(cls=UcomGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=UcomGroup, commands=LazyCommands(SUBCOMMANDS),
+             context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="ucom")
 @click.option("-v", "--verbose", count=True, help="More detail; -vv shows tracebacks.")
 @click.pass_context
@@ -106,20 +145,6 @@ def cli(ctx: click.Context, verbose: int) -> None:
     ctx.obj["verbose"] = verbose
 
 
-for _command in commands.COMMANDS:
-    cli.add_command(_command)
-cli.add_command(console.console)
-cli.add_command(image.image)
-cli.add_command(srec.srec)
-cli.add_command(fleet.fleet)
-cli.add_command(tree.tree)
-cli.add_command(remote.remote)
-cli.add_command(browse.browse)
-cli.add_command(params.params)
-cli.add_command(conformance.conformance)
-cli.add_command(decode.decode)
-cli.add_command(dbc.dbc)
-cli.add_command(deploy.deploy_cmd)
 
 
 class GuardedStdout(io.TextIOBase):
