@@ -78,7 +78,6 @@ from ucom_tools.virtual.fpga import VirtualFpga
 from ucom_tools.virtual.plant import (
     ADC_FULL_SCALE_V,
     ADC_MAX,
-    CURRENT_LIMIT_A,
     CURRENT_SENSE_V_PER_A,
     MOTOR_ENCODER_EDGES,
     SUBSTEP_US,
@@ -518,59 +517,6 @@ def _adc(volts: float) -> int:
     return round(_clamp(volts, 0.0, ADC_FULL_SCALE_V) / ADC_FULL_SCALE_V * ADC_MAX)
 
 
-class _Joint(MotorAxis):
-    """Motor, gear and joint of one axis, as :class:`~ucom_tools.virtual.plant.MotorAxis`
-    models them, plus a torque from outside (the ground, a load)."""
-
-    @property
-    def velocity(self) -> float:
-        """Joint velocity [rad/s]."""
-        return self.speed / self.p.gear_ratio
-
-    def integrate_loaded(self, volts: float | None, torque: float, h: float, steps: int = 1,
-                  angles: list[float] | None = None) -> None:
-        """``steps`` substeps of ``h`` seconds with ``volts`` at the terminals (None: stage
-        off) and a constant ``torque`` [N m] from outside at the joint, each as
-        :meth:`ucom_tools.virtual.plant.MotorAxis.integrate` does it with the outside torque / N
-        added to the drive; ``angles`` (if given) gets the angle after every substep."""
-        inertia, kt, resistance, gear, low, high = self._fixed
-        damped, damped_coulomb, free, free_coulomb, _ = (
-            self._substep_terms if h == _SUBSTEP_S else self._terms(h))
-        outside = torque / gear
-        if volts is None:
-            push, damped, damped_coulomb = h * outside, free, free_coulomb
-        else:
-            push = h * (outside + kt * volts / resistance)
-        limit = CURRENT_LIMIT_A
-        angle, speed, current = self.angle, self.speed, 0.0
-        # abs() and math.copysign() written out as comparisons, as in ThreeAxisPlant
-        for _ in range(steps):
-            base = inertia * speed
-            speed = (base + push) / damped
-            coulomb = damped_coulomb
-            if volts is not None:
-                current = (volts - kt * speed) / resistance
-                if current > limit or current < -limit:  # the stage limits; no back-EMF
-                    current = limit if current > 0.0 else -limit
-                    speed = (base + h * (kt * current + outside)) / free
-                    coulomb = free_coulomb
-            if -coulomb <= speed <= coulomb:
-                speed = 0.0  # sticks
-            else:
-                speed = speed - coulomb if speed > 0.0 else speed + coulomb
-            angle += h * speed / gear
-            if angle <= low:
-                angle, speed = low, max(speed, 0.0)
-            elif angle >= high:
-                angle, speed = high, min(speed, 0.0)
-            if angles is not None:
-                angles.append(angle)
-        self.angle, self.speed = angle, speed
-        if volts is not None and -limit < current < limit:
-            current = (volts - kt * speed) / resistance
-        self.current = current
-
-
 class LegPlant:
     """A LAURON-IV leg (or the camera head) behind a UCoM@3M: three coupled joints, the
     foot's three-axis force sensor and the ground; implements
@@ -607,7 +553,7 @@ class LegPlant:
             raise ValueError("the ADC has 8 channels")
         self.fpga = fpga
         self.adc = adc
-        self.joints = [_Joint(p) for p in params]
+        self.joints = [MotorAxis(p) for p in params]
         self.ground_z = ground_z
         self.foot_sensor = foot_sensor
         self.marks = tuple(marks)
@@ -659,7 +605,7 @@ class LegPlant:
         traces: list[list[float] | None] = [None, [], []] if watch else [None] * AXES
         for joint, v, extra, trace in zip(joints, volts, self.load, traces, strict=True):
             for h, n in substeps:
-                joint.integrate_loaded(v, 0.0 + extra, h, n, trace)
+                joint.integrate(v, h, n, 0.0 + extra, trace)
         if watch:
             assert ground_z is not None and traces[1] is not None and traces[2] is not None
             for beta, gamma in zip(traces[1][:-1], traces[2][:-1], strict=True):
@@ -678,7 +624,7 @@ class LegPlant:
             for _ in range(n):
                 torques = self._ground_torques()
                 for (joint, v, extra), t in zip(drives, torques, strict=True):
-                    joint.integrate_loaded(v, t + extra, h)
+                    joint.integrate(v, h, 1, t + extra)
 
     # ------------------------------------------------------------------ the foot
     def foot(self) -> tuple[tuple[float, float, float], list[tuple[float, float, float]]]:
