@@ -24,6 +24,7 @@ from statistics import mean
 import pytest
 
 import ucom_tools.virtual.programs.armar3 as armar3_model
+import ucom_tools.virtual.programs.armar3_axis as armar3_axis
 from ucom_tools.config.attrtree import Board, Value, load
 from ucom_tools.edgelists.armar3 import SPEC, Command
 from ucom_tools.edgelists.model import EdgeKind, EdgeSpec
@@ -254,7 +255,7 @@ def test_homing_finds_the_end_stop_and_loads_reset_offset() -> None:
 
 
 def test_homing_fails_without_a_stall(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(armar3_model, "HOMING_TIMEOUT_US", 300_000.0)
+    monkeypatch.setattr(armar3_axis, "HOMING_TIMEOUT_US", 300_000.0)  # read there
     rig = Rig(params=(replace(EYE_AXIS, end_stops=None), EYE_AXIS, UNUSED_AXIS))
     rig.set("Reset B PWM", 0)
     rig.set("MotorA Command", Command.HOMING)

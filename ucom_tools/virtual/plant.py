@@ -60,7 +60,8 @@ position loop's P = 50 /s: a well-damped cascade.  The eyes' Max Velocity of 500
 is 2 degrees/s; the joint's no-load speed is 4.7 rad/s (270 degrees/s, 68 000 counts/s);
 homing at a duty of 7000 runs at about 29 000 counts/s and stalls at 2.6 A.
 
-Integration: a fixed substep of :data:`SUBSTEP_US` = 100 us, the last one of a call
+Integration (:meth:`ucom_tools.virtual.motor.MotorAxis.integrate`, the rule the LAURON-IV
+leg uses too): a fixed substep of :data:`SUBSTEP_US` = 100 us, the last one of a call
 shortened to what remains, semi-implicit in the damping terms (stable for any dt, same
 result for the same calls).  A motor at rest before and after a substep (sticking, or
 stalled at an end stop) skips the rest of the call's substeps: they would repeat that one
@@ -71,22 +72,21 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 from ucom_tools.edgelists.armar3 import PWM_FULL
-from ucom_tools.virtual.fpga import QuadratureDecoder, VirtualFpga
+from ucom_tools.virtual.fpga import VirtualFpga
+from ucom_tools.virtual.motor import (
+    _SUBSTEP_S,
+    CURRENT_LIMIT_A,  # noqa: F401 - re-exported, as it was defined here
+    JOINT_SENSOR_EDGES,
+    MOTOR_ENCODER_EDGES,  # noqa: F401 - re-exported
+    SUBSTEP_US,
+    SUPPLY_V,
+    AxisParams,
+    MotorAxis,
+)
 from ucom_tools.wire.fpga import Reg
 
-SUPPLY_V = 24.0
-"""Motor supply [V] (Tab. 4.3)."""
-CURRENT_LIMIT_A = 5.0
-"""Current limit of each output stage [A] (Tab. 4.3)."""
-SUBSTEP_US = 100.0
-"""Integration substep [us]."""
-MOTOR_ENCODER_EDGES = 2048
-"""Motor encoder edges per motor revolution (512 lines, quadrature x4)."""
-JOINT_SENSOR_EDGES = 360_000
-"""Joint sensor edges per joint revolution (90 000 lines x4 = 1000 edges/degree)."""
 CURRENT_SENSE_V_PER_A = 0.5
 """Current-sense gain [V/A], magnitude of the current."""
 ADC_FULL_SCALE_V = 3.3
@@ -95,51 +95,7 @@ ANALOG_INPUTS_V = (1.0, 2.0)
 """The two analog inputs (ADC channels 6 and 7) [V]."""
 MAX_AXES = 3
 
-_TWO_PI = 2 * math.pi
-_SUBSTEP_S = SUBSTEP_US * 1e-6
 _PWM0, _OUTPUT_ENABLE = int(Reg.PWM0), int(Reg.OUTPUT_ENABLE)
-
-
-@dataclass(frozen=True)
-class AxisParams:
-    """One motor, its gear and load (SI units; see the module docstring)."""
-
-    resistance: float = 4.0
-    """Armature resistance [ohm]."""
-    torque_constant: float = 0.0235
-    """Kt [N m/A] = Ke [V s/rad] (406 rpm/V, no-load 9750 rpm at 24 V)."""
-    rotor_inertia: float = 3.0e-6
-    """J_m [kg m^2]."""
-    viscous_friction: float = 1.0e-5
-    """b at the motor [N m s/rad]."""
-    coulomb_friction: float = 1.0e-3
-    """T_c at the motor [N m]."""
-    gear_ratio: float = 200.0
-    """N, motor revolutions per joint revolution."""
-    load_inertia: float = 2.0e-4
-    """J_l at the joint [kg m^2] (eyeball and camera)."""
-    end_stops: tuple[float, float] | None = (-0.9, 0.9)
-    """Joint end stops [rad] (about +-51.6 degrees), None for a free shaft."""
-    motor_polarity: int = 1
-    joint_sensor_polarity: int = 1
-    motor_encoder_polarity: int = 1
-    start_angle: float = 0.0
-    """Joint angle at power-up [rad]."""
-
-    def __post_init__(self) -> None:
-        for name in ("motor_polarity", "joint_sensor_polarity", "motor_encoder_polarity"):
-            if getattr(self, name) not in (1, -1):
-                raise ValueError(f"{name} must be +1 or -1")
-        if min(self.resistance, self.torque_constant, self.rotor_inertia,
-               self.gear_ratio) <= 0:
-            raise ValueError("resistance, torque constant, rotor inertia and gear ratio "
-                             "must be positive")
-        if min(self.viscous_friction, self.coulomb_friction, self.load_inertia) < 0:
-            raise ValueError("friction and load inertia must not be negative")
-        if self.end_stops is not None and not (
-                self.end_stops[0] <= self.start_angle <= self.end_stops[1]):
-            raise ValueError("start angle outside the end stops")
-
 
 EYE_AXIS = AxisParams(motor_polarity=-1)
 """An ARMAR-III eye: wired so that the tree's ``Set Joint Moving Direction`` bit is needed."""
@@ -150,126 +106,6 @@ EYES_BOARD = (EYE_AXIS, EYE_AXIS, UNUSED_AXIS)
 ARMAR3_BOARD = (EYE_AXIS, EYE_AXIS, EYE_AXIS)
 """Three eye-like axes, each wired as every ARMAR-III tree expects (its ``Set Joint Moving
 Direction`` bit set): the plant of a virtual board whose joints are not known."""
-
-
-class MotorAxis:
-    """State of one motor, gear and joint (the LAURON-IV leg's joints add a torque from
-    outside: :class:`ucom_tools.virtual.programs.lauron4.LegPlant`)."""
-
-    def __init__(self, p: AxisParams) -> None:
-        self.p = p
-        self.inertia = p.rotor_inertia + p.load_inertia / p.gear_ratio ** 2
-        self.angle = p.start_angle
-        """Joint angle [rad]."""
-        self.speed = 0.0
-        """Motor speed [rad/s]."""
-        self.current = 0.0
-        """Motor current [A]."""
-        self.joint_edges, self.motor_edges = self._edge_indices()
-        self.sensed_angle = self.angle
-        """The angle the edge counts are of."""
-        self._fixed = (self.inertia, p.torque_constant, p.resistance, p.gear_ratio,
-                       *(p.end_stops if p.end_stops is not None else (-math.inf, math.inf)))
-        """J, Kt, R, N and the end stops (none: never reached)."""
-        self._substep_terms = self._terms(_SUBSTEP_S)
-
-    def _edge_indices(self) -> tuple[int, int]:
-        """The joint sensor's and the motor encoder's edge count at the current angle."""
-        p = self.p
-        return (math.floor(p.joint_sensor_polarity * self.angle * JOINT_SENSOR_EDGES / _TWO_PI),
-                math.floor(p.motor_encoder_polarity * self.angle * p.gear_ratio
-                           * MOTOR_ENCODER_EDGES / _TWO_PI))
-
-    def _terms(self, h: float) -> tuple[float, float, float, float, float]:
-        """What a substep of ``h`` seconds needs besides the state and the voltage: the
-        denominators J + h (b + Kt^2 / R) (driven) and J + h b (not driven, or the current
-        limited), the Coulomb friction's share h T_c / (denominator) of each, and h Kt."""
-        p = self.p
-        damped = self.inertia + h * (p.viscous_friction + p.torque_constant ** 2 / p.resistance)
-        free = self.inertia + h * p.viscous_friction
-        return (damped, h * p.coulomb_friction / damped, free,
-                h * p.coulomb_friction / free, h * p.torque_constant)
-
-    def integrate(self, volts: float | None, h: float, steps: int = 1) -> None:
-        """``steps`` substeps of ``h`` seconds each with ``volts`` at the terminals (None:
-        stage off, no current).
-
-        A substep: speed = (J speed + h Kt V / R) / (J + h (b + Kt^2 / R)), implicit in the
-        viscous and back-EMF damping; where that speed means a current beyond the stage's
-        limit, the current is held at the limit instead: speed = (J speed + h Kt i) /
-        (J + h b).  Then Coulomb friction takes up to h T_c / (the denominator) off the
-        speed (sticking at 0), the joint turns by h speed / N and stops dead at an end stop.
-        Without a stage (None) only b and T_c act."""
-        inertia, kt, resistance, gear, low, high = self._fixed
-        damped, damped_coulomb, free, free_coulomb, limited_push = (
-            self._substep_terms if h == _SUBSTEP_S else self._terms(h))
-        if volts is None:
-            push, damped, damped_coulomb = h * 0.0, free, free_coulomb
-        else:
-            push = h * (kt * volts / resistance)
-        angle, speed = self.angle, self.speed
-        # the hot spot: abs() and math.copysign() are written out as comparisons, the
-        # products of loop invariants computed once (the same operations on the same
-        # operands: the same result), the driven and the undriven substep apart
-        if volts is None:
-            for _ in range(steps):
-                base = inertia * speed
-                speed = (base + push) / damped
-                if -damped_coulomb <= speed <= damped_coulomb:
-                    speed = 0.0  # sticks
-                else:
-                    speed = speed - damped_coulomb if speed > 0.0 else speed + damped_coulomb
-                angle += h * speed / gear
-                if angle <= low:
-                    angle, speed = low, max(speed, 0.0)
-                elif angle >= high:
-                    angle, speed = high, min(speed, 0.0)
-                if speed == 0.0 and base == 0.0:
-                    # at rest before and after (sticking, or stalled at an end stop), so
-                    # the angle did not change either: the remaining substeps repeat this
-                    # one exactly
-                    break
-        else:
-            limit = CURRENT_LIMIT_A
-            push_high, push_low = limited_push * limit, limited_push * -limit
-            low_limit = -limit
-            for _ in range(steps):
-                base = inertia * speed
-                speed = (base + push) / damped
-                coulomb = damped_coulomb
-                current = (volts - kt * speed) / resistance
-                if current > limit:  # the stage limits; no back-EMF damping
-                    speed = (base + push_high) / free
-                    coulomb = free_coulomb
-                elif current < low_limit:
-                    speed = (base + push_low) / free
-                    coulomb = free_coulomb
-                if -coulomb <= speed <= coulomb:
-                    speed = 0.0  # sticks
-                else:
-                    speed = speed - coulomb if speed > 0.0 else speed + coulomb
-                angle += h * speed / gear
-                if angle <= low:
-                    angle, speed = low, max(speed, 0.0)
-                elif angle >= high:
-                    angle, speed = high, min(speed, 0.0)
-                if speed == 0.0 and base == 0.0:
-                    break  # as above
-        self.angle, self.speed = angle, speed
-        self.current = 0.0 if volts is None else max(-CURRENT_LIMIT_A, min(
-            CURRENT_LIMIT_A, (volts - kt * speed) / resistance))
-
-    def sense(self, counters: list[QuadratureDecoder] | None, k: int) -> None:
-        """Feed the edges since the last call to quadrature ``counters`` 2k and 2k+1 (the
-        FPGA's; None in its neutral state, which counts nothing)."""
-        self.sensed_angle = self.angle
-        joint, motor = self._edge_indices()
-        if counters is not None:
-            if joint != self.joint_edges:
-                counters[2 * k].feed(joint - self.joint_edges)
-            if motor != self.motor_edges:
-                counters[2 * k + 1].feed(motor - self.motor_edges)
-        self.joint_edges, self.motor_edges = joint, motor
 
 
 def _adc(volts: float) -> int:
