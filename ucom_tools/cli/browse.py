@@ -54,9 +54,16 @@ def browse(robot: str | None, endpoint: str, config_file: str | None, gets: tupl
     ROBOT is the robot's name in the keys (its topology's file name: armar3); not needed
     where one robot runs there.  --set writes (exit 3 where the robot refuses the value,
     naming its range or the closest names; 1 where it takes no writes), --get prints
-    values, --watch streams them; without these it prints the structure and every value
-    (--json: as one document).  Exit 4 where no robot answers on the endpoint within
-    --timeout.  See ucom-network(7)."""
+    values, --watch streams them.  Without these, on a terminal, it opens the live view:
+    the robot as a tree (bus, board with prefix and state, its edges by kind) with values
+    and their age, refreshed at the robot's publishing rate (at most 20 times a second);
+    it says "connection lost" when the robot goes and connects again when it is back.
+    Keys: / filter by name (Enter keeps it, Esc clears it), s set a CI or PAR (Tab
+    completes the name; NAME=VALUE or the name, Enter, then the value; the robot's answer
+    is shown), x stop the boards (y confirms), arrows, PgUp, PgDn, Home, End scroll, q
+    quits (exit 0).  Off a terminal (standard input or output a pipe or a file) it prints
+    the structure and every value once (--json: as one document).  Exit 4 where no robot
+    answers on the endpoint within --timeout.  See ucom-network(7)."""
     from ucom_tools.cli import browse_tty
     from ucom_tools.cli.browse_tty import interactive
     from ucom_tools.net.client import RobotClient

@@ -26,6 +26,7 @@ a person, gains nothing from more)."""
 HEADER_LINES = 1
 FOOTER_LINES = 3
 NAME_WIDTH = 44
+UNIT_WIDTH = 16
 HELP = "/ filter  s set  x stop  \u2191\u2193 PgUp PgDn scroll  q quit"
 
 
@@ -206,7 +207,7 @@ def _state(model: Model, bus: str, board: int) -> Text:
     return Text("stopped", style="yellow")
 
 
-def _line(model: Model, row: Row, now: float, name_width: int) -> Text:
+def _line(model: Model, row: Row, now: float, name_width: int, unit_width: int) -> Text:
     t = Text(row.guide, style="dim", no_wrap=True, overflow="ellipsis")
     bus = row.bus
     if row.kind == "bus":
@@ -238,7 +239,7 @@ def _line(model: Model, row: Row, now: float, name_width: int) -> Text:
     shown = "-" if value is None else str(value)
     t.append(" " + shown.rjust(12), style="bold cyan" if value is not None else "dim")
     unit = str(e.get("unit") or "")
-    t.append(" " + unit.ljust(10))
+    t.append(" " + unit.ljust(unit_width))
     if age is not None:
         stale = model.connection != "connected"
         t.append(age_text(age).rjust(8), style="red" if stale else "dim")
@@ -300,10 +301,11 @@ def render(model: Model, keys: Keys, now: float, height: int) -> Group:
     body = max(1, height - HEADER_LINES - FOOTER_LINES)
     model.scroll = max(0, min(model.scroll, len(rows) - body))
     window = rows[model.scroll:model.scroll + body]
-    width = min(NAME_WIDTH, max([len(str((r.edge or {}).get("robot_name", "")))
-                                 for r in window if r.kind == "edge"] or [0]))
+    edges = [r.edge for r in window if r.edge is not None]
+    width = min(NAME_WIDTH, max([len(str(e.get("robot_name", ""))) for e in edges] or [0]))
+    units = min(UNIT_WIDTH, max([len(str(e.get("unit") or "")) for e in edges] or [0]))
     lines: list[Text] = [_header(model)]
-    lines += [_line(model, r, now, width) for r in window]
+    lines += [_line(model, r, now, width, units) for r in window]
     if not rows:
         lines.append(Text(f"no edge is called like {keys.filter!r}" if keys.filter
                           and model.structure else "", style="dim"))
