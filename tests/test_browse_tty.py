@@ -246,6 +246,22 @@ _ANSI = re.compile(r"\x1b\[[0-9;?]*[ -/]*[@-~]|\x1b\][^\x07\x1b]*(\x07|\x1b\\)|\
                    r"|\x1b[=>78]")
 
 
+def _controlling_terminal() -> None:
+    """In the child: a session of its own whose controlling terminal is its standard
+    input (the pty), so that Ctrl-C typed there is its SIGINT."""
+    os.setsid()
+    fcntl.ioctl(0, termios.TIOCSCTTY, 0)
+
+
+def _restored(term: Terminal, mark: int) -> None:
+    """The terminal as it was before the browser: its mode, the main screen, the cursor."""
+    after = termios.tcgetattr(term.slave)
+    assert after[3] & (termios.ECHO | termios.ICANON) == termios.ECHO | termios.ICANON
+    assert after == term.before  # cbreak undone, exactly
+    out = bytes(term.raw[mark:])
+    assert b"\x1b[?1049l" in out and b"\x1b[?25h" in out
+
+
 class Terminal:
     """``argv`` on a pseudo-terminal of ``rows`` x ``cols``; what it shows, read as it
     comes (escape sequences taken out)."""
@@ -256,7 +272,7 @@ class Terminal:
         self.before = termios.tcgetattr(self.slave)
         self.proc = subprocess.Popen(argv, stdin=self.slave, stdout=self.slave,
                                      stderr=self.slave, cwd=ROOT, env=ENV,
-                                     start_new_session=True)
+                                     preexec_fn=_controlling_terminal)
         self.raw = bytearray()
         self.changed = threading.Condition()
         self.done = threading.Event()
@@ -333,9 +349,9 @@ class Robot:
                 self.proc.wait()
 
 
-@pytest.fixture()
-def flashed(tmp_path: Path) -> Path:
-    state = tmp_path / "armar3"
+@pytest.fixture(scope="module")
+def flashed(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    state = tmp_path_factory.mktemp("flashed") / "armar3"
     r = subprocess.run([sys.executable, "-m", "ucom_tools", "flash",
                         str(ROOT / "firmware_images/armar3.fl.S"), "--virtual", "armar3",
                         "--state", str(state)], capture_output=True, text=True, cwd=ROOT,
@@ -344,29 +360,46 @@ def flashed(tmp_path: Path) -> Path:
     return state
 
 
-@pytest.fixture()
-def robot_and_browser(flashed: Path, tmp_path: Path) -> Iterator[tuple[Any, Terminal]]:
-    endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    log = tmp_path / "robot.log"
-    robots = [Robot(flashed, endpoint, log)]
+class Rig:
+    """A robot on a free loopback port (started again by :meth:`restart`, on the same
+    port and state) and browsers on terminals of their own."""
 
-    def restart() -> None:
-        robots.append(Robot(flashed, endpoint, log))
+    def __init__(self, flashed: Path, tmp: Path) -> None:
+        self.state = tmp / "armar3"
+        shutil.copytree(flashed, self.state)
+        self.endpoint = f"tcp/127.0.0.1:{_free_port()}"
+        self.log = tmp / "robot.log"
+        self.robots = [Robot(self.state, self.endpoint, self.log)]
+        self.terminals: list[Terminal] = []
 
-    term = Terminal([sys.executable, "-m", "ucom_tools", "browse", "--zenoh", endpoint,
-                     "--timeout", "15"])
-    try:
-        yield (robots, restart, log), term
-    finally:
-        term.close()
-        for r in robots:
+    def restart(self) -> None:
+        self.robots.append(Robot(self.state, self.endpoint, self.log))
+
+    def browse(self) -> Terminal:
+        t = Terminal([sys.executable, "-m", "ucom_tools", "browse", "--zenoh", self.endpoint,
+                      "--timeout", "15"])
+        self.terminals.append(t)
+        return t
+
+    def close(self) -> None:
+        for t in self.terminals:
+            t.close()
+        for r in self.robots:
             r.stop()
-        shutil.rmtree(flashed, ignore_errors=True)
+
+
+@pytest.fixture()
+def rig(flashed: Path, tmp_path: Path) -> Iterator[Rig]:
+    r = Rig(flashed, tmp_path)
+    try:
+        yield r
+    finally:
+        r.close()
 
 
 def test_browse_on_a_terminal_sets_loses_the_robot_finds_it_again_and_quits(
-        robot_and_browser: tuple[Any, Terminal]) -> None:
-    (robots, restart, log), term = robot_and_browser
+        rig: Rig) -> None:
+    term = rig.browse()
     term.wait_for(r"connected to armar3 on tcp/127\.0\.0\.1:\d+")
     term.wait_for(r"ARMAR-III \(armar3\) on .*writes allowed")
     mark = term.mark()
@@ -387,19 +420,31 @@ def test_browse_on_a_terminal_sets_loses_the_robot_finds_it_again_and_quits(
     term.wait_for(r"refused: .*100000 is outside -32768\.\.32767 counts", mark)
 
     mark = term.mark()  # the robot's process ends: said, and found again when it is back
-    robots[-1].stop()
+    rig.robots[-1].stop()
     term.wait_for(r"connection lost [\d.]+ m?s ago: reconnecting to tcp/", mark)
     assert term.proc.poll() is None
     mark = term.mark()
-    restart()
+    rig.restart()
     term.wait_for(r"connected to armar3 on tcp/", mark, timeout=20)
     term.wait_for(rf"{SENSOR}\s+-?\d+ counts\s+\d+ ms", mark)
 
     mark = term.mark()
     term.keys("q")
-    assert term.proc.wait(timeout=10) == 0, term.text()[-2000:] + log.read_text()[-2000:]
-    after = termios.tcgetattr(term.slave)
-    assert after[3] & (termios.ECHO | termios.ICANON) == termios.ECHO | termios.ICANON
-    assert after == term.before  # cbreak undone, exactly
-    out = bytes(term.raw[mark:])
-    assert b"\x1b[?1049l" in out and b"\x1b[?25h" in out  # main screen back, cursor shown
+    assert term.proc.wait(timeout=10) == 0, term.text()[-2000:] + rig.log.read_text()[-2000:]
+    _restored(term, mark)
+
+
+def test_the_terminal_is_restored_after_ctrl_c_and_sigterm(rig: Rig) -> None:
+    interrupted, terminated = rig.browse(), rig.browse()
+    marks = []
+    for term in (interrupted, terminated):
+        term.wait_for(r"connected to armar3 on tcp/")
+        marks.append(term.mark())
+        term.keys("s")  # in the set prompt: the way out must restore everything still
+        term.wait_for(r"set \(name, Tab completes\)", marks[-1])
+    interrupted.keys("\x03")  # Ctrl-C, typed: SIGINT from the terminal
+    terminated.proc.send_signal(signal.SIGTERM)
+    assert interrupted.proc.wait(timeout=10) == 130
+    assert terminated.proc.wait(timeout=10) == 143
+    _restored(interrupted, marks[0])
+    _restored(terminated, marks[1])
