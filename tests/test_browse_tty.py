@@ -1,7 +1,8 @@
 """``ucom browse`` on a terminal (issue 18, 2): the view's rendering and its keys as pure
 functions, then the real thing: ``ucom remote run armar3 --virtual armar3 --zenoh ...
 --allow-writes`` and ``ucom browse`` under a pseudo-terminal, read from the screen and
-driven by keys (a set, a refusal, the robot's process stopped and started again, q).
+driven by keys (a set, a refusal, the robot's process stopped and started again, a stop
+from the view, q; Ctrl-C and SIGTERM).
 Every wait has a deadline; nothing sleeps to synchronise."""
 
 from __future__ import annotations
@@ -427,6 +428,14 @@ def test_browse_on_a_terminal_sets_loses_the_robot_finds_it_again_and_quits(
     rig.restart()
     term.wait_for(r"connected to armar3 on tcp/", mark, timeout=20)
     term.wait_for(rf"{SENSOR}\s+-?\d+ counts\s+\d+ ms", mark)
+
+    mark = term.mark()  # x stops the boards and the loop, once confirmed
+    term.keys("x")
+    term.wait_for(r"stop every board \(motors off\) and the robot's loop\? y/N", mark)
+    term.keys("y")
+    term.wait_for(r"stopping every board: the robot's loop ends", mark)
+    assert rig.robots[-1].proc.wait(timeout=15) == 0
+    term.wait_for(r"connection lost", mark)
 
     mark = term.mark()
     term.keys("q")

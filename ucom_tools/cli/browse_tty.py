@@ -99,7 +99,11 @@ class Link:
                 gen += 1
                 self._wake.clear()
                 self._inbox.put(("connected", gen, client))
-                subs = self._watch(client, gen)
+                try:
+                    subs = self._watch(client, gen)
+                except Exception:  # the session broke meanwhile: as gone, connect again
+                    subs = []
+                    self._wake.set()
                 self._wake.wait()
                 self._inbox.put(("lost", gen))
                 for s in subs:
