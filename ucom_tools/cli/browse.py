@@ -5,31 +5,16 @@ from __future__ import annotations
 
 import json
 import sys
-from decimal import Decimal, InvalidOperation
 from typing import Any
 
 import click
 from rich.markup import escape
 
+from ucom_tools.cli.browse_view import value_of as _value_of
 from ucom_tools.cli.options import Finite, json_option, parse_sets
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.errors import InputError
 from ucom_tools.net.keys import DEFAULT_ENDPOINT
-
-
-def _value_of(text: str) -> int | float | str:
-    """A value for the robot: a number where the text is one (exactly), else the text
-    itself (``0x444``), which the robot reads as a local ``--set`` does."""
-    try:
-        return int(text, 10)
-    except ValueError:
-        pass
-    try:
-        d = Decimal(text)
-    except InvalidOperation:
-        return text
-    f = float(d)
-    return f if Decimal(repr(f)) == d else text
 
 
 def _line(name: str, value: object, unit: str) -> str:
@@ -69,17 +54,33 @@ def browse(robot: str | None, endpoint: str, config_file: str | None, gets: tupl
     ROBOT is the robot's name in the keys (its topology's file name: armar3); not needed
     where one robot runs there.  --set writes (exit 3 where the robot refuses the value,
     naming its range or the closest names; 1 where it takes no writes), --get prints
-    values, --watch streams them; without these it prints the structure and every value
-    (--json: as one document).  Exit 4 where no robot answers on the endpoint within
-    --timeout.  See ucom-network(7)."""
+    values, --watch streams them.  Without these, on a terminal, it opens the live view:
+    the robot as a tree (bus, board with prefix and state, its edges by kind) with values
+    and their age, refreshed at the robot's publishing rate (at most 20 times a second);
+    it says "connection lost" when the robot goes and connects again when it is back.
+    Keys: / filter by name (Enter keeps it, Esc clears it), s set a CI or PAR (Tab
+    completes the name; NAME=VALUE or the name, Enter, then the value; the robot's answer
+    is shown), x stop the boards (y confirms), arrows, PgUp, PgDn, Home, End scroll, q
+    quits (exit 0).  Off a terminal (standard input or output a pipe or a file) it prints
+    the structure and every value once (--json: as one document).  Exit 4 where no robot
+    answers on the endpoint within --timeout.  See ucom-network(7)."""
+    from ucom_tools.cli import browse_tty
+    from ucom_tools.cli.browse_tty import interactive
     from ucom_tools.net.client import RobotClient
 
     wanted = parse_sets(sets)
     if seconds is not None and not watches:
         raise InputError("--for is the length of a --watch", key="--for")
-    with RobotClient.connect(endpoint if config_file is None or endpoint != DEFAULT_ENDPOINT
-                             else None, robot=robot, config_file=config_file,
+    where = endpoint if config_file is None or endpoint != DEFAULT_ENDPOINT else None
+    with RobotClient.connect(where, robot=robot, config_file=config_file,
                              timeout=timeout) as client:
+        if not (wanted or gets or stop or watches or as_json) and interactive(sys.stdin,
+                                                                             sys.stdout):
+            name = client.robot
+            browse_tty.run(client, lambda: RobotClient.connect(
+                where, robot=name, config_file=config_file, timeout=min(timeout, 2.0)),
+                timeout)
+            return
         out: dict[str, Any] = {"robot": client.robot, "endpoint": client.where}
         for name, text in wanted:
             answer = client.write(name, _value_of(text), timeout=timeout)

@@ -248,6 +248,45 @@ class RobotClient:
         return Subscription([self.session.liveliness().declare_subscriber(
             keys.robot_key(self.robot, "alive"), on_sample, history=True)])
 
+    def on_values(self, callback: Callable[[dict[str, Any]], None]) -> Subscription:
+        """``callback(doc)`` for each board's sample as the robot publishes it (one per board
+        and publishing period: the ``values`` payload of ``man/ucom-network.7``, with "bus",
+        "board", "t" and "values" by unique name); a sample that is not ours is dropped."""
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                doc = keys.loads(sample.payload.to_bytes())
+            except ValueError:
+                return
+            callback(doc)
+        return Subscription([self.session.declare_subscriber(
+            f"ucom/{keys.escape(self.robot)}/*/*/values", on_sample)])
+
+    def on_events(self, callback: Callable[[dict[str, Any]], None]) -> Subscription:
+        """``callback(doc)`` for each of the run's events (``ucom/<robot>/events``: the
+        loop's state, a board's Error, a write or stop from the network)."""
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                doc = keys.loads(sample.payload.to_bytes())
+            except ValueError:
+                return
+            callback(doc)
+        return Subscription([self.session.declare_subscriber(
+            keys.robot_key(self.robot, "events"), on_sample)])
+
+    def on_boards(self, callback: Callable[[str, int, bool], None]) -> Subscription:
+        """``callback(bus, board, running)`` for each board's liveliness token: True when it
+        is there (also for the tokens already there), False when it goes (the loop ended,
+        or the board's watchdog stopped its motors)."""
+        def on_sample(sample: zenoh.Sample) -> None:
+            parts = str(sample.key_expr).split("/")
+            try:
+                bus, board = keys.unescape(parts[2]), int(parts[3])
+            except (IndexError, ValueError):
+                return
+            callback(bus, board, sample.kind != zenoh.SampleKind.DELETE)
+        return Subscription([self.session.liveliness().declare_subscriber(
+            f"ucom/{keys.escape(self.robot)}/*/*/alive", on_sample, history=True)])
+
     def alive(self) -> bool:
         """Is the robot's liveliness token there now?"""
         return any(r.ok is not None for r in self.session.liveliness().get(
