@@ -228,18 +228,30 @@ class BusExchange:
         return readies
 
     def configure_all(self, numbers: Sequence[int]) -> None:
+        """Configure each of these boards with its tree block (:meth:`configure_board`)."""
         for n in numbers:
             spec = self.bus.boards[n - 1]
-            block = self.trees.board(self.bus.name, spec.position)
-            c = configure(self.mca, seq(n), self.where(n), block, self.plan,
-                          tree_file=str(spec.tree) if spec.tree else None)
-            self.configured[n] = c
-            for index in range(len(c.edges.ci)):
-                self.ci.setdefault((n, index), 0)
-            for unique, raw in c.written.items():
-                e = block.edge(unique)
-                if e.kind is Kind.CI:
-                    self.ci[(n, e.index)] = raw
+            self.configure_board(n, self.trees.board(self.bus.name, spec.position),
+                                 tree_file=str(spec.tree) if spec.tree else None)
+
+    def configure_board(self, n: int, block: Board, *, tree_file: str | None = None,
+                        edges: BoardEdges | None = None) -> Configured:
+        """Configure board ``n`` with its tree ``block`` (:func:`configure`; ``edges``: its
+        description when it was already fetched), then seed the CI values the exchange
+        sends it from the first cycle on: for every CI the board describes, the tree's
+        default where it has one, else 0 (or the value set before, on a restart).  The
+        one place this is decided, for :meth:`bring_up` and for
+        :class:`~ucom_tools.ops.remote.RemotePart`."""
+        c = configure(self.mca, seq(n), self.where(n), block, self.plan,
+                      tree_file=tree_file, edges=edges)
+        self.configured[n] = c
+        for index in range(len(c.edges.ci)):
+            self.ci.setdefault((n, index), 0)
+        for unique, raw in c.written.items():
+            e = block.edge(unique)
+            if e.kind is Kind.CI:
+                self.ci[(n, e.index)] = raw
+        return c
 
     def start_exchange(self, *, periodic: bool = True) -> None:
         """Start the periodic frames (``periodic``: as tasks of the dispatcher; otherwise
