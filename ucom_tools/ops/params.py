@@ -31,7 +31,7 @@ from ucom_tools.config.topology import Topology
 from ucom_tools.edgelists.model import EdgeSpec
 from ucom_tools.errors import BoardError, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import spec_of
-from ucom_tools.ops.exchange import defaults_raw, write_runs
+from ucom_tools.ops.exchange import defaults_raw, on_board, write_runs
 from ucom_tools.ops.remote import BoardCheck, RemotePart
 from ucom_tools.ops.robot import Robot
 from ucom_tools.protocol.mca import BoardEdges, McaClient
@@ -41,7 +41,6 @@ from ucom_tools.wire.ids import ALL, seq
 
 KINDS = (Kind.CI, Kind.PAR)
 """The kinds a board holds values of that the PC sets (SO values are measurements)."""
-_WIRE = {Kind.CI: mca.Kind.CI, Kind.PAR: mca.Kind.PAR}
 RUNNING = (BoardState.RUNNING_FLASH, BoardState.RUNNING_EXTRAM)
 BITMASK = "(BitMask)"
 """Edges whose name ends so are bit masks: their values are written in hex."""
@@ -219,13 +218,10 @@ def _dump_kind(client: McaClient, n: int, edges: BoardEdges, kind: mca.Kind) -> 
 
 def _values(b: BoundBoard, edges: BoardEdges, raws: Mapping[mca.Kind, Sequence[int]],
             ) -> tuple[EdgeValue, ...]:
-    first = {k: sum(len(edges.of(j)) for j in mca.Kind if j < k) for k in mca.Kind}
     out = []
-    for e in b.board.edges:
+    for e, kind, i in on_board(b.board, edges):
         if e.kind not in KINDS:
             continue
-        kind = _WIRE[e.kind]
-        i = e.index - first[kind]
         record = edges.of(kind)[i]
         spec = spec_of(kind, record)
         raw = raws[kind][i]

@@ -16,18 +16,15 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ucom_tools.config.attrtree.match import differences, program_of
-from ucom_tools.config.attrtree.model import Board, Kind
+from ucom_tools.config.attrtree.model import Board
 from ucom_tools.config.attrtree.robot import RobotTrees
 from ucom_tools.errors import BoardError, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import EdgeRef, spec_of
-from ucom_tools.ops.exchange import BusExchange, edge_list
+from ucom_tools.ops.exchange import BusExchange, edge_list, on_board
 from ucom_tools.ops.remote_report import BoardCheck
 from ucom_tools.ops.robot import BusHandle
 from ucom_tools.protocol.mca import BoardEdges
-from ucom_tools.wire import mca
 from ucom_tools.wire.ids import seq
-
-_KIND = {Kind.CI: mca.Kind.CI, Kind.SO: mca.Kind.SO, Kind.PAR: mca.Kind.PAR}
 
 
 @dataclass
@@ -92,10 +89,7 @@ def _with(base: BoardCheck, **changes: object) -> BoardCheck:
 def _refs_of(bus: str, n: int, where: str, block: Board, edges: BoardEdges,
              ) -> Iterator[EdgeRef]:
     """The edges of one board whose tree block matches its description."""
-    first = {k: sum(len(edges.of(j)) for j in mca.Kind if j < k) for k in mca.Kind}
-    for e in block.edges:
-        kind = _KIND[e.kind]
-        index = e.index - first[kind]
+    for e, kind, index in on_board(block, edges):
         yield EdgeRef(bus, n, where, block.prefix, e.unique, e.generic, kind, index,
                       spec_of(kind, edges.of(kind)[index]))
 
