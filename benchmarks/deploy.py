@@ -38,7 +38,7 @@ sys.path.insert(0, str(ROOT))
 from ucom_tools.config import topology as topo_mod  # noqa: E402
 from ucom_tools.image import load_image  # noqa: E402
 from ucom_tools.ops import deploy as ops  # noqa: E402
-from ucom_tools.ops import params as params_ops  # noqa: E402
+from ucom_tools.ops import params_keep  # noqa: E402
 from ucom_tools.ops.enumerate import enumerate_bus  # noqa: E402
 from ucom_tools.ops.flash import flash  # noqa: E402
 from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot  # noqa: E402
@@ -99,11 +99,11 @@ def main() -> int:
             deploy(plain, 11)  # flash left the boards in their bootloader: start them
 
             def flash_keep() -> None:
-                kept = params_ops.keep_before(r)
+                kept = params_keep.keep_before(r)
                 for h in r.buses.values():
                     h.client.reset()
                 result = flash(r, image, start=True)
-                restored = params_ops.keep_after(r, kept, {(b.bus, b.seq_id): b.outcome
+                restored = params_keep.keep_after(r, kept, {(b.bus, b.seq_id): b.outcome
                                                            for b in result.boards})
                 assert result.all_verified and restored.ok
 

@@ -29,7 +29,7 @@ from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.errors import InputError, UcomError
 from ucom_tools.image import load_image
 from ucom_tools.ops import options as ops
-from ucom_tools.ops import params as params_ops
+from ucom_tools.ops import params_keep
 from ucom_tools.ops.enumerate import enumerate_bus
 from ucom_tools.ops.flash import FlashResult, Selection, listen_first
 from ucom_tools.ops.robot import ConnectSpec, Robot
@@ -316,7 +316,7 @@ last_cmd = _probe_command("last", 15, True, "Found through its init output, the 
 
 # ----------------------------------------------------------------------------- 5, 6, flash
 def _flash_out(ctx: click.Context, spec: ConnectSpec, result: FlashResult,
-               as_json: bool, kept: params_ops.KeepResult | None = None) -> None:
+               as_json: bool, kept: params_keep.KeepResult | None = None) -> None:
     if as_json:
         extra = {"keep_params": params_cli.kept_json(kept)} if kept is not None else {}
         _json(spec, {**render.flash_json(result), **extra})
@@ -393,7 +393,7 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
     with robot(spec) as r:
         r.select(bus_name)  # an unknown --bus is exit code 3 before anything is sent
         listen_first(r, bus_name)  # another host programming: exit 4, nothing sent
-        kept = params_ops.keep_before(r, bus=bus_name) if keep_params else None
+        kept = params_keep.keep_before(r, bus=bus_name) if keep_params else None
         if kept is not None and not kept.readout.ok and not force:
             _keep_refused(ctx, spec, kept, as_json)
             return
@@ -413,10 +413,10 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
     _flash_out(ctx, spec, result, as_json, restored)
 
 
-def _keep_after(r: Robot, kept: params_ops.Kept, result: FlashResult) -> params_ops.KeepResult:
+def _keep_after(r: Robot, kept: params_keep.Kept, result: FlashResult) -> params_keep.KeepResult:
     """Load the kept values back; when that fails altogether, say where they are."""
     try:
-        return params_ops.keep_after(r, kept, {(b.bus, b.seq_id): b.outcome
+        return params_keep.keep_after(r, kept, {(b.bus, b.seq_id): b.outcome
                                                for b in result.boards})
     except (UcomError, KeyboardInterrupt):
         if kept.directory is not None:
@@ -425,11 +425,11 @@ def _keep_after(r: Robot, kept: params_ops.Kept, result: FlashResult) -> params_
         raise
 
 
-def _keep_refused(ctx: click.Context, spec: ConnectSpec, kept: params_ops.Kept,
+def _keep_refused(ctx: click.Context, spec: ConnectSpec, kept: params_keep.Kept,
                   as_json: bool) -> None:
     """flash --keep-params without --force when some board's values could not be read:
     nothing programmed, exit code 1."""
-    report = params_ops.keep_refused(kept)
+    report = params_keep.keep_refused(kept)
     if as_json:
         _json(spec, {"programmed": False, "keep_params": params_cli.kept_json(report)})
     else:

@@ -19,6 +19,7 @@ from ucom_tools.config import attrtree
 from ucom_tools.config import topology as topology_mod
 from ucom_tools.config.attrtree import Kind
 from ucom_tools.ops import params as ops
+from ucom_tools.ops import params_dump, params_keep
 from ucom_tools.ops.robot import ConnectSpec
 
 
@@ -53,7 +54,7 @@ def load_json(b: ops.BoardLoad) -> dict[str, Any]:
             "error": b.error or None, "line": b.line or None, "held": b.held or None}
 
 
-def kept_json(k: ops.KeepResult) -> dict[str, Any]:
+def kept_json(k: params_keep.KeepResult) -> dict[str, Any]:
     """The ``keep_params`` object of ``ucom flash --keep-params --json``."""
     return {"ok": k.ok, "directory": str(k.directory) if k.directory else None,
             "boards": [{"bus": b.bus, "seq_id": b.board, "where": b.where, "prefix": b.prefix,
@@ -96,7 +97,7 @@ def _read_table(c: Console, readout: ops.Readout) -> None:
     c.print(t)
 
 
-def print_kept(c: Console, k: ops.KeepResult) -> None:
+def print_kept(c: Console, k: params_keep.KeepResult) -> None:
     """What ``flash --keep-params`` kept, per board."""
     style = {"kept": "green", "skipped": "dim", "failed": "red", "untouched": "yellow"}
     for b in k.boards:
@@ -142,10 +143,10 @@ def dump_cmd(ctx: click.Context, robot_name: str, output: Path, force: bool, spe
     (--virtual NAME, or -i/-c/--host/--port)."""
     topo = topology_mod.load(robot_name)
     trees = attrtree.bind_present(topo)
-    targets = ops.dump_targets(trees, output, force=force, bus=bus_name)
+    targets = params_dump.dump_targets(trees, output, force=force, bus=bus_name)
     with robot(_of_robot(spec, robot_name, bus_name)) as r:
         readout = ops.read_values(r, trees, bus=bus_name)
-    written = ops.write_dump(readout, targets) if readout.ok else []
+    written = params_dump.write_dump(readout, targets) if readout.ok else []
     if as_json:
         emit_json({"robot": topo.name, "topology": topo.source, "output": str(output),
                    "ok": readout.ok, "written": [str(p) for p in written],

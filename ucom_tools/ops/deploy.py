@@ -59,6 +59,7 @@ from ucom_tools.ops.journal import (
     safe_name,
 )
 from ucom_tools.ops.manifest import Manifest, Wanted, image_problems, load_manifest
+from ucom_tools.ops.params_dump import live_tree
 from ucom_tools.ops.robot import BusHandle, Robot
 from ucom_tools.wire.codes import BoardState, StatusOp
 from ucom_tools.wire.ids import ALL, seq
@@ -334,7 +335,7 @@ def _dump(part: Robot, manifest: Manifest, journal: Journal, rows: list[PlanRow]
                 continue
             if not read.ok:
                 continue
-            tree = _one_block(params_ops.live_tree(by_source[str(read.tree)], [read]),
+            tree = _one_block(live_tree(by_source[str(read.tree)], [read]),
                               read.block)
             name = f"{PARAMS_DIR}/{safe_name(read.bus)}-{read.board}.tree"
             text = attrtree.dumps(tree)

@@ -15,13 +15,13 @@ start would take its boards from it.
 from __future__ import annotations
 
 import struct
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import can
 
 from ucom_tools.config.attrtree.match import compare, program_of
-from ucom_tools.config.attrtree.model import Board, Kind
+from ucom_tools.config.attrtree.model import Board, Edge, Kind
 from ucom_tools.config.attrtree.robot import RobotTrees
 from ucom_tools.config.topology import BusSpec
 from ucom_tools.edgelists.model import EdgeKind
@@ -59,17 +59,24 @@ def edge_list(edges: BoardEdges) -> list[tuple[EdgeKind, str]]:
     return [(EdgeKind(k), r.name) for k in mca.Kind for r in edges.of(k)]
 
 
+def on_board(tree: Board, edges: BoardEdges) -> Iterator[tuple[Edge, mca.Kind, int]]:
+    """Every edge of a tree block that matches the board's description ``edges``, with
+    its kind and index on the board: the tree counts its edges CI, SO, PAR on, the board
+    each kind from 0 (``man/ucom-tree.5``)."""
+    first = {k: sum(len(edges.of(j)) for j in mca.Kind if j < k) for k in mca.Kind}
+    for e in tree.edges:
+        kind = _KIND[e.kind]
+        yield e, kind, e.index - first[kind]
+
+
 def defaults_raw(tree: Board, edges: BoardEdges, where: str, tree_file: str | None = None,
                  ) -> list[tuple[mca.Kind, int, int, str]]:
     """(kind, per-kind index, raw value, unique name) of every default of ``tree``, in
     tree order; ExchangeError naming the tree line when a value does not fit its edge."""
     out = []
-    first = {k: sum(len(edges.of(j)) for j in mca.Kind if j < k) for k in mca.Kind}
-    for e in tree.edges:
+    for e, kind, index in on_board(tree, edges):
         if e.default is None:
             continue
-        kind = _KIND[e.kind]
-        index = e.index - first[kind]
         spec = spec_of(kind, edges.of(kind)[index])
         try:
             raw = spec.raw(e.default.text)
@@ -228,18 +235,30 @@ class BusExchange:
         return readies
 
     def configure_all(self, numbers: Sequence[int]) -> None:
+        """Configure each of these boards with its tree block (:meth:`configure_board`)."""
         for n in numbers:
             spec = self.bus.boards[n - 1]
-            block = self.trees.board(self.bus.name, spec.position)
-            c = configure(self.mca, seq(n), self.where(n), block, self.plan,
-                          tree_file=str(spec.tree) if spec.tree else None)
-            self.configured[n] = c
-            for index in range(len(c.edges.ci)):
-                self.ci.setdefault((n, index), 0)
-            for unique, raw in c.written.items():
-                e = block.edge(unique)
-                if e.kind is Kind.CI:
-                    self.ci[(n, e.index)] = raw
+            self.configure_board(n, self.trees.board(self.bus.name, spec.position),
+                                 tree_file=str(spec.tree) if spec.tree else None)
+
+    def configure_board(self, n: int, block: Board, *, tree_file: str | None = None,
+                        edges: BoardEdges | None = None) -> Configured:
+        """Configure board ``n`` with its tree ``block`` (:func:`configure`; ``edges``: its
+        description when it was already fetched), then seed the CI values the exchange
+        sends it from the first cycle on: for every CI the board describes, the tree's
+        default where it has one, else 0 (or the value set before, on a restart).  The
+        one place this is decided, for :meth:`bring_up` and for
+        :class:`~ucom_tools.ops.remote.RemotePart`."""
+        c = configure(self.mca, seq(n), self.where(n), block, self.plan,
+                      tree_file=tree_file, edges=edges)
+        self.configured[n] = c
+        for index in range(len(c.edges.ci)):
+            self.ci.setdefault((n, index), 0)
+        for unique, raw in c.written.items():
+            e = block.edge(unique)
+            if e.kind is Kind.CI:
+                self.ci[(n, e.index)] = raw
+        return c
 
     def start_exchange(self, *, periodic: bool = True) -> None:
         """Start the periodic frames (``periodic``: as tasks of the dispatcher; otherwise

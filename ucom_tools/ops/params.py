@@ -13,25 +13,25 @@ A dumped tree is the robot's tree in canonical form (:func:`attrtree.dumps
 value, written as the tree wrote it when that text denotes the same number (``0x444``,
 ``0.0005``), else as the exact decimal, or as hex for an edge whose name ends in
 ``(BitMask)``.  Loading such a tree gives every board exactly the values it had.
+
+This module reads and writes the values; the dumped trees' files are
+:mod:`~ucom_tools.ops.params_dump`'s, keeping them across a reflash
+:mod:`~ucom_tools.ops.params_keep`'s.
 """
 
 from __future__ import annotations
 
-import shutil
-import tempfile
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
 
-from ucom_tools import fileio
-from ucom_tools.config import attrtree
-from ucom_tools.config.attrtree import BoundBoard, Kind, RobotTrees, Tree, Value
+from ucom_tools.config.attrtree import BoundBoard, Kind, RobotTrees, Value
 from ucom_tools.config.topology import Topology
 from ucom_tools.edgelists.model import EdgeSpec
-from ucom_tools.errors import BoardError, InputError, UcomError, UcomTimeoutError
+from ucom_tools.errors import BoardError, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import spec_of
-from ucom_tools.ops.exchange import defaults_raw, write_runs
+from ucom_tools.ops.exchange import defaults_raw, on_board, write_runs
 from ucom_tools.ops.remote import BoardCheck, RemotePart
 from ucom_tools.ops.robot import Robot
 from ucom_tools.protocol.mca import BoardEdges, McaClient
@@ -41,7 +41,6 @@ from ucom_tools.wire.ids import ALL, seq
 
 KINDS = (Kind.CI, Kind.PAR)
 """The kinds a board holds values of that the PC sets (SO values are measurements)."""
-_WIRE = {Kind.CI: mca.Kind.CI, Kind.PAR: mca.Kind.PAR}
 RUNNING = (BoardState.RUNNING_FLASH, BoardState.RUNNING_EXTRAM)
 BITMASK = "(BitMask)"
 """Edges whose name ends so are bit masks: their values are written in hex."""
@@ -219,13 +218,10 @@ def _dump_kind(client: McaClient, n: int, edges: BoardEdges, kind: mca.Kind) -> 
 
 def _values(b: BoundBoard, edges: BoardEdges, raws: Mapping[mca.Kind, Sequence[int]],
             ) -> tuple[EdgeValue, ...]:
-    first = {k: sum(len(edges.of(j)) for j in mca.Kind if j < k) for k in mca.Kind}
     out = []
-    for e in b.board.edges:
+    for e, kind, i in on_board(b.board, edges):
         if e.kind not in KINDS:
             continue
-        kind = _WIRE[e.kind]
-        i = e.index - first[kind]
         record = edges.of(kind)[i]
         spec = spec_of(kind, record)
         raw = raws[kind][i]
@@ -274,89 +270,6 @@ def read_values(robot: Robot, trees: RobotTrees, *, bus: str | None = None,
                 reads[key] = replace(base, values=_values(b, edges, raws))
     order = list(bound)
     return Readout(trees.topology, tuple(reads[k] for k in order if k in reads))
-
-
-# ----------------------------------------------------------------------------- dump files
-def live_tree(tree: Tree, reads: Iterable[BoardRead]) -> Tree:
-    """``tree`` with a default for every PAR and CI edge of each block that was read: the
-    value the board holds (blocks not read keep their defaults)."""
-    by_block = {r.block: r for r in reads if r.ok and Path(r.tree) == Path(tree.source)}
-    boards = []
-    for b in tree.boards:
-        read = by_block.get(b.number)
-        if read is None:
-            boards.append(b)
-            continue
-        texts = {v.unique: v.text for v in read.values}
-        boards.append(replace(b, edges=tuple(
-            replace(e, default=Value.parse(texts[e.unique])) if e.unique in texts else e
-            for e in b.edges)))
-    return replace(tree, boards=tuple(boards))
-
-
-@dataclass(frozen=True)
-class DumpTarget:
-    """Where a dump writes one tree file of the robot."""
-
-    tree: Tree
-    path: Path
-
-
-def dump_targets(trees: RobotTrees, output: Path, *, force: bool = False,
-                 bus: str | None = None) -> list[DumpTarget]:
-    """The file each tree of the robot (of the boards on ``bus``) is dumped to: ``output``
-    itself when there is one tree file (or ``output``/its base name when ``output`` is a
-    directory), else ``output``/base name of each.  InputError, before anything is read,
-    for a file that exists (unless ``force``), a directory that is not one, two trees
-    with one base name, or a tree file that also holds boards of another bus."""
-    selected = on_bus(trees, bus)
-    files = list(dict.fromkeys(str(b.file) for b in selected.boards))
-    if bus is not None:
-        for b in trees.boards:
-            if b.bus != bus and str(b.file) in files:
-                raise InputError(f"{b.file} also holds the block of {b.where}; dump every bus "
-                                 "(without --bus) to write it", key="--bus")
-    by_source = {t.source: t for t in trees.trees}
-    chosen = [by_source[f] for f in files]
-    directory = len(chosen) > 1 or output.is_dir() or str(output).endswith(("/", "\\"))
-    if directory and output.exists() and not output.is_dir():
-        raise InputError(f"{len(chosen)} tree files are dumped, but {output} is a file: give "
-                         "a directory", key="-o")
-    if not directory and not output.parent.is_dir():
-        raise InputError(f"directory {output.parent} does not exist", key="-o")
-    out: list[DumpTarget] = []
-    names: dict[str, Tree] = {}
-    for t in chosen:
-        name = Path(t.source).name
-        if directory and name in names:
-            raise InputError(f"{t.source} and {names[name].source} have the same base name; "
-                             "dump them separately (--bus) or rename one", key="-o")
-        names[name] = t
-        out.append(DumpTarget(t, output / name if directory else output))
-    existing = [str(d.path) for d in out if d.path.exists()]
-    if existing and not force:
-        raise InputError(f"{', '.join(existing)} exist{'s' * (len(existing) == 1)}; "
-                         "--force replaces them", key="-o")
-    return out
-
-
-def write_dump(readout: Readout, targets: Sequence[DumpTarget]) -> list[Path]:
-    """Write the live trees: each one rendered and checked first (it must read back as
-    the same values), then all staged beside their targets and renamed into place: every
-    file or none (a full disk leaves the old files as they were)."""
-    rendered: list[tuple[Tree, Path]] = []
-    for d in targets:
-        tree = live_tree(d.tree, readout.read)
-        again = attrtree.parse(attrtree.dumps(tree), str(d.path))
-        if again != tree:  # cannot happen with a valid tree; never write what does not
-            raise UcomError(f"{d.path}: the dumped tree does not read back as written")
-        rendered.append((tree, d.path))
-    for directory in sorted({p.parent for _, p in rendered}):
-        fileio.prepare_directory(directory, option="-o")
-    with fileio.Batch(option="-o") as batch:  # every tree or none (ucom(1), FILES)
-        for tree, path in rendered:
-            batch.write_text(path, attrtree.dumps(tree))
-    return [p for _, p in rendered]
 
 
 # ----------------------------------------------------------------------------- load
@@ -477,135 +390,3 @@ def load_values(robot: Robot, trees: RobotTrees, *, bus: str | None = None,
                            if back[k][i] != raw)
             loads[key] = replace(loads[key], written=len(values), not_taken=missed)
     return LoadResult(trees.topology, tuple(loads[k] for k in bound if k in loads), sent)
-
-
-# ----------------------------------------------------------------------------- keep
-@dataclass(frozen=True)
-class Kept:
-    """The values of the running boards, read before a reflash and dumped into
-    ``directory`` (a temporary directory) to be loaded back after it."""
-
-    trees: RobotTrees
-    readout: Readout
-    directory: Path | None
-    """None when no board ran a program matching its tree (nothing to keep)."""
-    files: tuple[Path, ...] = ()
-
-
-def keep_before(robot: Robot, *, bus: str | None = None) -> Kept:
-    """Read the values of every board of the robot (on ``bus``) that runs a program,
-    matched against its tree (the robot's topology binds them), and dump them into a new
-    temporary directory.  InputError when the robot has no topology or no trees."""
-    if robot.topology is None:
-        raise InputError("--keep-params needs the robot's topology (which tree each board "
-                         "has): give --topology FILE or --virtual NAME", key="--keep-params")
-    trees = attrtree.bind_present(robot.topology)
-    readout = read_values(robot, trees, bus=bus, running_only=True)
-    if not readout.read:
-        return Kept(trees, readout, None)
-    sources = list(dict.fromkeys(str(b.tree) for b in readout.read))
-    by_source = {t.source: t for t in trees.trees}
-    directory = Path(tempfile.mkdtemp(prefix="ucom-keep-params-"))
-    try:
-        targets = [DumpTarget(by_source[s], directory / f"{i:02d}-{Path(s).name}")
-                   for i, s in enumerate(sources, 1)]
-        files = write_dump(readout, targets)
-    except BaseException:
-        shutil.rmtree(directory, ignore_errors=True)
-        raise
-    return Kept(trees, readout, directory, tuple(files))
-
-
-@dataclass(frozen=True)
-class KeptBoard:
-    """What became of one board's values across the reflash."""
-
-    bus: str
-    board: int
-    where: str
-    prefix: str
-    outcome: str
-    """kept (loaded back and read back), skipped (nothing to keep: no program ran),
-    failed (read before but not loaded back, or not read although it ran a program),
-    untouched (the job stopped before programming)."""
-    detail: str = ""
-    values: int = 0
-    changed: int = 0
-    """Values that differ from the tree's defaults (what a plain flash would have lost
-    to a 'ucom remote' start)."""
-
-
-@dataclass(frozen=True)
-class KeepResult:
-    boards: tuple[KeptBoard, ...]
-    directory: Path | None
-    """The dumped values, left in place when some board did not get them back."""
-
-    @property
-    def ok(self) -> bool:
-        return all(b.outcome != "failed" for b in self.boards)
-
-    @property
-    def failed(self) -> list[KeptBoard]:
-        return [b for b in self.boards if b.outcome == "failed"]
-
-
-def _kept_board(r: BoardRead, outcome: str, detail: str) -> KeptBoard:
-    return KeptBoard(r.bus, r.board, r.where, r.prefix, outcome, detail, len(r.values),
-                     sum(v.changed for v in r.values))
-
-
-def keep_refused(kept: Kept) -> KeepResult:
-    """The result when the job stops before programming (the values stay on the boards):
-    the temporary directory is removed."""
-    if kept.directory is not None:
-        shutil.rmtree(kept.directory, ignore_errors=True)
-    return KeepResult(tuple(
-        _kept_board(r, "failed" if r.error else "skipped" if r.skipped else "untouched",
-                    r.error or r.skipped or "read; nothing was programmed")
-        for r in kept.readout.boards), None)
-
-
-def keep_after(robot: Robot, kept: Kept, programmed: Mapping[tuple[str, int], str]) -> KeepResult:
-    """Load the kept values back into their boards (each program started if needed).
-    ``programmed`` gives the flash outcome of every board of the job by (bus, seq ID);
-    a board whose flash failed is not loaded (its values stay in the directory).  The
-    temporary directory is removed when every board that was read got its values back;
-    otherwise the result names it."""
-    out: dict[tuple[str, int], KeptBoard] = {}
-    load: list[BoardRead] = []
-    for r in kept.readout.boards:
-        key = (r.bus, r.board)
-        if r.skipped:
-            out[key] = _kept_board(r, "skipped", f"nothing to keep: {r.skipped}")
-        elif r.error:
-            out[key] = _kept_board(r, "failed", f"not read before programming: {r.error}")
-        elif programmed.get(key, "verified") not in ("verified", "refused"):
-            out[key] = _kept_board(r, "failed", "not loaded back: programming "
-                                   f"{programmed[key]}")
-        else:
-            load.append(r)
-    if load:
-        assert kept.directory is not None
-        given = attrtree.with_files(kept.trees, kept.files, only=True)
-        chosen = select_prefixes(given, (r.prefix for r in load))
-        result = load_values(robot, chosen, strict=False)
-        by_key = {(b.bus, b.board): b for b in result.boards}
-        for r in load:
-            b = by_key.get((r.bus, r.board))
-            if b is None:
-                out[(r.bus, r.board)] = _kept_board(r, "failed", "not loaded back")
-            elif b.ok:
-                out[(r.bus, r.board)] = _kept_board(r, "kept", f"{b.written} values loaded "
-                                                    "back and read back")
-            else:
-                why = b.error or ", ".join(f"{x.unique} reads {x.read}, not {x.sent}"
-                                           for x in b.not_taken)
-                out[(r.bus, r.board)] = _kept_board(r, "failed", f"not loaded back: {why}")
-    boards = tuple(out[(r.bus, r.board)] for r in kept.readout.boards)
-    directory = kept.directory
-    lost = [r for r in kept.readout.read if out[(r.bus, r.board)].outcome == "failed"]
-    if directory is not None and not lost:  # every value read is back on its board
-        shutil.rmtree(directory, ignore_errors=True)
-        directory = None
-    return KeepResult(boards, directory)

@@ -1,0 +1,241 @@
+"""The PC's loop of the run time (``dsp_remote_part``, dissertation 5.2.2): every period
+the CI maps due and MCA Alive on every bus, then every frame the buses delivered.
+
+Real buses: one thread does everything (no reader threads, so the GIL never keeps the
+loop from its deadline).  Each cycle sleeps to its deadline on the wall clock (a short
+spin for the last 0.1 ms), sends the frames due (one write per bus where the interface
+can batch them: socketcand), then takes every frame the buses delivered meanwhile.
+``realtime`` runs the loop's thread under SCHED_FIFO (:mod:`ucom_tools.ops.realtime`).
+The in-process fleet in virtual time: the loop drives the fleet clock, nothing waits.
+:class:`~ucom_tools.ops.remote.RemotePart` is a :class:`RemoteLoop`; its
+:meth:`~RemoteLoop.cycle` is the performance-critical path (``benchmarks/runtime.py``).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable, Mapping
+from typing import Any, Self
+
+import can
+
+from ucom_tools.errors import BusError, FrameError, UcomError
+from ucom_tools.ops.exchange import BusExchange
+from ucom_tools.ops.realtime import RealtimeScheduling, precise_sleep
+from ucom_tools.ops.remote_report import BoardEvent, LoopStats, Value
+from ucom_tools.ops.remote_values import RemoteValues
+from ucom_tools.ops.robot import BusHandle, Robot
+from ucom_tools.protocol.dispatch import share_clock
+from ucom_tools.wire import messages as wire_messages
+from ucom_tools.wire.codes import ErrorCode
+from ucom_tools.wire.ids import Function
+
+SPIN_S = 0.0001
+"""The loop sleeps until this long before a deadline, then spins (a sleep wakes a little
+late; the thread's timer slack is made small, see :func:`~ucom_tools.ops.realtime.
+precise_sleep`)."""
+DRAIN_EVERY_S = 0.001
+"""At rates below 1 kHz the loop takes what the buses delivered at least this often while
+it waits, so that no receive buffer fills."""
+SWITCH_INTERVAL_S = 0.0001
+"""While the loop runs, Python switches threads this often (default 5 ms: a second
+thread, a live view say, could keep the loop from its deadline that long)."""
+RECENT_SAMPLES = 2_000
+"""The cycles a running view's lateness figures are taken over (the last 2 s at 1 kHz)."""
+
+
+class RemoteLoop(RemoteValues):
+    """The loop over the exchanges of ``robot``'s buses at one period (see the module
+    docstring); :meth:`_start_loop` begins it, :meth:`_end_loop` ends it."""
+
+    def __init__(self, robot: Robot, exchanges: dict[str, BusExchange], period_s: float,
+                 *, realtime: bool = False) -> None:
+        super().__init__(robot, exchanges)
+        self.period_s = period_s
+        self.virtual = robot.virtual_time
+        self.stats = LoopStats(self.period_s)
+        self._running = False
+        self._k = 0
+        self._deadline = 0.0
+        self._switch: float | None = None
+        self._prepared = False
+        self.events: list[BoardEvent] = []
+        """What the boards reported while the exchange ran (their Error messages)."""
+        self._event_subs: list[tuple[Any, Any]] = []
+        self._batching: list[tuple[str, Any]] = []
+        """The buses whose frames of a cycle go out in one write (``hold``/``release``:
+        :class:`~ucom_tools.transport.socketcand.SocketcandBus`)."""
+        self.scheduling: RealtimeScheduling | None = (
+            RealtimeScheduling() if realtime and not robot.virtual_time else None)
+        """``realtime``: the loop's thread under SCHED_FIFO from its first cycle to the stop
+        (``scheduling.active``; ``scheduling.refused`` says why not).  Not in virtual time,
+        where the loop drives the clock and nothing waits for the wall."""
+        self.each_cycle: list[Callable[[], None]] = []
+        """Called on the loop's thread at the end of every cycle, after the sends (the
+        network share, :mod:`ucom_tools.net.share`: writes from the network are applied
+        here, and a snapshot handed to its publishing thread every few cycles).  What is
+        called here must not wait for anything."""
+
+    def _handles(self) -> list[tuple[BusHandle, BusExchange]]:
+        return [(self.robot.buses[n], x) for n, x in self.exchanges.items()]
+
+    @property
+    def running(self) -> bool:
+        """Between :meth:`start` and :meth:`stop`."""
+        return self._running
+
+    # ------------------------------------------------------------------ begin, end
+    def _start_loop(self) -> None:
+        """The configured boards' exchange from the PC: MCA Alive as periodic frames while
+        the boards are started one by one (an answer that has to be asked for again must
+        not let the first ones' watchdogs fire), MCA Start on every board, then the
+        first cycle; from then on the loop sends everything."""
+        if self.virtual:
+            share_clock([h.link.dispatcher for h, _ in self._handles()])
+        else:
+            for h, _ in self._handles():  # until the loop polls them itself
+                h.link.dispatcher.start()
+        for _, x in self._handles():
+            x.start_alive()
+        for _, x in self._handles():
+            x.start_exchange(periodic=False)
+        self._running = True
+        clock = self._clock()
+        self._listen_for_events(clock)
+        self.stats = LoopStats(self.period_s, started_wall=time.perf_counter(),
+                               started_clock=clock)
+        self._deadline = clock
+        self._k = 0
+        if not self.virtual:
+            for h, _ in self._handles():
+                h.link.dispatcher.stop()
+            self._switch = sys.getswitchinterval()
+            sys.setswitchinterval(SWITCH_INTERVAL_S)
+        self.cycle()
+        for _, x in self._handles():
+            x.stop_tasks()
+
+    def _end_loop(self) -> None:
+        """After the boards' stop: no periodic frames, the thread's scheduling as it was."""
+        for _, x in self._handles():
+            x.stop_tasks()
+        if self.scheduling is not None:
+            self.scheduling.leave()
+        self._prepared = False
+        if self._switch is not None:
+            sys.setswitchinterval(self._switch)
+            self._switch = None
+
+    # ------------------------------------------------------------------ the loop
+    def cycle(self) -> Mapping[str, Value | None]:
+        """Wait for the next period, send the CI maps due and MCA Alive on every bus, and
+        return the latest SO values by name."""
+        if not self._running:
+            raise UcomError("the exchange is not running (start() it first)")
+        if not self._prepared:
+            self._prepare()  # once, in the loop's own thread
+        self._wait(self._deadline)
+        now = self._clock()
+        late = now - self._deadline
+        if late >= self.period_s:  # the loop came a whole period late or more
+            skipped = int(late // self.period_s)
+            self.stats.missed += skipped
+            self._deadline += skipped * self.period_s
+            self._k += skipped
+            late -= skipped * self.period_s
+        self.stats.late.append(late)
+        batching = self._batching
+        for _, bus in batching:
+            bus.hold()
+        try:
+            for x in self.exchanges.values():
+                x.send_cycle(self._deadline)
+        except BaseException:
+            for _, bus in batching:
+                bus.release(write=False)
+            raise
+        for name, bus in batching:
+            try:
+                bus.release()
+            except can.CanError as err:
+                raise BusError(f"{name}: cannot send: {err}") from err
+        if not self.virtual:
+            self._drain()  # after the sends: what came during the period, as fresh as can be
+        self.stats.cycles += 1
+        self._k += 1
+        self._deadline += self.period_s
+        if self.on_values is not None:
+            self._report_so()
+        for hook in self.each_cycle:
+            hook()
+        return self.so
+
+    def _listen_for_events(self, started: float) -> None:
+        """From now on every Error a board sends is kept in :attr:`events` (a watchdog
+        that stopped a board's motors above all: the loop goes on, the board does not)."""
+        for d, sub in self._event_subs:
+            d.unsubscribe(sub)
+        self._event_subs = []
+        for h, x in self._handles():
+            def on_error(msg: can.Message, h: BusHandle = h, x: BusExchange = x) -> None:
+                try:
+                    address, err = wire_messages.decode(msg.arbitration_id,
+                                                        bytes(msg.data))
+                except FrameError:
+                    return
+                assert isinstance(err, wire_messages.Error)
+                n = address.number
+                self.events.append(BoardEvent(
+                    round(h.link.clock() - started, 4), h.name, n, x.where(n), err.code,
+                    f"its watchdog stopped every motor: no MCA Alive for {err.detail} ms "
+                    "(stopped until MCA Start)" if err.code is ErrorCode.WATCHDOG
+                    else err.describe()))
+            d = h.link.dispatcher
+            self._event_subs.append((d, d.subscribe(
+                lambda msg: msg.arbitration_id >> 6 == Function.ERROR,
+                f"{h.name} board errors", on_frame=on_error)))
+
+    def _prepare(self) -> None:
+        """The loop's thread: SCHED_FIFO (``realtime``), precise sleeps; and the buses
+        whose frames of a cycle can go out in one write."""
+        self._prepared = True
+        rt = self.scheduling
+        if rt is not None:
+            rt.enter()
+        if not self.virtual:
+            precise_sleep()
+        self._batching = [(h.name, h.link.dispatcher.bus) for h, _ in self._handles()
+                          if not self.virtual and callable(
+                              getattr(h.link.dispatcher.bus, "hold", None))]
+
+    def _drain(self) -> int:
+        """Take and dispatch every frame the buses have delivered (without waiting)."""
+        return sum(h.link.dispatcher.drain() for h, _ in self._handles())
+
+    def _wait(self, deadline: float) -> None:
+        """Until ``deadline``: in virtual time by driving the fleet clock; on real buses by
+        sleeping (one thread does everything, no reader threads, so the GIL never keeps
+        the loop from its deadline), spinning the last :data:`SPIN_S`; the frames that
+        come meanwhile are taken after the cycle's sends (:meth:`cycle`), or every
+        :data:`DRAIN_EVERY_S` while a long period passes."""
+        if self.virtual:
+            for h, _ in self._handles():
+                h.link.dispatcher.pump(deadline)
+            return
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return
+            if remaining > SPIN_S:
+                time.sleep(min(DRAIN_EVERY_S, remaining - SPIN_S))
+                if deadline - time.monotonic() > DRAIN_EVERY_S:
+                    self._drain()
+
+    def run(self, seconds: float, each: Callable[[Self], None] | None = None) -> None:
+        """Cycle for ``seconds`` (of the bus clock), calling ``each(self)`` every cycle."""
+        end = self._clock() + seconds
+        while self._clock() < end:
+            self.cycle()
+            if each is not None:
+                each(self)
