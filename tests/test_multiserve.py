@@ -36,8 +36,8 @@ from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.transport.socketcand import SocketcandBus
 from ucom_tools.virtual.multiserve import bus_groups
-from ucom_tools.virtual.socketcand import ElementError, _plain_send, element_words, parse_send
 from ucom_tools.wire.ids import seq
+from ucom_tools.wire.socketcand import ElementError, element_words, parse_send, plain_send
 
 DEADLINE_S = 10.0
 """The longest any one wait may take (starting four processes on a busy machine included)."""
@@ -446,14 +446,14 @@ def test_the_plain_send_path_agrees_with_the_parser(ident: int, data: bytes, pad
     element = (" send " + hex_case(" ".join(words)) + " ").encode("ascii")
     verb, *args = element_words(element)
     assert verb == "send"
-    assert _plain_send(element) == parse_send(args) == (ident, data)
+    assert plain_send(element) == parse_send(args) == (ident, data)
 
 
 @pytest.mark.parametrize("element", [b" send 800 0 ", b" send 1 2 00 ", b" send 1 9 ",
                                      b" send 1 1 100 ", b"send 1 1 0g", b" send 1234 0 ",
                                      b" send 1 0 00 ", b" send 1 1 "])
 def test_the_plain_send_path_leaves_every_mistake_to_the_parser(element: bytes) -> None:
-    assert _plain_send(element) is None
+    assert plain_send(element) is None
     verb, *args = element_words(element)
     assert verb == "send"
     with pytest.raises(ElementError):
@@ -462,7 +462,7 @@ def test_the_plain_send_path_leaves_every_mistake_to_the_parser(element: bytes) 
 
 def test_the_plain_send_path_leaves_unusual_spacing_to_the_parser() -> None:
     element = b"\tsend  1 1\t0A "
-    assert _plain_send(element) is None
+    assert plain_send(element) is None
     verb, *args = element_words(element)
     assert verb == "send"
     assert parse_send(args) == (1, b"\x0a")

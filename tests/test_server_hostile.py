@@ -23,12 +23,12 @@ import can
 import pytest
 
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.socketcand import (
+from ucom_tools.virtual.socketcand import FleetServer
+from ucom_tools.wire.socketcand import (
     MAX_ELEMENT,
     ElementError,
     ElementSplitter,
     ElementTooLong,
-    FleetServer,
     parse_send,
 )
 

@@ -462,12 +462,12 @@ def test_send_that_times_out_after_a_partial_write_breaks_the_connection() -> No
 def test_splitter_and_codec_edges() -> None:
     splitter = ElementSplitter(limit=20)
     splitter.feed(b" junk < hi >\n<ok>< fra< frame")
-    assert [splitter.pop(), splitter.pop(), splitter.pop()] == ["< hi >", "<ok>", None]
+    assert [splitter.next(), splitter.next(), splitter.next()] == [b" hi ", b"ok", None]
     splitter.feed(b" 123 1.5 >")
-    assert splitter.pop() == "< frame 123 1.5 >"  # "< fra" was cut off by the next "<"
+    assert splitter.next() == b" frame 123 1.5 "  # "< fra" was cut off by the next "<"
     splitter.feed(b"<" + b"x" * 20)
     with pytest.raises(ValueError, match="longer than 20 bytes"):
-        splitter.pop()
+        splitter.next()
     for bad in (["frame", "12345", "1.0"], ["frame", "800", "1.0"], ["frame", "123", "1e3"],
                 ["frame", "123", "1.0", "0g"], ["frame", "123", "1.0", "123"],
                 ["frame", "123", "1.0", "00" * 9], ["frame", "123"]):

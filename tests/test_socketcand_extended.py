@@ -45,17 +45,12 @@ from ucom_tools.virtual import multiserve
 from ucom_tools.virtual.canbus import VirtualUcomBus
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.virtual.multiserve import MultiServer, auto_processes, usable_cores
+from ucom_tools.virtual.serve_outbox import encode_line
 from ucom_tools.virtual.simbus import SimBus
-from ucom_tools.virtual.socketcand import (
-    CAN_EFF_FLAG,
-    ElementError,
-    FleetServer,
-    encode_line,
-    error_element,
-    parse_send,
-)
+from ucom_tools.virtual.socketcand import FleetServer
 from ucom_tools.wire import canbits
 from ucom_tools.wire.ids import seq
+from ucom_tools.wire.socketcand import CAN_EFF_FLAG, ElementError, error_element, parse_send
 
 DEADLINE_S = 10.0
 LOCAL = "127.0.0.1"

@@ -33,6 +33,9 @@ A connection the server closed or reset, an element longer than :data:`MAX_ELEME
 send that timed out after writing part of a frame leave the bus unusable: that call and
 every later ``recv``/``send`` raise :class:`can.CanOperationError`.
 
+Elements are cut, read and written by :mod:`ucom_tools.wire.socketcand` (one copy for
+this client and the server).
+
 Time stamps: a received frame is stamped on this machine's clock (``time.time()``), as a
 sent one is, so a log of both (``--log``, ``--record``) has one time base.  The server's
 stamp (when the frame was on its bus, on the server's clock) is translated by the offset
@@ -58,70 +61,28 @@ from typing import Any
 
 import can
 
+from ucom_tools.wire.socketcand import (
+    CAN_EFF_FLAG,
+    CAN_EFF_MASK,
+    CAN_SFF_MASK,
+    MAX_ELEMENT,
+    SEND_STD,
+    ElementSplitter,
+    frame_words,
+    plain_frame,
+)
+from ucom_tools.wire.socketcand import send_element as wire_send_element
+
+__all__ = ["MAX_ELEMENT", "PINGS", "ElementSplitter", "SocketcandBus", "parse_frame",
+           "send_bytes", "send_element"]
+
 log = logging.getLogger(__name__)
 
-MAX_ELEMENT = 4096
-"""Longest element ``< ... >`` accepted from the server, in bytes (a protocol error beyond)."""
 SERVER_ERRORS_KEPT = 100
 """How many ``< error ... >`` texts :attr:`SocketcandBus.server_errors` keeps (the newest)."""
 _CHUNK = 65536
 
-_HEX = re.compile(r"[0-9A-Fa-f]+", re.ASCII)
-_TIMESTAMP = re.compile(r"\d+(?:\.\d+)?", re.ASCII)
 _CHANNEL = re.compile(r"[^\s<>]+")
-
-
-class ElementSplitter:
-    """Cuts the byte stream from a socketcand server into elements ``< ... >``.
-
-    Elements may arrive split across reads or several in one read; bytes outside elements
-    are skipped.  An unfinished element longer than ``limit`` raises ``ValueError``.
-    """
-
-    def __init__(self, limit: int = MAX_ELEMENT) -> None:
-        self._buffer = bytearray()
-        self._pos = 0
-        """Where the unread part of the buffer starts (consumed bytes are dropped in
-        :meth:`feed`, not one element at a time: a burst of frames is cut in linear time)."""
-        self._limit = limit
-
-    def feed(self, chunk: bytes) -> None:
-        if self._pos:
-            del self._buffer[:self._pos]
-            self._pos = 0
-        self._buffer += chunk
-
-    def pop(self) -> str | None:
-        """The next complete element with its brackets, or None until more data arrives."""
-        buf = self._buffer
-        while True:
-            pos = self._pos
-            start = buf.find(b"<", pos)
-            if start != pos:
-                self._skip((len(buf) if start < 0 else start) - pos)
-                if start < 0:
-                    return None
-            end = buf.find(b">", start + 1)
-            if end < 0:
-                if len(buf) - start > self._limit:
-                    raise ValueError(f"an element is longer than {self._limit} bytes")
-                return None
-            inner = buf.find(b"<", start + 1, end)
-            if inner > 0:  # an unfinished element followed by a new one: drop the first
-                self._skip(inner - start)
-                continue
-            if end + 1 - start > self._limit:
-                raise ValueError(f"an element is longer than {self._limit} bytes")
-            element = buf[start:end + 1].decode("ascii", "replace")
-            self._pos = end + 1
-            return element
-
-    def _skip(self, count: int) -> None:
-        pos = self._pos
-        junk = bytes(self._buffer[pos:pos + count])
-        self._pos = pos + count
-        if junk.strip():
-            log.warning("socketcand: skipped %r outside an element", junk[:80])
 
 
 PINGS = 3
@@ -129,56 +90,12 @@ PINGS = 3
 PING_WAIT_S = 0.1
 """The least an echo is waited for (more on a slow connection: 20 rawmode round trips)."""
 
-_FRAME = re.compile(r"< frame ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) (\d+\.\d+) ([0-9A-Fa-f]{0,16}) ?>\Z",
-                    re.ASCII)
-"""The common case, a frame with contiguous data, parsed in one match."""
-
-
-def parse_element_frame(element: str, channel: str) -> can.Message | None:
-    """A frame element in the usual form (identifier of 3 hex digits, or 8 for an
-    extended frame), or None (then :func:`parse_frame`)."""
-    m = _FRAME.match(element)
-    if m is None or len(m.group(3)) % 2:
-        return None
-    ident = m.group(1)
-    arbitration_id = int(ident, 16)
-    extended = len(ident) == 8
-    if extended and arbitration_id > 0x1FFFFFFF:
-        return None
-    return can.Message(timestamp=float(m.group(2)), arbitration_id=arbitration_id,
-                       data=bytes.fromhex(m.group(3)), is_extended_id=extended, is_rx=True,
-                       channel=channel)
-
-
 def parse_frame(words: list[str], channel: str) -> can.Message:
-    """``< frame ID SEC.USEC DATA >`` as words -> a received message; ``ValueError`` if bad.
-
-    ID has 3 hex digits (11-bit identifier) or 8 (29-bit); DATA is contiguous hex digits
-    (socketcand) or hex bytes separated by blanks; no data is a frame with DLC 0.
-    """
-    if len(words) < 3:
-        raise ValueError("a frame needs an identifier and a timestamp")
-    ident, stamp, data_words = words[1], words[2], words[3:]
-    if len(ident) not in (3, 8) or not _HEX.fullmatch(ident):
-        raise ValueError(f"identifier {ident!r} is not 3 or 8 hex digits")
-    extended = len(ident) == 8
-    arbitration_id = int(ident, 16)
-    if arbitration_id > (0x1FFFFFFF if extended else 0x7FF):
-        raise ValueError(f"identifier {ident} is out of range")
-    if not _TIMESTAMP.fullmatch(stamp):
-        raise ValueError(f"timestamp {stamp!r} is not SEC.USEC")
-    if not all(_HEX.fullmatch(w) for w in data_words):
-        raise ValueError("data are not hex digits")
-    if len(data_words) == 1 and len(data_words[0]) % 2 == 0:
-        data = bytes.fromhex(data_words[0])
-    elif all(len(w) <= 2 for w in data_words):
-        data = bytes(int(w, 16) for w in data_words)
-    else:
-        raise ValueError("data are neither contiguous hex digits nor hex bytes")
-    if len(data) > 8:
-        raise ValueError(f"{len(data)} data bytes, more than 8")
-    return can.Message(timestamp=float(stamp), arbitration_id=arbitration_id, data=data,
-                       is_extended_id=extended, is_rx=True, channel=channel)
+    """``< frame ID SEC.USEC DATA >`` as words -> a received message; ``ValueError`` if bad
+    (:func:`ucom_tools.wire.socketcand.frame_words`)."""
+    can_id, stamp, data = frame_words(words)
+    return can.Message(timestamp=stamp, arbitration_id=can_id & CAN_EFF_MASK, data=data,
+                       is_extended_id=can_id > CAN_EFF_MASK, is_rx=True, channel=channel)
 
 
 def send_element(msg: can.Message) -> str:
@@ -193,33 +110,28 @@ def send_bytes(msg: can.Message) -> bytes:
     dlc = msg.dlc
     ident = msg.arbitration_id
     if not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame or msg.is_fd) \
-            and 0 <= ident <= 0x7FF and 0 <= dlc <= 8 and len(data) == dlc:
-        if not dlc:
-            return b"< send %03X 0 >" % ident
-        return b"< send %03X %d %s >" % (ident, dlc, bytes(data).hex(" ").upper().encode())
-    return _send_element(msg).encode("ascii")
-
-
-def _send_element(msg: can.Message) -> str:
-    """:func:`send_element` in general, with a reason for every frame it cannot send."""
+            and 0 <= ident <= CAN_SFF_MASK and 0 < dlc <= 8 and len(data) == dlc:
+        return SEND_STD % (ident, dlc, bytes(data).hex(" ").upper().encode())
     if msg.is_remote_frame:
         raise ValueError("remote frames")
     if msg.is_error_frame:
         raise ValueError("error frames")
     if msg.is_fd:
         raise ValueError("CAN FD frames")
-    if msg.is_extended_id:
-        if not 0 <= msg.arbitration_id <= 0x1FFFFFFF:
-            raise ValueError(f"identifier 0x{msg.arbitration_id:X}: more than 29 bits")
-        ident = f"{msg.arbitration_id:08X}"
-    else:
-        if not 0 <= msg.arbitration_id <= 0x7FF:
-            raise ValueError(f"identifier 0x{msg.arbitration_id:X}: more than 11 bits")
-        ident = f"{msg.arbitration_id:03X}"
-    data = bytes(msg.data[:msg.dlc])
-    if msg.dlc > 8 or len(data) != msg.dlc:
+    if msg.dlc > 8 or len(data) < msg.dlc:
         raise ValueError(f"DLC {msg.dlc} with {len(msg.data)} data bytes")
-    return " ".join(["< send", ident, str(msg.dlc), *(f"{b:02X}" for b in data), ">"])
+    return wire_send_element(ident | CAN_EFF_FLAG if msg.is_extended_id else ident,
+                             bytes(data[:dlc]))
+
+
+def _shown(element: bytes) -> str:
+    """An element as text, with its brackets (for messages)."""
+    return f"<{element.decode('ascii', 'replace')}>"
+
+
+def _skipped(junk: bytes) -> None:
+    if junk.strip():
+        log.warning("socketcand: skipped %r outside an element", junk[:80])
 
 
 class SocketcandBus(can.BusABC):
@@ -245,7 +157,7 @@ class SocketcandBus(can.BusABC):
         self.receive_own_messages = receive_own_messages
         self.server_errors: deque[str] = deque(maxlen=SERVER_ERRORS_KEPT)
         self._where = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
-        self._splitter = ElementSplitter()
+        self._splitter = ElementSplitter(on_skip=_skipped)
         self._arrival = 0.0
         """When the last data came (``time.time()``)."""
         self.clock_offset = math.inf
@@ -299,7 +211,7 @@ class SocketcandBus(can.BusABC):
         except can.CanOperationError:
             return None
         while (element := self._next_element(deadline)) is not None:
-            if element[1:-1].split() == ["echo"]:
+            if element.split() == [b"echo"]:
                 return time.monotonic() - sent
             self._take(element)
         return None
@@ -321,7 +233,7 @@ class SocketcandBus(can.BusABC):
             raise can.CanInitializationError(
                 f"socketcand {self._where} did not answer {what} "
                 f"within {self.handshake_timeout:g} s")
-        words = element[1:-1].split()
+        words = element.decode("ascii", "replace").split()
         if words == [word]:
             return
         if words and words[0] == "error":
@@ -329,11 +241,11 @@ class SocketcandBus(can.BusABC):
             if what.startswith("< open"):
                 raise can.CanInitializationError(
                     f"socketcand {self._where} refused to open channel {self.channel}: "
-                    f"{element}")
+                    f"{_shown(element)}")
         raise can.CanInitializationError(
-            f"socketcand {self._where} answered {what} with {element}, expected < {word} >")
+            f"socketcand {self._where} answered {what} with {_shown(element)}, expected < {word} >")
 
-    def _next_element(self, deadline: float) -> str | None:
+    def _next_element(self, deadline: float) -> bytes | None:
         while True:
             element = self._pop_element()
             if element is not None:
@@ -377,24 +289,28 @@ class SocketcandBus(can.BusABC):
         pending.clear()
         return out
 
-    def _take(self, element: str) -> None:
-        fast = parse_element_frame(element, self.channel)
-        if fast is not None:
-            self._pending.append(self._local(fast))
+    def _take(self, element: bytes) -> None:
+        """One element between its brackets: a frame to :attr:`_pending`, an error noted."""
+        frame = plain_frame(element)
+        if frame is not None:
+            can_id, stamp, data = frame
+            self._pending.append(self._local(can.Message(
+                timestamp=stamp, arbitration_id=can_id & CAN_EFF_MASK, data=data,
+                is_extended_id=can_id > CAN_EFF_MASK, is_rx=True, channel=self.channel)))
             return
-        words = element[1:-1].split()
+        words = element.decode("ascii", "replace").split()
         kind = words[0] if words else ""
         if kind == "frame":
             try:
                 self._pending.append(self._local(parse_frame(words, self.channel)))
             except ValueError as err:
-                log.warning("socketcand %s: ignored %s: %s", self._where, element, err)
+                log.warning("socketcand %s: ignored %s: %s", self._where, _shown(element), err)
         elif kind == "error":
             text = " ".join(words[1:])
             self.server_errors.append(text)
             log.warning("socketcand %s reports an error: %s", self._where, text)
         else:
-            log.debug("socketcand %s: ignored %s", self._where, element)
+            log.debug("socketcand %s: ignored %s", self._where, _shown(element))
 
     def _local(self, msg: can.Message) -> can.Message:
         """``msg`` stamped on this machine's clock (the module docstring, Time stamps)."""
@@ -406,9 +322,9 @@ class SocketcandBus(can.BusABC):
         msg.timestamp += offset
         return msg
 
-    def _pop_element(self) -> str | None:
+    def _pop_element(self) -> bytes | None:
         try:
-            return self._splitter.pop()
+            return self._splitter.next()
         except ValueError as err:
             raise self._fail(f"socketcand {self._where} protocol error: {err}") from err
 

@@ -1,0 +1,509 @@
+"""One client of ``ucom fleet serve`` (socketcand's raw mode), from its greeting or its
+handover to its end: reading and executing its elements (:class:`Connection`), and its
+attachment to a simulated bus (:class:`ClientPort`).
+
+The protocol, and what no client can do to the others, is described in
+:mod:`ucom_tools.virtual.socketcand`, which accepts the connections; the elements are
+cut and read by :mod:`ucom_tools.wire.socketcand`.  A client's handler thread reads its
+socket until raw mode begins on a paced fleet; from then on the fleet's driver thread
+reads it (:meth:`Connection._read_by_driver`) and the handler thread waits.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import logging
+import select
+import socket
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Collection
+from typing import Any
+
+import can
+
+from ucom_tools.virtual.fleet import HOST_AHEAD_US, Fleet, _send
+from ucom_tools.virtual.serve_loss import Loss
+from ucom_tools.virtual.serve_outbox import MAX_QUEUED_FRAMES, Outbox, encode_line
+from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
+from ucom_tools.wire.socketcand import (
+    CAN_EFF_FLAG,
+    CAN_EFF_MASK,
+    MAX_ELEMENT,
+    ElementError,
+    ElementSplitter,
+    ElementTooLong,
+    element_words,
+    error_element,
+    parse_send,
+    plain_send,
+    quote,
+)
+
+log = logging.getLogger("ucom.serve")
+
+RAWMODE_SETTLE_S = 0.02
+"""Pause between the rawmode ``< ok >`` and the first frame (python-can compatibility)."""
+ROOM_POLL_S = 0.1
+"""How often a client waiting for room in its transmit queue is checked for liveness."""
+FLUSH_S = 1.0
+"""How long the server waits for a last reply to be written before closing a client."""
+_RECV_SIZE = 4096
+_DONTWAIT = getattr(socket, "MSG_DONTWAIT", 0)
+NO_BUS_OPEN = "no bus open: send < open BUS > first"
+"""The answer to ``rawmode`` and ``send`` before a bus is open."""
+
+
+def check_open(args: list[str], buses: Collection[str], fleet_name: str,
+               already_open: str | None = None) -> str:
+    """The bus that ``< open BUS >`` (the words after ``open``) names; ElementError with
+    the server's answer when it is malformed, a bus is open already, or no such bus."""
+    if len(args) != 1:
+        raise ElementError("usage: open BUS")
+    if already_open is not None:
+        raise ElementError(f"bus {already_open} is already open")
+    if args[0] not in buses:
+        raise ElementError(f"no bus {quote(args[0])} in {fleet_name}")
+    return args[0]
+
+
+def unsupported(verb: str) -> ElementError:
+    """The answer to an element with an unknown command word."""
+    return ElementError(f"unsupported command {quote(verb)}")
+
+
+
+def peer_name(address: Any) -> str:
+    """A client's address as people write it: ``127.0.0.1:40000``, ``[::1]:40000``."""
+    if isinstance(address, tuple) and len(address) >= 2:
+        host = str(address[0])
+        return f"[{host}]:{address[1]}" if ":" in host else f"{host}:{address[1]}"
+    return str(address)
+
+
+
+_CLIENT_NUMBERS = itertools.count()
+"""Numbers the clients of this process (each one's losses are seeded with it)."""
+
+
+class ClientPort:
+    """A client's attachment to one simulated bus (a node of the bus and the sender of
+    the client's frames).  ``on_frame`` runs in the bus thread under the bus lock: it only
+    queues the frame, and reports an overflowing queue."""
+
+    def __init__(self, sim: SimBus, outbox: Outbox, on_overflow: Callable[[], None],
+                 loss: Loss | None = None, *,
+                 later: Callable[[Callable[[], None]], bool] | None = None,
+                 flush: Callable[[], None] | None = None) -> None:
+        self.sim = sim
+        self.outbox = outbox
+        self.on_overflow = on_overflow
+        self.loss = loss
+        self.later = later
+        """Asks for a call after the paced driver's step (:meth:`Fleet.after_step`; false:
+        not paced); with ``flush`` the frames of a step are written together."""
+        self.flush = flush
+
+    def on_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None:
+        if self.loss is not None and self.loss.lost("to"):
+            return
+        outbox = self.outbox
+        later, flush = self.later, self.flush
+        if later is None or flush is None:
+            if not outbox.put((arbitration_id, data, t_end)):
+                self.on_overflow()
+            return
+        if not outbox.put_quiet((arbitration_id, data, t_end)):
+            self.on_overflow()
+            return
+        if not outbox.deferred:
+            outbox.deferred = True
+            if not later(flush):  # the fleet stopped pacing (closing)
+                outbox.wake()
+
+    def on_extended_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None:
+        """A frame with a 29-bit identifier: to the client as socketcand writes it."""
+        self.on_frame(arbitration_id | CAN_EFF_FLAG, data, t_end)
+
+
+
+class Connection:
+    """One socketcand client: the handler thread reads and executes its elements, a
+    writer thread sends it replies and frames.  Ends without raising, however the
+    client leaves."""
+
+    def __init__(self, sock: socket.socket, address: Any, fleet: Fleet,
+                 max_queued_frames: int = MAX_QUEUED_FRAMES) -> None:
+        self.sock = sock
+        self.peer = peer_name(address)
+        self.fleet = fleet
+        self.outbox = Outbox(max_queued_frames)
+        self.loss: Loss | None = None
+        """Frames lost between this client and its bus (``fleet serve --loss``)."""
+        self.port: ClientPort | None = None
+        self.raw = False
+        self._splitter = ElementSplitter()
+        self._lock = threading.Lock()
+        self._reason: str | None = None
+        self._dropped = False
+        self._writer = threading.Thread(target=self._write_loop, daemon=True,
+                                        name=f"ucom-serve-writer-{self.peer}")
+        self._want_driver = False
+        """Raw mode began: the paced driver shall read the socket from now on."""
+        self._handed = False
+        """The driver reads the socket (:meth:`_read_by_driver`): elements run in its
+        thread."""
+        self._handback = threading.Event()
+        """Set when the driver gives the socket back, or the connection ends."""
+        self._returned: BaseException | None = None
+        """Why the driver gave the socket back: EOF (:class:`EOFError`), a lost
+        connection, an element too long; None: the driver stopped."""
+        self._backlog: deque[tuple[int, bytes]] = deque()
+        """Frames read by the driver while this client's transmit queue was full."""
+        self._room_checked = 0.0
+        self._commands: dict[str, Callable[[list[str]], None]] = {
+            "open": self._open, "rawmode": self._rawmode, "send": self._send,
+            "echo": self._echo}
+
+    @property
+    def alive(self) -> bool:
+        return self._reason is None
+
+    def run(self) -> None:
+        """Serve the client until it leaves or is dropped."""
+        log.info("client %s connected", self.peer)
+        self._serve(lambda: self.reply("< hi >"))
+
+    def resume(self, bus: str, pending: bytes = b"") -> None:
+        """Serve a client that another process greeted and that sent ``< open BUS >``
+        there (:mod:`ucom_tools.virtual.multiserve`): answer that open as :meth:`run`
+        would, go on with ``pending`` (what the client sent after it), then the socket."""
+        def start() -> None:
+            self._execute(b"open " + bus.encode("ascii", "replace"))
+            self._splitter.feed(pending)
+        self._serve(start)
+
+    def _serve(self, start: Callable[[], None]) -> None:
+        self._writer.start()
+        reason = "disconnected"
+        try:
+            self.sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            start()
+            self._read_loop()
+            self.outbox.wait_written(FLUSH_S)
+        except ElementTooLong:
+            self.reply(error_element("element too long", self.raw))
+            self.outbox.wait_written(FLUSH_S)
+            self.drop(f"sent an element longer than {MAX_ELEMENT} bytes")
+        except OSError as err:
+            reason = f"connection lost ({type(err).__name__})"
+        finally:
+            self._detach()
+            self._end(reason, dropped=False)
+            self._writer.join(FLUSH_S)
+
+    def drop(self, reason: str) -> None:
+        """Close a misbehaving client (any thread, idempotent; logged as a warning)."""
+        self._end(reason, dropped=True)
+
+    def close(self) -> None:
+        """Close the connection because the server stops (any thread, idempotent)."""
+        self._end("server closed", dropped=False)
+
+    def reply(self, text: str) -> None:
+        if not self.outbox.put(text.encode("ascii", "replace")):
+            self._overflow()
+
+    # ------------------------------------------------------------------ reading
+    def _read_loop(self) -> None:
+        while self.alive:
+            while self.alive and (element := self._splitter.next()) is not None:
+                self._execute(element)
+            if not self.alive:
+                return
+            if self._want_driver:
+                self._want_driver = False
+                if self._read_by_driver():
+                    return
+                continue
+            chunk = self.sock.recv(_RECV_SIZE)
+            if not chunk:
+                return
+            self._splitter.feed(chunk)
+
+    # ------------------------------------------------------------------ read by the driver
+    def _read_by_driver(self) -> bool:
+        """In raw mode on a paced fleet the driver's thread reads the socket
+        (:meth:`RealtimeDriver.watch`) and runs the elements, while this thread waits;
+        True when the client is done (EOF, dropped), False when the driver gave the socket
+        back because it stopped (then this thread reads on).  Raises what made the driver
+        give it back (a lost connection, an element too long)."""
+        fleet = self.fleet
+        self._handback.clear()
+        self._returned = None
+        self._handed = True  # before the driver may read: its elements run as its own
+        if not _DONTWAIT or not fleet.watch(self.sock, self._on_readable,
+                                            self._handback.set):
+            self._handed = False
+            return False
+        try:
+            while not self._handback.wait(ROOM_POLL_S):
+                driver = fleet.driver
+                if driver is None or not driver.running:
+                    break
+        finally:
+            fleet.unwatch(self.sock)
+            self._handed = False
+        returned, self._returned = self._returned, None
+        if isinstance(returned, EOFError):
+            return True
+        if returned is not None:
+            raise returned
+        if not self.alive:
+            return True
+        port = self.port
+        while self._backlog and port is not None and self.alive:  # the driver stopped
+            self._transmit(port, *self._backlog.popleft(), lossy=False)
+        self._backlog.clear()
+        return False
+
+    def _give_back(self, why: BaseException) -> None:
+        """In the driver's thread: stop reading, wake the connection's thread."""
+        self._returned = why
+        driver = self.fleet.driver
+        if driver is not None:
+            driver.unwatch(self.sock)
+        self._handback.set()
+
+    def _on_readable(self) -> None:
+        """In the driver's thread, holding the lock: read what came, run its elements."""
+        if not self.alive:
+            self._give_back(EOFError())
+            return
+        try:
+            chunk = self.sock.recv(_RECV_SIZE, _DONTWAIT)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as err:
+            self._give_back(err)
+            return
+        if not chunk:
+            self._give_back(EOFError())
+            return
+        self._splitter.feed(chunk)
+        self._run_elements()
+        driver = self.fleet.driver
+        if self._backlog and driver is not None:
+            driver.unwatch(self.sock)  # TCP slows the client meanwhile (back-pressure)
+            self._room_checked = time.monotonic()
+            driver.wait_for_room(self._room)
+
+    def _run_elements(self) -> None:
+        """In the driver's thread: the elements fed, until the transmit queue is full."""
+        try:
+            while self.alive and not self._backlog and \
+                    (element := self._splitter.next()) is not None:
+                self._execute(element)
+        except ElementTooLong as err:
+            self._give_back(err)
+
+    def _room(self) -> bool:
+        """In the driver's thread, every step while frames wait for the transmit queue:
+        queue them as room comes, then read on; True when done waiting."""
+        port = self.port
+        driver = self.fleet.driver
+        if not self.alive or not self._handed or port is None or driver is None:
+            return True
+        sim = port.sim
+        backlog = self._backlog
+        while backlog and sim.queued.get(port, 0) < TX_QUEUE:
+            self._put_on_bus(port, *backlog.popleft())
+        if not backlog:
+            self._run_elements()
+        if backlog:
+            now = time.monotonic()
+            if now - self._room_checked >= ROOM_POLL_S:
+                self._room_checked = now
+                if _peer_gone(self.sock):
+                    self._end("disconnected while waiting for the bus", dropped=False)
+                    return True
+            return False
+        if self.alive and self._returned is None:
+            driver.watch(self.sock, self._on_readable, self._handback.set)
+        return True
+
+    def _queue_now(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
+        """In the driver's thread: a frame onto the bus, ready now (a lagging fleet takes
+        it in its own present, as :meth:`Fleet.send_paced` does), or into the backlog."""
+        if self._backlog or port.sim.queued.get(port, 0) >= TX_QUEUE:
+            self._backlog.append((arbitration_id, data))
+            return
+        self._put_on_bus(port, arbitration_id, data)
+
+    def _put_on_bus(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
+        sim = port.sim
+        driver = self.fleet.driver
+        clock = sim.clock
+        t = clock.now if driver is None else driver.now_us()
+        if clock.quiet_until(t):
+            clock.advance_to(t)  # an idle fleet's clock stands still: bring it to now
+        _send(sim, port, min(t, clock.now + HOST_AHEAD_US), arbitration_id & CAN_EFF_MASK,
+              data, bool(arbitration_id & CAN_EFF_FLAG))
+
+    def _execute(self, element: bytes) -> None:
+        port = self.port
+        if port is not None and (frame := plain_send(element)) is not None:
+            self._transmit(port, *frame)  # the common case, without the general parsing
+            return
+        try:
+            verb, *args = element_words(element)
+            command = self._commands.get(verb)
+            if command is None:
+                raise unsupported(verb)
+            command(args)
+        except ElementError as err:
+            self.reply(error_element(str(err), self.raw))
+
+    def _open(self, args: list[str]) -> None:
+        sim = self.fleet.buses[check_open(
+            args, self.fleet.buses, self.fleet.name,
+            None if self.port is None else self.port.sim.name)]
+        if self.fleet.client_loss and self.loss is None:
+            self.loss = Loss(self.fleet.client_loss,
+                             f"{self.fleet.seed}/{sim.name}/{next(_CLIENT_NUMBERS)}")
+        self.port = ClientPort(sim, self.outbox, self._overflow, self.loss,
+                               later=self.fleet.after_step, flush=self._flush)
+        self.reply("< ok >")
+        log.info("client %s opened %s", self.peer, sim.name)
+
+    def _rawmode(self, args: list[str]) -> None:
+        port = self._require_open()
+        if args:
+            raise ElementError("usage: rawmode")
+        if self.raw:
+            raise ElementError("already in raw mode")
+        self.raw = True
+        self.reply("< ok >")
+        # python-can reads this "< ok >" with one recv(): let it arrive alone
+        self.outbox.wait_written(FLUSH_S)
+        time.sleep(RAWMODE_SETTLE_S)
+        if self.alive:
+            port.sim.attach(port)
+            self._want_driver = True
+
+    def _send(self, args: list[str]) -> None:
+        port = self._require_open()
+        arbitration_id, data = parse_send(args)
+        self._transmit(port, arbitration_id, data)
+
+    def _echo(self, args: list[str]) -> None:
+        self.reply("< echo >")
+
+    def _require_open(self) -> ClientPort:
+        if self.port is None:
+            raise ElementError(NO_BUS_OPEN)
+        return self.port
+
+    def _transmit(self, port: ClientPort, arbitration_id: int, data: bytes, *,
+                  lossy: bool = True) -> None:
+        """Queue a frame (identifier with :data:`CAN_EFF_FLAG` if extended) once the
+        client's transmit queue has room.  Meanwhile this client's socket is not read
+        (back-pressure); the wait releases the bus lock.  In the driver's thread the
+        frame goes onto the bus at once, or waits in the backlog."""
+        if lossy and self.loss is not None and self.loss.lost("from"):
+            return  # lost on the way (--loss): the client cannot tell
+        if self._handed:
+            self._queue_now(port, arbitration_id, data)
+            return
+        extended = bool(arbitration_id & CAN_EFF_FLAG)
+        arbitration_id &= CAN_EFF_MASK
+        sim = port.sim
+        while self.alive:
+            try:
+                self.fleet.send_paced(sim, port, arbitration_id, data, timeout=ROOM_POLL_S,
+                                      alive=lambda: self.alive, extended=extended)
+                return
+            except can.CanOperationError:
+                pass  # no room yet: still there?
+            if _peer_gone(self.sock):
+                self._end("disconnected while waiting for the bus", dropped=False)
+
+    # ------------------------------------------------------------------ writing
+    def _write_loop(self) -> None:
+        epoch = self.fleet.epoch
+        try:
+            while (batch := self.outbox.take()) is not None:
+                self.sock.sendall(b"".join([encode_line(line, epoch) for line in batch]))
+        except OSError as err:
+            self._end(f"connection lost ({type(err).__name__})", dropped=False)
+        except Exception:
+            log.exception("client %s: writer failed", self.peer)
+            self.drop("writer failed")
+
+    def _flush(self) -> None:
+        """After a step of the paced fleet: the frames it queued, in one write from the
+        driver's thread (:meth:`Outbox.flush`); without ``MSG_DONTWAIT`` the writer
+        thread writes them."""
+        if not _DONTWAIT:
+            self.outbox.wake()
+            return
+        try:
+            self.outbox.flush(self._send_now, self.fleet.epoch)
+        except OSError as err:
+            self._end(f"connection lost ({type(err).__name__})", dropped=False)
+
+    def _send_now(self, data: bytes) -> int:
+        """What of ``data`` the socket takes without waiting."""
+        try:
+            return self.sock.send(data, _DONTWAIT)
+        except (BlockingIOError, InterruptedError):
+            return 0
+
+    def _overflow(self) -> None:
+        self.drop(f"stopped reading ({self.outbox.limit} frames waiting)")
+
+    # ------------------------------------------------------------------ ending
+    def _end(self, reason: str, *, dropped: bool) -> None:
+        with self._lock:
+            if self._reason is not None:
+                return
+            self._reason, self._dropped = reason, dropped
+        self._handback.set()
+        self.outbox.close()
+        with contextlib.suppress(OSError):
+            self.sock.shutdown(socket.SHUT_RDWR)  # wakes a blocked recv and sendall
+
+    def _detach(self) -> None:
+        port = self.port
+        if port is None:
+            return
+        sim = port.sim
+        with sim.lock:
+            sim.detach(port)
+            if sim.queued.get(port, 0) <= 0:
+                sim.queued.pop(port, None)
+
+    def log_end(self) -> None:
+        """Say how the client went (once its connection is closed and its slot free)."""
+        if self.loss is not None:
+            log.info("client %s: %d frames lost on their way to it, %d from it (--loss)",
+                     self.peer, self.loss.counts["to"], self.loss.counts["from"])
+        if self._dropped:
+            log.warning("dropped client %s: %s", self.peer, self._reason)
+        else:
+            log.info("client %s left: %s", self.peer, self._reason or "disconnected")
+
+
+def _peer_gone(sock: socket.socket) -> bool:
+    """Has the client closed its end?  Looks without taking any of its input."""
+    try:
+        if not _DONTWAIT and not select.select([sock], [], [], 0)[0]:
+            return False
+        return sock.recv(1, socket.MSG_PEEK | _DONTWAIT) == b""
+    except (BlockingIOError, InterruptedError):
+        return False
+    except OSError:
+        return True
+

@@ -1,0 +1,301 @@
+"""The socketcand elements (raw mode) as pure code: cutting a byte stream into elements
+``< ... >``, and writing and reading the ``< frame ... >`` and ``< send ... >`` elements.
+
+One copy for both ends: the client (:mod:`ucom_tools.transport.socketcand`) and the server
+of ``ucom fleet serve`` (:mod:`ucom_tools.virtual.socketcand`).  The rules are those of
+``ucom-protocol(7)``, SOCKETCAND (and socketcand's own ``doc/protocol.md``):
+
+- an element is ``<`` ... ``>``, at most :data:`MAX_ELEMENT` bytes with both brackets;
+  bytes outside elements are skipped, and an unfinished element that a new ``<``
+  interrupts is skipped with them (no element contains ``<``);
+- ``< frame ID SEC.USEC DATA >``: ID 3 hex digits (an 11-bit identifier) or 8 (29-bit),
+  DATA contiguous hex digits, as socketcand writes it (:data:`FRAME_STD`,
+  :data:`FRAME_EXT`); read also with DATA as blank-separated hex bytes;
+- ``< send ID DLC B0 B1 ... >``: ID 1-3 hex digits (0..7FF) or exactly 8 (0..1FFFFFFF,
+  extended), DLC one hex digit 0..8, exactly DLC data bytes of 1-2 hex digits each.
+
+An identifier that is extended carries :data:`CAN_EFF_FLAG` here, as SocketCAN's
+``can_id`` does (what socketcand passes to the kernel).  Nothing here does I/O; the
+functions on the per-frame paths are written for speed (one regular expression match, no
+objects beyond the result).
+"""
+
+from __future__ import annotations
+
+import binascii
+import re
+from collections.abc import Callable
+
+MAX_ELEMENT = 4096
+"""Longest element accepted from the other end, ``<`` and ``>`` included, in bytes."""
+CAN_EFF_FLAG = 0x80000000
+"""Marks an extended frame's identifier, as in SocketCAN's ``can_id``."""
+CAN_EFF_MASK = 0x1FFFFFFF
+CAN_SFF_MASK = 0x7FF
+
+FRAME_STD = b"< frame %03X %.6f %s >"
+"""``< frame ID SEC.USEC DATA >`` of a standard frame, ``%`` with identifier, time in
+seconds and the data as upper-case hex digits (:func:`frame_element`)."""
+FRAME_EXT = b"< frame %08X %.6f %s >"
+"""The same for an extended frame (the identifier without :data:`CAN_EFF_FLAG`)."""
+SEND_STD = b"< send %03X %d %s >"
+"""``< send ID DLC B0 B1 ... >`` of a standard frame with data, ``%`` with identifier,
+DLC and the bytes as upper-case hex digits separated by blanks (:func:`send_element`)."""
+
+_HEX = re.compile(r"[0-9A-Fa-f]+", re.ASCII)
+_TIMESTAMP = re.compile(r"\d+(?:\.\d+)?", re.ASCII)
+_FRAME = re.compile(rb" frame ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) (\d+\.\d+) ([0-9A-Fa-f]{0,16}) ?\Z")
+"""The usual frame element (contiguous data, single blanks), read in one match."""
+_PLAIN_SEND = re.compile(rb" ?send ([0-9A-Fa-f]{1,3}) ([0-8])((?: [0-9A-Fa-f]{1,2}){0,8}) ?")
+"""A ``send`` element as clients write it (single blanks), read in one match."""
+
+
+class ElementError(ValueError):
+    """A malformed element (the server answers it with ``< error MESSAGE >``)."""
+
+
+class ElementTooLong(ElementError):
+    """An element longer than the limit: the stream cannot be trusted any more."""
+
+
+class ElementSplitter:
+    """Cuts a byte stream into elements ``< ... >``: they may arrive split across reads or
+    several in one.  Holds at most ``limit`` bytes of an unfinished element.
+
+    ``on_skip`` hears the bytes skipped outside elements (a log), if given.
+    """
+
+    def __init__(self, limit: int = MAX_ELEMENT,
+                 on_skip: Callable[[bytes], None] | None = None) -> None:
+        self.limit = limit
+        self._on_skip = on_skip
+        self._buffer = bytearray()
+        self._pos = 0
+        """Where the unread part of the buffer starts: the elements taken are dropped at
+        the next :meth:`feed`, not one at a time (a chunk of many is cut in linear time)."""
+
+    def feed(self, chunk: bytes) -> None:
+        if self._pos:
+            del self._buffer[:self._pos]
+            self._pos = 0
+        self._buffer += chunk
+
+    def next(self) -> bytes | None:
+        """The text between ``<`` and ``>`` of the next complete element, or None until
+        more data come; :class:`ElementTooLong` instead of holding more than ``limit``
+        bytes of one."""
+        buf = self._buffer
+        pos = self._pos
+        end = buf.find(b">", pos)
+        if end >= 0 and buf.rfind(b"<", pos, end) == pos and end - pos < self.limit:
+            self._pos = end + 1  # the usual case: an element where the last one ended
+            return bytes(buf[pos + 1:end])
+        return self._next_after_skipping()
+
+    def _next_after_skipping(self) -> bytes | None:
+        """:meth:`next` when bytes are to be skipped first, or there is no element yet."""
+        buf = self._buffer
+        pos = self._pos
+        while True:
+            end = buf.find(b">", pos)
+            if end < 0:
+                start = buf.rfind(b"<", pos)
+                if start < 0:
+                    self._skip(pos, len(buf))
+                    return None
+                self._skip(pos, start)
+                if len(buf) - start >= self.limit:  # its ">" would make it too long
+                    raise ElementTooLong(f"an element is longer than {self.limit} bytes")
+                return None
+            start = buf.rfind(b"<", pos, end)  # a "<" before it ends an unfinished one
+            if start >= 0:
+                break
+            self._skip(pos, end + 1)  # a ">" outside an element
+            pos = end + 1
+        self._skip(pos, start)
+        if end + 1 - start > self.limit:
+            raise ElementTooLong(f"an element is longer than {self.limit} bytes")
+        self._pos = end + 1
+        return bytes(buf[start + 1:end])
+
+    def rest(self) -> bytes:
+        """The bytes fed and not yet returned as elements (and forget them): what a
+        process that hands a connection over sends along."""
+        rest = bytes(self._buffer[self._pos:])
+        self._buffer.clear()
+        self._pos = 0
+        return rest
+
+    def _skip(self, start: int, end: int) -> None:
+        self._pos = end
+        if self._on_skip is not None and start < end:
+            self._on_skip(bytes(self._buffer[start:end]))
+
+
+def element_words(element: bytes) -> list[str]:
+    """The words of an element's text; non-ASCII or empty elements are errors."""
+    try:
+        words = element.decode("ascii").split()
+    except UnicodeDecodeError:
+        raise ElementError("non-ASCII bytes in element") from None
+    if not words:
+        raise ElementError("empty element")
+    return words
+
+
+def quote(text: str, limit: int = 16) -> str:
+    """``text`` safe to echo inside an element: printable ASCII, no ``<``, short."""
+    shown = "".join(c if "!" <= c <= "~" and c != "<" else "?" for c in text[:limit])
+    return shown + ("..." if len(text) > limit else "")
+
+
+def error_element(text: str, raw: bool = False) -> str:
+    """A server's answer to a malformed element: ``< error TEXT >``, in raw mode
+    ``< error TEXT>``: there ``< error CLASS SEC.USEC >`` is an error frame, and
+    python-can's client (4.6) fails on any other text in that form (see
+    :mod:`ucom_tools.virtual.socketcand`)."""
+    return f"< error {text}>" if raw else f"< error {text} >"
+
+
+# ---------------------------------------------------------------------- frame
+def frame_element(can_id: int, seconds: float, data: bytes) -> bytes:
+    """``< frame ID SEC.USEC DATA >`` as socketcand writes it; ``can_id`` with
+    :data:`CAN_EFF_FLAG` for an extended frame (the per-frame path of the server uses
+    :data:`FRAME_STD` and :data:`FRAME_EXT` directly)."""
+    if can_id & CAN_EFF_FLAG:
+        return FRAME_EXT % (can_id & CAN_EFF_MASK, seconds, binascii.hexlify(data).upper())
+    return FRAME_STD % (can_id, seconds, binascii.hexlify(data).upper())
+
+
+def plain_frame(element: bytes) -> tuple[int, float, bytes] | None:
+    """``can_id`` (with :data:`CAN_EFF_FLAG` if extended), time and data of a frame
+    element in the usual form (the text between the brackets: identifier of 3 or 8 hex
+    digits, contiguous data), or None: then :func:`frame_words` decides."""
+    m = _FRAME.match(element)
+    if m is None:
+        return None
+    ident, data = m.group(1, 3)
+    if len(data) % 2:
+        return None
+    can_id = int(ident, 16)
+    if len(ident) == 8:
+        if can_id > CAN_EFF_MASK:
+            return None
+        can_id |= CAN_EFF_FLAG
+    elif can_id > CAN_SFF_MASK:
+        return None
+    return can_id, float(m.group(2)), binascii.unhexlify(data)
+
+
+def frame_words(words: list[str]) -> tuple[int, float, bytes]:
+    """``can_id``, time and data of ``< frame ID SEC.USEC DATA >`` as words (``frame``
+    first); ``ValueError`` if malformed.  ID has 3 hex digits (11-bit identifier) or 8
+    (29-bit); DATA is contiguous hex digits (socketcand) or hex bytes separated by
+    blanks; no data is a frame with DLC 0."""
+    if len(words) < 3:
+        raise ValueError("a frame needs an identifier and a timestamp")
+    ident, stamp, data_words = words[1], words[2], words[3:]
+    if len(ident) not in (3, 8) or not _HEX.fullmatch(ident):
+        raise ValueError(f"identifier {ident!r} is not 3 or 8 hex digits")
+    extended = len(ident) == 8
+    can_id = int(ident, 16)
+    if can_id > (CAN_EFF_MASK if extended else CAN_SFF_MASK):
+        raise ValueError(f"identifier {ident} is out of range")
+    if not _TIMESTAMP.fullmatch(stamp):
+        raise ValueError(f"timestamp {stamp!r} is not SEC.USEC")
+    if not all(_HEX.fullmatch(w) for w in data_words):
+        raise ValueError("data are not hex digits")
+    if len(data_words) == 1 and len(data_words[0]) % 2 == 0:
+        data = bytes.fromhex(data_words[0])
+    elif all(len(w) <= 2 for w in data_words):
+        data = bytes(int(w, 16) for w in data_words)
+    else:
+        raise ValueError("data are neither contiguous hex digits nor hex bytes")
+    if len(data) > 8:
+        raise ValueError(f"{len(data)} data bytes, more than 8")
+    return (can_id | CAN_EFF_FLAG if extended else can_id), float(stamp), data
+
+
+# ---------------------------------------------------------------------- send
+def send_element(can_id: int, data: bytes) -> bytes:
+    """``< send ID DLC B0 B1 ... >`` for ``can_id`` (with :data:`CAN_EFF_FLAG` if
+    extended) and up to 8 data bytes; ``ValueError`` with the reason otherwise."""
+    if can_id & CAN_EFF_FLAG:
+        ident = can_id & ~CAN_EFF_FLAG
+        if not 0 <= ident <= CAN_EFF_MASK:
+            raise ValueError(f"identifier 0x{ident:X}: more than 29 bits")
+        text = b"%08X" % ident
+    else:
+        if not 0 <= can_id <= CAN_SFF_MASK:
+            raise ValueError(f"identifier 0x{can_id:X}: more than 11 bits")
+        if data and len(data) <= 8:
+            return SEND_STD % (can_id, len(data), data.hex(" ").upper().encode())
+        text = b"%03X" % can_id
+    if len(data) > 8:
+        raise ValueError(f"{len(data)} data bytes, more than 8")
+    return b" ".join([b"< send", text, b"%d" % len(data), *(b"%02X" % b for b in data), b">"])
+
+
+def parse_send(args: list[str]) -> tuple[int, bytes]:
+    """``can_id`` (with :data:`CAN_EFF_FLAG` if extended) and data of ``< send ID DLC B0
+    B1 .. >`` from the words after ``send``; :class:`ElementError` with the answer if
+    malformed."""
+    if len(args) < 2:
+        raise ElementError("usage: send ID DLC DATA...")
+    ident, dlc_text, *byte_words = args
+    can_id = _identifier(ident)
+    dlc = _dlc(dlc_text)
+    if len(byte_words) != dlc:
+        raise ElementError(f"DLC {dlc} but {len(byte_words)} data bytes")
+    return can_id, bytes(_data_byte(w) for w in byte_words)
+
+
+def plain_send(element: bytes) -> tuple[int, bytes] | None:
+    """:func:`parse_send` of a well-formed standard ``send`` element in the form clients
+    write (the text between the brackets, ``send 280 2 01 00``, single blanks), or None:
+    then :func:`element_words` and :func:`parse_send` decide, which accept the same
+    frames."""
+    m = _PLAIN_SEND.fullmatch(element)
+    if m is None:
+        return None
+    can_id = int(m[1], 16)
+    if can_id > CAN_SFF_MASK:
+        return None
+    dlc = int(m[2])
+    text = m[3]
+    if len(text) == 3 * dlc and text.count(b" ") == dlc:  # every byte two digits
+        return can_id, bytes.fromhex(text.decode("ascii"))
+    words = text.split()
+    if len(words) != dlc:
+        return None
+    return can_id, bytes([int(w, 16) for w in words])
+
+
+def _identifier(text: str) -> int:
+    """A standard identifier (1-3 hex digits) or an extended one (8, with the flag)."""
+    if not _HEX.fullmatch(text) or len(text) not in (1, 2, 3, 8):
+        raise ElementError(f"bad identifier {quote(text)}: 1-3 hex digits (11 bit) "
+                           "or 8 (29 bit)")
+    value = int(text, 16)
+    if len(text) == 8:
+        if value > CAN_EFF_MASK:
+            raise ElementError(f"extended identifier {text} above 1FFFFFFF")
+        return value | CAN_EFF_FLAG
+    if value > CAN_SFF_MASK:
+        raise ElementError(f"identifier {text} above 7FF")
+    return value
+
+
+def _dlc(text: str) -> int:
+    if len(text) != 1 or not _HEX.fullmatch(text):
+        raise ElementError(f"bad DLC {quote(text)}: one hex digit 0..8")
+    value = int(text, 16)
+    if value > 8:
+        raise ElementError(f"DLC {text} above 8")
+    return value
+
+
+def _data_byte(text: str) -> int:
+    if len(text) > 2 or not _HEX.fullmatch(text):
+        raise ElementError(f"bad data byte {quote(text)}: 1-2 hex digits")
+    return int(text, 16)
