@@ -25,7 +25,7 @@ from typing import Any
 import can
 
 from ucom_tools.virtual.fleet import HOST_AHEAD_US, Fleet, _send
-from ucom_tools.virtual.serve_loss import Loss
+from ucom_tools.virtual.loss import FrameLoss
 from ucom_tools.virtual.serve_outbox import MAX_QUEUED_FRAMES, Outbox, encode_line
 from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
 from ucom_tools.wire.socketcand import (
@@ -94,7 +94,7 @@ class ClientPort:
     queues the frame, and reports an overflowing queue."""
 
     def __init__(self, sim: SimBus, outbox: Outbox, on_overflow: Callable[[], None],
-                 loss: Loss | None = None, *,
+                 loss: FrameLoss | None = None, *,
                  later: Callable[[Callable[[], None]], bool] | None = None,
                  flush: Callable[[], None] | None = None) -> None:
         self.sim = sim
@@ -140,7 +140,7 @@ class Connection:
         self.peer = peer_name(address)
         self.fleet = fleet
         self.outbox = Outbox(max_queued_frames)
-        self.loss: Loss | None = None
+        self.loss: FrameLoss | None = None
         """Frames lost between this client and its bus (``fleet serve --loss``)."""
         self.port: ClientPort | None = None
         self.raw = False
@@ -371,7 +371,7 @@ class Connection:
             args, self.fleet.buses, self.fleet.name,
             None if self.port is None else self.port.sim.name)]
         if self.fleet.client_loss and self.loss is None:
-            self.loss = Loss(self.fleet.client_loss,
+            self.loss = FrameLoss(self.fleet.client_loss,
                              f"{self.fleet.seed}/{sim.name}/{next(_CLIENT_NUMBERS)}")
         self.port = ClientPort(sim, self.outbox, self._overflow, self.loss,
                                later=self.fleet.after_step, flush=self._flush)

@@ -64,7 +64,7 @@ The server is in modules by job: this one accepts connections (:class:`ClientSer
 :class:`FleetServer`); :mod:`~ucom_tools.virtual.serve_connection` serves one client
 (:class:`~ucom_tools.virtual.serve_connection.Connection`);
 :mod:`~ucom_tools.virtual.serve_outbox` queues what is written to it;
-:mod:`~ucom_tools.virtual.serve_loss` loses frames for ``--loss``; the elements
+:class:`~ucom_tools.virtual.loss.FrameLoss` loses frames for ``--loss``; the elements
 themselves are :mod:`ucom_tools.wire.socketcand`, shared with the client.
 
 Binds to 127.0.0.1 by default; every accepted connection has TCP_NODELAY set.  The

@@ -1,10 +1,17 @@
-"""Fault injection at the python-can level: a bus wrapper that loses frames.
+"""Lost frames, reproducibly: the two ways ucom-tools loses frames on purpose.
 
-:class:`LossyBus` wraps any ``can.BusABC`` and drops frames in both directions, either at
-random with a seeded generator (``loss``) or when a predicate says so (``drop``), so that
-tests and benchmarks run the real host code over a bus that loses frames, reproducibly.
-A frame dropped on the way out is reported as sent (the host cannot tell, as on a real
-bus where a frame is lost to a receiver); one dropped on the way in is never seen.
+- :class:`LossyBus` wraps any ``can.BusABC`` (python-can level, for tests and benchmarks)
+  and drops frames in both directions, at random with a seeded generator (``loss``) or
+  where a predicate says so (``drop``), so that the real host code runs over a bus that
+  loses frames.  A frame dropped on the way out is reported as sent (the host cannot
+  tell, as on a real bus where a frame is lost to a receiver); one dropped on the way in
+  is never seen.
+- :class:`FrameLoss` is ``ucom fleet serve --loss``: frames lost at random between one
+  socketcand client and its bus, each client with its own seeded generator
+  (:class:`~ucom_tools.virtual.serve_connection.Connection` asks it for every frame).
+
+(A *fault*, in ucom-tools, is something else: a mutant board's documented deviation
+from the protocol, :mod:`ucom_tools.virtual.mutants`.)
 """
 
 from __future__ import annotations
@@ -82,3 +89,21 @@ class LossyBus(can.BusABC):
         if not self._is_shutdown:
             self.inner.shutdown()
         super().shutdown()
+
+
+class FrameLoss:
+    """``fleet serve --loss``: frames lost between one client and its bus, a share
+    ``share`` each way, from a generator seeded per client: the serve's seed, the bus and
+    the client's number on this process (the same run loses the same frames)."""
+
+    def __init__(self, share: float, seed: str) -> None:
+        self.share = share
+        self._rng = random.Random(seed)
+        self.counts = {"to": 0, "from": 0}
+        """Frames lost on their way to the client and from it."""
+
+    def lost(self, direction: str) -> bool:
+        if self._rng.random() < self.share:
+            self.counts[direction] += 1
+            return True
+        return False
