@@ -204,6 +204,53 @@ def test_the_python_api_shares_a_part_in_one_process(flashed: Path, tmp_path: Pa
         assert part.share.publish_hz == 50
 
 
+def test_precompiled_samples_are_what_the_decoded_values_give(flashed: Path,
+                                                             tmp_path: Path) -> None:
+    """The publishing thread encodes a board's sample from precompiled parts
+    (net/encode.py); it must be the same JSON document as keys.dumps of
+    RemotePart.decode, for every board and every edge's own key."""
+    from ucom_tools.net.encode import encoders
+    from ucom_tools.ops.remote import RemotePart
+    from ucom_tools.wire import mca
+
+    state = tmp_path / "state"
+    shutil.copytree(flashed, state)
+    with RemotePart.open("armar3", virtual=True, state_dir=state) as part:
+        part.run(0.02)
+        part[TARGET] = 1234
+        enc = encoders(part, "armar3")
+        assert len(enc) == 11
+        for _ in range(3):
+            part.cycle()
+            snap = part.snapshot()
+            values = part.decode(snap)
+            for (bus, board), e in enc.items():
+                mine = {r: tv for r, tv in values.items() if (r.bus, r.board) == (bus, board)}
+                stamps = [t for r, (t, _) in mine.items() if r.kind is mca.Kind.SO]
+                want = {"v": keys.VERSION, "robot": "armar3", "bus": bus, "board": board,
+                        "t": round(max(stamps, default=snap.clock), 6),
+                        "values": {r.unique: keys.number(v) for r, (_, v) in mine.items()}}
+                assert json.loads(e.sample(snap)) == want
+                assert json.loads(e.sample(snap)) == want  # again, from its caches
+                for r, (t, v) in mine.items():
+                    assert json.loads(e.edge_sample(r, snap) or b"") == {
+                        "v": keys.VERSION, "t": round(t, 6), "name": r.unique,
+                        "value": keys.number(v)}
+        assert any(r.spec.exponent < 0 for r in values)  # edges with decimals too
+
+
+@pytest.mark.parametrize("exponent", [-1, -3, -6, 0, 2])
+def test_a_value_with_decimals_is_written_as_keys_number_writes_it(exponent: int) -> None:
+    from decimal import Decimal
+    from types import SimpleNamespace
+
+    from ucom_tools.net.encode import conv_of, write
+
+    conv, _ = conv_of(SimpleNamespace(spec=SimpleNamespace(exponent=exponent)))  # type: ignore[arg-type]
+    for raw in (-2**31, -12345, -1000, -5, 0, 7, 1000, 123456789, 2**32 - 1):
+        assert json.loads(write(conv, raw)) == keys.number(Decimal(raw).scaleb(exponent))
+
+
 def test_sessions_are_peers_without_multicast_on_loopback() -> None:
     c = config(listen=[keys.DEFAULT_ENDPOINT])
     assert json.loads(c.get_json("scouting/multicast/enabled")) is False
