@@ -40,9 +40,10 @@ def config(*, listen: list[str] | None = None, connect: list[str] | None = None,
            file: str | Path | None = None, connect_timeout_s: float | None = None,
            ) -> zenoh.Config:
     """A session's configuration: ``file`` (a Zenoh JSON5 file) or the defaults, peer
-    mode, a lease of :data:`LEASE_S` and retries every :data:`RETRY_S`; ``listen`` and ``connect`` replace the endpoints where given; multicast scouting
-    off.  ``connect_timeout_s``: opening fails when no connect endpoint answers that
-    soon (a browser: no robot there)."""
+    mode, a lease of :data:`LEASE_S` and retries every :data:`RETRY_S`; ``listen`` and
+    ``connect`` replace the endpoints where given; multicast scouting off.
+    ``connect_timeout_s``: opening fails when no connect endpoint answers that soon (a
+    browser: no robot there)."""
     if file is not None:
         try:
             c = zenoh.Config.from_file(str(file))
