@@ -20,7 +20,9 @@ with a subscriber in another process following ``Right Eye Joint Sensor``.  Figu
   value new) to its CI frame on the bus: from the write's start to the time stamp of the
   first CI map frame that carries the value, seen by another client of the served bus;
 - ``cpu_pct`` of this process both ways, and ``share_cpu_us_per_value``: the extra CPU
-  of sharing per value of the robot's edges at the publishing rate.
+  of sharing per value of the robot's edges at the publishing rate;
+- ``watchdog_stops`` of each run (boards that stopped: then the served fleet or the loop
+  fell behind, and the latencies say so rather than the network) and ``load_average``.
 
 Targets (``targets_met``, MET or NOT MET in the text): lateness p99 and missed share
 with sharing <= 1.1x without (within 0.01 ms / 0.1 point: the noise of a 5 s run),
@@ -176,6 +178,7 @@ def loop(port: int, seconds: float, zenoh: str | None, publish_hz: float,
         cycles, missed = s.cycles - cycles0, s.missed - missed0
         late = list(s.late)
         values = len(part.names)
+        stops = sum(1 for e in part.events if e.stopped_motors)
         got = list(lines)
         if sub is not None:
             end(sub)
@@ -191,7 +194,7 @@ def loop(port: int, seconds: float, zenoh: str | None, publish_hz: float,
     return {"missed_pct": round(100 * missed / max(1, cycles + missed), 3),
             "jitter_p99_ms": round(percentile(late, 99) * 1e3, 3),
             "cpu_pct": round(100 * cpu / wall, 1), "cpu_s": cpu, "wall_s": wall,
-            "values": values, "latency": lat,
+            "values": values, "latency": lat, "watchdog_stops": stops,
             "setpoints": [float(x) for x in sets if x[:1].isdigit()],
             "setpoints_lost": sum(1 for x in sets if x == "lost")}
 
@@ -234,6 +237,9 @@ def main() -> None:
         "loop_rate_latency_p99_ms": ms(fast_lat, 99),
         "setpoints": len(sets), "setpoints_lost": shared["setpoints_lost"],
         "setpoint_p50_ms": ms(sets, 50), "setpoint_p99_ms": ms(sets, 99),
+        "watchdog_stops": {"plain": plain["watchdog_stops"], "shared": shared["watchdog_stops"],
+                           "loop_rate": fast["watchdog_stops"]},
+        "load_average": round(os.getloadavg()[0], 2),
     }
 
     def under(key: str, limit: float) -> bool:
@@ -269,6 +275,11 @@ def main() -> None:
     print(f"  set-point RobotClient.write to its CI frame on the bus: p50 "
           f"{figures['setpoint_p50_ms']} ms, p99 {figures['setpoint_p99_ms']} ms "
           f"({figures['setpoints']} of {TARGET!r}, {figures['setpoints_lost']} lost)")
+    stops = figures["watchdog_stops"]
+    if any(stops.values()):
+        print(f"  boards    stopped by their watchdog: {stops} (the loop or the served fleet "
+              "fell behind: the figures are not the network's)")
+    print(f"  machine   load average {figures['load_average']} on {os.cpu_count()} cores")
     for name, ok in targets.items():
         print(f"  target {name}: {'MET' if ok else 'NOT MET'}")
 
