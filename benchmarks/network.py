@@ -6,7 +6,10 @@ ARMAR-III's CAN0 (3 boards) is served by ``ucom fleet serve`` in another process
 process runs the PC's ``RemotePart`` on it over socketcand at 1 kHz, three times in the
 same run: without sharing (the baseline), shared on a loopback endpoint at
 ``--publish-rate`` (default 100 Hz), and shared at the loop's rate (1000 Hz), each time
-with a subscriber in another process following ``Right Eye Joint Sensor``.  Figures:
+with a subscriber following ``Right Eye Joint Sensor`` on another host: in a network
+namespace joined to this one by a veth pair, the robot listening on its end (as root
+with ip(8); else, or with ``--loopback``, in another process on loopback:
+``subscriber`` says which).  Figures:
 
 - ``missed_pct`` / ``jitter_p99_ms`` of the loop without and with sharing (at
   ``--publish-rate``), and their ratio; ``loop_rate_missed_pct`` /
@@ -33,13 +36,16 @@ latency p99 at 100 Hz under 20 ms and at the loop rate under 10 ms, set-point p9
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
+import shutil
 import socket
 import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -56,30 +62,34 @@ TARGET = "Right Eye Target"
 WRITER = """
 import sys, time
 from ucom_tools.net.client import RobotClient
-from ucom_tools.transport.socketcand import SocketcandBus
-from ucom_tools.wire.mca import mask
-endpoint, port, ident, offset, signed, count = sys.argv[1:7]
-ident, offset, signed, count = int(ident), int(offset), signed == "1", int(count)
-bus = SocketcandBus("CAN0", "127.0.0.1", int(port))
-client = RobotClient.connect(endpoint, timeout=10)
-for k in range(count):
+client = RobotClient.connect(sys.argv[1], timeout=10)
+print("ready", flush=True)
+sys.stdin.readline()  # the bus listener is ready
+for k in range(int(sys.argv[2])):
     value = 200 + k % 2 * 100 + k  # a new value every time
     start = time.time()
-    client.write(sys.argv[7], value)
-    deadline = time.monotonic() + 2
-    while time.monotonic() < deadline:
-        msg = bus.recv(0.5)
-        if msg is None or msg.arbitration_id != ident:
-            continue
-        data = mask(bytes(msg.data))
-        if int.from_bytes(data[offset:offset + 2], "big", signed=signed) == value:
-            stamp = msg.timestamp if start <= msg.timestamp <= time.time() else time.time()
-            print(f"{stamp - start:.6f}", flush=True)
-            break
-    else:
-        print("lost", flush=True)
+    client.write(sys.argv[3], value)
+    print(f"{value} {start:.6f}", flush=True)
 client.close()
-bus.shutdown()
+"""
+CI_LISTENER = """
+import sys, time
+from ucom_tools.transport.socketcand import SocketcandBus
+from ucom_tools.wire.mca import mask
+port, ident, offset = (int(x) for x in sys.argv[1:4])
+signed = sys.argv[4] == "1"
+bus = SocketcandBus("CAN0", "127.0.0.1", port)
+print("ready", flush=True)
+last = None
+while True:
+    msg = bus.recv(0.5)
+    if msg is None or msg.arbitration_id != ident:
+        continue
+    data = mask(bytes(msg.data))
+    value = int.from_bytes(data[offset:offset + 2], "big", signed=signed)
+    if value != last:
+        last = value
+        print(f"{value} {msg.timestamp:.6f}", flush=True)
 """
 SUBSCRIBER = """
 import sys, time
@@ -114,11 +124,12 @@ def ci_slot(part: RemotePart, name: str) -> tuple[int, int, bool]:
     raise SystemExit(f"{name} is in no CI map")
 
 
-def child(code: str, *args: str) -> tuple[subprocess.Popen[str], list[str],
-                                            threading.Event]:
-    """A Python process running ``code``: its number lines, and an event set by "ready"
-    (or by its end)."""
-    proc = subprocess.Popen([sys.executable, "-c", code, *args], stdin=subprocess.PIPE,
+def child(code: str, *args: str, where: tuple[str, ...] = ()) -> tuple[
+        subprocess.Popen[str], list[str], threading.Event]:
+    """A Python process running ``code`` (``where``: a prefix, ``ip netns exec NS``): its
+    number lines, and an event set by "ready" (or by its end)."""
+    proc = subprocess.Popen([*where, sys.executable, "-c", code, *args],
+                            stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, text=True,
                             env={**os.environ, "PYTHONPATH": str(ROOT)})
     lines: list[str] = []
@@ -146,7 +157,7 @@ def end(proc: subprocess.Popen[str]) -> None:
 
 
 def loop(port: int, seconds: float, zenoh: str | None, publish_hz: float,
-         setpoints: int = 0) -> dict[str, Any]:
+         setpoints: int = 0, where: tuple[str, ...] = ()) -> dict[str, Any]:
     """The 1 kHz loop on CAN0 for ``seconds``, shared on ``zenoh`` when given (with a
     subscriber process following SIGNAL); then, with ``setpoints``, that many writes of
     TARGET from another process, timed to their CI frames on the bus."""
@@ -155,10 +166,11 @@ def loop(port: int, seconds: float, zenoh: str | None, publish_hz: float,
     sub = None
     lines: list[str] = []
     sets: list[str] = []
+    frames: list[str] = []
     with RemotePart.open("armar3", interface="socketcand", host="127.0.0.1", port=port,
                          channels=("CAN0",), rate_hz=1000.0, **kwargs) as part:
         if zenoh:
-            sub, lines, ready = child(SUBSCRIBER, zenoh, SIGNAL)
+            sub, lines, ready = child(SUBSCRIBER, zenoh, SIGNAL, where=where)
             deadline = time.monotonic() + 30
             while not ready.is_set() and time.monotonic() < deadline:
                 part.cycle()  # the loop goes on (the watchdogs) while it connects
@@ -184,19 +196,81 @@ def loop(port: int, seconds: float, zenoh: str | None, publish_hz: float,
             end(sub)
         if zenoh and setpoints:
             ident, offset, signed = ci_slot(part, TARGET)
-            writer, sets, _ = child(WRITER, zenoh, str(port), str(ident), str(offset),
-                                    "1" if signed else "0", str(setpoints), TARGET)
+            listener, frames, heard = child(CI_LISTENER, str(port), str(ident), str(offset),
+                                            "1" if signed else "0")
+            writer, sets, connected = child(WRITER, zenoh, str(setpoints), TARGET,
+                                            where=where)
+            deadline = time.monotonic() + 30
+            while not (heard.is_set() and connected.is_set()) \
+                    and time.monotonic() < deadline:
+                part.cycle()
+            assert writer.stdin is not None
+            writer.stdin.write("go\n")
+            writer.stdin.flush()
             deadline = time.monotonic() + 30 + setpoints * 2
             while writer.poll() is None and time.monotonic() < deadline:
                 part.cycle()
+            stop_at = time.monotonic() + 0.1  # the last frame's way to the listener
+            while time.monotonic() < stop_at:
+                part.cycle()
             end(writer)
+            listener.kill()
+            listener.wait()
     lat = [float(x) for x in got if x[:1].isdigit()]
     return {"missed_pct": round(100 * missed / max(1, cycles + missed), 3),
             "jitter_p99_ms": round(percentile(late, 99) * 1e3, 3),
             "cpu_pct": round(100 * cpu / wall, 1), "cpu_s": cpu, "wall_s": wall,
             "values": values, "latency": lat, "watchdog_stops": stops,
-            "setpoints": [float(x) for x in sets if x[:1].isdigit()],
-            "setpoints_lost": sum(1 for x in sets if x == "lost")}
+            **setpoint_times(sets, frames if zenoh and setpoints else [])}
+
+
+def setpoint_times(sets: list[str], frames: list[str]) -> dict[str, Any]:
+    """Each write's way to its frame: the writer's "VALUE START" lines against the bus
+    listener's "VALUE STAMP" lines (the first frame that carried each value)."""
+    first: dict[int, float] = {}
+    for line in frames:
+        value, stamp = line.split()
+        first.setdefault(int(value), float(stamp))
+    times, lost = [], 0
+    for line in sets:
+        value, start = line.split()
+        if int(value) in first:
+            times.append(first[int(value)] - float(start))
+        else:
+            lost += 1
+    return {"setpoints": times, "setpoints_lost": lost}
+
+
+@contextlib.contextmanager
+def other_host(wanted: bool) -> Iterator[tuple[tuple[str, ...], str, str]]:
+    """Where the subscriber and the writer run: a network namespace joined to this one by
+    a veth pair (as root, with ip(8)), the robot listening on its end: (the ``ip netns
+    exec`` prefix, the robot's address, what it is); else loopback, saying why."""
+    ns = f"ucombench{os.getpid() % 100000}"
+    here, there = f"ucb{os.getpid() % 100000}a", f"ucb{os.getpid() % 100000}b"
+    net = f"10.250.{os.getpid() % 250}"
+
+    def ip(*args: str) -> bool:
+        return subprocess.run(["ip", *args], capture_output=True).returncode == 0
+    why = ("--loopback" if not wanted else "not root" if os.geteuid() != 0
+           else "no ip(8)" if shutil.which("ip") is None else None)
+    made = why is None and ip("netns", "add", ns)
+    try:
+        if made and all([
+                ip("link", "add", here, "type", "veth", "peer", "name", there, "netns", ns),
+                ip("addr", "add", f"{net}.1/24", "dev", here), ip("link", "set", here, "up"),
+                ip("-n", ns, "addr", "add", f"{net}.2/24", "dev", there),
+                ip("-n", ns, "link", "set", there, "up"),
+                ip("-n", ns, "link", "set", "lo", "up")]):
+            yield ("ip", "netns", "exec", ns), f"{net}.1", \
+                "in another network namespace (a veth pair)"
+        else:
+            yield (), "127.0.0.1", \
+                f"in another process on loopback ({why or 'no network namespace here'})"
+    finally:
+        if made:
+            ip("netns", "del", ns)
+            ip("link", "del", here)
 
 
 def ms(values: list[float], p: float) -> float | None:
@@ -208,18 +282,21 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=5.0)
     ap.add_argument("--publish-rate", type=float, default=100.0)
     ap.add_argument("--setpoints", type=int, default=100)
+    ap.add_argument("--loopback", action="store_true",
+                    help="subscriber and writer on loopback, not in a network namespace")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
-    with served_armar3("1") as (_proc, port):
+    with served_armar3("1") as (_proc, port), other_host(not args.loopback) as (
+            where, address, remote):
         plain = loop(port, args.seconds, None, args.publish_rate)
-        shared = loop(port, args.seconds, f"tcp/127.0.0.1:{free_port()}", args.publish_rate,
-                      setpoints=args.setpoints)
-        fast = loop(port, args.seconds, f"tcp/127.0.0.1:{free_port()}", 1000.0)
+        shared = loop(port, args.seconds, f"tcp/{address}:{free_port()}", args.publish_rate,
+                      setpoints=args.setpoints, where=where)
+        fast = loop(port, args.seconds, f"tcp/{address}:{free_port()}", 1000.0, where=where)
     lat, fast_lat, sets = shared["latency"], fast["latency"], shared["setpoints"]
     published = shared["values"] * args.publish_rate * shared["wall_s"]
     extra = shared["cpu_s"] / shared["wall_s"] - plain["cpu_s"] / plain["wall_s"]
     figures: dict[str, Any] = {
-        "publish_rate_hz": args.publish_rate,
+        "publish_rate_hz": args.publish_rate, "subscriber": remote,
         "missed_pct": plain["missed_pct"], "shared_missed_pct": shared["missed_pct"],
         "jitter_p99_ms": plain["jitter_p99_ms"],
         "shared_jitter_p99_ms": shared["jitter_p99_ms"],
@@ -267,12 +344,12 @@ def main() -> None:
           f"({figures['share_cpu_us_per_value']} us per value published)")
     print(f"            shared, 1000 Hz: {figures['loop_rate_missed_pct']} % missed, p99 "
           f"{figures['loop_rate_jitter_p99_ms']} ms, CPU {figures['loop_rate_cpu_pct']} %")
-    print(f"  latency   board time stamp to a subscriber in another process: p50 "
+    print(f"  latency   board time stamp to a subscriber {remote}: p50 "
           f"{figures['latency_p50_ms']} ms, p99 {figures['latency_p99_ms']} ms "
           f"({figures['samples']} samples of {SIGNAL!r}); at 1000 Hz p50 "
           f"{figures['loop_rate_latency_p50_ms']} ms, p99 "
           f"{figures['loop_rate_latency_p99_ms']} ms ({figures['loop_rate_samples']})")
-    print(f"  set-point RobotClient.write to its CI frame on the bus: p50 "
+    print(f"  set-point RobotClient.write ({remote}) to its CI frame on the bus: p50 "
           f"{figures['setpoint_p50_ms']} ms, p99 {figures['setpoint_p99_ms']} ms "
           f"({figures['setpoints']} of {TARGET!r}, {figures['setpoints_lost']} lost)")
     stops = figures["watchdog_stops"]
