@@ -204,6 +204,53 @@ def test_the_python_api_shares_a_part_in_one_process(flashed: Path, tmp_path: Pa
         assert part.share.publish_hz == 50
 
 
+def test_precompiled_samples_are_what_the_decoded_values_give(flashed: Path,
+                                                             tmp_path: Path) -> None:
+    """The publishing thread encodes a board's sample from precompiled parts
+    (net/encode.py); it must be the same JSON document as keys.dumps of
+    RemotePart.decode, for every board and every edge's own key."""
+    from ucom_tools.net.encode import encoders
+    from ucom_tools.ops.remote import RemotePart
+    from ucom_tools.wire import mca
+
+    state = tmp_path / "state"
+    shutil.copytree(flashed, state)
+    with RemotePart.open("armar3", virtual=True, state_dir=state) as part:
+        part.run(0.02)
+        part[TARGET] = 1234
+        enc = encoders(part, "armar3")
+        assert len(enc) == 11
+        for _ in range(3):
+            part.cycle()
+            snap = part.snapshot()
+            values = part.decode(snap)
+            for (bus, board), e in enc.items():
+                mine = {r: tv for r, tv in values.items() if (r.bus, r.board) == (bus, board)}
+                stamps = [t for r, (t, _) in mine.items() if r.kind is mca.Kind.SO]
+                want = {"v": keys.VERSION, "robot": "armar3", "bus": bus, "board": board,
+                        "t": round(max(stamps, default=snap.clock), 6),
+                        "values": {r.unique: keys.number(v) for r, (_, v) in mine.items()}}
+                assert json.loads(e.sample(snap)) == want
+                assert json.loads(e.sample(snap)) == want  # again, from its caches
+                for r, (t, v) in mine.items():
+                    assert json.loads(e.edge_sample(r, snap) or b"") == {
+                        "v": keys.VERSION, "t": round(t, 6), "name": r.unique,
+                        "value": keys.number(v)}
+        assert any(r.spec.exponent < 0 for r in values)  # edges with decimals too
+
+
+@pytest.mark.parametrize("exponent", [-1, -3, -6, 0, 2])
+def test_a_value_with_decimals_is_written_as_keys_number_writes_it(exponent: int) -> None:
+    from decimal import Decimal
+    from types import SimpleNamespace
+
+    from ucom_tools.net.encode import conv_of, write
+
+    conv, _ = conv_of(SimpleNamespace(spec=SimpleNamespace(exponent=exponent)))  # type: ignore[arg-type]
+    for raw in (-2**31, -12345, -1000, -5, 0, 7, 1000, 123456789, 2**32 - 1):
+        assert json.loads(write(conv, raw)) == keys.number(Decimal(raw).scaleb(exponent))
+
+
 def test_sessions_are_peers_without_multicast_on_loopback() -> None:
     c = config(listen=[keys.DEFAULT_ENDPOINT])
     assert json.loads(c.get_json("scouting/multicast/enabled")) is False
@@ -240,36 +287,252 @@ def _netns_ok() -> str | None:
     return None
 
 
-@pytest.mark.skipif(_netns_ok() is not None, reason=str(_netns_ok()))
-def test_a_browser_in_another_network_namespace_reads_the_robot(flashed: Path,
-                                                                tmp_path: Path) -> None:
-    ns, here, there = "ucomz", "ucomz0", "ucomz1"
+# ---------------------------------------------------------------------- faults (issue 18, 4)
+BROWSER = """
+import sys, time
+from ucom_tools.net.client import RobotClient
+client = RobotClient.connect(sys.argv[1], timeout=30)
+client.on_alive(lambda up: print("back" if up else "lost", time.monotonic(), flush=True))
+client.subscribe([sys.argv[2]], lambda t, n, v: print("value", t, v, flush=True))
+print("ready", flush=True)
+sys.stdin.read()
+client.close()
+"""
 
-    def ip(*args: str) -> None:
-        r = subprocess.run(["ip", *args], capture_output=True, text=True)
-        assert r.returncode == 0, f"ip {' '.join(args)}: {r.stderr}"
-    subprocess.run(["ip", "netns", "del", ns], capture_output=True)
-    subprocess.run(["ip", "link", "del", here], capture_output=True)
-    robot = None
+
+class Lines:
+    """A process's stdout lines as they come, waited for with deadlines."""
+
+    def __init__(self, proc: subprocess.Popen[str]) -> None:
+        self.proc = proc
+        self.lines: list[str] = []
+        self._cond = threading.Condition()
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            with self._cond:
+                self.lines.append(line.strip())
+                self._cond.notify_all()
+        with self._cond:
+            self.lines.append("<eof>")
+            self._cond.notify_all()
+
+    def wait(self, start: int, word: str, timeout: float) -> int:
+        """The index of the first line from ``start`` beginning with ``word``."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while True:
+                for i in range(start, len(self.lines)):
+                    if self.lines[i].split(" ", 1)[0] == word:
+                        return i
+                left = deadline - time.monotonic()
+                if left <= 0 or "<eof>" in self.lines[start:]:
+                    raise AssertionError(f"no {word!r} line within {timeout:g} s: "
+                                         f"{self.lines[start:][-5:]}")
+                self._cond.wait(left)
+
+
+def _ip(*args: str) -> None:
+    r = subprocess.run(["ip", *args], capture_output=True, text=True)
+    assert r.returncode == 0, f"ip {' '.join(args)}: {r.stderr}"
+
+
+@pytest.fixture
+def two_hosts() -> Iterator[tuple[list[str], list[str], str, str]]:
+    """Two network namespaces (the robot's host, the browser's) joined by a veth pair:
+    (the robot's ``ip netns exec`` prefix, the browser's, the robot's address, the
+    robot's end of the link).  Names unique to this process; removed afterwards."""
+    why = _netns_ok()
+    if why is not None:
+        pytest.skip(f"two hosts need network namespaces: {why}")
+    tag = f"{os.getpid() % 100000}"
+    robot_ns, browser_ns = f"uzr{tag}", f"uzb{tag}"
+    robot_dev, browser_dev = f"uzr{tag}", f"uzb{tag}"
+    subnet = f"10.{233 + os.getpid() % 20}.{os.getpid() // 20 % 250}"
     try:
-        ip("netns", "add", ns)
-        ip("link", "add", here, "type", "veth", "peer", "name", there)
-        ip("link", "set", there, "netns", ns)
-        ip("addr", "add", "10.231.0.1/24", "dev", here)
-        ip("link", "set", here, "up")
-        ip("netns", "exec", ns, "ip", "addr", "add", "10.231.0.2/24", "dev", there)
-        ip("netns", "exec", ns, "ip", "link", "set", there, "up")
-        ip("netns", "exec", ns, "ip", "link", "set", "lo", "up")
-        robot = Robot(flashed, tmp_path, host="10.231.0.1")
-        robot.client().close()
-        r = subprocess.run(["ip", "netns", "exec", ns, sys.executable, "-m", "ucom_tools",
-                            "browse", "--zenoh", robot.endpoint, "--get", SENSOR],
+        _ip("netns", "add", robot_ns)
+        _ip("netns", "add", browser_ns)
+        _ip("link", "add", robot_dev, "netns", robot_ns, "type", "veth", "peer", "name",
+            browser_dev, "netns", browser_ns)
+        for ns, dev, host in ((robot_ns, robot_dev, 1), (browser_ns, browser_dev, 2)):
+            _ip("-n", ns, "addr", "add", f"{subnet}.{host}/24", "dev", dev)
+            _ip("-n", ns, "link", "set", dev, "up")
+            _ip("-n", ns, "link", "set", "lo", "up")
+        yield (["ip", "netns", "exec", robot_ns], ["ip", "netns", "exec", browser_ns],
+               f"{subnet}.1", robot_dev)
+    finally:
+        for ns in (robot_ns, browser_ns):  # the veth pair goes with its namespaces
+            subprocess.run(["ip", "netns", "del", ns], capture_output=True)
+
+
+def _robot_report(robot: Robot) -> dict[str, object]:
+    robot.stop()
+    doc = json.loads(robot.out_path.read_text())
+    assert isinstance(doc, dict)
+    return doc
+
+
+def test_the_link_down_for_5_s_the_loop_goes_on_and_the_browser_recovers(
+        flashed: Path, tmp_path: Path,
+        two_hosts: tuple[list[str], list[str], str, str]) -> None:
+    robot_ns, browser_ns, address, robot_dev = two_hosts
+    robot = Robot(flashed, tmp_path, "--json", host=address, prefix=tuple(robot_ns))
+    browser = subprocess.Popen([*browser_ns, sys.executable, "-c", BROWSER, robot.endpoint,
+                                SENSOR], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                               text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        out = Lines(browser)
+        first = out.wait(out.wait(0, "ready", DEADLINE_S), "value", 10)
+        down = time.monotonic()
+        _ip("-n", robot_ns[-1], "link", "set", robot_dev, "down")
+        try:
+            lost = out.wait(first, "lost", 5.0)  # the lease (3 s) within the 5 s
+        finally:
+            left = 5.0 - (time.monotonic() - down)
+            if left > 0:
+                time.sleep(left)  # the scenario: the link stays down 5 s
+            _ip("-n", robot_ns[-1], "link", "set", robot_dev, "up")
+        up = time.monotonic()
+        back = out.wait(lost, "back", 10.0)
+        after = out.wait(back, "value", 5.0)
+        assert float(out.lines[after].split()[1]) > float(out.lines[first].split()[1]) + 5
+        assert time.monotonic() - up < 10
+    finally:
+        if browser.stdin is not None:
+            browser.stdin.close()
+        try:
+            browser.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            browser.kill()
+    doc = _robot_report(robot)
+    run = doc["run"]
+    assert isinstance(run, dict)
+    # virtual time: the loop's cycles followed the boards' clock the whole time, and not
+    # one board's watchdog stopped it (the boards kept running)
+    assert run["missed"] == 0, run
+    assert not [e for e in doc["events"] if "watchdog" in json.dumps(e)], doc["events"]
+
+
+@pytest.fixture(scope="module")
+def writable(flashed: Path, tmp_path_factory: pytest.TempPathFactory) -> Iterator[Robot]:
+    """A running robot that takes writes (--allow-writes)."""
+    r = Robot(flashed, tmp_path_factory.mktemp("rw"), "--allow-writes")
+    try:
+        r.client().close()
+        yield r
+    finally:
+        r.stop()
+
+
+WRITER = """
+import sys
+from ucom_tools.net.client import RobotClient
+client = RobotClient.connect(sys.argv[1], timeout=30)
+print("ready", flush=True)
+k = 0
+while True:  # writes back to back: a kill -9 comes in the middle of one
+    client.write(sys.argv[2], 500 + k % 100)
+    k += 1
+    print("wrote", k, flush=True)
+"""
+
+
+def test_a_browser_killed_mid_write_leaves_the_robot_and_the_next_writer_fine(
+        writable: Robot) -> None:
+    writer = subprocess.Popen([sys.executable, "-c", WRITER, writable.endpoint, TARGET],
+                              stdout=subprocess.PIPE, text=True, cwd=ROOT,
+                              env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        out = Lines(writer)
+        out.wait(out.wait(0, "ready", DEADLINE_S), "wrote", 10)
+        out.wait(len(out.lines), "wrote", 10)  # writing on, one write after another
+    finally:
+        writer.kill()  # SIGKILL, between sending a query and taking its answer
+        writer.wait(timeout=10)
+    with writable.client() as client:
+        assert client.alive()
+        answer = client.write(TARGET, 777)
+        assert answer["ok"] and answer["value"] == 777
+        t0 = client.read([SENSOR])[SENSOR][0]
+        deadline = time.monotonic() + 10
+        while client.read([SENSOR])[SENSOR][0] <= t0:  # the boards run on
+            assert time.monotonic() < deadline, "no new sensor value after the kill"
+    r = _ucom("browse", "--zenoh", writable.endpoint, "--set", f"{TARGET}=778")
+    assert r.returncode == 0, r.stderr
+    assert writable.proc.poll() is None
+    assert "Traceback" not in writable.err_path.read_text()
+
+
+def test_malformed_requests_from_a_raw_zenoh_client_are_answered_with_errors(
+        writable: Robot) -> None:
+    import zenoh
+
+    with writable.client() as client:
+        client.write(TARGET, 100)  # a known value before
+    session = zenoh.open(config(connect=[writable.endpoint], connect_timeout_s=10))
+    events: list[dict[str, object]] = []
+    last = threading.Event()
+
+    def on_event(sample: zenoh.Sample) -> None:
+        events.append(json.loads(sample.payload.to_bytes()))
+        if events[-1].get("value") == "101":
+            last.set()
+    sub = session.declare_subscriber("ucom/armar3/events", on_event)
+
+    def ask(key: str, payload: bytes) -> list[tuple[bool, dict[str, object]]]:
+        out = []
+        for r in session.get(key, payload=payload, timeout=5.0):
+            reply = r.ok if r.ok is not None else r.err
+            assert reply is not None
+            assert str(reply.encoding).startswith("application/json")
+            out.append((r.ok is not None, json.loads(reply.payload.to_bytes())))
+        return out
+
+    try:
+        bad = [b"not json", b"\xff\xfe", b"[1, 2]", b'{"v": 2, "name": "x", "value": 1}',
+               b'{"v": 1, "name": 5, "value": 1}', b'{"v": 1, "name": "x", "value": [1]}',
+               b'{"v": 1, "name": "Right Eye Target", "value": true}']
+        for payload in bad:
+            answers = ask("ucom/armar3/set", payload)
+            assert len(answers) == 1 and not answers[0][0], (payload, answers)
+            assert answers[0][1]["error"] == "refused", (payload, answers)
+        for name, value, why in (("No Such Edge", 1, "no edge called"),
+                                 ("Right Eye Joint Sensor", 1, ""),
+                                 (TARGET, 1e400, "")):
+            doc = json.dumps({"v": 1, "name": name, "value": value, "origin": "raw"})
+            answers = ask("ucom/armar3/set", doc.encode())
+            assert len(answers) == 1 and not answers[0][0], (name, answers)
+            assert answers[0][1]["error"] == "refused" and why in str(answers[0][1]["message"])
+        # samples put where the robot only publishes, and keys it does not have: nothing
+        session.put("ucom/armar3/set", b"garbage")
+        session.put("ucom/armar3/CAN0/3/edge/Right Eye Target", b'{"v":1,"value":5}')
+        session.put("ucom/armar3/CAN0/3/values", b"\x00")
+        assert ask("ucom/armar3/no/such/key", b"{}") == []
+        with writable.client() as client:  # and the robot is as it was
+            assert client.read([TARGET])[TARGET][1] == 100
+            assert client.write(TARGET, 101)["ok"]
+        assert last.wait(5.0), events
+        kinds = {(e["kind"], e.get("result") == "done") for e in events}
+        assert kinds <= {("write", True), ("write", False)}, events  # no stop, no error
+        assert writable.proc.poll() is None
+    finally:
+        sub.undeclare()
+        session.close()
+
+
+def test_a_browser_in_another_network_namespace_reads_the_robot(
+        flashed: Path, tmp_path: Path,
+        two_hosts: tuple[list[str], list[str], str, str]) -> None:
+    robot_ns, browser_ns, address, _ = two_hosts
+    robot = Robot(flashed, tmp_path, host=address, prefix=tuple(robot_ns))
+    try:
+        r = subprocess.run([*browser_ns, sys.executable, "-m", "ucom_tools", "browse",
+                            "--zenoh", robot.endpoint, "--get", SENSOR, "--timeout", "20"],
                            capture_output=True, text=True, timeout=DEADLINE_S, cwd=ROOT,
                            env={**os.environ, "PYTHONPATH": str(ROOT)})
-        assert r.returncode == 0, r.stderr
+        assert r.returncode == 0, r.stderr + robot.err_path.read_text()
         assert r.stdout.startswith(f"{SENSOR} = ")
     finally:
-        if robot is not None:
-            robot.stop()
-        subprocess.run(["ip", "netns", "del", ns], capture_output=True)
-        subprocess.run(["ip", "link", "del", here], capture_output=True)
+        robot.stop()

@@ -287,6 +287,16 @@ class RobotClient:
         return Subscription([self.session.liveliness().declare_subscriber(
             f"ucom/{keys.escape(self.robot)}/*/*/alive", on_sample, history=True)])
 
+    def on_alive(self, callback: Callable[[bool], None]) -> Subscription:
+        """``callback(False)`` when the robot's liveliness token goes ("connection lost":
+        its loop ended, its host died or the network between is gone), ``callback(True)``
+        when it is there (at once where it is, and again when the robot or the network
+        comes back: the session reconnects by itself)."""
+        def on_sample(sample: zenoh.Sample) -> None:
+            callback(sample.kind != zenoh.SampleKind.DELETE)
+        return Subscription([self.session.liveliness().declare_subscriber(
+            keys.robot_key(self.robot, "alive"), on_sample, history=True)])
+
     def alive(self) -> bool:
         """Is the robot's liveliness token there now?"""
         return any(r.ok is not None for r in self.session.liveliness().get(

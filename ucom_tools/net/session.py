@@ -18,6 +18,14 @@ import zenoh
 from ucom_tools.errors import BusError, InputError
 from ucom_tools.net.keys import DEFAULT_ENDPOINT
 
+LEASE_S = 3.0
+"""A session closes its link to a peer it has heard nothing from this long (Zenoh's
+lease; its default is 10 s): a robot whose network went away is "connection lost" for
+a browser within 3 s, not 10 (and its liveliness token goes)."""
+RETRY_S = 1.0
+"""A browser that lost its robot tries its endpoint again at least this often (Zenoh
+backs off up to 4 s by default)."""
+
 
 def check_endpoint(endpoint: str, *, key: str = "--zenoh") -> str:
     """``proto/address`` (``tcp/127.0.0.1:7447``, ``tcp/[::1]:7447``, ``udp/...``)."""
@@ -32,9 +40,10 @@ def config(*, listen: list[str] | None = None, connect: list[str] | None = None,
            file: str | Path | None = None, connect_timeout_s: float | None = None,
            ) -> zenoh.Config:
     """A session's configuration: ``file`` (a Zenoh JSON5 file) or the defaults, peer
-    mode; ``listen`` and ``connect`` replace the endpoints where given; multicast scouting
-    off.  ``connect_timeout_s``: opening fails when no connect endpoint answers that
-    soon (a browser: no robot there)."""
+    mode, a lease of :data:`LEASE_S` and retries every :data:`RETRY_S`; ``listen`` and
+    ``connect`` replace the endpoints where given; multicast scouting off.
+    ``connect_timeout_s``: opening fails when no connect endpoint answers that soon (a
+    browser: no robot there)."""
     if file is not None:
         try:
             c = zenoh.Config.from_file(str(file))
@@ -44,6 +53,10 @@ def config(*, listen: list[str] | None = None, connect: list[str] | None = None,
     else:
         c = zenoh.Config()
         c.insert_json5("mode", json.dumps("peer"))
+        c.insert_json5("transport/link/tx/lease", str(int(LEASE_S * 1000)))
+        c.insert_json5("connect/retry", json.dumps({
+            "period_init_ms": int(RETRY_S * 500), "period_max_ms": int(RETRY_S * 1000),
+            "period_increase_factor": 2}))
         if listen is None:
             listen = []
         if connect is None:

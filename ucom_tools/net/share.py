@@ -14,8 +14,9 @@ local one (:meth:`RemotePart.set`), on the loop's thread, and answered.
 Off the loop's critical path: the loop's thread only takes a snapshot every few cycles
 (:meth:`RemotePart.snapshot`: references and small dict copies) and hands it to the
 publishing thread through a queue, and applies the writes the network queued; it never
-waits for the network.  Decoding, JSON and every Zenoh call happen on the publishing
-thread (or on Zenoh's own threads, for the queries).
+waits for the network.  Encoding (from parts prepared once, :mod:`.encode`: the
+publishing thread holds the GIL the loop needs as briefly as it can) and every Zenoh
+call happen on the publishing thread (or on Zenoh's own threads, for the queries).
 
 One robot, one loop: where the robot's liveliness token is already on the network (or a
 ucom robot of that name listens on the endpoint) :func:`share` refuses (BusError),
@@ -39,6 +40,7 @@ import zenoh
 
 from ucom_tools.errors import BusError, InputError, UcomError
 from ucom_tools.net import keys
+from ucom_tools.net.encode import BoardEncoder, encoders
 from ucom_tools.net.session import address_in_use, check_endpoint, config, open_session
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.remote import RawSnapshot, RemotePart, RemoteStop, WriteEvent
@@ -47,6 +49,9 @@ from ucom_tools.wire import mca
 JSON = zenoh.Encoding.APPLICATION_JSON
 PROBE_S = 1.0
 """How long a new share looks for the robot's liveliness token elsewhere on the network."""
+RESEND_S = 1.0
+"""A board's sample that did not change (no new frame, nothing set) is put again only
+after this long; its latest is always in the ``values`` queryable."""
 CLOSE_S = 2.0
 """How long closing waits for the publishing thread."""
 
@@ -133,11 +138,15 @@ class RobotShare:
             self._out: queue.SimpleQueue[RawSnapshot | _Answer] = queue.SimpleQueue()
             self._matched: set[str] = set()
             self._latest: dict[str, bytes] = {}
+            self._edge_latest: dict[str, bytes] = {}
+            self._put_at: dict[str, float] = {}
+            self._encoders: dict[tuple[str, int], BoardEncoder] | None = None
             self._declared = False
             self._lock = threading.Lock()
             self._closing = threading.Event()
             self._board_tokens: dict[tuple[str, int], zenoh.LivelinessToken] = {}
             self._edge_pubs: dict[EdgeRef, tuple[str, zenoh.Publisher]] = {}
+            self._edge_by_key: dict[str, tuple[EdgeRef, zenoh.Publisher]] = {}
             self._listeners: list[Any] = []
             self._board_pubs: dict[tuple[str, int], tuple[str, zenoh.Publisher]] = {}
             self._structure: bytes | None = None
@@ -248,6 +257,7 @@ class RobotShare:
                 k = keys.edge_key(self.robot, ref.bus, ref.board, ref.unique)
                 pub = s.declare_publisher(k, encoding=JSON)
                 self._edge_pubs[ref] = (k, pub)
+                self._edge_by_key[k] = (ref, pub)
                 self._listeners.append(pub.declare_matching_listener(self._matching(k)))
             self._token = s.liveliness().declare_token(keys.robot_key(self.robot, "alive"))
             self._declared = True
@@ -255,6 +265,7 @@ class RobotShare:
     def _matching(self, key: str) -> Callable[[zenoh.MatchingStatus], None]:
         def changed(status: zenoh.MatchingStatus) -> None:
             if status.matching:
+                self._edge_latest.pop(key, None)  # a new subscriber: the next value goes
                 self._matched.add(key)
             else:
                 self._matched.discard(key)
@@ -433,30 +444,27 @@ class RobotShare:
                 self._board_tokens[board] = self.session.liveliness().declare_token(
                     keys.board_key(self.robot, *board, what="board_alive"))
             self._event({"kind": "state", "state": "running", "t": snap.clock})
-        values = part.decode(snap)
-        boards: dict[tuple[str, int], dict[str, Any]] = {}
-        stamps: dict[tuple[str, int], float] = {}
-        for ref, (t, v) in values.items():
-            board = (ref.bus, ref.board)
-            boards.setdefault(board, {})[ref.unique] = keys.number(v)
-            if ref.kind is mca.Kind.SO:
-                stamps[board] = max(stamps.get(board, t), t)
+        if self._encoders is None:  # once: the boards are configured now
+            self._encoders = encoders(part, self.robot)
+        now = time.monotonic()
         for board, (k, pub) in self._board_pubs.items():
-            doc = {"robot": self.robot, "bus": board[0], "board": board[1],
-                   "t": round(stamps.get(board, snap.clock), 6),
-                   "values": boards.get(board, {})}
-            payload = keys.dumps(doc)
+            payload = self._encoders[board].sample(snap)
+            if payload == self._latest.get(k) and now - self._put_at.get(k, 0.0) < RESEND_S:
+                continue  # nothing new on this board: its latest stays where it is
             self._latest[k] = payload
+            self._put_at[k] = now
             pub.put(payload)
             self.published += 1
-        matched = self._matched
-        if matched:
-            for ref, (k, pub) in self._edge_pubs.items():
-                if k in matched and ref in values:
-                    t, v = values[ref]
-                    pub.put(keys.dumps({"t": round(t, 6), "name": ref.unique,
-                                        "value": keys.number(v)}))
-                    self.published += 1
+        for k in list(self._matched):  # the edges someone subscribes to (few)
+            ref, pub = self._edge_by_key[k]
+            edge = self._encoders[(ref.bus, ref.board)].edge_sample(ref, snap)
+            if edge is None or (edge == self._edge_latest.get(k)
+                                and now - self._put_at.get(k, 0.0) < RESEND_S):
+                continue
+            self._edge_latest[k] = edge
+            self._put_at[k] = now
+            pub.put(edge)
+            self.published += 1
 
     def _event(self, doc: dict[str, Any]) -> None:
         self._events.put(keys.dumps({"robot": self.robot, **doc}))
