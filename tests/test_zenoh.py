@@ -5,6 +5,7 @@ Every wait has a deadline; nothing sleeps to synchronise."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -364,6 +365,11 @@ def two_hosts() -> Iterator[tuple[list[str], list[str], str, str]]:
                f"{subnet}.1", robot_dev)
     finally:
         for ns in (robot_ns, browser_ns):  # the veth pair goes with its namespaces
+            pids = subprocess.run(["ip", "netns", "pids", ns], capture_output=True,
+                                  text=True).stdout.split()
+            for pid in pids:  # nothing outlives the test in a namespace nobody sees
+                with contextlib.suppress(ProcessLookupError, ValueError):
+                    os.kill(int(pid), signal.SIGKILL)
             subprocess.run(["ip", "netns", "del", ns], capture_output=True)
 
 
@@ -397,7 +403,9 @@ def test_the_link_down_for_5_s_the_loop_goes_on_and_the_browser_recovers(
         up = time.monotonic()
         back = out.wait(lost, "back", 10.0)
         after = out.wait(back, "value", 5.0)
-        assert float(out.lines[after].split()[1]) > float(out.lines[first].split()[1]) + 5
+        # a fresh value, not one from before the outage (board time: a loaded machine's
+        # virtual fleet may run a little behind the wall clock, so not the whole 5 s)
+        assert float(out.lines[after].split()[1]) > float(out.lines[first].split()[1]) + 3
         assert time.monotonic() - up < 10
     finally:
         if browser.stdin is not None:
@@ -406,6 +414,7 @@ def test_the_link_down_for_5_s_the_loop_goes_on_and_the_browser_recovers(
             browser.wait(timeout=10)
         except subprocess.TimeoutExpired:
             browser.kill()
+        robot.stop()  # also when the test failed: not a loop left in a deleted namespace
     doc = _robot_report(robot)
     run = doc["run"]
     assert isinstance(run, dict)
