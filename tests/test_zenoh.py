@@ -176,13 +176,13 @@ def test_an_allowed_write_moves_the_joint_and_a_bad_one_names_the_range(
 
 
 def test_the_python_api_shares_a_part_in_one_process(flashed: Path, tmp_path: Path) -> None:
-    from ucom_tools.ops.remote import RemotePart
+    from ucom_tools.net.share import open_shared
 
     state = tmp_path / "state"
     shutil.copytree(flashed, state)
     endpoint = f"tcp/127.0.0.1:{_free_port()}"
-    with RemotePart.open("armar3", virtual=True, state_dir=state, zenoh=endpoint,
-                         allow_writes=True, publish_hz=50) as part:
+    with open_shared("armar3", virtual=True, state_dir=state, zenoh=endpoint,
+                     allow_writes=True, publish_hz=50) as part:
         part.run(0.05)
         answers: list[object] = []
 

@@ -86,13 +86,37 @@ class _Answer:
     event: WriteEvent
 
 
+def open_shared(robot: str, *, zenoh: str | None = None,
+                zenoh_config: str | Path | None = None, allow_writes: bool = False,
+                publish_hz: float = 100.0, start: bool = True, force: bool = False,
+                **open_args: Any) -> RemotePart:
+    """:meth:`RemotePart.open` of ``robot`` (the same ``open_args``), shared on Zenoh
+    before it starts: listening on ``zenoh`` (an endpoint, ``"tcp/127.0.0.1:7447"``)
+    and/or by ``zenoh_config`` (a Zenoh JSON5 file), values at ``publish_hz``, writes
+    only with ``allow_writes``; refused (BusError) where the robot already runs on that
+    network, unless ``force``."""
+    part = RemotePart.open(robot, start=False, force=force, **open_args)
+    try:
+        s = share(part, endpoint=zenoh, config_file=zenoh_config, allow_writes=allow_writes,
+                  publish_hz=publish_hz, force=force)
+        if start:  # the names known before the start: declared while nothing runs
+            part.claim(force=force)
+            part.check()
+            s.declare()
+            part.start(force=force)
+    except BaseException:
+        part.close()
+        raise
+    return part
+
+
 def share(part: RemotePart, *, endpoint: str | None = None,
           config_file: str | Path | None = None, allow_writes: bool = False,
           publish_hz: float = 100.0, force: bool = False) -> RobotShare:
     """Share ``part`` on Zenoh: listen on ``endpoint`` (default ``tcp/127.0.0.1:7447``,
     unless ``config_file`` names the endpoints), values at ``publish_hz`` (1 .. the loop's
-    rate).  Call it before :meth:`RemotePart.start` (or give ``RemotePart.open`` its
-    ``zenoh`` argument); it may also share a running part.  The part closes the share."""
+    rate).  Call it before :meth:`RemotePart.start` (or open the part with
+    :func:`open_shared`); it may also share a running part.  The part closes the share."""
     s = RobotShare(part, endpoint=endpoint, config_file=config_file,
                    allow_writes=allow_writes, publish_hz=publish_hz, force=force)
     part.share = s

@@ -99,28 +99,22 @@ class RemotePart(RemoteLoop):
         what came of them: kept as the run's events."""
         self.share: Any = None
         """The network share (:class:`ucom_tools.net.share.RobotShare`) when the part is
-        shared (:meth:`open` with ``zenoh``); closed with the part."""
+        shared (:func:`ucom_tools.net.share.share`); closed with the part."""
 
     @classmethod
     def open(cls, robot: str, *, virtual: bool = False, state_dir: str | Path | None = None,
              interface: str | None = None, channels: Sequence[str] = (),
              host: str | None = None, port: int | None = None, bitrate: int | None = None,
              trees: Sequence[str | Path] = (), start: bool = True, force: bool = False,
-             zenoh: str | None = None, zenoh_config: str | Path | None = None,
-             allow_writes: bool = False, publish_hz: float = 100.0,
              **kwargs: Any) -> RemotePart:
         """The run-time part of ``robot`` (a bundled topology or a topology file) on its
         buses: the in-process virtual fleet (``virtual``, flash kept in ``state_dir``),
         or a python-can ``interface`` with ``channels`` (or a socketcand ``host`` and
         ``port``).  ``trees`` replace the robot's trees of the same Prefix.  Started
         (:meth:`start`, with ``force``) unless ``start`` is false; as a context manager
-        it always stops the boards and closes the buses at the end.
-
-        ``zenoh`` (an endpoint, ``"tcp/127.0.0.1:7447"``) and/or ``zenoh_config`` (a Zenoh
-        JSON5 file) share the running part on the network (:func:`ucom_tools.net.share.
-        share`: structure, values at ``publish_hz``, writes only with ``allow_writes``);
-        refused (BusError) where the robot already runs on that network, unless
-        ``force``."""
+        it always stops the boards and closes the buses at the end.  Shared on the
+        robot's network: :func:`ucom_tools.net.share.open_shared` (the same arguments
+        and the Zenoh ones)."""
         if virtual:
             spec = ConnectSpec(virtual=robot,
                                state_dir=Path(state_dir) if state_dir is not None else None)
@@ -134,19 +128,6 @@ class RemotePart(RemoteLoop):
             r.close()
             raise
         part._owns_robot = True
-        if zenoh is not None or zenoh_config is not None:
-            from ucom_tools.net.share import share  # the engine only where it is asked for
-
-            try:
-                s = share(part, endpoint=zenoh, config_file=zenoh_config,
-                          allow_writes=allow_writes, publish_hz=publish_hz, force=force)
-                if start:  # the names known before the start: declared while nothing runs
-                    part.claim(force=force)
-                    part.check()
-                    s.declare()
-            except BaseException:
-                part.close()
-                raise
         if start:
             try:
                 part.start(force=force)
