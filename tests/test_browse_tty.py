@@ -161,6 +161,17 @@ def test_board_errors_and_events_are_shown() -> None:
     assert f"set {TARGET}=5 from me@pc pid 1: done" in _screen(m, Keys())
 
 
+def test_a_boards_leds_and_can_errors_are_shown_from_its_status() -> None:
+    m = _model()
+    m.board_status({"v": 1, "bus": "CAN0", "board": 3, "t": 12.0, "state": "RUNNING_FLASH",
+                    "leds": {"red": "on", "yellow": "off", "green": "blink"},
+                    "tec": 0, "rec": 3, "overruns": 0})
+    text = _screen(m, Keys(Catalog(STRUCTURE)))
+    assert "[Eyes] 2/3/0  running  ●○◐ CAN errors tx 0 rx 3  t 12.500 s" in text, text
+    neck = next(line for line in text.splitlines() if "[Neck]" in line)
+    assert not set("●◐○") & set(neck)  # no status report from it yet: no LEDs shown
+
+
 def test_ages_and_values() -> None:
     assert [age_text(s) for s in (0.0123, 3.44, 125, 7300)] == ["12 ms", "3.4 s", "2 min",
                                                                  "2 h"]

@@ -118,6 +118,26 @@ def test_browse_gets_a_sensor_and_the_structure(robot: Robot) -> None:
     assert doc["values"][SENSOR]["value"] is not None
 
 
+def test_every_running_boards_status_and_leds_are_shared(robot: Robot) -> None:
+    seen: dict[tuple[str, int], dict[str, object]] = {}
+    done = threading.Event()
+
+    def take(doc: dict[str, object]) -> None:
+        seen[(str(doc["bus"]), int(str(doc["board"])))] = doc
+        if len(seen) == 11:
+            done.set()
+    with robot.client() as client:
+        sub = client.on_status(take)
+        try:
+            assert done.wait(DEADLINE_S), sorted(seen)
+        finally:
+            sub.close()
+    for doc in seen.values():  # a running program: green blinks, no CAN error
+        assert doc["state"] == "RUNNING_FLASH"
+        assert doc["leds"] == {"red": "off", "yellow": "off", "green": "blink"}, doc
+        assert (doc["tec"], doc["rec"]) == (0, 0)
+
+
 def test_a_write_is_refused_without_allow_writes(robot: Robot) -> None:
     r = _ucom("browse", "--zenoh", robot.endpoint, "--set", f"{TARGET}=1000")
     assert r.returncode == 1, r.stderr

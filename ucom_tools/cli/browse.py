@@ -55,8 +55,8 @@ def browse(robot: str | None, endpoint: str, config_file: str | None, gets: tupl
     where one robot runs there.  --set writes (exit 3 where the robot refuses the value,
     naming its range or the closest names; 1 where it takes no writes), --get prints
     values, --watch streams them.  Without these, on a terminal, it opens the live view:
-    the robot as a tree (bus, board with prefix and state, its edges by kind) with values
-    and their age, refreshed at the robot's publishing rate (at most 20 times a second);
+    the robot as a tree (bus, board with prefix, state and LEDs, its edges by kind) with
+    values and their age, refreshed at the robot's publishing rate (at most 20 times a second);
     it says "connection lost" when the robot goes and connects again when it is back.
     Keys: / filter by name (Enter keeps it, Esc clears it), s set a CI or PAR (Tab
     completes the name; NAME=VALUE or the name, Enter, then the value; the robot's answer

@@ -86,6 +86,7 @@ class Link:
         subs = [client.on_values(lambda d: post(("values", gen, d, now()))),
                 client.on_boards(lambda b, n, up: post(("board", gen, b, n, up))),
                 client.on_events(lambda d: post(("event", gen, d))),
+                client.on_status(lambda d: post(("status", gen, d))),
                 client.on_gone(self._wake.set)]
         if not client.alive():  # gone before the subscription was there
             self._wake.set()
@@ -159,6 +160,8 @@ class App:
             return False
         if kind == "board":
             self.model.board(item[2], item[3], item[4])
+        elif kind == "status":
+            self.model.board_status(item[2])
         elif kind == "event":
             self.model.event(item[2])
         elif kind == "lost":

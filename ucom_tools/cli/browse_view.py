@@ -71,6 +71,8 @@ class Model:
     """(bus, board) -> whether its liveliness token is there."""
     stopped_by: dict[tuple[str, int], str] = field(default_factory=dict)
     """(bus, board) -> the Error that stopped its motors (its watchdog, say)."""
+    status: dict[tuple[str, int], dict[str, Any]] = field(default_factory=dict)
+    """(bus, board) -> its latest ``status`` document (LEDs, CAN error counters)."""
     connection: str = "connecting"
     """``connected``, ``lost`` or ``connecting``."""
     since: float = 0.0
@@ -87,6 +89,7 @@ class Model:
         self.samples.clear()
         self.running.clear()
         self.stopped_by.clear()
+        self.status.clear()
         self.connection, self.since = "connected", now
 
     def lost(self, now: float) -> None:
@@ -97,6 +100,10 @@ class Model:
     def sample(self, doc: dict[str, Any], now: float) -> None:
         with contextlib.suppress(KeyError, TypeError, ValueError):
             self.samples[(str(doc["bus"]), int(doc["board"]))] = (now, doc)
+
+    def board_status(self, doc: dict[str, Any]) -> None:
+        with contextlib.suppress(KeyError, TypeError, ValueError):
+            self.status[(str(doc["bus"]), int(doc["board"]))] = doc
 
     def board(self, bus: str, board: int, running: bool) -> None:
         self.running[(bus, board)] = running
@@ -207,6 +214,26 @@ def _state(model: Model, bus: str, board: int) -> Text:
     return Text("stopped", style="yellow")
 
 
+LED_STYLES = {"red": "bold red", "yellow": "bold yellow", "green": "bold green"}
+
+
+def _leds(model: Model, bus: str, board: int) -> Text:
+    """The board's LEDs as its last Status report said (● on, ◐ blinking, ○ off)."""
+    doc = model.status.get((bus, board))
+    t = Text()
+    if doc is None or not isinstance(doc.get("leds"), dict):
+        return t
+    t.append("  ")
+    for colour, style in LED_STYLES.items():
+        shown = doc["leds"].get(colour)
+        t.append({"on": "●", "blink": "◐"}.get(str(shown), "○"),
+                 style=style if shown in ("on", "blink") else "dim")
+    errors = (doc.get("tec") or 0, doc.get("rec") or 0)
+    if any(errors):
+        t.append(f" CAN errors tx {errors[0]} rx {errors[1]}", style="red")
+    return t
+
+
 def _line(model: Model, row: Row, now: float, name_width: int, unit_width: int) -> Text:
     t = Text(row.guide, style="dim", no_wrap=True, overflow="ellipsis")
     bus = row.bus
@@ -224,6 +251,7 @@ def _line(model: Model, row: Row, now: float, name_width: int, unit_width: int) 
             t.append(f" {b.get('program')}", style="dim")
         t.append("  ")
         t.append_text(_state(model, str(bus.get("name")), int(b.get("board", 0))))
+        t.append_text(_leds(model, str(bus.get("name")), int(b.get("board", 0))))
         got = model.samples.get((str(bus.get("name")), int(b.get("board", 0))))
         if got is not None and got[1].get("t") is not None:
             t.append(f"  t {got[1]['t']:.3f} s", style="dim")

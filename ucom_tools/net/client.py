@@ -287,6 +287,20 @@ class RobotClient:
         return Subscription([self.session.liveliness().declare_subscriber(
             f"ucom/{keys.escape(self.robot)}/*/*/alive", on_sample, history=True)])
 
+    def on_status(self, callback: Callable[[dict[str, Any]], None]) -> Subscription:
+        """``callback(doc)`` for each board's Status report as the robot asks for them
+        (about once a second a board: the ``status`` payload of ``man/ucom-network.7``,
+        with "bus", "board", "t", "state", "leds" (red, yellow, green: on, off, blink),
+        "tec", "rec", "overruns")."""
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                doc = keys.loads(sample.payload.to_bytes())
+            except ValueError:
+                return
+            callback(doc)
+        return Subscription([self.session.declare_subscriber(
+            f"ucom/{keys.escape(self.robot)}/*/*/status", on_sample)])
+
     def on_alive(self, callback: Callable[[bool], None]) -> Subscription:
         """``callback(False)`` when the robot's liveliness token goes ("connection lost":
         its loop ended, its host died or the network between is gone), ``callback(True)``

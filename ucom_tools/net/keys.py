@@ -30,6 +30,7 @@ KEYS = {
     "values": "ucom/{robot}/{bus}/{board}/values",
     "edge": "ucom/{robot}/{bus}/{board}/edge/{name}",
     "board_alive": "ucom/{robot}/{bus}/{board}/alive",
+    "status": "ucom/{robot}/{bus}/{board}/status",
 }
 """Every key expression (``man/ucom-network.7`` lists the same; a test compares them)."""
 
@@ -73,7 +74,7 @@ def robot_key(robot: str, what: str) -> str:
 
 
 def board_key(robot: str, bus: str, board: int, what: str = "values") -> str:
-    """``ucom/<robot>/<bus>/<board>/values`` (or ``alive``)."""
+    """``ucom/<robot>/<bus>/<board>/values`` (or ``board_alive``, ``status``)."""
     return KEYS[what].format(robot=escape(robot), bus=escape(bus), board=board)
 
 

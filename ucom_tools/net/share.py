@@ -25,26 +25,32 @@ unless ``force``.
 
 from __future__ import annotations
 
+import contextlib
 import getpass
 import os
 import queue
 import socket
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import can
 import zenoh
 
-from ucom_tools.errors import BusError, InputError, UcomError
+from ucom_tools.errors import BusError, FrameError, InputError, UcomError
 from ucom_tools.net import keys
 from ucom_tools.net.encode import BoardEncoder, encoders
 from ucom_tools.net.session import address_in_use, check_endpoint, config, open_session
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.remote import RawSnapshot, RemotePart, RemoteStop, WriteEvent
 from ucom_tools.wire import mca
+from ucom_tools.wire import messages as m
+from ucom_tools.wire.codes import ReportChannel
+from ucom_tools.wire.ids import Direction, Function, IdType, seq
 
 JSON = zenoh.Encoding.APPLICATION_JSON
 PROBE_S = 1.0
@@ -54,6 +60,26 @@ RESEND_S = 1.0
 after this long; its latest is always in the ``values`` queryable."""
 CLOSE_S = 2.0
 """How long closing waits for the publishing thread."""
+STATUS_PERIOD_S = 1.0
+"""Each running board is asked for its Status report (state, LEDs, CAN error counters,
+overruns) once in this long, the boards one after the other (ARMAR-III: a Report Request
+every 91 ms, 0.1 % of a bus's capacity)."""
+
+
+def status_doc(report: m.StatusReport, t: float) -> dict[str, Any]:
+    """A board's Status report as its ``status`` sample (``man/ucom-network.7``): the
+    LEDs as the board shows them (B.2.3: red, a CAN error; yellow, an overrun; green
+    blinks while the program runs)."""
+    leds = report.leds
+    return {"t": round(t, 6), "state": report.state.name,
+            "leds": {"red": "on" if leds & 1 else "off",
+                     "yellow": "on" if leds & 2 else "off",
+                     "green": "blink" if leds & 8 else "on" if leds & 4 else "off"},
+            "tec": report.tec, "rec": report.rec, "overruns": report.overruns}
+
+
+def _is_status(msg: can.Message) -> bool:
+    return not msg.is_extended_id and msg.arbitration_id >> 6 == Function.REPORT_0
 
 
 def origin() -> str:
@@ -174,6 +200,15 @@ class RobotShare:
             self._listeners: list[Any] = []
             self._board_pubs: dict[tuple[str, int], tuple[str, zenoh.Publisher]] = {}
             self._structure: bytes | None = None
+            self._status_raw: dict[str, tuple[int, bytes, float]] = {}
+            """Bus -> the latest Status report frames seen there (identifier, data, time),
+            by the loop's thread; the publishing thread decodes them."""
+            self._status_frames: deque[tuple[str, int, bytes, float]] = deque()
+            self._status_pubs: dict[tuple[str, int], zenoh.Publisher] = {}
+            self._status_subs: list[tuple[Any, Any]] = []
+            self._polled: list[tuple[str, int]] = []
+            self._poll_at = 0
+            self._poll_every = 1
             self._events_seen = 0
             self._writes_seen = 0
             self._state = "starting"
@@ -278,13 +313,30 @@ class RobotShare:
                 if board not in self._board_pubs:
                     k = keys.board_key(self.robot, ref.bus, ref.board)
                     self._board_pubs[board] = (k, s.declare_publisher(k, encoding=JSON))
+                    self._status_pubs[board] = s.declare_publisher(
+                        keys.board_key(self.robot, ref.bus, ref.board, "status"),
+                        encoding=JSON)
                 k = keys.edge_key(self.robot, ref.bus, ref.board, ref.unique)
                 pub = s.declare_publisher(k, encoding=JSON)
                 self._edge_pubs[ref] = (k, pub)
                 self._edge_by_key[k] = (ref, pub)
                 self._listeners.append(pub.declare_matching_listener(self._matching(k)))
+            self._polled = sorted(self._board_pubs)
+            self._poll_every = max(1, round(STATUS_PERIOD_S / part.period_s
+                                            / max(1, len(self._polled))))
+            for name, h in part.robot.buses.items():
+                d = h.link.dispatcher
+                self._status_subs.append((d, d.subscribe(
+                    _is_status, "zenoh status", on_frame=self._status_taker(name))))
             self._token = s.liveliness().declare_token(keys.robot_key(self.robot, "alive"))
             self._declared = True
+
+    def _status_taker(self, bus: str) -> Callable[[can.Message], None]:
+        frames = self._status_frames
+
+        def take(msg: can.Message) -> None:  # the loop's thread: keep it, decode later
+            frames.append((bus, msg.arbitration_id, bytes(msg.data), msg.timestamp))
+        return take
 
     def _matching(self, key: str) -> Callable[[zenoh.MatchingStatus], None]:
         def changed(status: zenoh.MatchingStatus) -> None:
@@ -342,6 +394,24 @@ class RobotShare:
         if self._countdown <= 0:
             self._countdown = self._every
             self._out.put(self.part.snapshot())
+        if self._polled:
+            self._poll_at -= 1
+            if self._poll_at <= 0:
+                self._poll_at = self._poll_every
+                self._ask_status()
+
+    def _ask_status(self) -> None:
+        """One running board's Status report asked for (round robin; a failed send is
+        the bus's business: the loop notices it itself)."""
+        bus, board = self._polled[0]
+        self._polled.append(self._polled.pop(0))
+        if self._state != "running" or (bus, board) not in self._board_tokens:
+            return
+        h = self.part.robot.buses.get(bus)
+        if h is None:
+            return
+        with contextlib.suppress(UcomError):
+            h.link.send(m.ReportRequest(ReportChannel.STATUS), seq(board))
 
     def _apply(self) -> None:
         part = self.part
@@ -479,6 +549,8 @@ class RobotShare:
             self._put_at[k] = now
             pub.put(payload)
             self.published += 1
+        if self._status_frames:
+            self._publish_status()
         for k in list(self._matched):  # the edges someone subscribes to (few)
             ref, pub = self._edge_by_key[k]
             edge = self._encoders[(ref.bus, ref.board)].edge_sample(ref, snap)
@@ -489,6 +561,24 @@ class RobotShare:
             self._put_at[k] = now
             pub.put(edge)
             self.published += 1
+
+    def _publish_status(self) -> None:
+        """The Status reports that came, each as its board's ``status`` sample."""
+        frames = self._status_frames
+        while frames:
+            bus, arbitration_id, data, t = frames.popleft()
+            try:
+                address, msg = m.decode(arbitration_id, data,
+                                        sender=Direction.BOARD_TO_HOST)
+            except FrameError:
+                continue  # malformed: the loop's own decoding counts it
+            if address.id_type is not IdType.SEQUENTIAL:
+                continue
+            pub = self._status_pubs.get((bus, address.number))
+            if pub is not None and isinstance(msg, m.StatusReport):
+                pub.put(keys.dumps({"robot": self.robot, "bus": bus,
+                                    "board": address.number, **status_doc(msg, t)}))
+                self.published += 1
 
     def _event(self, doc: dict[str, Any]) -> None:
         self._events.put(keys.dumps({"robot": self.robot, **doc}))
@@ -520,6 +610,8 @@ class RobotShare:
             return
         self._closing.set()
         self._thread.join(CLOSE_S)
+        for d, sub in self._status_subs:
+            d.unsubscribe(sub)
         try:
             while True:
                 try:
