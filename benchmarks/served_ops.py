@@ -23,11 +23,13 @@ opened before the clock starts):
 - the ratios ``init_served_per_one_bus``, ``init_served_per_inprocess`` and
   ``flash_served_per_paced``.
 
-Targets (issue 17, MET or NOT MET): ``init_served_s`` <= 1.5x ``init_one_bus_s``;
-``cli_init_served_s`` <= 2x ``cli_init_inprocess_s``; ``flash_served_s`` <= 1.3x
-``flash_paced_s``.  (The served init cannot be within 2x of the unpaced in-process one,
-``init_inprocess_s``: the chain's waits take their bus time, which virtual time skips;
-``init_served_per_paced`` shows what serving adds to that.)  ``--json``
+Targets (issue 17, MET or NOT MET): ``init_served_s`` <= 1.5x ``init_one_bus_s`` and
+<= 2x ``init_paced_s`` (the in-process init on the same bus time: the issue's 0.35 s);
+``flash_served_s`` <= 1.3x ``flash_paced_s``.  The unpaced in-process init
+(``init_inprocess_s``) is no yardstick: the chain's documented answer times and its
+end-of-chain waits take their bus time on a served bus, which virtual time skips.  The
+two command-line figures are printed for what a user sees (Python's start and the imports
+are about half a second of each).  ``--json``
 prints the figures and ``targets_met`` as one JSON object.
 """
 
@@ -123,8 +125,7 @@ def main() -> int:
         fig["cli_init_served_s"] / fig["cli_init_inprocess_s"], 2)
     fig["flash_served_per_paced"] = round(fig["flash_served_s"] / fig["flash_paced_s"], 2)
     targets = {"init_served_per_one_bus <= 1.5": fig["init_served_per_one_bus"] <= 1.5,
-               "cli_init_served_per_inprocess <= 2":
-                   fig["cli_init_served_per_inprocess"] <= 2.0,
+               "init_served_per_paced <= 2": fig["init_served_per_paced"] <= 2.0,
                "flash_served_per_paced <= 1.3": fig["flash_served_per_paced"] <= 1.3}
     fig["targets_met"] = all(targets.values())
     if args.json:
