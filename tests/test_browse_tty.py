@@ -438,6 +438,7 @@ def test_browse_on_a_terminal_sets_loses_the_robot_finds_it_again_and_quits(
     mark = term.mark()
     rig.restart()
     term.wait_for(r"connected to armar3 on tcp/", mark, timeout=20)
+    mark = term.mark()  # the values from before the loss were drawn since the last mark
     term.wait_for(rf"{SENSOR}\s+-?\d+ counts\s+\d+ ms", mark)
 
     mark = term.mark()  # x stops the boards and the loop, once confirmed
