@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import threading
 from collections.abc import Callable, Iterator
 
@@ -82,16 +83,60 @@ def chain_topology(n: int, *, extra: dict[int, str] | None = None, timing: str =
     return Fleet(parse(text, f"<chain{n}>"))
 
 
+_TERMINAL = ("COLUMNS", "LINES")
+"""What ucom's output reads for its width: a worker of pytest-xdist (``-n``) gets them set
+(to 80x24) on its way up; the tests see the environment pytest was started with."""
+_WORKER_SCORES: dict[str, bool] = {}
+_WORKER_CATCHES: set[str] = set()
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node) -> None:
+    """(pytest-xdist, in the controller) what a worker needs from here."""
+    node.workerinput["ucom_terminal_env"] = {k: os.environ.get(k) for k in _TERMINAL}
+
+
+def pytest_configure(config) -> None:
+    if hasattr(config, "workerinput"):
+        for k, v in config.workerinput.get("ucom_terminal_env", {}).items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def pytest_sessionfinish(session) -> None:
+    """(in a pytest-xdist worker) hand the mutation score to the controller."""
+    if hasattr(session.config, "workeroutput"):
+        try:
+            from tests.test_conformance_mutants import CATCHES, SCORE
+        except ImportError:
+            return
+        session.config.workeroutput["ucom_mutation_score"] = dict(SCORE)
+        session.config.workeroutput["ucom_mutation_catches"] = sorted(CATCHES)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error) -> None:
+    """(pytest-xdist, in the controller) a worker's mutation score."""
+    out = getattr(node, "workeroutput", {})
+    _WORKER_SCORES.update(out.get("ucom_mutation_score", {}))
+    _WORKER_CATCHES.update(out.get("ucom_mutation_catches", ()))
+
+
 def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
-    """The conformance suite's mutation score, when its mutants ran."""
+    """The conformance suite's mutation score, when its mutants ran (here or in the
+    workers of pytest-xdist)."""
     try:
         from tests.test_conformance_mutants import CATCHES, SCORE
     except ImportError:
         return
-    if SCORE:
-        caught = sum(SCORE.values())
-        missed = sorted(f for f, ok in SCORE.items() if not ok)
+    score = _WORKER_SCORES or SCORE
+    documented = len(_WORKER_CATCHES) if _WORKER_SCORES else len(CATCHES)
+    if score:
+        caught = sum(score.values())
+        missed = sorted(f for f, ok in score.items() if not ok)
         terminalreporter.write_line(
-            f"conformance mutation score: {caught}/{len(SCORE)} mutants caught "
-            f"({len(CATCHES)} documented)" + (f"; missed: {', '.join(missed)}" if missed
-                                              else ""))
+            f"conformance mutation score: {caught}/{len(score)} mutants caught "
+            f"({documented} documented)" + (f"; missed: {', '.join(missed)}" if missed
+                                            else ""))
