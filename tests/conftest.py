@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import os
+import signal
 import threading
+import warnings
 from collections.abc import Callable, Iterator
 
 import pytest
@@ -39,6 +41,26 @@ def _no_leaked_fleets() -> Iterator[None]:
     leaked = list(fleet_mod._SHARED)
     fleet_mod.forget_shared()
     assert not leaked, f"test left shared fleets behind: {leaked}"
+
+
+_DISPOSED = (signal.SIGINT, signal.SIGHUP, signal.SIGTERM)
+
+
+@pytest.fixture(autouse=True)
+def _signal_dispositions_restored(request: pytest.FixtureRequest) -> Iterator[None]:
+    """A test that leaves SIGINT, SIGHUP or SIGTERM ignored (or handled) in this process
+    is named, and the handlers put back: a child process inherits an ignored signal, and
+    ``ucom`` then survives it as under nohup (the signal tests would hang)."""
+    before = {s: signal.getsignal(s) for s in _DISPOSED}
+    yield
+    if threading.current_thread() is not threading.main_thread():
+        return
+    changed = [s for s in _DISPOSED if before[s] is not None and signal.getsignal(s) != before[s]]
+    for s in changed:
+        signal.signal(s, before[s])
+    if changed:
+        warnings.warn(f"{request.node.nodeid} left {', '.join(s.name for s in changed)} "
+                      "changed (put back)", stacklevel=1)
 
 
 class Host:
