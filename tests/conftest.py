@@ -46,21 +46,38 @@ def _no_leaked_fleets() -> Iterator[None]:
 _DISPOSED = (signal.SIGINT, signal.SIGHUP, signal.SIGTERM)
 
 
+def _ignored() -> set[int]:
+    """The signals this process ignores, as the kernel has it (a native library may set
+    SIG_IGN behind Python's back); empty where /proc is not there."""
+    try:
+        with open("/proc/self/status") as f:
+            mask = next(int(line.split()[1], 16) for line in f if line.startswith("SigIgn:"))
+    except (OSError, StopIteration):
+        return set()
+    return {s for s in _DISPOSED if mask >> (s - 1) & 1}
+
+
 @pytest.fixture(autouse=True)
 def _signal_dispositions_restored(request: pytest.FixtureRequest) -> Iterator[None]:
-    """A test that leaves SIGINT, SIGHUP or SIGTERM ignored (or handled) in this process
-    is named, and the handlers put back: a child process inherits an ignored signal, and
-    ``ucom`` then survives it as under nohup (the signal tests would hang)."""
+    """A test that leaves SIGINT, SIGHUP or SIGTERM ignored (or handled otherwise) in this
+    process is named, and the handlers put back: a child process inherits an ignored
+    signal, and ``ucom`` then survives it as under nohup (the signal tests would hang)."""
     before = {s: signal.getsignal(s) for s in _DISPOSED}
+    ignored = _ignored()
     yield
     if threading.current_thread() is not threading.main_thread():
         return
-    changed = [s for s in _DISPOSED if before[s] is not None and signal.getsignal(s) != before[s]]
+    changed = {s for s in _DISPOSED
+               if before[s] is not None and signal.getsignal(s) != before[s]}
+    changed |= _ignored() - ignored
     for s in changed:
-        signal.signal(s, before[s])
+        handler = before[s]
+        if handler is None or handler == signal.getsignal(s):  # set behind Python's back
+            handler = signal.default_int_handler if s == signal.SIGINT else signal.SIG_DFL
+        signal.signal(s, handler)
     if changed:
-        warnings.warn(f"{request.node.nodeid} left {', '.join(s.name for s in changed)} "
-                      "changed (put back)", stacklevel=1)
+        names = ", ".join(signal.Signals(s).name for s in sorted(changed))
+        warnings.warn(f"{request.node.nodeid} left {names} changed (put back)", stacklevel=1)
 
 
 class Host:
