@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import signal
 import threading
+import warnings
 from collections.abc import Callable, Iterator
 
 import pytest
@@ -38,6 +41,43 @@ def _no_leaked_fleets() -> Iterator[None]:
     leaked = list(fleet_mod._SHARED)
     fleet_mod.forget_shared()
     assert not leaked, f"test left shared fleets behind: {leaked}"
+
+
+_DISPOSED = (signal.SIGINT, signal.SIGHUP, signal.SIGTERM)
+
+
+def _ignored() -> set[int]:
+    """The signals this process ignores, as the kernel has it (a native library may set
+    SIG_IGN behind Python's back); empty where /proc is not there."""
+    try:
+        with open("/proc/self/status") as f:
+            mask = next(int(line.split()[1], 16) for line in f if line.startswith("SigIgn:"))
+    except (OSError, StopIteration):
+        return set()
+    return {s for s in _DISPOSED if mask >> (s - 1) & 1}
+
+
+@pytest.fixture(autouse=True)
+def _signal_dispositions_restored(request: pytest.FixtureRequest) -> Iterator[None]:
+    """A test that leaves SIGINT, SIGHUP or SIGTERM ignored (or handled otherwise) in this
+    process is named, and the handlers put back: a child process inherits an ignored
+    signal, and ``ucom`` then survives it as under nohup (the signal tests would hang)."""
+    before = {s: signal.getsignal(s) for s in _DISPOSED}
+    ignored = _ignored()
+    yield
+    if threading.current_thread() is not threading.main_thread():
+        return
+    changed = {s for s in _DISPOSED
+               if before[s] is not None and signal.getsignal(s) != before[s]}
+    changed |= _ignored() - ignored
+    for s in changed:
+        handler = before[s]
+        if handler is None or handler == signal.getsignal(s):  # set behind Python's back
+            handler = signal.default_int_handler if s == signal.SIGINT else signal.SIG_DFL
+        signal.signal(s, handler)
+    if changed:
+        names = ", ".join(signal.Signals(s).name for s in sorted(changed))
+        warnings.warn(f"{request.node.nodeid} left {names} changed (put back)", stacklevel=1)
 
 
 class Host:
@@ -82,16 +122,60 @@ def chain_topology(n: int, *, extra: dict[int, str] | None = None, timing: str =
     return Fleet(parse(text, f"<chain{n}>"))
 
 
+_TERMINAL = ("COLUMNS", "LINES")
+"""What ucom's output reads for its width: a worker of pytest-xdist (``-n``) gets them set
+(to 80x24) on its way up; the tests see the environment pytest was started with."""
+_WORKER_SCORES: dict[str, bool] = {}
+_WORKER_CATCHES: set[str] = set()
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_configure_node(node) -> None:
+    """(pytest-xdist, in the controller) what a worker needs from here."""
+    node.workerinput["ucom_terminal_env"] = {k: os.environ.get(k) for k in _TERMINAL}
+
+
+def pytest_configure(config) -> None:
+    if hasattr(config, "workerinput"):
+        for k, v in config.workerinput.get("ucom_terminal_env", {}).items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def pytest_sessionfinish(session) -> None:
+    """(in a pytest-xdist worker) hand the mutation score to the controller."""
+    if hasattr(session.config, "workeroutput"):
+        try:
+            from tests.test_conformance_mutants import CATCHES, SCORE
+        except ImportError:
+            return
+        session.config.workeroutput["ucom_mutation_score"] = dict(SCORE)
+        session.config.workeroutput["ucom_mutation_catches"] = sorted(CATCHES)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error) -> None:
+    """(pytest-xdist, in the controller) a worker's mutation score."""
+    out = getattr(node, "workeroutput", {})
+    _WORKER_SCORES.update(out.get("ucom_mutation_score", {}))
+    _WORKER_CATCHES.update(out.get("ucom_mutation_catches", ()))
+
+
 def pytest_terminal_summary(terminalreporter, exitstatus, config) -> None:
-    """The conformance suite's mutation score, when its mutants ran."""
+    """The conformance suite's mutation score, when its mutants ran (here or in the
+    workers of pytest-xdist)."""
     try:
         from tests.test_conformance_mutants import CATCHES, SCORE
     except ImportError:
         return
-    if SCORE:
-        caught = sum(SCORE.values())
-        missed = sorted(f for f, ok in SCORE.items() if not ok)
+    score = _WORKER_SCORES or SCORE
+    documented = len(_WORKER_CATCHES) if _WORKER_SCORES else len(CATCHES)
+    if score:
+        caught = sum(score.values())
+        missed = sorted(f for f, ok in score.items() if not ok)
         terminalreporter.write_line(
-            f"conformance mutation score: {caught}/{len(SCORE)} mutants caught "
-            f"({len(CATCHES)} documented)" + (f"; missed: {', '.join(missed)}" if missed
-                                              else ""))
+            f"conformance mutation score: {caught}/{len(score)} mutants caught "
+            f"({documented} documented)" + (f"; missed: {', '.join(missed)}" if missed
+                                            else ""))

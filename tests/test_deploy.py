@@ -13,6 +13,7 @@ import contextlib
 import importlib.util
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -24,8 +25,10 @@ from types import ModuleType
 from typing import Any
 
 import pytest
+from click.testing import CliRunner
 
 from tests.test_shared_bus import LOCAL, served
+from ucom_tools.cli.main import cli
 from ucom_tools.config import attrtree
 from ucom_tools.config import topology as topo_mod
 from ucom_tools.ops import deploy as ops
@@ -97,8 +100,13 @@ def env_for(tmp_path: Path) -> dict[str, str]:
 
 
 def ucom(env: dict[str, str], *args: str) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "ucom_tools", *args], text=True,
-                          capture_output=True, timeout=DEADLINE_S, env=env)
+    """``ucom ARGS`` in this process (click's runner) with ``env``'s variables: the
+    command's own code path; only :class:`Killer` needs a process of its own (to kill)."""
+    changed = {k: v for k, v in env.items() if os.environ.get(k) != v}
+    r = CliRunner().invoke(cli, list(args), env=changed)
+    if r.exception is not None and not isinstance(r.exception, SystemExit):
+        raise r.exception
+    return subprocess.CompletedProcess(["ucom", *args], r.exit_code, r.stdout, r.stderr)
 
 
 def deploy_json(env: dict[str, str], *args: str) -> tuple[int, dict]:
@@ -360,6 +368,23 @@ def test_a_missing_board_is_named_and_the_others_are_deployed(tmp_path: Path) ->
 
 
 # ----------------------------------------------------------------------------- killed
+@pytest.fixture(scope="module")
+def deployed_armar3(tmp_path_factory: pytest.TempPathFactory) -> Callable[[Path], Path]:
+    """``deployed_armar3(tmp_path)``: a fresh copy, in ``tmp_path/state``, of the state of
+    a virtual ARMAR-III that ``ucom deploy armar3`` deployed (once per module: the
+    state directory is all a virtual fleet keeps, and each test gets its own copy)."""
+    where = tmp_path_factory.mktemp("deployed-armar3")
+    done = ucom(env_for(where), "deploy", "armar3", "--virtual", "armar3", "--state",
+                str(where / "state"))
+    assert done.returncode == 0, done.stderr
+    assert not (where / "xdg" / "ucom" / "deploy" / "ARMAR-III").exists()
+
+    def copy(tmp_path: Path) -> Path:
+        return Path(shutil.copytree(where / "state", tmp_path / "state"))
+
+    return copy
+
+
 KILLS = [  # (after the line, frames more, where the journal says it was: board, stages)
     pytest.param("CAN0: programming", 50, "CAN0:1", {"programming"},
                  id="CAN0-transfer-start"),
@@ -387,10 +412,10 @@ KILLS = [  # (after the line, frames more, where the journal says it was: board,
 
 @pytest.mark.parametrize(("after", "frames", "board", "stages"), KILLS)
 def test_a_deploy_killed_anywhere_is_finished_by_the_next(
-        tmp_path: Path, after: str, frames: int, board: str, stages: set[str]) -> None:
+        deployed_armar3: Callable[[Path], Path], tmp_path: Path, after: str, frames: int,
+        board: str, stages: set[str]) -> None:
     env = env_for(tmp_path)
-    conn = ("--virtual", "armar3", "--state", str(tmp_path / "state"))
-    assert ucom(env, "deploy", "armar3", *conn).returncode == 0
+    conn = ("--virtual", "armar3", "--state", str(deployed_armar3(tmp_path)))
     new = manifest_file(tmp_path, "armar3", every=f"{ROOT}/firmware_images/armar3_fpga1.1.fl.S")
     Killer(tmp_path, env, (str(new), *conn)).run(after, frames)
     journal = tmp_path / "xdg" / "ucom" / "deploy" / "ARMAR-III"
@@ -410,11 +435,10 @@ def test_a_deploy_killed_anywhere_is_finished_by_the_next(
 
 
 def test_a_killed_deploy_says_it_resumes_and_restores_saved_values_without_a_program(
-        tmp_path: Path) -> None:
+        deployed_armar3: Callable[[Path], Path], tmp_path: Path) -> None:
     env = env_for(tmp_path)
-    conn = ("--virtual", "armar3", "--state", str(tmp_path / "state"), "--journal",
+    conn = ("--virtual", "armar3", "--state", str(deployed_armar3(tmp_path)), "--journal",
             str(tmp_path / "journal"))
-    assert ucom(env, "deploy", "armar3", *conn).returncode == 0
     new = manifest_file(tmp_path, "armar3", every=f"{ROOT}/firmware_images/armar3_fpga1.1.fl.S")
     Killer(tmp_path, env, (str(new), *conn)).run("CAN0: programming", 1000)
     saved = json.loads((tmp_path / "journal" / "journal.json").read_text())

@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -44,16 +45,24 @@ def _ucom(*args: str, **kwargs: object) -> subprocess.Popen[str]:
                             **kwargs)  # type: ignore[call-overload]
 
 
-@pytest.fixture
-def served(tmp_path: Path) -> Iterator[tuple[Path, int]]:
-    """The head robot flashed, then served in another process; (topology, port)."""
-    topo = _topology(tmp_path)
-    state = tmp_path / "state"
+@pytest.fixture(scope="module")
+def flashed(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The state of the head robot, flashed once for the module (the state directory is
+    all a virtual fleet keeps; each test serves a copy of its own)."""
+    where = tmp_path_factory.mktemp("flashed-head")
     flash = subprocess.run([sys.executable, "-m", "ucom_tools", "flash",
                             str(ROOT / "firmware_images/armar3.fl.S"), "--virtual",
-                            str(topo), "--state", str(state)], capture_output=True, text=True,
-                           timeout=120)
+                            str(_topology(where)), "--state", str(where / "state")],
+                           capture_output=True, text=True, timeout=120)
     assert flash.returncode == 0, flash.stderr
+    return where / "state"
+
+
+@pytest.fixture
+def served(flashed: Path, tmp_path: Path) -> Iterator[tuple[Path, int]]:
+    """The head robot flashed, then served in another process; (topology, port)."""
+    topo = _topology(tmp_path)
+    state = Path(shutil.copytree(flashed, tmp_path / "state"))
     server = _ucom("fleet", "serve", str(topo), "--state", str(state), "--port", "0")
     try:
         assert server.stdout is not None
