@@ -57,6 +57,15 @@ def _ignored() -> set[int]:
     return {s for s in _DISPOSED if mask >> (s - 1) & 1}
 
 
+def _signals_as_a_shell_leaves_them() -> None:
+    """A suite started with the stop signals ignored (a shell's background job ignores
+    SIGINT, ``nohup`` SIGHUP) would hand that to every ``ucom`` it starts, which then
+    survives them as under nohup: the tests that stop a job by a signal would hang.  The
+    tests run with the signals as an interactive shell leaves them."""
+    for s in _ignored():
+        signal.signal(s, signal.default_int_handler if s == signal.SIGINT else signal.SIG_DFL)
+
+
 @pytest.fixture(autouse=True)
 def _signal_dispositions_restored(request: pytest.FixtureRequest) -> Iterator[None]:
     """A test that leaves SIGINT, SIGHUP or SIGTERM ignored (or handled otherwise) in this
@@ -136,6 +145,7 @@ def pytest_configure_node(node) -> None:
 
 
 def pytest_configure(config) -> None:
+    _signals_as_a_shell_leaves_them()
     if hasattr(config, "workerinput"):
         for k, v in config.workerinput.get("ucom_terminal_env", {}).items():
             if v is None:

@@ -59,7 +59,9 @@ class _Deferred:
         _state["depth"] -= 1
         if _state["depth"] == 0 and _state["pending"]:
             signum, _state["pending"] = _state["pending"], 0
-            if kind is None:
+            if kind is None or not issubclass(kind, KeyboardInterrupt):
+                # also when the block ends by an error: a caller that takes that error
+                # (a full transmit queue, offered again) must not swallow the stop with it
                 raise _stop(signum)
 
 
