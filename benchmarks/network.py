@@ -53,6 +53,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.runtime import percentile, served_armar3  # noqa: E402
+from ucom_tools.net.share import open_shared  # noqa: E402
 from ucom_tools.ops.remote import RemotePart  # noqa: E402
 from ucom_tools.wire import mca  # noqa: E402
 from ucom_tools.wire.ids import Function  # noqa: E402
@@ -167,8 +168,9 @@ def loop(port: int, seconds: float, zenoh: str | None, publish_hz: float,
     lines: list[str] = []
     sets: list[str] = []
     frames: list[str] = []
-    with RemotePart.open("armar3", interface="socketcand", host="127.0.0.1", port=port,
-                         channels=("CAN0",), rate_hz=1000.0, **kwargs) as part:
+    opener = open_shared if zenoh else RemotePart.open
+    with opener("armar3", interface="socketcand", host="127.0.0.1", port=port,
+                channels=("CAN0",), rate_hz=1000.0, **kwargs) as part:
         if zenoh:
             sub, lines, ready = child(SUBSCRIBER, zenoh, SIGNAL, where=where)
             deadline = time.monotonic() + 30

@@ -171,6 +171,12 @@ class RemoteLoop(RemoteValues):
             hook()
         return self.so
 
+    @property
+    def next_deadline(self) -> float | None:
+        """When the loop sends its next cycle (``time.monotonic()`` seconds), for threads
+        that want to keep out of its way then; None in virtual time or when not running."""
+        return None if self.virtual or not self._running else self._deadline
+
     def _listen_for_events(self, started: float) -> None:
         """From now on every Error a board sends is kept in :attr:`events` (a watchdog
         that stopped a board's motors above all: the loop goes on, the board does not)."""
