@@ -1,8 +1,11 @@
-"""Small builders shared by the tests (images and transfers)."""
+"""Small builders shared by the tests (images and transfers), and ending the processes
+they start."""
 
 from __future__ import annotations
 
 import random
+import signal
+import subprocess
 from datetime import UTC, datetime
 
 from ucom_tools.protocol.programmer import Programmer, TransferResult
@@ -36,3 +39,15 @@ def program(host, plan: TransferPlan, boards: list[Address] | None = None) -> Tr
 
 def enable_all(host) -> None:
     host.client.set_status(ALL, StatusOp.PROG_ENABLE, 1)
+
+
+def terminate(proc: subprocess.Popen[str], timeout: float = 15.0) -> None:
+    """End a ``ucom`` process as a user's SIGTERM does, and kill it where it does not end
+    within ``timeout`` seconds (a test must not leave it behind)."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()

@@ -28,6 +28,7 @@ from typing import Any
 import pytest
 from rich.console import Console
 
+from tests.helpers import terminate
 from ucom_tools.cli.browse_view import (
     Action,
     Catalog,
@@ -352,13 +353,7 @@ class Robot:
                  "--for", "60"], stdout=out, stderr=out, cwd=ROOT, env=ENV)
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        terminate(self.proc)
 
 
 @pytest.fixture(scope="module")

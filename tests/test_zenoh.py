@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.helpers import terminate
 from ucom_tools.net import keys
 from ucom_tools.net.client import RobotClient
 from ucom_tools.net.session import config
@@ -80,13 +81,7 @@ class Robot:
                                          + self.err_path.read_text()) from None
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        terminate(self.proc)
 
 
 @pytest.fixture(scope="module")

@@ -10,13 +10,14 @@ import json
 import os
 import re
 import shutil
-import signal
 import subprocess
 import sys
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+
+from tests.helpers import terminate
 
 from .test_zenoh import SENSOR, TARGET, _free_port, _ucom, flashed  # noqa: F401
 
@@ -97,13 +98,7 @@ class ConfiguredRobot:
         raise AssertionError("no robot: " + self.err_path.read_text())
 
     def stop(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        terminate(self.proc)
 
 
 @pytest.fixture(scope="module")

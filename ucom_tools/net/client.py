@@ -241,37 +241,19 @@ class RobotClient:
 
     def on_gone(self, callback: Callable[[], None]) -> Subscription:
         """``callback()`` when the robot's liveliness token goes (its loop ended, its host
-        died or the network between is gone)."""
-        def on_sample(sample: zenoh.Sample) -> None:
-            if sample.kind == zenoh.SampleKind.DELETE:
-                callback()
-        return Subscription([self.session.liveliness().declare_subscriber(
-            keys.robot_key(self.robot, "alive"), on_sample, history=True)])
+        died or the network between is gone): :meth:`on_alive` for the going only."""
+        return self.on_alive(lambda up: None if up else callback())
 
     def on_values(self, callback: Callable[[dict[str, Any]], None]) -> Subscription:
         """``callback(doc)`` for each board's sample as the robot publishes it (one per board
         and publishing period: the ``values`` payload of ``man/ucom-network.7``, with "bus",
         "board", "t" and "values" by unique name); a sample that is not ours is dropped."""
-        def on_sample(sample: zenoh.Sample) -> None:
-            try:
-                doc = keys.loads(sample.payload.to_bytes())
-            except ValueError:
-                return
-            callback(doc)
-        return Subscription([self.session.declare_subscriber(
-            f"ucom/{keys.escape(self.robot)}/*/*/values", on_sample)])
+        return self._documents(self._every_board("values"), callback)
 
     def on_events(self, callback: Callable[[dict[str, Any]], None]) -> Subscription:
         """``callback(doc)`` for each of the run's events (``ucom/<robot>/events``: the
         loop's state, a board's Error, a write or stop from the network)."""
-        def on_sample(sample: zenoh.Sample) -> None:
-            try:
-                doc = keys.loads(sample.payload.to_bytes())
-            except ValueError:
-                return
-            callback(doc)
-        return Subscription([self.session.declare_subscriber(
-            keys.robot_key(self.robot, "events"), on_sample)])
+        return self._documents(keys.robot_key(self.robot, "events"), callback)
 
     def on_boards(self, callback: Callable[[str, int, bool], None]) -> Subscription:
         """``callback(bus, board, running)`` for each board's liveliness token: True when it
@@ -285,21 +267,30 @@ class RobotClient:
                 return
             callback(bus, board, sample.kind != zenoh.SampleKind.DELETE)
         return Subscription([self.session.liveliness().declare_subscriber(
-            f"ucom/{keys.escape(self.robot)}/*/*/alive", on_sample, history=True)])
+            self._every_board("board_alive"), on_sample, history=True)])
 
     def on_status(self, callback: Callable[[dict[str, Any]], None]) -> Subscription:
         """``callback(doc)`` for each board's Status report as the robot asks for them
         (about once a second a board: the ``status`` payload of ``man/ucom-network.7``,
         with "bus", "board", "t", "state", "leds" (red, yellow, green: on, off, blink),
         "tec", "rec", "overruns")."""
+        return self._documents(self._every_board("status"), callback)
+
+    def _every_board(self, what: str) -> str:
+        """The key of ``what`` (values, status, board_alive) of every board of the robot."""
+        return keys.KEYS[what].format(robot=keys.escape(self.robot), bus="*", board="*")
+
+    def _documents(self, key: str, callback: Callable[[dict[str, Any]], None],
+                   ) -> Subscription:
+        """``callback(doc)`` for each sample on ``key`` that is one of our JSON documents
+        (any other is dropped)."""
         def on_sample(sample: zenoh.Sample) -> None:
             try:
                 doc = keys.loads(sample.payload.to_bytes())
             except ValueError:
                 return
             callback(doc)
-        return Subscription([self.session.declare_subscriber(
-            f"ucom/{keys.escape(self.robot)}/*/*/status", on_sample)])
+        return Subscription([self.session.declare_subscriber(key, on_sample)])
 
     def on_alive(self, callback: Callable[[bool], None]) -> Subscription:
         """``callback(False)`` when the robot's liveliness token goes ("connection lost":

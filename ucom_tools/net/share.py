@@ -205,10 +205,9 @@ class RobotShare:
             self._listeners: list[Any] = []
             self._board_pubs: dict[tuple[str, int], tuple[str, zenoh.Publisher]] = {}
             self._structure: bytes | None = None
-            self._status_raw: dict[str, tuple[int, bytes, float]] = {}
-            """Bus -> the latest Status report frames seen there (identifier, data, time),
-            by the loop's thread; the publishing thread decodes them."""
             self._status_frames: deque[tuple[str, int, bytes, float]] = deque()
+            """The Status report frames the loop's thread saw (bus, identifier, data,
+            time), for the publishing thread to decode."""
             self._status_pubs: dict[tuple[str, int], zenoh.Publisher] = {}
             self._status_subs: list[tuple[Any, Any]] = []
             self._polled: list[tuple[str, int]] = []
