@@ -68,6 +68,12 @@ class ProcessImage:
         self.counts[number] = self.counts.get(number, 0) + 1
 
 
+SAME_BASE_S = 600.0
+"""A frame stamped up to this long before a request is a late answer to an earlier one;
+one stamped longer before is on another time base (an adapter that counts from its own
+start), which says nothing about when it came, and is taken as before."""
+
+
 class McaClient:
     """Run-time services on one bus."""
 
@@ -90,17 +96,26 @@ class McaClient:
         arb, data = mca.encode(msg, address)
         self.link.send_raw(arb, data)
 
-    def _next(self, deadline: float) -> tuple[Address, mca.McaMessage | m.Error] | None:
+    def _next(self, deadline: float, after: float | None = None,
+              ) -> tuple[Address, mca.McaMessage | m.Error] | None:
+        """The next run-time answer or Error by ``deadline``; with ``after``, none that was
+        on the bus before then (a late answer to an earlier request is not this one's; an
+        Error is kept in :attr:`errors` all the same)."""
         while True:
             raw = self.link.dispatcher.wait(self._sub, deadline)
             if raw is None:
                 return None
+            stale = after is not None and 0.0 < after - raw.timestamp < SAME_BASE_S
             try:
                 if raw.arbitration_id >> 6 == Function.ERROR:
                     address, err = m.decode(raw.arbitration_id, bytes(raw.data))
                     assert isinstance(err, m.Error)
                     self.errors.append((address, err))
+                    if stale:
+                        continue
                     return address, err
+                if stale:
+                    continue
                 address2, msg = mca.decode(raw.arbitration_id, bytes(raw.data))
             except FrameError:
                 continue
@@ -110,10 +125,11 @@ class McaClient:
     def _ack(self, address: Address, request: mca.McaMessage, function: Function,
              echo0: int) -> mca.McaReady:
         """Send ``request`` until the board acknowledges it (or refuses it: BoardError)."""
+        sent = self.link.dispatcher.stamp()  # on the base of the answers' time stamps
         for _ in range(1 + self.timeouts.retries):
             self._send(request, address)
             deadline = self.link.deadline(self.timeouts.reply, answers=1)
-            while (got := self._next(deadline)) is not None:
+            while (got := self._next(deadline, after=sent)) is not None:
                 source, msg = got
                 if source != address:
                     continue
