@@ -5,7 +5,13 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint bench clean compiled pure
+
+# the run time's hot modules compiled with mypyc in place (ucom_tools/compiled.py lists
+# them; tools/compile.py builds them, or says why not and leaves the package pure Python)
+COMPILED := build/mypyc/done
+COMPILED_SOURCES := $(shell sed -n 's/^    "ucom_tools\.\([a-z0-9_.]*\)",$$/ucom_tools.\1/p' \
+    ucom_tools/compiled.py | tr . / | sed 's/$$/.py/')
 
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "ucom-tools needs Python >= 3.11"'
@@ -13,9 +19,17 @@ $(STAMP): pyproject.toml
 	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[test,plot]'
 	@touch $(STAMP)
 
+$(COMPILED): $(STAMP) ucom_tools/compiled.py tools/compile.py $(COMPILED_SOURCES)
+	$(BIN)/python tools/compile.py
+
+compiled: $(COMPILED)
+
+pure:
+	$(BIN)/python tools/compile.py --clean
+
 DEMO_STATE := $(VENV)/demo-state
 
-demo: $(STAMP)
+demo: $(COMPILED)
 	$(BIN)/ucom flash firmware_images/armar3.fl.S --virtual armar3 --state $(DEMO_STATE)
 	$(BIN)/ucom remote run armar3 --virtual armar3 --state $(DEMO_STATE) --for 3 \
 	    --set 'Right Eye Target=1000' --set 'Left Eye Target=-1000' \
@@ -25,12 +39,14 @@ lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 
-test: lint
+test: lint $(COMPILED)
 	$(BIN)/python -m pytest
+	UCOM_PURE_PYTHON=1 $(BIN)/python -m pytest $(PURE_TESTS)
 
-bench: $(STAMP)
+bench: $(COMPILED)
 	@fail=""; for b in benchmarks/*.py; do echo "== $$b"; $(BIN)/python $$b || fail="$$fail $$b"; \
 	done; if [ -n "$$fail" ]; then echo "targets not met in:$$fail"; exit 1; fi
 
 clean:
+	$(PYTHON) tools/compile.py --clean
 	rm -rf $(VENV) build *.egg-info .pytest_cache .mypy_cache .ruff_cache

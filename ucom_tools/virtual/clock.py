@@ -152,7 +152,7 @@ class RealtimeDriver:
         self._callbacks: dict[socket.socket, Callable[[], None]] = {}
         """Each watched socket's ``on_readable``."""
         self._rooms: list[Callable[[], bool]] = []
-        self._thread = threading.Thread(target=self._run, name=f"ucom-clock-{name}",
+        self._runner = threading.Thread(target=self._run, name=f"ucom-clock-{name}",
                                         daemon=True)
 
     def now_us(self) -> float:
@@ -160,14 +160,14 @@ class RealtimeDriver:
         return (time.monotonic() - self.t0) * 1e6
 
     def start(self) -> None:
-        self._thread.start()
+        self._runner.start()
 
     def stop(self) -> None:
         """Stop the thread; every socket still watched is given back (its ``on_stop``)."""
         self._stop = True
         self.poke()
-        self._thread.join(timeout=2)
-        if self._thread.is_alive():
+        self._runner.join(timeout=2)
+        if self._runner.is_alive():
             return
         watched = list(self._watched.values())
         self._watched.clear()

@@ -113,8 +113,7 @@ class McaRuntime:
         self._watchdog = fault != mutants.IGNORE_ALIVE
         self._range_check = fault != mutants.NO_RANGE_CHECK
         self._refuse_latched = fault != mutants.CI_WHILE_LATCHED
-        if fault == mutants.SO_SLOW:
-            self._send_maps = self._send_maps_slow  # type: ignore[method-assign]
+        self._so_slow = fault == mutants.SO_SLOW
         self.spec = spec
         self.model = model
         self.plant = plant
@@ -173,7 +172,10 @@ class McaRuntime:
         if work > loop:
             self._overrun(t, work, loop)
         if running:
-            self._send_maps(t + (loop if loop < work else work))  # min(work, loop)
+            if self._so_slow:
+                self._send_maps_slow(t + (loop if loop < work else work))
+            else:
+                self._send_maps(t + (loop if loop < work else work))  # min(work, loop)
         self.port.at(t + span, self._tick)
 
     def _overrun(self, t: float, work: float, loop: float) -> None:

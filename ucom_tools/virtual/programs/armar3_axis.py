@@ -112,6 +112,13 @@ class _Config:
     """... and 2k+1."""
 
 
+_AXIS_SLOTS = ("active", "anchor", "ci_slots", "command", "hold", "homing_us",
+               "joint_channel", "joint_position", "joint_view", "k", "motor_channel",
+               "motor_position", "motor_view", "pos_previous", "pos_sum", "pwm", "raw",
+               "reset_answer", "sensed", "settled", "settled_us", "since_us", "so_slots",
+               "stall_anchor", "stall_us", "value", "vel_previous", "vel_sum")
+
+
 class _Axis:
     """Motor k's controller: counters, velocity estimate, mode, loops, homing, Settled.
 
@@ -129,11 +136,7 @@ class _Axis:
     The state is kept flat (no objects per counter or loop): the cycle runs 11 000 times
     a virtual second in a fleet."""
 
-    __slots__ = ("active", "anchor", "ci_slots", "command", "hold", "homing_us",
-                 "joint_channel", "joint_position", "joint_view", "k", "motor_channel",
-                 "motor_position", "motor_view", "pos_previous", "pos_sum", "pwm", "raw",
-                 "reset_answer", "sensed", "settled", "settled_us", "since_us", "so_slots",
-                 "stall_anchor", "stall_us", "value", "vel_previous", "vel_sum")
+    __slots__ = _AXIS_SLOTS
 
     def __init__(self, k: int) -> None:
         self.k = k
@@ -388,6 +391,6 @@ class _Axis:
             self.pwm = _clamp(c.reset_pwm, -c.max_pwm, c.max_pwm)
 
 
-_STATE = tuple(sorted(set(_Axis.__slots__) - {"since_us", "settled_us", "so_slots",
+_STATE = tuple(sorted(set(_AXIS_SLOTS) - {"since_us", "settled_us", "so_slots",
                                                 "ci_slots"}))
 """What :meth:`_Axis.state` compares."""

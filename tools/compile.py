@@ -1,0 +1,126 @@
+#!/usr/bin/env python3
+"""Compile the run time's hot modules (:data:`ucom_tools.compiled.MODULES`) with mypyc, in
+place: a C extension beside each ``.py`` file, their shared library
+``ucom_tools/_native__mypyc*.so``, and ``ucom_tools/_native.json`` (each source's
+SHA-256, so that a process runs the extensions only while they match their sources).
+
+``make compiled`` runs it (``make demo``, ``make test`` and ``make bench`` do so first).
+Without a C compiler or mypyc it says so and leaves the package pure Python (exit 0:
+ucom-tools runs either way), unless ``--strict`` (exit 1).  ``--clean`` removes what a
+build left, so that the sources run again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import hashlib
+import json
+import os
+import shutil
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGE = ROOT / "ucom_tools"
+LISTING = PACKAGE / "compiled.py"
+MANIFEST = PACKAGE / "_native.json"
+BUILD = ROOT / "build" / "mypyc"
+DONE = BUILD / "done"
+"""Touched after every attempt, compiled or not (``make``'s target: a machine without a
+compiler does not try again at every ``make test``, only when a source changes)."""
+
+
+def listed() -> tuple[tuple[str, ...], str]:
+    """MODULES and GROUP of ucom_tools/compiled.py, read without importing the package
+    (importing it would load the very extensions this replaces)."""
+    found: dict[str, object] = {}
+    for node in ast.parse(LISTING.read_text()).body:
+        target = node.target if isinstance(node, ast.AnnAssign) else (
+            node.targets[0] if isinstance(node, ast.Assign) else None)
+        if isinstance(target, ast.Name) and target.id in ("MODULES", "GROUP"):
+            assert node.value is not None
+            found[target.id] = ast.literal_eval(node.value)
+    modules, group = found["MODULES"], found["GROUP"]
+    assert isinstance(modules, tuple) and isinstance(group, str)
+    return modules, group
+
+
+def source(module: str) -> Path:
+    return ROOT.joinpath(*module.split(".")).with_suffix(".py")
+
+
+def built_files() -> list[Path]:
+    """The extensions a build leaves in the package (any Python version's)."""
+    return sorted(p for p in PACKAGE.rglob("*.so"))
+
+
+def clean() -> None:
+    for path in built_files():
+        path.unlink()
+    MANIFEST.unlink(missing_ok=True)
+    shutil.rmtree(BUILD, ignore_errors=True)
+
+
+def compiler() -> str | None:
+    """The C compiler Python's build would call, if it is there."""
+    import sysconfig
+    cc = (os.environ.get("CC") or sysconfig.get_config_var("CC") or "cc").split()[0]
+    return shutil.which(cc)
+
+
+def build(modules: tuple[str, ...], group: str) -> None:
+    import warnings
+
+    if compiler() is None:
+        raise RuntimeError("no C compiler")
+    from mypyc.build import mypycify  # only here: the package itself never needs mypyc
+    from setuptools import setup
+
+    warnings.simplefilter("ignore")  # setuptools' notes on pyproject.toml, not ours
+
+    clean()  # never a mixture of an old build and a new one
+    os.chdir(ROOT)  # mypycify takes paths relative to the project (and its mypy config)
+    BUILD.mkdir(parents=True, exist_ok=True)
+    extensions = mypycify([str(source(m).relative_to(ROOT)) for m in modules],
+                          opt_level="3", group_name=group, target_dir=str(BUILD / "c"))
+    setup(name="ucom-tools-native", ext_modules=extensions, script_args=[
+        "--quiet", "build_ext", "--inplace", "--build-temp", str(BUILD / "temp"),
+        "--parallel", str(os.cpu_count() or 1)])
+    # the manifest last, atomically: a build that failed left none, so nothing runs it
+    table = {m: hashlib.sha256(source(m).read_bytes()).hexdigest() for m in modules}
+    with tempfile.NamedTemporaryFile("w", dir=PACKAGE, delete=False, suffix=".tmp") as f:
+        json.dump(table, f, indent=1, sort_keys=True)
+    os.replace(f.name, MANIFEST)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--clean", action="store_true", help="remove the compiled modules")
+    ap.add_argument("--strict", action="store_true",
+                    help="fail (exit 1) when the modules cannot be compiled")
+    args = ap.parse_args()
+    if args.clean:
+        clean()
+        print("compile: removed the compiled modules; the sources run")
+        return 0
+    modules, group = listed()
+    try:
+        build(modules, group)
+    except (Exception, SystemExit) as err:  # no compiler, no mypyc, a type error ...
+        clean()
+        what = err if str(err) else type(err).__name__
+        print(f"compile: the modules were not compiled ({what}); ucom-tools runs as pure "
+              "Python, slower", file=sys.stderr)
+        if args.strict:
+            return 1
+    else:
+        print(f"compile: {len(modules)} modules compiled with mypyc")
+    BUILD.mkdir(parents=True, exist_ok=True)
+    DONE.touch()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,148 @@
+"""The run time's hot modules, compiled with mypyc where that was built, and which of the
+two this process runs.
+
+Why: ARMAR-III at 1 kHz is eleven boards' programs, their motors and four simulated buses
+stepped every millisecond, and the PC's loop taking ~24,000 frames a second; in pure
+Python that is more than a two-core machine has to spare (``benchmarks/runtime.py``).
+The same source files compiled by mypyc (C extensions beside the ``.py`` files, built by
+``make compiled`` or ``python tools/compile.py``) run the same code about twice as fast.
+
+The pure-Python code stays the reference: every module here is ordinary Python, the
+package installs and runs without a compiler, and CI tests both.  This process runs the
+sources, not the compiled modules, when
+
+- ``UCOM_PURE_PYTHON=1`` is set (how CI tests the pure path);
+- nothing was compiled (no ``_native.json`` beside this file: no compiler, or a plain
+  ``pip install``);
+- a compiled module no longer matches its source (a checkout edited or pulled after the
+  build): then once, on stderr, which file changed and how to build again.
+
+It is all or nothing: the compiled modules call each other natively, so one of them
+compiled beside another one from source would not be the same program.
+:func:`activate` (run by ``ucom_tools/__init__.py`` before anything else is imported)
+decides; :func:`status` says what it decided (``ucom --version`` shows it).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.abc
+import importlib.machinery
+import importlib.util
+import json
+import os
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from types import ModuleType
+
+MODULES: tuple[str, ...] = (
+    "ucom_tools.virtual.application",
+    "ucom_tools.virtual.board",
+    "ucom_tools.virtual.clock",
+    "ucom_tools.virtual.fpga",
+    "ucom_tools.virtual.motor",
+    "ucom_tools.virtual.plant",
+    "ucom_tools.virtual.programs.armar3",
+    "ucom_tools.virtual.programs.armar3_axis",
+    "ucom_tools.virtual.runtime",
+    "ucom_tools.virtual.simbus",
+)
+"""The modules compiled (``tools/compile.py`` reads this tuple): those the profiles of
+the served fleet and of the PC side put on top, and nothing that tests or users patch at
+run time (a compiled class's methods cannot be replaced)."""
+
+GROUP = "ucom_tools._native"
+"""The compiled modules' shared library (``ucom_tools/_native__mypyc*.so``)."""
+
+MANIFEST = Path(__file__).with_name("_native.json")
+"""Written by the build: each compiled module's source file and its SHA-256."""
+
+PURE_ENV = "UCOM_PURE_PYTHON"
+
+PACKAGE_ROOT = Path(__file__).resolve().parent
+
+
+@dataclass(frozen=True)
+class Status:
+    """What :func:`activate` decided: ``compiled`` or not, and why (for ``--version``)."""
+
+    compiled: bool
+    reason: str
+
+
+_status: Status | None = None
+
+
+def source_of(module: str) -> Path:
+    """The source file of ``module`` (one of :data:`MODULES`)."""
+    return PACKAGE_ROOT.joinpath(*module.split(".")[1:]).with_suffix(".py")
+
+
+def digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def changed_sources(manifest: dict[str, str], modules: Sequence[str] = MODULES,
+                    ) -> list[str]:
+    """The modules whose source differs from the build's (or that it did not build)."""
+    changed = []
+    for module in modules:
+        built = manifest.get(module)
+        try:
+            now = digest(source_of(module))
+        except OSError:
+            now = None
+        if built is None or built != now:
+            changed.append(module)
+    return changed
+
+
+class _Sources(importlib.abc.MetaPathFinder):
+    """Imports the compiled modules from their ``.py`` files (before the extension that
+    the normal path finder would prefer)."""
+
+    def find_spec(self, fullname: str, path: Sequence[str] | None,
+                  target: ModuleType | None = None) -> importlib.machinery.ModuleSpec | None:
+        if fullname not in MODULES:
+            return None
+        return importlib.util.spec_from_file_location(fullname, source_of(fullname))
+
+
+def _decide() -> Status:
+    if os.environ.get(PURE_ENV, "") not in ("", "0"):
+        return Status(False, f"pure Python ({PURE_ENV} is set)")
+    try:
+        manifest = json.loads(MANIFEST.read_text())
+    except FileNotFoundError:
+        return Status(False, "pure Python (not compiled: make compiled builds it)")
+    except (OSError, ValueError) as err:
+        return Status(False, f"pure Python ({MANIFEST.name} unreadable: {err})")
+    if not isinstance(manifest, dict):
+        return Status(False, f"pure Python ({MANIFEST.name} is not a table)")
+    changed = changed_sources(manifest)
+    if changed:
+        shown = ", ".join(str(source_of(m).relative_to(PACKAGE_ROOT.parent))
+                          for m in changed[:3])
+        more = f" and {len(changed) - 3} more" if len(changed) > 3 else ""
+        reason = f"pure Python ({shown}{more} changed since the build)"
+        print(f"ucom-tools: the compiled modules are older than their sources ({shown}"
+              f"{more}); running the pure-Python code, which is slower. 'make compiled' "
+              "builds them again.", file=sys.stderr)
+        return Status(False, reason)
+    return Status(True, f"compiled with mypyc ({len(MODULES)} modules)")
+
+
+def activate() -> Status:
+    """Decide once per process; for pure Python put the source finder first."""
+    global _status
+    if _status is None:
+        _status = _decide()
+        if not _status.compiled and not any(isinstance(f, _Sources) for f in sys.meta_path):
+            sys.meta_path.insert(0, _Sources())
+    return _status
+
+
+def status() -> Status:
+    return activate()
