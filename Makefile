@@ -39,6 +39,11 @@ lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 
+# the pure-Python path, where the suite above ran the compiled modules: the frame traces
+# recorded from it bit for bit, and the models' and the simulated bus's own tests
+PURE_TESTS := tests/test_fidelity.py tests/test_compiled.py tests/test_simbus.py \
+    tests/test_armar3_model.py tests/test_mutants.py
+
 test: lint $(COMPILED)
 	$(BIN)/python -m pytest
 	UCOM_PURE_PYTHON=1 $(BIN)/python -m pytest $(PURE_TESTS)

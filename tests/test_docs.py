@@ -8,6 +8,7 @@ from pathlib import Path
 
 from click.testing import CliRunner
 
+from ucom_tools import compiled
 from ucom_tools.cli import exitcodes, menu, options
 from ucom_tools.cli.main import cli
 
@@ -49,6 +50,7 @@ def test_help_of_every_option_command_says_whether_it_needs_init() -> None:
 def test_environment_and_exit_codes_are_documented_once_and_completely() -> None:
     page = (MAN / "ucom.1").read_text()
     env = page[page.index(".SH ENVIRONMENT"):page.index(".SH EXIT STATUS")]
-    assert set(re.findall(r"UCOM_[A-Z]+", env)) == set(options.ENVIRONMENT.values())
+    assert set(re.findall(r"UCOM_[A-Z_]*[A-Z]", env)) == set(options.ENVIRONMENT.values()) | {
+        compiled.PURE_ENV}
     status = page[page.index(".SH EXIT STATUS"):page.index(".SH EXAMPLES")]
     assert {int(c) for c in re.findall(r"^\.B (\d+)$", status, re.M)} == set(exitcodes.ALL)

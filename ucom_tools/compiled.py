@@ -43,11 +43,23 @@ MODULES: tuple[str, ...] = (
     "ucom_tools.virtual.clock",
     "ucom_tools.virtual.fpga",
     "ucom_tools.virtual.motor",
+    "ucom_tools.virtual.nvmem",
     "ucom_tools.virtual.plant",
+    "ucom_tools.virtual.port",
+    "ucom_tools.virtual.programming",
     "ucom_tools.virtual.programs.armar3",
     "ucom_tools.virtual.programs.armar3_axis",
+    "ucom_tools.virtual.programs.base",
+    "ucom_tools.virtual.programs.idle",
+    "ucom_tools.virtual.programs.lauron4",
+    "ucom_tools.virtual.programs.lauron4_leg",
+    "ucom_tools.virtual.receiver",
     "ucom_tools.virtual.runtime",
+    "ucom_tools.virtual.serve_connection",
+    "ucom_tools.virtual.serve_outbox",
     "ucom_tools.virtual.simbus",
+    "ucom_tools.wire.canbits",
+    "ucom_tools.wire.mca",
 )
 """The modules compiled (``tools/compile.py`` reads this tuple): those the profiles of
 the served fleet and of the PC side put on top, and nothing that tests or users patch at
@@ -127,9 +139,9 @@ def _decide() -> Status:
                           for m in changed[:3])
         more = f" and {len(changed) - 3} more" if len(changed) > 3 else ""
         reason = f"pure Python ({shown}{more} changed since the build)"
-        print(f"ucom-tools: the compiled modules are older than their sources ({shown}"
-              f"{more}); running the pure-Python code, which is slower. 'make compiled' "
-              "builds them again.", file=sys.stderr)
+        sys.stderr.write(f"ucom-tools: the compiled modules are older than their sources "
+                         f"({shown}{more}); running the pure-Python code, which is slower. "
+                         "'make compiled' builds them again.\n")
         return Status(False, reason)
     return Status(True, f"compiled with mypyc ({len(MODULES)} modules)")
 

@@ -21,7 +21,7 @@ from typing import Any
 import click
 from rich.markup import escape
 
-from ucom_tools import __version__
+from ucom_tools import __version__, compiled
 from ucom_tools.cli import output
 from ucom_tools.cli.exitcodes import (
     EXIT_BAD_INPUT,
@@ -126,7 +126,9 @@ class UcomGroup(click.Group):
 
 @click.group(cls=UcomGroup, commands=LazyCommands(SUBCOMMANDS),
              context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(__version__, prog_name="ucom")
+@click.version_option(__version__, prog_name="ucom",
+                      message=f"%(prog)s, version %(version)s, run time "
+                              f"{compiled.status().reason}")
 @click.option("-v", "--verbose", count=True, help="More detail; -vv shows tracebacks.")
 @click.pass_context
 def cli(ctx: click.Context, verbose: int) -> None:

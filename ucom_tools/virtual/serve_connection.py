@@ -256,7 +256,7 @@ class Connection:
         finally:
             fleet.unwatch(self.sock)
             self._handed = False
-        returned, self._returned = self._returned, None
+        returned = self._take_returned()
         if isinstance(returned, EOFError):
             return True
         if returned is not None:
@@ -268,6 +268,13 @@ class Connection:
             self._transmit(port, *self._backlog.popleft(), lossy=False)
         self._backlog.clear()
         return False
+
+    def _take_returned(self) -> BaseException | None:
+        """What :meth:`_give_back` left, cleared (a method of its own: read where the field
+        was just set to None, a type checker - and mypyc - would take it for None still,
+        although the driver's thread set it meanwhile)."""
+        returned, self._returned = self._returned, None
+        return returned
 
     def _give_back(self, why: BaseException) -> None:
         """In the driver's thread: stop reading, wake the connection's thread."""

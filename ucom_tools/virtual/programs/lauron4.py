@@ -71,6 +71,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from typing import Final
 
 from ucom_tools.edgelists.lauron4 import AXES, PWM_FULL, SPEC, LegMode, Status
 from ucom_tools.edgelists.model import EdgeKind
@@ -137,15 +138,15 @@ AXIS_US = 200.0
 class _Homing:
     """Where an axis is in a reference run (plain ints: compared every cycle)."""
 
-    IDLE = 0
+    IDLE: Final = 0
     """Not homing."""
-    SEEK = 1
+    SEEK: Final = 1
     """Below the mark: fast up to it."""
-    LEAVE = 2
+    LEAVE: Final = 2
     """On the mark: fast back below it."""
-    APPROACH = 3
+    APPROACH: Final = 3
     """Slowly onto the mark."""
-    DONE = 4
+    DONE: Final = 4
     """Referenced, holding at the mark until every axis is done."""
 
 

@@ -152,6 +152,10 @@ class LegPlant:
         self.force = (0.0, 0.0, 0.0)
         """The ground's force on the foot [N] (X, Y, Z)."""
         self._anchor: tuple[float, float] | None = None
+        self.apart = True
+        """Integrate the joints apart while the foot is off the ground (False: always
+        together with the ground's forces, the slower way that gives the same result:
+        for the test that says so)."""
         self._write_sensors()
 
     # ------------------------------------------------------------------ Plant protocol
@@ -173,7 +177,7 @@ class LegPlant:
         substeps = [(_SUBSTEP_S, full)] if full else []
         if rest > 1e-9:
             substeps.append((rest * 1e-6, 1))
-        if not self._advance_apart(volts, substeps):
+        if not (self.apart and self._advance_apart(volts, substeps)):
             self._advance_coupled(volts, substeps)
         counters = None if fpga.neutral else fpga.quad
         for k, joint in enumerate(self.joints):
