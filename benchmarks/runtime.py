@@ -16,6 +16,7 @@ every 10 ms), the loop at 1 kHz for ``--seconds`` (default 10).  Figures:
 - ``cpu_pct``: CPU time of this process (the PC side) per wall second;
   ``serve_cpu_pct``: the same of ``fleet serve`` and all its processes together,
   ``serve_cpu_busiest_pct`` of its busiest process (a bus's), ``cores``: the machine's;
+  ``run_time``: compiled or pure Python, and why (:mod:`ucom_tools.compiled`);
 - ``frames_per_s``: frames carried on all buses per wall second (those the PC received
   and sent); ``cpu_us_per_frame`` and ``serve_cpu_us_per_frame``: microseconds of CPU
   per frame carried, the PC side's and the served fleet's (all its processes);
@@ -60,6 +61,7 @@ import can
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from ucom_tools import compiled  # noqa: E402
 from ucom_tools.ops.realtime import RealtimeScheduling  # noqa: E402
 from ucom_tools.ops.remote import RemotePart  # noqa: E402
 
@@ -263,7 +265,8 @@ def main() -> None:
     args = ap.parse_args()
     buses = tuple(b.strip() for b in args.buses.split(",") if b.strip())
     figures: dict[str, Any] = {"cores": os.cpu_count(), "buses": list(buses),
-                               "processes": args.processes}
+                               "processes": args.processes,
+                               "run_time": compiled.status().reason}
     figures.update(baseline(min(args.seconds, 5.0), args.realtime))
     with served_armar3(args.processes) as (proc, port):
         figures.update(run(port, args.seconds, buses, proc.pid, args.realtime))
@@ -283,7 +286,8 @@ def main() -> None:
         print(json.dumps(figures, indent=2))
         return
     print(f"ARMAR-III ({', '.join(buses)}) at 1 kHz over socketcand (fleet serve in another "
-          f"process), {args.seconds:g} s, loop scheduling {figures['realtime']}:")
+          f"process), {args.seconds:g} s, loop scheduling {figures['realtime']}, run time "
+          f"{figures['run_time']}:")
     print(f"  loop        {figures['rate_hz']} Hz, {figures['missed_pct']} % missed")
     print(f"  CPU         PC side {figures['cpu_pct']} %, fleet serve "
           f"{figures['serve_cpu_pct']} % (all its processes; the busiest "

@@ -24,8 +24,9 @@ the fastest fleet run).
    (in process with the PC side), ``fleet_alone_speedup`` >= 12, ``scaling`` <= 8.
 
 ``--json`` prints the figures as one JSON object (keys: speedup, one_board_speedup,
-fleet_alone_speedup, scaling, board_cycle_us, bus_load, targets: per key its target,
-comparison and whether it is met).
+fleet_alone_speedup, scaling, board_cycle_us, bus_load, run_time: compiled or pure
+Python, and why (:mod:`ucom_tools.compiled`), targets: per key its target, comparison
+and whether it is met).
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from ucom_tools import compiled  # noqa: E402
 from ucom_tools.config.attrtree.robot import bind  # noqa: E402
 from ucom_tools.config.topology import SOURCE_ROOT, Topology, load  # noqa: E402
 from ucom_tools.ops.exchange import BusExchange  # noqa: E402
@@ -182,12 +184,14 @@ def main() -> None:
         "fleet_alone_speedup": round(alone, 3),
         "board_cycle_us": round(wall_per_s / int(fleet["boards"]) / 1000 * 1e6, 1),  # type: ignore[call-overload]
         "bus_load": fleet["bus_load"],
+        "run_time": compiled.status().reason,
     }
     figures["targets"] = targets(figures)
     if args.json:
         print(json.dumps(figures, indent=2))
         return
-    print(f"ARMAR-III in process, 11 boards x 3 axes at 1 kHz, {args.seconds:g} s virtual:")
+    print(f"ARMAR-III in process, 11 boards x 3 axes at 1 kHz, {args.seconds:g} s virtual, "
+          f"run time {figures['run_time']}:")
     print(f"  speed-up       {figures['speedup']:.2f} virtual s per wall s "
           f"({'faster' if figures['speedup'] >= 1 else 'slower'} than real time)")
     print(f"  one board      {figures['one_board_speedup']:.2f} virtual s per wall s "
