@@ -42,7 +42,8 @@ lint: $(STAMP)
 # the pure-Python path, where the suite above ran the compiled modules: the frame traces
 # recorded from it bit for bit, and the models' and the simulated bus's own tests
 PURE_TESTS := tests/test_fidelity.py tests/test_compiled.py tests/test_simbus.py \
-    tests/test_armar3_model.py tests/test_mutants.py
+    tests/test_board.py tests/test_armar3_model.py tests/test_lauron4_model.py \
+    tests/test_mutants.py
 
 test: lint $(COMPILED)
 	$(BIN)/python -m pytest
