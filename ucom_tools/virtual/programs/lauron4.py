@@ -74,7 +74,7 @@ from dataclasses import replace
 from typing import Final
 
 from ucom_tools.edgelists.lauron4 import AXES, PWM_FULL, SPEC, LegMode, Status
-from ucom_tools.edgelists.model import EdgeKind
+from ucom_tools.edgelists.model import EdgeKind, ProgramSpec
 from ucom_tools.virtual.programs.base import Hardware
 from ucom_tools.virtual.programs.lauron4_leg import (  # the board's constants re-exported
     ADC_FORCE,
@@ -229,9 +229,8 @@ class Lauron4Model:
     :class:`~ucom_tools.virtual.programs.base.ProgramModel` for
     :data:`ucom_tools.edgelists.lauron4.SPEC`."""
 
-    spec = SPEC
-
     def __init__(self, hardware: Hardware) -> None:
+        self.spec: ProgramSpec = SPEC  # (an instance field, as in Armar3Model: mypyc compiles no class-level default)
         self.hw = hardware
         self.ci = [e.default for e in SPEC.of(EdgeKind.CI)]
         self.so = [e.default for e in SPEC.of(EdgeKind.SO)]
