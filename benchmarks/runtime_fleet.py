@@ -25,7 +25,9 @@ the fastest fleet run).
 
 ``--json`` prints the figures as one JSON object (keys: speedup, one_board_speedup,
 fleet_alone_speedup, scaling, board_cycle_us, bus_load, run_time: compiled or pure
-Python, and why (:mod:`ucom_tools.compiled`), targets: per key its target, comparison
+Python, and why (:mod:`ucom_tools.compiled`); compiled, also pure_speedup,
+pure_fleet_alone_speedup and compiled_per_pure: the pure-Python run time measured in the
+same run, in another process, ``--no-pure`` leaves it out; targets: per key its target, comparison
 and whether it is met).
 """
 
@@ -34,6 +36,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
+import subprocess
 import sys
 import time
 from dataclasses import replace
@@ -157,6 +161,16 @@ def one_board(topology: Topology) -> Topology:
     return replace(topology, buses=(replace(first, boards=first.boards[:1]),))
 
 
+def pure_figures(seconds: float, runs: int) -> dict[str, object]:
+    """The same figures of the pure-Python run time (UCOM_PURE_PYTHON=1, another process:
+    a process runs either the compiled modules or the sources)."""
+    r = subprocess.run([sys.executable, __file__, "--json", "--no-pure", "--seconds",
+                        str(seconds), "--repeat", str(runs)], capture_output=True, text=True,
+                       env={**os.environ, compiled.PURE_ENV: "1"}, check=True)
+    out: dict[str, object] = json.loads(r.stdout)
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=3.0, help="virtual seconds measured")
@@ -164,6 +178,8 @@ def main() -> None:
                     help="measure each figure this many times and keep the fastest run "
                          "(on a shared machine other work only ever slows a run down)")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--no-pure", action="store_true",
+                    help="compiled: do not measure the pure-Python run time beside it")
     args = ap.parse_args()
     armar3 = load("armar3")
     runs = max(1, args.repeat)
@@ -186,6 +202,11 @@ def main() -> None:
         "bus_load": fleet["bus_load"],
         "run_time": compiled.status().reason,
     }
+    if compiled.status().compiled and not args.no_pure:
+        pure = pure_figures(args.seconds, runs)
+        figures["pure_speedup"] = pure["speedup"]
+        figures["pure_fleet_alone_speedup"] = pure["fleet_alone_speedup"]
+        figures["compiled_per_pure"] = round(figures["speedup"] / pure["speedup"], 2)  # type: ignore[operator]
     figures["targets"] = targets(figures)
     if args.json:
         print(json.dumps(figures, indent=2))
@@ -198,6 +219,10 @@ def main() -> None:
           f"(baseline, same run)")
     print(f"  fleet alone    {figures['fleet_alone_speedup']:.2f} virtual s per wall s "
           "(the boards and buses without the PC side)")
+    if "pure_speedup" in figures:
+        print(f"  pure Python    {figures['pure_speedup']:.2f} virtual s per wall s with the "
+              f"PC side, {figures['pure_fleet_alone_speedup']:.2f} alone (baseline, same run):"
+              f" compiled {figures['compiled_per_pure']:.2f}x as fast")
     print(f"  scaling        {figures['scaling']:.2f}x the baseline's wall time for 11 boards "
           f"({figures['board_cycle_us']:.0f} us of wall time per board and cycle)")
     print("  bus load       computed nominal / worst   counted")
