@@ -30,7 +30,7 @@ from ucom_tools.ops.edges import spec_of
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.dispatch import Periodic
 from ucom_tools.protocol.link import Link
-from ucom_tools.protocol.mca import BoardEdges, McaClient, values_of
+from ucom_tools.protocol.mca import MASK_TABLE, BoardEdges, McaClient, values_of
 from ucom_tools.protocol.plan import BusPlan, CiMapPlan, needs_of, plan
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.protocol.watch import OtherHosts
@@ -293,6 +293,12 @@ class BusExchange:
                                   is_extended_id=False)
         self._ci_sent: dict[int, float] = {}
         self._alive_sent = -1e9
+        self._ci_cyclic = [(k, c.interval_us / 1e6, ident, packer, used, c.number, signs)
+                           for k, ((c, used, signs), (ident, packer))
+                           in enumerate(zip(self._ci_frames, self._ci_fast, strict=True))]
+        """What :meth:`send_cycle` needs of each CI map, looked up once: its index, its
+        interval in seconds, identifier, packer, slots, number and signs."""
+        self._alive_interval = self.plan.alive_interval_us / 1e6
 
     def send_cycle(self, now: float) -> int:
         """One cycle of a PC loop at ``now`` (bus clock, seconds): every CI map whose
@@ -301,15 +307,18 @@ class BusExchange:
         sent = 0
         margin = 1e-4  # a cycle that comes a little early still counts
         ci, ci_sent, send_raw = self.ci, self._ci_sent, self.link.send_raw
-        for k, (c, used, signs) in enumerate(self._ci_frames):
-            if now - ci_sent.get(k, -1e9) + margin >= c.interval_us / 1e6:
-                ident, packer = self._ci_fast[k]
-                send_raw(ident, self._ci_data(c.number, signs, packer,
-                                              [ci[s] for s in used]))
+        for k, interval, ident, packer, used, number, signs in self._ci_cyclic:
+            if now - ci_sent.get(k, -1e9) + margin >= interval:
+                values = [ci[s] for s in used]
+                try:  # _ci_data(), inlined
+                    data = packer.pack(*values).translate(MASK_TABLE)
+                except struct.error:
+                    data = self._ci_data(number, signs, packer, values)
+                send_raw(ident, data)
                 ci_sent[k] = now
                 sent += 1
-        if now - self._alive_sent + margin >= self.plan.alive_interval_us / 1e6:
-            self.link.send_raw(self._alive.arbitration_id, b"")
+        if now - self._alive_sent + margin >= self._alive_interval:
+            send_raw(self._alive.arbitration_id, b"")
             self._alive_sent = now
             sent += 1
         return sent

@@ -63,6 +63,8 @@ class RemoteLoop(RemoteValues):
         self.events: list[BoardEvent] = []
         """What the boards reported while the exchange ran (their Error messages)."""
         self._event_subs: list[tuple[Any, Any]] = []
+        self._drains: list[Callable[[], int]] = []
+        """Each bus's dispatcher's ``drain`` (:meth:`_drain`), from the first cycle on."""
         self._batching: list[tuple[str, Any]] = []
         """The buses whose frames of a cycle go out in one write (``hold``/``release``:
         :class:`~ucom_tools.transport.socketcand.SocketcandBus`)."""
@@ -214,10 +216,16 @@ class RemoteLoop(RemoteValues):
         self._batching = [(h.name, h.link.dispatcher.bus) for h, _ in self._handles()
                           if not self.virtual and callable(
                               getattr(h.link.dispatcher.bus, "hold", None))]
+        self._drains = [h.link.dispatcher.drain for h, _ in self._handles()]
 
     def _drain(self) -> int:
         """Take and dispatch every frame the buses have delivered (without waiting)."""
-        return sum(h.link.dispatcher.drain() for h, _ in self._handles())
+        if not self._prepared:
+            self._drains = [h.link.dispatcher.drain for h, _ in self._handles()]
+        count = 0
+        for drain in self._drains:
+            count += drain()
+        return count
 
     def _wait(self, deadline: float) -> None:
         """Until ``deadline``: in virtual time by driving the fleet clock; on real buses by
