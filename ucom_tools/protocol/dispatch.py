@@ -106,7 +106,10 @@ class Dispatcher:
         self.taps: list[Callable[[can.Message], None]] = []
         """Called with every frame received and sent (recorders), in the reading or
         sending thread."""
-        self._cond = threading.Condition()
+        self._lock = threading.RLock()
+        """``_cond``'s lock: ``with self._lock`` is ``with self._cond`` without the Python
+        wrapper around it (the per-cycle paths take it several times)."""
+        self._cond = threading.Condition(self._lock)
         self._sleepers = 0
         """Threads in ``_cond.wait``: the reader notifies only when there are any."""
         self._reading = False
@@ -357,7 +360,7 @@ class Dispatcher:
                 if on_frame is not None:
                     on_frame(msg)
                     continue
-                with self._cond:
+                with self._lock:
                     if len(sub.queue) >= QUEUE_LIMIT:
                         sub.queue.popleft()
                         sub.dropped += 1
@@ -391,7 +394,7 @@ class Dispatcher:
     def drain(self, limit: int = 1000) -> int:
         """Read and dispatch what has arrived, without waiting (at most ``limit`` frames);
         0 at once when another thread is reading.  For a loop that polls several buses."""
-        with self._cond:
+        with self._lock:
             if self._thread is not None or self._reading:
                 return 0
             self._reading = True
@@ -425,7 +428,7 @@ class Dispatcher:
                 dispatch(msg)
                 count += 1
         finally:
-            with self._cond:
+            with self._lock:
                 self._reading = False
                 if self._sleepers:
                     self._cond.notify_all()

@@ -515,17 +515,22 @@ class SocketcandBus(can.BusABC):
             raise can.CanOperationError(f"socketcand {self._where} took no data for {limit:g} s")
         try:
             self._check_usable()
-            view = memoryview(data)
-            sent = 0
             try:
+                try:  # the usual case: the socket takes all of it at once (no
+                    sent = self._sock.send(data)  # context manager: ~1 us per cycle)
+                except BlockingIOError:
+                    sent = 0
+                if sent == len(data):
+                    return
+                view = memoryview(data)
                 while True:
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0 or not self._writable.select(remaining):
+                        break
                     with contextlib.suppress(BlockingIOError):
                         sent += self._sock.send(view[sent:])
                     if sent == len(data):
                         return
-                    remaining = deadline - time.monotonic()
-                    if remaining <= 0 or not self._writable.select(remaining):
-                        break
             except (OSError, ValueError) as err:
                 raise self._lost(err) from err
             if sent:
