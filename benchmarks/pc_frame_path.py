@@ -11,12 +11,15 @@ the SO-age tap of ``runtime.py``.  Every cycle is one bus's cycle of ARMAR-III a
 the server writes 4 SO maps (3 of 8 bytes, one of 4); the PC holds the bus, sends 2 CI
 maps (8 and 6 bytes) and every 10th cycle MCA Alive, releases it (one write) and drains
 what came (:meth:`~ucom_tools.protocol.dispatch.Dispatcher.drain`).  Only the PC's part is
-timed, in CPU time of this thread (``time.thread_time``), so other processes hardly move
-the figures; the best of ``--runs`` runs is reported.
+timed, in CPU time of this thread (``time.thread_time``), so other processes move the
+figures less than runtime.py's (but still: caches, the kernel); the best of ``--runs``
+runs is reported.
 
-Figures: ``us_per_frame`` (frames received and sent), ``us_per_cycle``, and the same
-with the socket system calls (``send``, ``recv``) counted (``syscalls_per_cycle``).
-``--json`` prints them as one JSON object.
+Figures: ``us_per_frame`` (CPU per frame received or sent, the socket system calls
+included), ``us_per_cycle``, ``frames_per_cycle``, and ``all_us_per_frame`` (every run:
+the spread says how noisy the machine was).  No target (``make bench`` passes it): it
+compares versions of the frame path, run from each worktree.  ``--json`` prints the
+figures as one JSON object.
 """
 
 from __future__ import annotations
