@@ -14,6 +14,7 @@ start would take its boards from it.
 
 from __future__ import annotations
 
+import operator
 import struct
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -30,7 +31,7 @@ from ucom_tools.ops.edges import spec_of
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.dispatch import Periodic
 from ucom_tools.protocol.link import Link
-from ucom_tools.protocol.mca import BoardEdges, McaClient, values_of
+from ucom_tools.protocol.mca import MASK_TABLE, BoardEdges, McaClient, values_of
 from ucom_tools.protocol.plan import BusPlan, CiMapPlan, needs_of, plan
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.protocol.watch import OtherHosts
@@ -149,6 +150,15 @@ def plan_bus(bus: BusSpec, trees: RobotTrees, *, alive_ms: int = mca.ALIVE_DEFAU
         needs.append(needs_of(spec.position + 1, spec.placement, program,
                               axes=len(spec.joints) or None, periods=periods))
     return plan(bus.name, bus.bitrate, needs, alive_ms=alive_ms)
+
+
+def _getter(keys: Sequence[tuple[int, int]],
+            ) -> Callable[[dict[tuple[int, int], int]], tuple[int, ...]]:
+    """``lambda ci: tuple(ci[k] for k in keys)``, as one C call where there are two keys
+    or more (``operator.itemgetter``: a CI map's values, every cycle)."""
+    if len(keys) >= 2:
+        return operator.itemgetter(*keys)
+    return lambda ci: tuple(ci[k] for k in keys)
 
 
 def _packer(signs: Sequence[tuple[int, bool]]) -> struct.Struct:
@@ -293,6 +303,14 @@ class BusExchange:
                                   is_extended_id=False)
         self._ci_sent: dict[int, float] = {}
         self._alive_sent = -1e9
+        self._ci_cyclic = [(k, c.interval_us / 1e6, ident, packer, _getter(used), c.number,
+                            signs)
+                           for k, ((c, used, signs), (ident, packer))
+                           in enumerate(zip(self._ci_frames, self._ci_fast, strict=True))]
+        """What :meth:`send_cycle` needs of each CI map, looked up once: its index, its
+        interval in seconds, identifier, packer, the values of its slots (from
+        :attr:`ci`), number and signs."""
+        self._alive_interval = self.plan.alive_interval_us / 1e6
 
     def send_cycle(self, now: float) -> int:
         """One cycle of a PC loop at ``now`` (bus clock, seconds): every CI map whose
@@ -301,22 +319,25 @@ class BusExchange:
         sent = 0
         margin = 1e-4  # a cycle that comes a little early still counts
         ci, ci_sent, send_raw = self.ci, self._ci_sent, self.link.send_raw
-        for k, (c, used, signs) in enumerate(self._ci_frames):
-            if now - ci_sent.get(k, -1e9) + margin >= c.interval_us / 1e6:
-                ident, packer = self._ci_fast[k]
-                send_raw(ident, self._ci_data(c.number, signs, packer,
-                                              [ci[s] for s in used]))
+        for k, interval, ident, packer, values_of_ci, number, signs in self._ci_cyclic:
+            if now - ci_sent.get(k, -1e9) + margin >= interval:
+                values = values_of_ci(ci)
+                try:  # _ci_data(), inlined
+                    data = packer.pack(*values).translate(MASK_TABLE)
+                except struct.error:
+                    data = self._ci_data(number, signs, packer, values)
+                send_raw(ident, data)
                 ci_sent[k] = now
                 sent += 1
-        if now - self._alive_sent + margin >= self.plan.alive_interval_us / 1e6:
-            self.link.send_raw(self._alive.arbitration_id, b"")
+        if now - self._alive_sent + margin >= self._alive_interval:
+            send_raw(self._alive.arbitration_id, b"")
             self._alive_sent = now
             sent += 1
         return sent
 
     @staticmethod
     def _ci_data(number: int, signs: list[tuple[int, bool]], packer: struct.Struct,
-                 values: list[int]) -> bytes:
+                 values: Sequence[int]) -> bytes:
         """A CI map's payload as the wire carries it (masked); a value that does not fit
         raises the FrameError :func:`~ucom_tools.wire.mca.pack_values` gives."""
         try:

@@ -98,15 +98,13 @@ class Link:
         """Hand one frame to the bus.  The interface may take a while to accept it (its
         transmit queue is full, a network bus pushes back): that wait is bounded like
         every other, by the frames still ahead plus :data:`SEND_SLACK` and the margin."""
-        msg = can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False,
-                          check=False)
         now = self.clock()
         ahead = self._horizon - now if self._horizon > now else 0.0
         limit = SHARED_BUS_FACTOR * ahead + SEND_SLACK + self.margin
         deadline = 0.0
         while True:
             try:
-                self.dispatcher.send(msg, timeout=limit)
+                self.dispatcher.send_data(arbitration_id, data, timeout=limit)
                 break
             except can.CanOperationError as err:
                 # an adapter whose queue is full may refuse at once (SocketCAN: ENOBUFS)
