@@ -38,6 +38,10 @@ from pathlib import Path
 from types import ModuleType
 
 MODULES: tuple[str, ...] = (
+    "ucom_tools.protocol.dispatch",
+    "ucom_tools.protocol.frames",
+    "ucom_tools.protocol.link",
+    "ucom_tools.protocol.mca",
     "ucom_tools.virtual.application",
     "ucom_tools.virtual.board",
     "ucom_tools.virtual.clock",
@@ -60,6 +64,7 @@ MODULES: tuple[str, ...] = (
     "ucom_tools.virtual.simbus",
     "ucom_tools.wire.canbits",
     "ucom_tools.wire.mca",
+    "ucom_tools.wire.socketcand",
 )
 """The modules compiled (``tools/compile.py`` reads this tuple): those the profiles of
 the served fleet and of the PC side put on top, and nothing that tests or users patch at

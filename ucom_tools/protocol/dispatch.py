@@ -114,7 +114,7 @@ class Dispatcher:
         """Threads in ``_cond.wait``: the reader notifies only when there are any."""
         self._reading = False
         self._send_lock = threading.Lock()
-        self._thread: threading.Thread | None = None
+        self._reader: threading.Thread | None = None
         self._stop = False
         self.failure: BusError | None = None
         self._tasks: list[Periodic] = []
@@ -247,12 +247,15 @@ class Dispatcher:
                 if self.failure is not None:
                     raise self.failure
                 remaining = deadline - self.clock()
-                if self._reading or self._thread is not None:
+                busy = self._reading or self._reader is not None
+                if busy:  # another thread reads: wait for it (continue after the lock)
                     if remaining <= 0:
                         return None
                     self._sleep(min(remaining, POLL_S))
-                    continue
-                self._reading = True
+                else:
+                    self._reading = True
+            if busy:
+                continue
             try:
                 self._read_one(max(0.0, remaining))
             finally:
@@ -379,12 +382,15 @@ class Dispatcher:
         while True:
             remaining = deadline - self.clock()
             with self._cond:
-                if self._thread is not None or self._reading:
-                    if remaining > 0:
-                        self._sleep(min(remaining, POLL_S))
-                        continue
-                    return count
-                self._reading = True
+                busy = self._reader is not None or self._reading
+                if busy:
+                    if remaining <= 0:
+                        return count
+                    self._sleep(min(remaining, POLL_S))
+                else:
+                    self._reading = True
+            if busy:
+                continue
             try:
                 got = self._read_one(max(0.0, remaining))
             finally:
@@ -401,7 +407,7 @@ class Dispatcher:
         """Read and dispatch what has arrived, without waiting (at most ``limit`` frames);
         0 at once when another thread is reading.  For a loop that polls several buses."""
         with self._lock:
-            if self._thread is not None or self._reading:
+            if self._reader is not None or self._reading:
                 return 0
             self._reading = True
         count = 0
@@ -443,21 +449,21 @@ class Dispatcher:
     # ------------------------------------------------------------------ background
     def start(self) -> None:
         """Read in a background thread from now on (for real-time buses)."""
-        if self._thread is not None:
+        if self._reader is not None:
             return
         self._stop = False
-        self._thread = threading.Thread(target=self._run, name=f"ucom-reader-{self.name}",
+        self._reader = threading.Thread(target=self._run, name=f"ucom-reader-{self.name}",
                                         daemon=True)
-        self._thread.start()
+        self._reader.start()
 
     def stop(self) -> None:
-        thread = self._thread
+        thread = self._reader
         if thread is None:
             return
         self._stop = True
         thread.join(timeout=2)
         with self._cond:
-            self._thread = None
+            self._reader = None
             self._cond.notify_all()
 
     def _run(self) -> None:
