@@ -40,7 +40,6 @@ from types import ModuleType
 MODULES: tuple[str, ...] = (
     "ucom_tools.protocol.dispatch",
     "ucom_tools.protocol.frames",
-    "ucom_tools.protocol.link",
     "ucom_tools.protocol.mca",
     "ucom_tools.virtual.application",
     "ucom_tools.virtual.board",
@@ -68,7 +67,8 @@ MODULES: tuple[str, ...] = (
 )
 """The modules compiled (``tools/compile.py`` reads this tuple): those the profiles of
 the served fleet and of the PC side put on top, and nothing that tests or users patch at
-run time (a compiled class's methods cannot be replaced)."""
+run time (a compiled class's methods cannot be replaced: the conformance case that loses
+frames on purpose replaces ``Link.send_raw``, so ``protocol/link.py`` stays Python)."""
 
 GROUP = "ucom_tools._native"
 """The compiled modules' shared library (``ucom_tools/_native__mypyc*.so``)."""
