@@ -202,8 +202,11 @@ def test_ctrl_c_stops_the_boards_and_exits_130(served) -> None:
         remote.send_signal(signal.SIGINT)
         _, err = remote.communicate(timeout=DEADLINE_S)
         assert remote.returncode == 130, err
-        # stopped by the PC (MCA Start STOP), not latched by the watchdog
-        assert observer.states() == {mca.RunState.STOPPED}
+        # stopped by the PC (MCA Start STOP), not latched by the watchdog (a latch stays:
+        # waited for, the STOPPED the served fleet may take a moment to apply, as the
+        # observer's questions come on a connection of their own, not after the STOP)
+        assert observer.wait_for(mca.RunState.STOPPED, time.monotonic() + DEADLINE_S) == {
+            mca.RunState.STOPPED}
     finally:
         observer.close()
         if remote.poll() is None:
