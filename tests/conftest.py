@@ -144,6 +144,27 @@ def pytest_configure_node(node) -> None:
     node.workerinput["ucom_terminal_env"] = {k: os.environ.get(k) for k in _TERMINAL}
 
 
+_LONGEST_FIRST = (
+    "test_deploy.py", "test_zenoh.py", "test_conformance_restore.py", "test_dbc_interop.py",
+    "test_dbc.py", "test_runtime.py", "test_zenoh_config.py", "test_shared_bus.py",
+    "test_remote.py", "test_multiserve.py", "test_network.py", "test_files.py",
+    "test_socketcand.py", "test_remote_network.py", "test_browse_tty.py", "test_signals.py",
+    "test_conformance.py", "test_decode.py", "test_conformance_mutants.py")
+"""The modules that take longest (``--durations``, serial; a minute and more for the first
+down to about ten seconds), handed out first under pytest-xdist (``--dist loadfile
+--no-loadscope-reorder``: a module stays on one worker, so its module-scoped fleets are
+built once): the last module a worker takes is then a short one, and the two workers end
+together.  A module not named here only comes later; none is left out."""
+
+
+def pytest_collection_modifyitems(config, items) -> None:
+    """(in a pytest-xdist worker) the longest modules first (:data:`_LONGEST_FIRST`); a
+    module's own tests keep their order, and a serial run its whole order."""
+    if hasattr(config, "workerinput"):
+        rank = {name: i for i, name in enumerate(_LONGEST_FIRST)}
+        items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
+
+
 def pytest_configure(config) -> None:
     _signals_as_a_shell_leaves_them()
     if hasattr(config, "workerinput"):

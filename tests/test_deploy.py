@@ -281,20 +281,21 @@ def test_armar3_deploys_then_a_second_deploy_touches_no_board_within_2x_of_init(
         assert all(running.values())
 
         def timed(work: Callable[[], object]) -> float:
-            best = float("inf")
-            for _ in range(3):
-                t0 = time.perf_counter()
-                work()
-                best = min(best, time.perf_counter() - t0)
-            return best
+            t0 = time.perf_counter()
+            work()
+            return time.perf_counter() - t0
 
         def again() -> None:
             j = ops.Journal.open(tmp_path / "j", topo.name)
             result = ops.execute(r, ops.plan(r, manifest, j), j)
             assert result.ok and len(result.plan.up_to_date) == 11
 
-        deploy_s = timed(again)
-        init_s = timed(lambda: r.each(enumerate_bus))
+        # each the best of five, taken in turns: a busy machine (other tests beside this
+        # one, under pytest-xdist) slows both alike, not the one measured while it was busy
+        deploy_s = init_s = float("inf")
+        for _ in range(5):
+            deploy_s = min(deploy_s, timed(again))
+            init_s = min(init_s, timed(lambda: r.each(enumerate_bus)))
         # nothing was reset, stopped or restarted: the same program objects run
         assert {k: b.application for k, b in boards.items()} == running
         assert deploy_s < 2 * init_s, (deploy_s, init_s)
