@@ -27,6 +27,7 @@ from ucom_tools.virtual import mutants
 from ucom_tools.virtual.board import Identity, VirtualBoard
 from ucom_tools.virtual.clock import FleetClock, RealtimeDriver
 from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
+from ucom_tools.wire.transfer import TransferPlan
 
 HOST_AHEAD_US = 2000.0
 """How far ahead of a lagging paced fleet's present a host's frame may be ready."""
@@ -303,13 +304,33 @@ def install_program(board: VirtualBoard, spec: BoardSpec, source: str, bus: str)
 
     assert spec.program is not None
     try:
-        image = load_image(spec.program)
+        stat = spec.program.stat()
+        key = (str(spec.program.resolve()), stat.st_mtime_ns, stat.st_size)
+        plan = _PLANS.get(key)
+        if plan is None:
+            plan = load_image(spec.program).plan(when_epoch=stat.st_mtime)
+            if len(_PLANS) >= PLANS_KEPT:
+                _PLANS.pop(next(iter(_PLANS)))
+            _PLANS[key] = plan
+    except OSError as err:
+        raise TopologyError(f"the S-record file it names cannot be read: "
+                            f"{err.strerror or err}", file=source, line=spec.line,
+                            key=f"{bus}, board {spec.position + 1} ({spec.placement}), "
+                            "program") from None
     except UcomError as err:
         raise TopologyError(f"the S-record file it names is not usable: {err}", file=source,
                             line=spec.line, key=f"{bus}, board {spec.position + 1} "
                             f"({spec.placement}), program") from None
-    board.nv.install(image.plan(when_epoch=spec.program.stat().st_mtime))
+    board.nv.install(plan)
     board.nv.record.autostart = spec.autostart
+
+
+PLANS_KEPT = 8
+"""Transfer plans of topology images kept (by file, modification time and size): a
+fleet's boards mostly run one image, and parsing it and planning its transfer costs
+about 30 ms a board (0.3 s for ARMAR-III, at every fleet a test or command builds)."""
+
+_PLANS: dict[tuple[str, int, int], TransferPlan] = {}
 
 
 _SHARED: dict[tuple[str, str, bool], Fleet] = {}
