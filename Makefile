@@ -1,5 +1,7 @@
 # ucom-tools: `make demo` sets up .venv and runs the main job on the virtual fleet;
-# `make test` runs lint, type checks and the test suite.
+# `make test` runs lint, type checks and the test suite (compiled, then the pure path);
+# `make compiled` builds the compiled run time (demo, test and bench do it first),
+# `make pure` removes it.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
