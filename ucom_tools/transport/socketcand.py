@@ -410,10 +410,7 @@ class SocketcandBus(can.BusABC):
             return 0
         except (OSError, ValueError) as err:  # ValueError: closed by shutdown() meanwhile
             raise self._lost(err) from err
-        if not chunk:
-            raise self._fail(f"socketcand {self._where} closed the connection")
-        self._arrival = time.time()
-        self._splitter.feed(chunk)
+        self._buffer(chunk)
         return len(chunk)
 
     def _read_more(self, timeout: float | None) -> bool:
@@ -433,11 +430,15 @@ class SocketcandBus(can.BusABC):
             return True
         except (OSError, ValueError) as err:  # ValueError: closed by shutdown() meanwhile
             raise self._lost(err) from err
+        self._buffer(chunk)
+        return True
+
+    def _buffer(self, chunk: bytes) -> None:
+        """What a read returned, for the splitter (nothing: the server closed)."""
         if not chunk:
             raise self._fail(f"socketcand {self._where} closed the connection")
         self._arrival = time.time()
         self._splitter.feed(chunk)
-        return True
 
     # ------------------------------------------------------------------ send
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
