@@ -448,10 +448,7 @@ class SocketcandBus(can.BusABC):
             data = send_bytes(msg)
         except ValueError as err:
             raise can.CanOperationError(f"socketcand {self._where} cannot send {err}") from err
-        if self._batch is not None and self._batch_thread == threading.get_ident():
-            self._batch.append(data)
-        else:
-            self._write(data, self.send_timeout if timeout is None else timeout)
+        self._put(data, timeout)
         if self.receive_own_messages:
             self._pending.append(can.Message(
                 timestamp=time.time(), arbitration_id=msg.arbitration_id,
@@ -470,14 +467,19 @@ class SocketcandBus(can.BusABC):
             return
         element = SEND_STD % (arbitration_id, n, hexlify(data, b" ").upper()) if n \
             else SEND_EMPTY % arbitration_id
-        if self._batch is not None and self._batch_thread == threading.get_ident():
-            self._batch.append(element)
-        else:
-            self._write(element, self.send_timeout if timeout is None else timeout)
+        self._put(element, timeout)
         if self.receive_own_messages:
             self._pending.append(can.Message(
                 timestamp=time.time(), arbitration_id=arbitration_id, is_extended_id=False,
                 data=bytes(data), is_rx=False, channel=self.channel))
+
+    def _put(self, element: bytes, timeout: float | None) -> None:
+        """Collect ``element`` when this thread holds a batch (:meth:`hold`), else write it
+        within ``timeout`` (default ``send_timeout``)."""
+        if self._batch is not None and self._batch_thread == threading.get_ident():
+            self._batch.append(element)
+        else:
+            self._write(element, self.send_timeout if timeout is None else timeout)
 
     def hold(self) -> None:
         """From now on the frames this thread sends are collected, not written, until
