@@ -70,8 +70,12 @@ class Link:
         self._inbox = inbox
         self._stop = threading.Event()
         self._wake = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="ucom-browse-link",
-                                        daemon=True)
+        # not a daemon: the interpreter waits for it at exit, so the session's close is
+        # over before Python finalizes (a daemon thread still inside Zenoh's close then
+        # is cut off by a forced unwind through the Rust runtime: SIGABRT, "FATAL:
+        # exception not rethrown", seen after SIGTERM); close() stops it within one
+        # connection attempt
+        self._thread = threading.Thread(target=self._run, name="ucom-browse-link")
 
     def start(self) -> None:
         self._thread.start()
