@@ -140,11 +140,15 @@ def measure(topology: Topology, seconds: float) -> dict[str, object]:
 
 def fleet_alone(topology: Topology, seconds: float) -> float:
     """Speed-up of the boards and buses alone: the exchange is started (watchdog 60 s),
-    then the PC neither sends nor reads; the fleet clock runs on its own."""
+    then the PC stops sending and its interfaces leave the buses (a PC that stays
+    attached and never reads would only pile up its frames: the PC side's cost, and its
+    garbage collector's); the fleet clock runs on its own."""
     fleet, exchanges, interfaces = robot(topology, alive_ms=60_000)
     try:
         for x in exchanges:
             x.stop_tasks()
+        for i in interfaces:
+            i.shutdown()
         wall = time.perf_counter()
         with fleet.clock.lock:
             fleet.clock.run_until(fleet.clock.now + seconds * 1e6)

@@ -26,7 +26,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Final
 
 log = logging.getLogger("ucom.bus")
 _heappush, _heappop = heapq.heappush, heapq.heappop
@@ -59,6 +59,33 @@ Event = tuple[float, int, int, Callable[..., None], tuple[Any, ...]]
 frames ready or ended, timers) runs before tier 1 (arbitration), then in order of
 scheduling."""
 
+_NATIVE: Final = not __file__.endswith(".py")
+"""This module runs compiled (:mod:`ucom_tools.compiled`): the events are
+:class:`_Scheduled` objects in a heap of the clock's own, compared in C; from source they
+are :data:`Event` tuples in a :mod:`heapq` heap, which is C too.  Both run the events in
+the same order: by time, tier, sequence (all distinct), whatever the heap's layout."""
+
+
+class _Scheduled:
+    """One event of a compiled clock: :data:`Event`'s fields, typed."""
+
+    def __init__(self, t: float, tier: int, seq: int, callback: Callable[..., None],
+                 args: tuple[Any, ...]) -> None:
+        self.t = t
+        self.tier = tier
+        self.seq = seq
+        self.callback = callback
+        self.args = args
+
+
+def _before(a: _Scheduled, b: _Scheduled) -> bool:
+    """``a`` runs before ``b``: (t, tier, seq) compared as :data:`Event` tuples are."""
+    if a.t != b.t:
+        return a.t < b.t
+    if a.tier != b.tier:
+        return a.tier < b.tier
+    return a.seq < b.seq
+
 
 class FleetClock:
     """Virtual time and the events of one fleet; ``lock`` guards the whole fleet."""
@@ -69,18 +96,66 @@ class FleetClock:
         self.changed = threading.Condition(self.lock)
         """Notified when frames went out (senders wait for room) or time was driven."""
         self._events: list[Event] = []
+        self._heap: list[_Scheduled] = []
         self._seq = itertools.count()
+        self._next_seq = 0
 
     def at(self, t: float, callback: Callable[..., None], *args: Any, tier: int = 0) -> None:
         """Call ``callback(t, *args)`` at virtual time ``t`` (never before ``now``)."""
         now = self.now
-        _heappush(self._events, (t if t > now else now, tier, next(self._seq), callback, args))
+        if _NATIVE:
+            seq = self._next_seq
+            self._next_seq = seq + 1
+            self._push(_Scheduled(t if t > now else now, tier, seq, callback, args))
+        else:
+            _heappush(self._events,
+                      (t if t > now else now, tier, next(self._seq), callback, args))
+
+    def _push(self, event: _Scheduled) -> None:
+        heap = self._heap
+        heap.append(event)
+        pos = len(heap) - 1
+        while pos > 0:  # sift up
+            parent = (pos - 1) >> 1
+            above = heap[parent]
+            if not _before(event, above):
+                break
+            heap[pos] = above
+            pos = parent
+        heap[pos] = event
+
+    def _pop(self) -> _Scheduled:
+        heap = self._heap
+        last = heap.pop()
+        if not heap:
+            return last
+        first = heap[0]
+        n = len(heap)
+        pos = 0
+        while True:  # sift the last one down from the top
+            child = 2 * pos + 1
+            if child >= n:
+                break
+            right = child + 1
+            if right < n and _before(heap[right], heap[child]):
+                child = right
+            below = heap[child]
+            if not _before(below, last):
+                break
+            heap[pos] = below
+            pos = child
+        heap[pos] = last
+        return first
 
     def next_event_time(self) -> float | None:
+        if _NATIVE:
+            return self._heap[0].t if self._heap else None
         return self._events[0][0] if self._events else None
 
     def quiet_until(self, t: float) -> bool:
         """True if no event is due at or before ``t``."""
+        if _NATIVE:
+            return not self._heap or self._heap[0].t > t
         return not self._events or self._events[0][0] > t
 
     def advance_to(self, t: float) -> None:
@@ -91,20 +166,34 @@ class FleetClock:
     def run_until(self, limit: float, stop: Callable[[], bool] | None = None) -> None:
         """Run every event due up to ``limit`` in time order, or until ``stop()`` turns
         true after an event; then time stands at ``limit`` (if finite and reached)."""
-        events = self._events
-        pop = _heappop
-        if stop is None:
-            while events and events[0][0] <= limit:
-                t, _tier, _seq, callback, args = pop(events)
+        if _NATIVE:
+            heap = self._heap
+            while heap and heap[0].t <= limit:
+                e = self._pop()
+                t = e.t
                 self.now = t
-                callback(t, *args)
-        else:
-            while events and events[0][0] <= limit:
-                t, _tier, _seq, callback, args = pop(events)
-                self.now = t
-                callback(t, *args)
-                if stop():
+                args = e.args
+                if args:
+                    e.callback(t, *args)
+                else:
+                    e.callback(t)
+                if stop is not None and stop():
                     return
+        else:
+            events = self._events
+            pop = _heappop
+            if stop is None:
+                while events and events[0][0] <= limit:
+                    t, _tier, _seq, callback, args = pop(events)
+                    self.now = t
+                    callback(t, *args)
+            else:
+                while events and events[0][0] <= limit:
+                    t, _tier, _seq, callback, args = pop(events)
+                    self.now = t
+                    callback(t, *args)
+                    if stop():
+                        return
         if limit != INF and self.now < limit:
             self.now = limit
 
