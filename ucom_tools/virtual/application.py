@@ -18,6 +18,8 @@ it announces itself with MCA Ready and serves the run-time protocol.
 
 from __future__ import annotations
 
+from typing import Final
+
 from ucom_tools.errors import FrameError
 from ucom_tools.plugons import board_name
 from ucom_tools.virtual.port import ProgramHost
@@ -29,7 +31,7 @@ from ucom_tools.wire.descriptor import ImageDescriptor
 from ucom_tools.wire.fpga import FPGA_BASE, FpgaVersion, Reg
 from ucom_tools.wire.ids import Address, Function
 
-STARTUP_US = 200.0
+STARTUP_US: Final = 200.0
 """Time from Start until the program has read the FPGA and decided."""
 
 

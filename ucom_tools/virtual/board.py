@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Final
 
 from ucom_tools.config.topology import Timing
 from ucom_tools.errors import FrameError
@@ -46,13 +47,14 @@ from ucom_tools.wire.ids import Address, Direction, Function, IdType, encode_id
 from ucom_tools.wire.info import BoardInfo
 from ucom_tools.wire.transfer import decode_date
 
-BOOTLOADER_VERSION = (1, 0)
-_FROM_BOARD = frozenset(f.value for f in Function if f.direction is Direction.BOARD_TO_HOST)
-_MCA_FROM_HOST = frozenset(f.value for f in Function if f.direction is Direction.HOST_TO_BOARD
-                           and f not in m.BOOTLOADER_FUNCTIONS)
-_PROGRAM = int(Function.PROGRAM)
-_MCA_CI = int(Function.MCA_CONTROLLER_INPUT)
-_SET_STATUS = int(Function.SET_STATUS)
+BOOTLOADER_VERSION: Final = (1, 0)
+_FROM_BOARD: Final = frozenset(f.value for f in Function if f.direction is Direction.BOARD_TO_HOST)
+_MCA_FROM_HOST: Final = frozenset(f.value for f in Function
+                                   if f.direction is Direction.HOST_TO_BOARD
+                                   and f not in m.BOOTLOADER_FUNCTIONS)
+_PROGRAM: Final = int(Function.PROGRAM)
+_MCA_CI: Final = int(Function.MCA_CONTROLLER_INPUT)
+_SET_STATUS: Final = int(Function.SET_STATUS)
 
 
 @dataclass(frozen=True)

@@ -18,16 +18,21 @@ OUTPUT_ENABLE, ...) is plain storage, ``registers[offset]``, holding 16-bit valu
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Final
 
 from ucom_tools.memory import is_fpga_address
 from ucom_tools.wire.fpga import QUAD_CHANNELS, FpgaVersion, Reg
 
 # the register map as plain ints (an IntEnum member costs a lookup on every use)
-_VERSION1, _VERSION2, _BOARD_ID, _STATUS = (int(Reg.VERSION1), int(Reg.VERSION2),
-                                            int(Reg.BOARD_ID), int(Reg.STATUS))
-_QUAD_COUNT0, _QUAD_PRESCALE0 = int(Reg.QUAD_COUNT0), int(Reg.QUAD_PRESCALE0)
-_DIGITAL_IN, _OUTPUT_ENABLE = int(Reg.DIGITAL_IN), int(Reg.OUTPUT_ENABLE)
-_READ_ONLY = frozenset((_VERSION1, _VERSION2, _BOARD_ID, _STATUS, _DIGITAL_IN))
+_VERSION1: Final = int(Reg.VERSION1)
+_VERSION2: Final = int(Reg.VERSION2)
+_BOARD_ID: Final = int(Reg.BOARD_ID)
+_STATUS: Final = int(Reg.STATUS)
+_QUAD_COUNT0: Final = int(Reg.QUAD_COUNT0)
+_QUAD_PRESCALE0: Final = int(Reg.QUAD_PRESCALE0)
+_DIGITAL_IN: Final = int(Reg.DIGITAL_IN)
+_OUTPUT_ENABLE: Final = int(Reg.OUTPUT_ENABLE)
+_READ_ONLY: Final = frozenset((_VERSION1, _VERSION2, _BOARD_ID, _STATUS, _DIGITAL_IN))
 
 
 @dataclass

@@ -16,23 +16,24 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Final
 
 from ucom_tools.virtual.fpga import QuadratureDecoder
 
-SUPPLY_V = 24.0
+SUPPLY_V: Final = 24.0
 """Motor supply [V] (Tab. 4.3)."""
-CURRENT_LIMIT_A = 5.0
+CURRENT_LIMIT_A: Final = 5.0
 """Current limit of each output stage [A] (Tab. 4.3)."""
-SUBSTEP_US = 100.0
+SUBSTEP_US: Final = 100.0
 """Integration substep [us]."""
-MOTOR_ENCODER_EDGES = 2048
+MOTOR_ENCODER_EDGES: Final = 2048
 """Motor encoder edges per motor revolution (512 lines, quadrature x4)."""
-JOINT_SENSOR_EDGES = 360_000
+JOINT_SENSOR_EDGES: Final = 360_000
 """Joint sensor edges per joint revolution (90 000 lines x4 = 1000 edges/degree)."""
 
-_TWO_PI = 2 * math.pi
-_SUBSTEP_S = SUBSTEP_US * 1e-6
-SUBSTEP_S = _SUBSTEP_S
+_TWO_PI: Final = 2 * math.pi
+_SUBSTEP_S: Final = SUBSTEP_US * 1e-6
+SUBSTEP_S: Final = _SUBSTEP_S
 """Integration substep [s]."""
 
 

@@ -9,6 +9,7 @@ import json
 from array import array
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Final
 
 from ucom_tools import fileio
 from ucom_tools.errors import InputError, UcomError
@@ -16,10 +17,10 @@ from ucom_tools.memory import P_FLASH_END, PAGE_WORDS, X_FLASH_END, X_FLASH_STAR
 from ucom_tools.wire.codes import Space
 from ucom_tools.wire.transfer import TransferPlan, encode_date
 
-BOOT_VECTORS = (0xE984, 0x8000, 0xE984, 0x8000)
+BOOT_VECTORS: Final = (0xE984, 0x8000, 0xE984, 0x8000)
 """P:0000-0003 as the bootloader keeps them: JMP 0x8000 (reset) and JMP 0x8000 (COP)."""
-P_WORDS = P_FLASH_END + 1
-X_WORDS = X_FLASH_END - X_FLASH_START + 1
+P_WORDS: Final = P_FLASH_END + 1
+X_WORDS: Final = X_FLASH_END - X_FLASH_START + 1
 
 
 @dataclass

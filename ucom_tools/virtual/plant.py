@@ -72,6 +72,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Final
 
 from ucom_tools.edgelists.armar3 import PWM_FULL
 from ucom_tools.virtual.fpga import VirtualFpga
@@ -87,23 +88,25 @@ from ucom_tools.virtual.motor import (
 )
 from ucom_tools.wire.fpga import Reg
 
-CURRENT_SENSE_V_PER_A = 0.5
+CURRENT_SENSE_V_PER_A: Final = 0.5
 """Current-sense gain [V/A], magnitude of the current."""
-ADC_FULL_SCALE_V = 3.3
-ADC_MAX = 4095
-ANALOG_INPUTS_V = (1.0, 2.0)
+ADC_FULL_SCALE_V: Final = 3.3
+ADC_MAX: Final = 4095
+ANALOG_INPUTS_V: Final = (1.0, 2.0)
 """The two analog inputs (ADC channels 6 and 7) [V]."""
-MAX_AXES = 3
+MAX_AXES: Final = 3
+_PWM_FULL: Final = PWM_FULL
 
-_PWM0, _OUTPUT_ENABLE = int(Reg.PWM0), int(Reg.OUTPUT_ENABLE)
+_PWM0: Final = int(Reg.PWM0)
+_OUTPUT_ENABLE: Final = int(Reg.OUTPUT_ENABLE)
 
-EYE_AXIS = AxisParams(motor_polarity=-1)
+EYE_AXIS: Final = AxisParams(motor_polarity=-1)
 """An ARMAR-III eye: wired so that the tree's ``Set Joint Moving Direction`` bit is needed."""
-UNUSED_AXIS = AxisParams(load_inertia=0.0, end_stops=None)
+UNUSED_AXIS: Final = AxisParams(load_inertia=0.0, end_stops=None)
 """A motor with nothing attached (the eyes board's Motor C)."""
-EYES_BOARD = (EYE_AXIS, EYE_AXIS, UNUSED_AXIS)
+EYES_BOARD: Final = (EYE_AXIS, EYE_AXIS, UNUSED_AXIS)
 """Right eye (A), left eye (B), unused (C): the B.5 "Eyes" board."""
-ARMAR3_BOARD = (EYE_AXIS, EYE_AXIS, EYE_AXIS)
+ARMAR3_BOARD: Final = (EYE_AXIS, EYE_AXIS, EYE_AXIS)
 """Three eye-like axes, each wired as every ARMAR-III tree expects (its ``Set Joint Moving
 Direction`` bit set): the plant of a virtual board whose joints are not known."""
 
@@ -113,7 +116,7 @@ def _adc(volts: float) -> int:
     return round((volts if volts > 0.0 else 0.0) / ADC_FULL_SCALE_V * ADC_MAX)
 
 
-_ADC_ZERO = _adc(0.0)
+_ADC_ZERO: Final = _adc(0.0)
 
 
 class ThreeAxisPlant:
@@ -156,7 +159,7 @@ class ThreeAxisPlant:
             volts: float | None = None
             if enabled >> k & 1:
                 pwm = registers[_PWM0 + k] & 0xFFFF
-                duty = (pwm - 0x10000 if pwm & 0x8000 else pwm) / PWM_FULL
+                duty = (pwm - 0x10000 if pwm & 0x8000 else pwm) / _PWM_FULL
                 duty = duty if duty < 1.0 else 1.0  # max(-1.0, min(1.0, duty))
                 duty = duty if duty > -1.0 else -1.0
                 volts = axis.p.motor_polarity * duty * SUPPLY_V

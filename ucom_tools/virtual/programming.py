@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
+from typing import Final
 
 from ucom_tools.virtual import mutants
 from ucom_tools.virtual.nvmem import ExtRamProgram, NonVolatile, external_ram
@@ -33,7 +34,7 @@ from ucom_tools.wire.codes import (
 from ucom_tools.wire.ids import Function
 from ucom_tools.wire.transfer import bytes_to_words
 
-_PROGRAM = int(Function.PROGRAM)
+_PROGRAM: Final = int(Function.PROGRAM)
 
 
 class BoardProgramming:

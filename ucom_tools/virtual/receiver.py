@@ -15,6 +15,7 @@ full is lost (overrun) and its slot stays empty.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Final
 
 from ucom_tools.config.topology import Timing
 from ucom_tools.memory import PROTECTED_KINDS, Kind, first_unprogrammable, page_refusal
@@ -36,7 +37,7 @@ from ucom_tools.wire.transfer import (
     progid_of_blocks,
 )
 
-META_FIELDS = frozenset(range(MetaField.NAME_0 + 7))
+META_FIELDS: Final = frozenset(range(MetaField.NAME_0 + 7))
 """Every META field a transfer must carry before PREPARE (ProgID, size, date, name)."""
 
 

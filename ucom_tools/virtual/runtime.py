@@ -19,6 +19,7 @@ import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from operator import itemgetter
+from typing import Final
 
 from ucom_tools.edgelists.model import EdgeKind, EdgeSpec, ProgramSpec
 from ucom_tools.errors import FrameError
@@ -30,24 +31,24 @@ from ucom_tools.wire.answers import AppReport
 from ucom_tools.wire.codes import ErrorCode
 from ucom_tools.wire.ids import Function
 
-_FORMAT = {(2, True): "h", (2, False): "H", (4, True): "i", (4, False): "I"}
-_MASK_TABLE = bytes(b ^ mca.MAP_MASK for b in range(256))
+_FORMAT: Final = {(2, True): "h", (2, False): "H", (4, True): "i", (4, False): "I"}
+_MASK_TABLE: Final = bytes(b ^ mca.MAP_MASK for b in range(256))
 """``bytes.translate`` table of :func:`ucom_tools.wire.mca.mask`."""
 
-FRAME_COST_US = 4.0
+FRAME_COST_US: Final = 4.0
 """Execution time the program spends per CAN frame it handles (added to the load)."""
-BLINK_CYCLES = 250
+BLINK_CYCLES: Final = 250
 """The green LED toggles every 250 cycles: 2 Hz at 1 ms, 6 Hz at 333 us."""
-OVERRUN_FLASH_US = 50_000.0
+OVERRUN_FLASH_US: Final = 50_000.0
 """The yellow LED lights this long after a cycle overran."""
-CAN_ERROR_FLASH_US = 50_000.0
+CAN_ERROR_FLASH_US: Final = 50_000.0
 """The red LED lights this long after a CAN error (an error frame, or a frame the program
 could not take)."""
-NO_FUNCTION = 0xFF
+NO_FUNCTION: Final = 0xFF
 """Error byte 1 when an error answers no frame (an overrun)."""
-LOAD_WINDOW = 100
+LOAD_WINDOW: Final = 100
 """The load figure is the share of the last completed window of this many cycles."""
-REPORT_EVERY = 1000
+REPORT_EVERY: Final = 1000
 """Errors that could repeat every cycle (an overrun, refused CI, a bad CI map frame) are
 sent for the first occurrence and then for every 1000th."""
 

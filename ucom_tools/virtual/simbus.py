@@ -31,7 +31,7 @@ import threading
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Final, Protocol
 
 from ucom_tools.virtual.clock import FleetClock
 from ucom_tools.wire.canbits import MAX_EXTENDED_ID, arbitration_key, frame_bits
@@ -40,7 +40,7 @@ _Entry = tuple[int, int, bytes, object, int, bool]
 """A frame ready to contend: arbitration key, token (the order queued), data, sender,
 identifier, extended."""
 
-TX_QUEUE = 32
+TX_QUEUE: Final = 32
 """Frames a host may have waiting for the bus before ``send`` blocks (real time only),
 like the transmit queue of a CAN adapter."""
 

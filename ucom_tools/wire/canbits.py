@@ -18,12 +18,13 @@ flash transfer stays cheap.
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import Final
 
-CRC15_POLY = 0x4599
-FIXED_TAIL_BITS = 1 + 2 + 7 + 3  # CRC delimiter, ACK slot + delimiter, EOF, IFS
-EXTENDED_HEADER_BITS = 39
+CRC15_POLY: Final = 0x4599
+FIXED_TAIL_BITS: Final = 1 + 2 + 7 + 3  # CRC delimiter, ACK slot + delimiter, EOF, IFS
+EXTENDED_HEADER_BITS: Final = 39
 """SOF to DLC of an extended frame: 1 + 11 + 1 + 1 + 18 + 1 + 1 + 1 + 4 bits."""
-MAX_EXTENDED_ID = 0x1FFFFFFF
+MAX_EXTENDED_ID: Final = 0x1FFFFFFF
 
 
 def unstuffed_bits(dlc: int, extended: bool = False) -> int:
@@ -58,7 +59,7 @@ def _crc_table() -> tuple[int, ...]:
     return tuple(table)
 
 
-_CRC_TABLE = _crc_table()
+_CRC_TABLE: Final = _crc_table()
 
 
 def crc15(value: int, nbits: int) -> int:
@@ -95,8 +96,8 @@ def _stuff_table() -> tuple[tuple[int, int], ...]:
     return tuple(table)
 
 
-_STUFF_TABLE = _stuff_table()
-_STUFF_INDEXED = tuple((s * 256, added) for s, added in _STUFF_TABLE)
+_STUFF_TABLE: Final = _stuff_table()
+_STUFF_INDEXED: Final = tuple((s * 256, added) for s, added in _STUFF_TABLE)
 """:data:`_STUFF_TABLE` with each next state as its index (state * 256)."""
 
 
@@ -137,7 +138,7 @@ def _extended_frame_bits(arbitration_id: int, data: bytes, remote: bool) -> int:
     return nbits + 15 + stuff_bits(region, nbits + 15) + FIXED_TAIL_BITS
 
 
-_HEADS: dict[int, tuple[int, int, int]] = {}
+_HEADS: Final[dict[int, tuple[int, int, int]]] = {}
 """Per identifier and DLC (``id << 4 | dlc``) of a data frame: the CRC register after the
 header (SOF to DLC, 19 bits, which :func:`crc15` pads to 3 bytes), and the stuffing state
 (index into the table) and stuff bits after its 17 bits behind SOF (up to DLC bit 0)."""

@@ -21,19 +21,19 @@ import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import ClassVar
+from typing import ClassVar, Final
 
 from ucom_tools.errors import FrameError
 from ucom_tools.wire.fields import check_enum, check_length, check_range
 from ucom_tools.wire.ids import Address, Function, IdType, decode_id, encode_id
 
-MAX_MAP = 31
+MAX_MAP: Final = 31
 """Process-data map numbers are 1..31 (the identifier's board-number field)."""
-MAP_SLOTS = 4
+MAP_SLOTS: Final = 4
 """A CI map carries up to four 16-bit values; an SO map up to 8 bytes of values."""
-NO_EDGE = 0xFF
+NO_EDGE: Final = 0xFF
 """An unused slot in a map definition."""
-PROCESS_DATA = 0x80
+PROCESS_DATA: Final = 0x80
 """Error function byte ``0x80 | 13``: the error is about a CI map frame (process data),
 not a generic MCA Controller Input frame."""
 
@@ -78,7 +78,9 @@ class AdminOp(IntEnum):
     """Forget every SO and CI map of this board."""
 
 
-ALIVE_MIN_MS, ALIVE_MAX_MS, ALIVE_DEFAULT_MS = 10, 60000, 50
+ALIVE_MIN_MS: Final = 10
+ALIVE_MAX_MS: Final = 60000
+ALIVE_DEFAULT_MS: Final = 50
 
 
 # ----------------------------------------------------------------------------- values
@@ -168,9 +170,9 @@ class McaReady:
                    data[4], data[5], data[6], data[7])
 
 
-FLAG_OVERRUN = 0x01
+FLAG_OVERRUN: Final = 0x01
 """McaReady.flags: a cycle overran since the last MCA Ready."""
-FLAG_LATCHED_BY_WATCHDOG = 0x02
+FLAG_LATCHED_BY_WATCHDOG: Final = 0x02
 
 
 @dataclass(frozen=True, slots=True)
@@ -237,8 +239,8 @@ class DescrRequest:
         return cls(check_enum(Kind, "DumpIO kind", data[0]), data[1])
 
 
-_DESCR_HEAD = struct.Struct(">BbiI")
-DESCR_SEGMENT = 6
+_DESCR_HEAD: Final = struct.Struct(">BbiI")
+DESCR_SEGMENT: Final = 6
 """Record bytes per MCA DumpIO Descr frame."""
 
 
@@ -445,13 +447,13 @@ class Alive:
         return cls()
 
 
-MAP_MASK = 0x55
+MAP_MASK: Final = 0x55
 """Every byte of a process-data payload travels XOR 0x55 (``man/ucom-protocol.7``, RUN
 TIME, Process data): values at rest (0, -1, small numbers: long runs of equal bits) would
 otherwise need up to 20 stuff bits per frame; masked, they need almost none, which keeps
 a fully loaded bus's load close to its nominal figure (Nolte et al., *Reducing the number
 of stuff bits in CAN frames*, 2001)."""
-_MASK_TABLE = bytes(b ^ MAP_MASK for b in range(256))
+_MASK_TABLE: Final = bytes(b ^ MAP_MASK for b in range(256))
 
 
 def mask(data: bytes | bytearray) -> bytes:
@@ -489,7 +491,7 @@ class MapFrame:
 McaMessage = (EdgeWrite | McaReady | McaStart | DescrRequest | DescrSegment | DumpRequest
               | DumpValues | AdminData | Alive | MapFrame)
 
-MCA_FUNCTIONS = frozenset({
+MCA_FUNCTIONS: Final = frozenset({
     Function.MCA_CONTROLLER_INPUT, Function.MCA_SENSOR_OUTPUT, Function.MCA_PARAMETER,
     Function.MCA_READY, Function.MCA_START, Function.MCA_DUMPIO_DESCR_REQUEST,
     Function.MCA_DUMPIO_DESCR, Function.MCA_DUMP_CI, Function.MCA_ADMIN_DATA,

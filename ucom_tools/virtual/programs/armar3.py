@@ -75,13 +75,15 @@ three axes and its plant.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Final
 
-from ucom_tools.edgelists.armar3 import AXES, SPEC, Command
+from ucom_tools.edgelists.armar3 import AXES, SPEC
 from ucom_tools.edgelists.model import EdgeKind, ProgramSpec
 from ucom_tools.virtual.plant import ARMAR3_BOARD, AxisParams, ThreeAxisPlant
 from ucom_tools.virtual.programs.armar3_axis import (  # the constants re-exported
     _AD_CHANNEL6,
     _AD_CHANNEL7,
+    _CMD_OFF,
     _OUTPUT_ENABLE,
     _PAR,
     _PWM0,
@@ -111,6 +113,8 @@ __all__ = ["AXIS_US", "BASE_US", "HOMED", "HOMING", "HOMING_FAILED", "HOMING_TIM
            "LIMIT_APPROACH_PER_S", "NEVER_HOMED", "SETTLED_COUNTS", "SETTLED_SPEED",
            "SETTLED_US", "SPEC", "STALL_COUNTS", "STALL_CURRENT_MV", "STALL_US",
            "STANDSTILL_US", "VELOCITY_FILTER_US", "Armar3Model", "make"]
+
+_N_AXES: Final = len(AXES)
 
 
 @dataclass(frozen=True, slots=True)
@@ -195,7 +199,7 @@ class Armar3Model:
             self._quiet = _Quiet(
                 counts, ci, adc, list(self.so), dt_us, not self._stopped,
                 tuple([a.settled_us != 0.0 for a in self.axes]),
-                (*registers[_PWM0:_PWM0 + len(AXES)], registers[_OUTPUT_ENABLE]),
+                (*registers[_PWM0:_PWM0 + _N_AXES], registers[_OUTPUT_ENABLE]),
                 work)
         return work
 
@@ -227,7 +231,7 @@ class Armar3Model:
             if control:
                 k = a.k
                 registers[_PWM0 + k] = pwm & 0xFFFF  # as VirtualFpga.write(PWM0 + k, pwm)
-                if a.command != Command.OFF:
+                if a.command != _CMD_OFF:
                     enable |= 1 << k
             if a.active:
                 active += 1

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Final
 
 from ucom_tools.edgelists.armar3 import AXES, SPEC, Command
 from ucom_tools.edgelists.model import EdgeKind
@@ -16,33 +17,36 @@ from ucom_tools.virtual.fpga import QuadratureDecoder
 from ucom_tools.virtual.programs.base import Hardware
 from ucom_tools.wire.fpga import Reg
 
-BASE_US = 100.0
+BASE_US: Final = 100.0
 """Execution time of a cycle with every controller off [us]."""
-AXIS_US = 200.0
+AXIS_US: Final = 200.0
 """Additional execution time per active axis [us]."""
-VELOCITY_FILTER_US = 2000.0
+VELOCITY_FILTER_US: Final = 2000.0
 """Time constant of the velocity low-pass [us]."""
-STANDSTILL_US = 200_000.0
+STANDSTILL_US: Final = 200_000.0
 """No count change for this long: velocity 0 [us]."""
-SETTLED_COUNTS = 5
+SETTLED_COUNTS: Final = 5
 """Position tolerance of Settled [counts]."""
-SETTLED_SPEED = 50.0
+SETTLED_SPEED: Final = 50.0
 """Velocity threshold of Settled [counts/s]."""
-SETTLED_US = 20_000.0
+SETTLED_US: Final = 20_000.0
 """How long both must hold before Settled is 1 [us]."""
-LIMIT_APPROACH_PER_S = 20.0
+LIMIT_APPROACH_PER_S: Final = 20.0
 """In VELOCITY mode the speed towards a position limit is at most this gain [1/s] times the
 distance left: braking starts 50 counts before the limit at 1000 counts/s."""
-STALL_COUNTS = 2
+STALL_COUNTS: Final = 2
 """Homing: the end stop is reached when the joint counter moves by at most this ..."""
-STALL_US = 20_000.0
+STALL_US: Final = 20_000.0
 """... for this long [us] while driving ..."""
-STALL_CURRENT_MV = 100.0
+STALL_CURRENT_MV: Final = 100.0
 """... and the current sense reads at least this [mV] (0.2 A at 0.5 V/A)."""
 HOMING_TIMEOUT_US = 20_000_000.0
 """Homing fails (Reset Answer -1) without a stall within this time [us]."""
 
-NEVER_HOMED, HOMING, HOMED, HOMING_FAILED = 0, 1, 2, -1
+NEVER_HOMED: Final = 0
+HOMING: Final = 1
+HOMED: Final = 2
+HOMING_FAILED: Final = -1
 """Values of ``MotorX Reset Answer``."""
 
 
@@ -50,7 +54,9 @@ def _indices(kind: EdgeKind) -> dict[str, int]:
     return {e.name: i for i, e in enumerate(SPEC.of(kind))}
 
 
-_CI, _SO, _PAR = (_indices(k) for k in (EdgeKind.CI, EdgeKind.SO, EdgeKind.PAR))
+_CI: Final = _indices(EdgeKind.CI)
+_SO: Final = _indices(EdgeKind.SO)
+_PAR: Final = _indices(EdgeKind.PAR)
 
 
 def _per_axis(table: dict[str, int], pattern: str) -> tuple[int, ...]:
@@ -59,22 +65,30 @@ def _per_axis(table: dict[str, int], pattern: str) -> tuple[int, ...]:
     return tuple(table[pattern.format(a=a, j=2 * k, m=2 * k + 1)] for k, a in enumerate(AXES))
 
 
-_COMMAND = _per_axis(_CI, "Motor{a} Command")
-_TARGET = _per_axis(_CI, "Motor{a} Target")
-_TARGET_VEL = _per_axis(_CI, "Motor{a} TargetVel")
-_RESET_OFFSET = _per_axis(_CI, "Motor{a} Reset Offset")
-_JOINT_ENCODER = _per_axis(_SO, "Encoder {j}")
-_MOTOR_ENCODER = _per_axis(_SO, "Encoder {m}")
-_VOLTAGE = _per_axis(_SO, "Voltage {a}")
-_RESET_ANSWER = _per_axis(_SO, "Motor{a} Reset Answer")
-_VELOCITY = _per_axis(_SO, "Velocity {a}")
-_SETTLED = _per_axis(_SO, "Motor {a} Settled")
-_AD_CHANNEL6, _AD_CHANNEL7 = _SO["AD Channel 6"], _SO["AD Channel 7"]
+_COMMAND: Final = _per_axis(_CI, "Motor{a} Command")
+_TARGET: Final = _per_axis(_CI, "Motor{a} Target")
+_TARGET_VEL: Final = _per_axis(_CI, "Motor{a} TargetVel")
+_RESET_OFFSET: Final = _per_axis(_CI, "Motor{a} Reset Offset")
+_JOINT_ENCODER: Final = _per_axis(_SO, "Encoder {j}")
+_MOTOR_ENCODER: Final = _per_axis(_SO, "Encoder {m}")
+_VOLTAGE: Final = _per_axis(_SO, "Voltage {a}")
+_RESET_ANSWER: Final = _per_axis(_SO, "Motor{a} Reset Answer")
+_VELOCITY: Final = _per_axis(_SO, "Velocity {a}")
+_SETTLED: Final = _per_axis(_SO, "Motor {a} Settled")
+_AD_CHANNEL6: Final = _SO["AD Channel 6"]
+_AD_CHANNEL7: Final = _SO["AD Channel 7"]
 
-_CONTROLLED = (Command.POSITION, Command.VELOCITY, Command.HOMING)
+_CMD_OFF: Final = int(Command.OFF)
+_CMD_POSITION: Final = int(Command.POSITION)
+_CMD_VELOCITY: Final = int(Command.VELOCITY)
+_CMD_HOMING: Final = int(Command.HOMING)
+# the commands as plain ints (an IntEnum member costs a lookup on every use)
+_CONTROLLED: Final = (_CMD_POSITION, _CMD_VELOCITY, _CMD_HOMING)
 """The Commands that run a controller (any other value is OFF)."""
-_QUAD_COUNT0, _QUAD_PRESCALE0 = int(Reg.QUAD_COUNT0), int(Reg.QUAD_PRESCALE0)
-_PWM0, _OUTPUT_ENABLE = int(Reg.PWM0), int(Reg.OUTPUT_ENABLE)
+_QUAD_COUNT0: Final = int(Reg.QUAD_COUNT0)
+_QUAD_PRESCALE0: Final = int(Reg.QUAD_PRESCALE0)
+_PWM0: Final = int(Reg.PWM0)
+_OUTPUT_ENABLE: Final = int(Reg.OUTPUT_ENABLE)
 
 
 def _signed16(value: int) -> int:
@@ -112,7 +126,7 @@ class _Config:
     """... and 2k+1."""
 
 
-_AXIS_SLOTS = ("active", "anchor", "ci_slots", "command", "hold", "homing_us",
+_AXIS_SLOTS: Final = ("active", "anchor", "ci_slots", "command", "hold", "homing_us",
                "joint_channel", "joint_position", "joint_view", "k", "motor_channel",
                "motor_position", "motor_view", "pos_previous", "pos_sum", "pwm", "raw",
                "reset_answer", "sensed", "settled", "settled_us", "since_us", "so_slots",
@@ -184,7 +198,7 @@ class _Axis:
         it last changed, no homing under way."""
         return (self.raw == 0.0 and self.value == 0.0 and self.joint_position == self.anchor
                 and self.sensed and self.since_us > 0
-                and not (self.command == Command.HOMING and self.hold is None))
+                and not (self.command == _CMD_HOMING and self.hold is None))
 
     def state(self) -> tuple[object, ...]:
         """Everything a cycle reads or writes but the time since the count changed and
@@ -255,18 +269,18 @@ class _Axis:
             command_slot, target_slot, target_vel_slot, reset_offset_slot = self.ci_slots
             command = ci[command_slot]
             if command not in _CONTROLLED:
-                command = Command.OFF
+                command = _CMD_OFF
             if command != self.command or resumed:
                 self._enter(command, resumed)
                 self.command = command
-            self.active = command != Command.OFF
+            self.active = command != _CMD_OFF
             goal: int | None = None
-            if command == Command.OFF:
+            if command == _CMD_OFF:
                 pwm = 0.0
-            elif command == Command.HOMING and self.hold is None:
+            elif command == _CMD_HOMING and self.hold is None:
                 self._home(hw, c, ci[reset_offset_slot], dt_us)
                 pwm = self.pwm
-            elif command == Command.VELOCITY:
+            elif command == _CMD_VELOCITY:
                 target_vel = ci[target_vel_slot]
                 v_cmd = _clamp(target_vel, -c.v_max, c.v_max)
                 if c.p > 0:
@@ -362,7 +376,7 @@ class _Axis:
         if self.reset_answer == HOMING:  # left HOMING before the stall
             self.reset_answer = HOMING_FAILED
         self.hold = None
-        if command == Command.HOMING:
+        if command == _CMD_HOMING:
             if resumed:
                 self.hold = self.joint_position
             else:
@@ -391,6 +405,6 @@ class _Axis:
             self.pwm = _clamp(c.reset_pwm, -c.max_pwm, c.max_pwm)
 
 
-_STATE = tuple(sorted(set(_AXIS_SLOTS) - {"since_us", "settled_us", "so_slots",
+_STATE: Final = tuple(sorted(set(_AXIS_SLOTS) - {"since_us", "settled_us", "so_slots",
                                                 "ci_slots"}))
 """What :meth:`_Axis.state` compares."""

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+from typing import Final
+
 from ucom_tools.edgelists.model import ProgramSpec
 
-BASE_US = 100.0
+BASE_US: Final = 100.0
 """The MCA loop with nothing to control (dissertation 5.4.2: circa 100 us at 1 ms)."""
 
 

@@ -116,23 +116,23 @@ __all__ = [  # the program's names and, as before, the board's and the leg's
     "Lauron4Model", "LegPlant", "make"]
 
 # ---------------------------------------------------------------- the program's constants
-SETTLED_COUNTS = 10
+SETTLED_COUNTS: Final = 10
 """Position tolerance of Settled [0.01 deg]."""
-SETTLED_SPEED = 200.0
+SETTLED_SPEED: Final = 200.0
 """Velocity tolerance of Settled [0.01 deg/s]: two motor-encoder counts per 1 ms cycle
 (one count is 98)."""
-SETTLED_US = 20_000.0
+SETTLED_US: Final = 20_000.0
 """How long the tolerances must hold [us]."""
-HOMING_FAST = 2000.0
+HOMING_FAST: Final = 2000.0
 """Homing speed up to the reference mark and back off it [0.01 deg/s]."""
-HOMING_SLOW = 200.0
+HOMING_SLOW: Final = 200.0
 """Homing speed onto the mark [0.01 deg/s]: the mark is found to 0.002 deg at 1 ms."""
 HOMING_TIMEOUT_US = 30_000_000.0
-BASE_US = 100.0
+BASE_US: Final = 100.0
 """Execution time of a cycle with nothing driven and no foot [us]."""
-FOOT_US = 30.0
+FOOT_US: Final = 30.0
 """Foot-force filtering and contact, when a foot sensor is configured [us]."""
-AXIS_US = 200.0
+AXIS_US: Final = 200.0
 """Per driven axis (control or homing) [us]."""
 
 class _Homing:
@@ -150,51 +150,62 @@ class _Homing:
     """Referenced, holding at the mark until every axis is done."""
 
 
-_SEARCHING = (_Homing.SEEK, _Homing.LEAVE, _Homing.APPROACH)
+_SEARCHING: Final = (_Homing.SEEK, _Homing.LEAVE, _Homing.APPROACH)
 
 
 def _indices(kind: EdgeKind) -> dict[str, int]:
     return {e.name: i for i, e in enumerate(SPEC.of(kind))}
 
 
-_CI, _SO, _PAR = (_indices(k) for k in (EdgeKind.CI, EdgeKind.SO, EdgeKind.PAR))
+_CI: Final = _indices(EdgeKind.CI)
+_SO: Final = _indices(EdgeKind.SO)
+_PAR: Final = _indices(EdgeKind.PAR)
 
 
 def _axis_indices(table: dict[str, int], pattern: str) -> tuple[int, ...]:
     return tuple(table[pattern.format(n=n + 1)] for n in range(AXES))
 
 
-_SETPOINT = _axis_indices(_CI, "Axis{n} Position Setpoint")
-_VEL_SETPOINT = _axis_indices(_CI, "Axis{n} Velocity Setpoint")
-_TORQUE = _axis_indices(_CI, "Axis{n} Torque Limit(%)")
-_POSITION = _axis_indices(_SO, "Axis{n} Position")
-_VELOCITY = _axis_indices(_SO, "Axis{n} Velocity")
-_CURRENT = _axis_indices(_SO, "Axis{n} Motor Current")
-_FORCE = tuple(_SO[f"Foot Force {a}"] for a in "XYZ")
-_KP = _axis_indices(_PAR, "Axis{n} Position Kp")
-_VKP = _axis_indices(_PAR, "Axis{n} Velocity Kp")
-_VKI = _axis_indices(_PAR, "Axis{n} Velocity Ki")
-_VLIMIT = _axis_indices(_PAR, "Axis{n} Velocity Limit")
-_ILIMIT = _axis_indices(_PAR, "Axis{n} Current Limit(mA)")
-_UPPER = _axis_indices(_PAR, "Axis{n} Upper Limit")
-_LOWER = _axis_indices(_PAR, "Axis{n} Lower Limit")
-_OFFSET = _axis_indices(_PAR, "Axis{n} Reference Offset")
-_LEG_MODE, _REFERENCE_RUN = _CI["Leg Mode"], _CI["Reference Run"]
-_GROUND_CONTACT, _LEG_STATUS = _SO["Ground Contact"], _SO["Leg Status(BitMask)"]
-_SUPPLY_VOLTAGE = _SO["Supply Voltage(mV)"]
-_PWM_LIMIT, _ENCODER_DIRECTION = _PAR["PWM Limit"], _PAR["Encoder Direction(BitMask)"]
-_MOTOR_DIRECTION = _PAR["Motor Direction(BitMask)"]
-_CONTACT_THRESHOLD = _PAR["Ground Contact Threshold(N)"]
-_FOOT_FILTER = _PAR["Foot Force Filter(ms)"]
+_SETPOINT: Final = _axis_indices(_CI, "Axis{n} Position Setpoint")
+_VEL_SETPOINT: Final = _axis_indices(_CI, "Axis{n} Velocity Setpoint")
+_TORQUE: Final = _axis_indices(_CI, "Axis{n} Torque Limit(%)")
+_POSITION: Final = _axis_indices(_SO, "Axis{n} Position")
+_VELOCITY: Final = _axis_indices(_SO, "Axis{n} Velocity")
+_CURRENT: Final = _axis_indices(_SO, "Axis{n} Motor Current")
+_FORCE: Final = tuple(_SO[f"Foot Force {a}"] for a in "XYZ")
+_KP: Final = _axis_indices(_PAR, "Axis{n} Position Kp")
+_VKP: Final = _axis_indices(_PAR, "Axis{n} Velocity Kp")
+_VKI: Final = _axis_indices(_PAR, "Axis{n} Velocity Ki")
+_VLIMIT: Final = _axis_indices(_PAR, "Axis{n} Velocity Limit")
+_ILIMIT: Final = _axis_indices(_PAR, "Axis{n} Current Limit(mA)")
+_UPPER: Final = _axis_indices(_PAR, "Axis{n} Upper Limit")
+_LOWER: Final = _axis_indices(_PAR, "Axis{n} Lower Limit")
+_OFFSET: Final = _axis_indices(_PAR, "Axis{n} Reference Offset")
+_LEG_MODE: Final = _CI["Leg Mode"]
+_REFERENCE_RUN: Final = _CI["Reference Run"]
+_GROUND_CONTACT: Final = _SO["Ground Contact"]
+_LEG_STATUS: Final = _SO["Leg Status(BitMask)"]
+_SUPPLY_VOLTAGE: Final = _SO["Supply Voltage(mV)"]
+_PWM_LIMIT: Final = _PAR["PWM Limit"]
+_ENCODER_DIRECTION: Final = _PAR["Encoder Direction(BitMask)"]
+_MOTOR_DIRECTION: Final = _PAR["Motor Direction(BitMask)"]
+_CONTACT_THRESHOLD: Final = _PAR["Ground Contact Threshold(N)"]
+_FOOT_FILTER: Final = _PAR["Foot Force Filter(ms)"]
 
 # the enums' members as plain ints for the code that runs every cycle (an IntEnum member
 # costs a lookup on every use)
-_OFF, _VELOCITY_MODE = int(LegMode.OFF), int(LegMode.VELOCITY)
-_COMPLIANT = int(LegMode.COMPLIANT)
-_REFERENCED, _SETTLED = int(Status.REFERENCED), int(Status.SETTLED)
-_LIMIT_HIT, _OVER_CURRENT = int(Status.LIMIT_HIT), int(Status.OVER_CURRENT)
-_QUAD_COUNT0, _QUAD_PRESCALE0 = int(Reg.QUAD_COUNT0), int(Reg.QUAD_PRESCALE0)
-_PWM0, _OUTPUT_ENABLE, _DIGITAL_IN = int(Reg.PWM0), int(Reg.OUTPUT_ENABLE), int(Reg.DIGITAL_IN)
+_OFF: Final = int(LegMode.OFF)
+_VELOCITY_MODE: Final = int(LegMode.VELOCITY)
+_COMPLIANT: Final = int(LegMode.COMPLIANT)
+_REFERENCED: Final = int(Status.REFERENCED)
+_SETTLED: Final = int(Status.SETTLED)
+_LIMIT_HIT: Final = int(Status.LIMIT_HIT)
+_OVER_CURRENT: Final = int(Status.OVER_CURRENT)
+_QUAD_COUNT0: Final = int(Reg.QUAD_COUNT0)
+_QUAD_PRESCALE0: Final = int(Reg.QUAD_PRESCALE0)
+_PWM0: Final = int(Reg.PWM0)
+_OUTPUT_ENABLE: Final = int(Reg.OUTPUT_ENABLE)
+_DIGITAL_IN: Final = int(Reg.DIGITAL_IN)
 
 
 class _Axis:

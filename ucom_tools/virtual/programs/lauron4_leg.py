@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import replace
+from typing import Final
 
 from ucom_tools.edgelists.lauron4 import AXES, PWM_FULL
 from ucom_tools.virtual.fpga import VirtualFpga
@@ -25,29 +26,29 @@ from ucom_tools.virtual.plant import (
 from ucom_tools.wire.fpga import Reg
 
 # ---------------------------------------------------------------- the drive and the board
-MOTOR_RESISTANCE = 2.0
+MOTOR_RESISTANCE: Final = 2.0
 """Armature resistance of every joint motor [ohm] (the program's motor model)."""
-MOTOR_KE = 0.03
+MOTOR_KE: Final = 0.03
 """Back-EMF constant = torque constant [V s/rad = N m/A]."""
-GEAR_RATIO = 180.0
-JOINT_PRESCALER = 10
+GEAR_RATIO: Final = 180.0
+JOINT_PRESCALER: Final = 10
 """1000 joint-sensor edges per degree / 10 = one count per 0.01 deg."""
-UNIT_RAD = math.pi / 18000
+UNIT_RAD: Final = math.pi / 18000
 """0.01 deg in rad."""
-MOTOR_COUNTS_PER_UNIT = MOTOR_ENCODER_EDGES * GEAR_RATIO / 36000
+MOTOR_COUNTS_PER_UNIT: Final = MOTOR_ENCODER_EDGES * GEAR_RATIO / 36000
 """Motor-encoder counts per 0.01 deg of the joint (10.24)."""
-ADC_MID = 2048
+ADC_MID: Final = 2048
 """ADC reading of 0 N at the foot sensor."""
-FORCE_DECI_N_PER_LSB = 2
+FORCE_DECI_N_PER_LSB: Final = 2
 """Foot sensor: 0.2 N per LSB."""
-SUPPLY_MV_PER_LSB = 10
-CURRENT_MA_PER_LSB = ADC_FULL_SCALE_V / ADC_MAX / CURRENT_SENSE_V_PER_A * 1000
+SUPPLY_MV_PER_LSB: Final = 10
+CURRENT_MA_PER_LSB: Final = ADC_FULL_SCALE_V / ADC_MAX / CURRENT_SENSE_V_PER_A * 1000
 """mA per LSB of the current sense (1.61)."""
-ADC_FORCE = (3, 4, 5)
-ADC_SUPPLY = 6
+ADC_FORCE: Final = (3, 4, 5)
+ADC_SUPPLY: Final = 6
 
 
-_PWM0 = int(Reg.PWM0)
+_PWM0: Final = int(Reg.PWM0)
 
 
 def _signed16(value: int) -> int:
@@ -61,39 +62,41 @@ def _clamp(value: float, low: float, high: float) -> float:
 
 
 # ---------------------------------------------------------------- the leg
-COXA, FEMUR, TIBIA = 0.10, 0.20, 0.25
+COXA: Final = 0.10
+FEMUR: Final = 0.20
+TIBIA: Final = 0.25
 """Segment lengths [m]: alpha axis to beta axis, beta to gamma, gamma to the foot."""
-GROUND_Z = -0.26
+GROUND_Z: Final = -0.26
 """Ground height below the beta axis [m] (the body held at a fixed height): at alpha =
 beta = gamma = 0 the foot is 1 cm above it."""
-GROUND_STIFFNESS = 20_000.0
+GROUND_STIFFNESS: Final = 20_000.0
 """Normal stiffness of the ground contact [N/m]."""
-GROUND_DAMPING = 150.0
+GROUND_DAMPING: Final = 150.0
 """Normal damping [N s/m] (only while pressing, the ground never pulls)."""
-TANGENT_STIFFNESS = 10_000.0
+TANGENT_STIFFNESS: Final = 10_000.0
 """Stiffness of the foot's grip on the ground [N/m]."""
-TANGENT_DAMPING = 100.0
-FRICTION = 0.6
+TANGENT_DAMPING: Final = 100.0
+FRICTION: Final = 0.6
 """Coulomb friction coefficient: the foot slips when the grip exceeds FRICTION x Fz."""
 
-_DRIVE = AxisParams(resistance=MOTOR_RESISTANCE, torque_constant=MOTOR_KE,
+_DRIVE: Final = AxisParams(resistance=MOTOR_RESISTANCE, torque_constant=MOTOR_KE,
                     rotor_inertia=3.0e-6, viscous_friction=1.0e-5, coulomb_friction=1.0e-3,
                     gear_ratio=GEAR_RATIO)
-_DEG = math.pi / 180
-LEG_JOINTS = (
+_DEG: Final = math.pi / 180
+LEG_JOINTS: Final = (
     replace(_DRIVE, load_inertia=0.04, end_stops=(-100 * _DEG, 100 * _DEG)),
     replace(_DRIVE, load_inertia=0.03, end_stops=(-70 * _DEG, 130 * _DEG)),
     replace(_DRIVE, load_inertia=0.01, end_stops=(-150 * _DEG, 50 * _DEG)),
 )
 """Alpha, beta, gamma of a left leg (joint inertia with the rotor: 0.137, 0.127, 0.107
 kg m^2; peak torque at 4 A: 21.6 N m).  A right leg: alpha with ``motor_polarity`` -1."""
-HEAD_JOINTS = (
+HEAD_JOINTS: Final = (
     replace(_DRIVE, load_inertia=0.01, end_stops=(-170 * _DEG, 170 * _DEG)),
     replace(_DRIVE, load_inertia=0.005, end_stops=(-70 * _DEG, 70 * _DEG)),
     replace(_DRIVE, load_inertia=0.0, end_stops=None),
 )
 """Pan, tilt, and the unused axis 3 of the camera head."""
-_NO_TORQUES = (0.0,) * AXES
+_NO_TORQUES: Final = (0.0,) * AXES
 """The ground's torques on the joints out of contact."""
 
 
