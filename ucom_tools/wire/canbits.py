@@ -97,8 +97,9 @@ def _stuff_table() -> tuple[tuple[int, int], ...]:
 
 
 _STUFF_TABLE: Final = _stuff_table()
-_STUFF_INDEXED: Final = tuple((s * 256, added) for s, added in _STUFF_TABLE)
-""":data:`_STUFF_TABLE` with each next state as its index (state * 256)."""
+_STUFF_PACKED: Final = tuple(s * 256 | added << 16 for s, added in _STUFF_TABLE)
+""":data:`_STUFF_TABLE` as one int per entry: the next state as its index (state * 256) in
+the low 16 bits, the stuff bits added above them (no tuple to unpack per byte)."""
 
 
 def stuff_bits(region: int, nbits: int) -> int:
@@ -177,13 +178,20 @@ def frame_bits(arbitration_id: int, data: bytes, remote: bool = False,
         head = _HEADS[key] = _head(arbitration_id, dlc)
     crc, state, added = head
     table = _CRC_TABLE
+    stuff = _STUFF_PACKED
+    # the bits after the head, DLC bit 0, the data and the CRC, stuffed a byte at a time:
+    # each byte to stuff is the previous data bit (``carry``; first DLC bit 0) and the
+    # data byte's 7 high bits; the last two bytes the last data bit and the CRC
+    carry = dlc & 1
     for byte in data:
         crc = ((crc << 8) & 0x7FFF) ^ table[((crc >> 7) ^ byte) & 0xFF]
-    tail = ((dlc & 1) << (8 * dlc + 15)) | (int.from_bytes(data, "big") << 15) | crc
-    stuff = _STUFF_INDEXED
-    for byte in tail.to_bytes(dlc + 2, "big"):
-        state, a = stuff[state + byte]
-        added += a
+        step = stuff[state + (carry << 7 | byte >> 1)]
+        state = step & 0xFFFF
+        added += step >> 16
+        carry = byte & 1
+    last = carry << 15 | crc
+    step = stuff[state + (last >> 8)]
+    added += (step >> 16) + (stuff[(step & 0xFFFF) + (last & 0xFF)] >> 16)
     return 34 + 8 * dlc + added + FIXED_TAIL_BITS
 
 
