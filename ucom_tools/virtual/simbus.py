@@ -26,7 +26,6 @@ paced to the wall clock (:class:`~ucom_tools.virtual.clock.RealtimeDriver`).
 from __future__ import annotations
 
 import heapq
-import itertools
 import threading
 from collections import Counter, deque
 from collections.abc import Callable
@@ -39,6 +38,10 @@ from ucom_tools.wire.canbits import MAX_EXTENDED_ID, arbitration_key, frame_bits
 _Entry = tuple[int, int, bytes, object, int, bool]
 """A frame ready to contend: arbitration key, token (the order queued), data, sender,
 identifier, extended."""
+
+_heappush: Final = heapq.heappush
+_heappop: Final = heapq.heappop
+_frame_bits: Final = frame_bits
 
 TX_QUEUE: Final = 32
 """Frames a host may have waiting for the bus before ``send`` blocks (real time only),
@@ -99,7 +102,7 @@ class SimBus:
         in order (None: none yet), so each node sends FIFO."""
         self._busy = False
         self._arbitration_due = False
-        self._seq = itertools.count()
+        self._next_token = 0
         self.nodes: list[Node] = []
         self.chain: list[ChainMember] = []
         self.broken_before: set[int] = set()
@@ -154,7 +157,8 @@ class SimBus:
         identifier."""
         if extended and not 0 <= arbitration_id <= MAX_EXTENDED_ID:
             raise ValueError(f"extended identifier 0x{arbitration_id:X}: more than 29 bits")
-        token = next(self._seq)
+        token = self._next_token
+        self._next_token = token + 1
         self.queued[sender] += 1
         if track:
             self._tracked.add(token)
@@ -177,8 +181,8 @@ class SimBus:
             raise ValueError(f"extended identifier 0x{arbitration_id:X}: more than 29 bits")
         clock = self.clock
         start = t_ready if t_ready > clock.now else clock.now
-        bits = frame_bits(arbitration_id, data, extended=True) if extended else \
-            frame_bits(arbitration_id, data)
+        bits = _frame_bits(arbitration_id, data, extended=True) if extended else \
+            _frame_bits(arbitration_id, data)
         t_end = start + bits * self.us_per_bit
         if not clock.quiet_until(t_end):
             return None
@@ -195,7 +199,7 @@ class SimBus:
         waiting = self._waiting
         if key not in waiting:
             waiting[key] = None  # the sender's head contends
-            heapq.heappush(self._contenders, entry)
+            _heappush(self._contenders, entry)
         else:
             queue = waiting[key]
             if queue is None:
@@ -213,18 +217,18 @@ class SimBus:
         contenders = self._contenders
         if self._busy or not contenders:
             return
-        head = heapq.heappop(contenders)
+        head = _heappop(contenders)
         rank, token, data, sender, arbitration_id, extended = head
         if contenders and contenders[0][0] == rank and contenders[0][3] is not sender:
             self.stats.clashes += 1
         key = id(sender)
         queue = self._waiting[key]
         if queue:
-            heapq.heappush(contenders, queue.popleft())
+            _heappush(contenders, queue.popleft())
         else:
             del self._waiting[key]
-        bits = frame_bits(arbitration_id, data, extended=True) if extended else \
-            frame_bits(arbitration_id, data)
+        bits = _frame_bits(arbitration_id, data, extended=True) if extended else \
+            _frame_bits(arbitration_id, data)
         self._busy = True
         self.clock.at(t + bits * self.us_per_bit, self._end, arbitration_id, token, data,
                       sender, bits, extended)

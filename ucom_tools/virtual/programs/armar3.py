@@ -206,9 +206,11 @@ class Armar3Model:
     def _repeat(self, quiet: _Quiet) -> float:
         """The cycle again with the same inputs (:class:`_Quiet`)."""
         dt_us = quiet.dt_us
-        for a, settling in zip(self.axes, quiet.settling, strict=True):
+        axes, settlings = self.axes, quiet.settling  # (index loops: mypyc compiles no zip)
+        for k in range(len(axes)):
+            a = axes[k]
             a.since_us = a.since_us + dt_us
-            if settling:
+            if settlings[k]:
                 a.settled_us += dt_us
                 a.settled = a.settled_us >= SETTLED_US
         registers = self.hw.fpga.registers
@@ -226,7 +228,9 @@ class Armar3Model:
         control = not self._stopped
         resumed = self._resumed
         enable = active = 0
-        for a, c in zip(self.axes, self._configs, strict=True):
+        axes, configs = self.axes, self._configs  # one per axis (_configure)
+        for i in range(len(axes)):
+            a, c = axes[i], configs[i]
             pwm = a.cycle(hw, counters, c, ci, so, adc, dt_us, control, resumed)
             if control:
                 k = a.k
