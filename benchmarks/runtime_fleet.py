@@ -11,7 +11,9 @@ SO maps at the programs' default periods).
    0.1 s to settle).  Baseline, measured in the same run: one board alone (the neck on
    a one-board bus); ``scaling`` = wall time per virtual second of the fleet over that of
    one board (11 = perfectly linear); ``fleet_alone_speedup``: the boards and buses
-   without the PC side (what ``fleet serve`` has to do).
+   without the PC side (what ``fleet serve`` has to do): the exchange is started, then
+   the PC's interfaces leave the buses and the fleet clock runs on its own (the boards'
+   programs at rest, watchdog 60 s).
 2. Bus load per bus: computed by the planner from Tab. B.2's 47 + 8n bits per frame
    (``nominal`` without stuff bits, ``worst`` with the most a frame can carry) and
    counted on the simulated bus (stuff bits of the real values included).  The design
