@@ -24,9 +24,9 @@ from typing import Any
 
 import can
 
-from ucom_tools.virtual.fleet import HOST_AHEAD_US, Fleet, _send
+from ucom_tools.virtual.fleet import HOST_AHEAD_US, Fleet
 from ucom_tools.virtual.loss import FrameLoss
-from ucom_tools.virtual.serve_outbox import MAX_QUEUED_FRAMES, Outbox, encode_line
+from ucom_tools.virtual.serve_outbox import MAX_QUEUED_FRAMES, Outbox, encode_lines
 from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
 from ucom_tools.wire.socketcand import (
     CAN_EFF_FLAG,
@@ -442,7 +442,7 @@ class Connection:
         epoch = self.fleet.epoch
         try:
             while (batch := self.outbox.take()) is not None:
-                self.sock.sendall(b"".join([encode_line(line, epoch) for line in batch]))
+                self.sock.sendall(encode_lines(batch, epoch))
         except OSError as err:
             self._end(f"connection lost ({type(err).__name__})", dropped=False)
         except Exception:
