@@ -39,9 +39,11 @@ needs more than a fraction of it)."""
 STEP_MIN_S = 0.0005
 """The least wall time between two steps of the paced driver: the events due meanwhile run
 together in the next step (in virtual time, in their order, as always), so a busy fleet
-wakes its driver at most 2,000 times a second, not once per frame start and end; a
-frame reaches a client at most this much later than it ended on the bus (its timestamp
-still says when it ended)."""
+wakes its driver at most 2,000 times a second, not once per frame start and end.  (The
+wait's timeout is in whole milliseconds, epoll's, rounded up: without a client's data
+or a poke to wake it, a busy driver sleeps 1 ms, so a frame may reach a client up to
+about that much later than it ended on the bus; its timestamp still says when it
+ended.  Served at 1 kHz, the PC's writes wake it once a millisecond.)"""
 WAKE_SLACK_S = 0.001
 """Work handed to the driver (:meth:`RealtimeDriver.submit`) wakes it only when it would
 otherwise sleep longer than this: a busy fleet takes a client's frames at its next step,
