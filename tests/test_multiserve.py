@@ -36,6 +36,7 @@ from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.transport.socketcand import SocketcandBus
 from ucom_tools.virtual.multiserve import bus_groups
+from ucom_tools.wire import socketcand as socketcand_wire
 from ucom_tools.wire.ids import seq
 from ucom_tools.wire.socketcand import ElementError, element_words, parse_send, plain_send
 
@@ -458,6 +459,41 @@ def test_the_plain_send_path_leaves_every_mistake_to_the_parser(element: bytes) 
     assert verb == "send"
     with pytest.raises(ElementError):
         parse_send(args)
+
+
+def _plain_send_by_expression(element: bytes) -> tuple[int, bytes] | None:
+    """What :func:`plain_send` returned when it read its form with the regular expression
+    that defines it (``_PLAIN_SEND``): the reference its byte-by-byte reading keeps to."""
+    m = socketcand_wire._PLAIN_SEND.fullmatch(element)
+    if m is None or int(m[1], 16) > 0x7FF:
+        return None
+    words = m[3].split()
+    if len(words) != int(m[2]):
+        return None
+    return int(m[1], 16), bytes(int(w, 16) for w in words)
+
+
+_SEND_BYTES = st.sampled_from([b" ", b"  ", b"\t", b"send", b"sen", b"0", b"1", b"7", b"8",
+                               b"9", b"A", b"f", b"F", b"g", b"80", b"7FF", b"800", b"1234",
+                               b"00", b"0A", b"a0", b"fff", b">", b"<", b"\x80"])
+
+
+@given(st.lists(_SEND_BYTES, max_size=14).map(b"".join))
+def test_the_plain_send_path_reads_exactly_its_form(element: bytes) -> None:
+    assert plain_send(element) == _plain_send_by_expression(element)
+
+
+@given(ident=st.integers(0, 0xFFF), dlc=st.integers(0, 9), extra=st.integers(-1, 1),
+       digits=st.lists(st.integers(0, 255), min_size=10, max_size=10),
+       lead=st.sampled_from([b"", b" "]), tail=st.sampled_from([b"", b" "]),
+       byte_format=st.sampled_from([b"%02X", b"%X", b"%02x", b"%03X"]))
+def test_the_plain_send_path_reads_exactly_its_form_near_valid_elements(
+        ident: int, dlc: int, extra: int, digits: list[int], lead: bytes, tail: bytes,
+        byte_format: bytes) -> None:
+    words = [b"send", b"%X" % ident, b"%d" % dlc,
+             *(byte_format % b for b in digits[:max(0, dlc + extra)])]
+    element = lead + b" ".join(words) + tail
+    assert plain_send(element) == _plain_send_by_expression(element)
 
 
 def test_the_plain_send_path_leaves_unusual_spacing_to_the_parser() -> None:

@@ -46,12 +46,18 @@ from ucom_tools.virtual import multiserve
 from ucom_tools.virtual.canbus import VirtualUcomBus
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.virtual.multiserve import MultiServer, auto_processes, usable_cores
-from ucom_tools.virtual.serve_outbox import encode_line
+from ucom_tools.virtual.serve_outbox import encode_line, encode_lines
 from ucom_tools.virtual.simbus import SimBus
 from ucom_tools.virtual.socketcand import FleetServer
 from ucom_tools.wire import canbits
 from ucom_tools.wire.ids import seq
-from ucom_tools.wire.socketcand import CAN_EFF_FLAG, ElementError, error_element, parse_send
+from ucom_tools.wire.socketcand import (
+    CAN_EFF_FLAG,
+    ElementError,
+    error_element,
+    frame_element,
+    parse_send,
+)
 
 DEADLINE_S = 10.0
 LOCAL = "127.0.0.1"
@@ -295,6 +301,36 @@ def test_send_takes_eight_hex_digits_as_an_extended_identifier() -> None:
         b"< frame 1ABCDEF0 1700000000.000000 01 >"
     assert encode_line((0x0C1, b"", 0.0), 1700000000.0) == \
         b"< frame 0C1 1700000000.000000  >"
+
+
+@given(epoch=st.one_of(st.floats(0.0, 4e9), st.floats(-1e6, 1e6),
+                      st.integers(2**30, 2**33).map(float)),
+       t_end=st.one_of(st.floats(0.0, 1e11), st.integers(0, 10**10).map(float)),
+       ident=st.one_of(st.integers(0, 0x7FF), st.integers(0, 0x1FFFFFFF).map(
+           lambda i: i | CAN_EFF_FLAG)),
+       data=st.binary(max_size=8))
+def test_a_frame_is_written_as_percent_formatting_writes_it(
+        epoch: float, t_end: float, ident: int, data: bytes) -> None:
+    """The server puts a frame element together from pieces (no float formatting): the
+    same bytes as socketcand's format, ``%.6f`` of the time included."""
+    assert encode_line((ident, data, t_end), epoch) == frame_element(
+        ident, epoch + t_end / 1e6, data)
+
+
+def test_a_time_half_way_between_two_microseconds_is_rounded_as_percent_formatting_does(
+        ) -> None:
+    # k / 2**22 s with k * 15625 = 32768 (mod 65536): exactly half a microsecond over
+    for whole in (2**30, 1_765_000_000, 2**31 - 1, 2**31, 2**40 + 3):
+        for step in range(64):
+            seconds = whole + step / 64 + 1 / 128
+            assert encode_line((0x0C1, b"", 0.0), seconds) == frame_element(
+                0x0C1, seconds, b"")
+    assert encode_line((0x0C1, b"\x01", 0.0), 2**30 + 1 / 128) == \
+        b"< frame 0C1 1073741824.007812 01 >"  # half to even, as %.6f
+    assert encode_line((0x0C1, b"", 999_999.6), 1_765_000_000.0) == \
+        b"< frame 0C1 1765000001.000000  >"  # rounded up into the next second
+    lines = [b"< ok >", (0x123, b"\xab", 5.0), (0x1ABCDEF0 | CAN_EFF_FLAG, b"", 7.5)]
+    assert encode_lines(lines, 1.7e9) == b"".join(encode_line(x, 1.7e9) for x in lines)
 
 
 # ---------------------------------------------------------------------- the simulated bus

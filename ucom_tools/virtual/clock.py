@@ -20,6 +20,7 @@ import contextlib
 import heapq
 import itertools
 import logging
+import select
 import selectors
 import socket
 import threading
@@ -38,9 +39,11 @@ needs more than a fraction of it)."""
 STEP_MIN_S = 0.0005
 """The least wall time between two steps of the paced driver: the events due meanwhile run
 together in the next step (in virtual time, in their order, as always), so a busy fleet
-wakes its driver at most 2,000 times a second, not once per frame start and end; a
-frame reaches a client at most this much later than it ended on the bus (its timestamp
-still says when it ended)."""
+wakes its driver at most 2,000 times a second, not once per frame start and end.  (The
+wait's timeout is in whole milliseconds, epoll's, rounded up: without a client's data
+or a poke to wake it, a busy driver sleeps 1 ms, so a frame may reach a client up to
+about that much later than it ended on the bus; its timestamp still says when it
+ended.  Served at 1 kHz, the PC's writes wake it once a millisecond.)"""
 WAKE_SLACK_S = 0.001
 """Work handed to the driver (:meth:`RealtimeDriver.submit`) wakes it only when it would
 otherwise sleep longer than this: a busy fleet takes a client's frames at its next step,
@@ -230,16 +233,24 @@ class RealtimeDriver:
         self._after: list[Callable[[], None]] = []
         self._sleep_until = 0.0
         """Until when (``time.monotonic()``) the driver sleeps; 0 while it steps."""
-        self._selector = selectors.DefaultSelector()
         self._waker, self._wake_end = socket.socketpair()
         self._waker.setblocking(False)
         self._wake_end.setblocking(False)
-        self._selector.register(self._waker, selectors.EVENT_READ, None)
-        self._readable: list[Callable[[], None]] = []
+        self._waker_fd = self._waker.fileno()
+        self._epoll = select.epoll() if hasattr(select, "epoll") else None
+        """The wait for readable descriptors: epoll itself where there is one (Linux: no
+        selector keys or maps per wake-up; its timeout in milliseconds, as with the
+        selectors module), else the platform's selector."""
+        self._selector = None if self._epoll is not None else selectors.DefaultSelector()
+        self._register(self._waker_fd)
+        self._readable: list[int] = []
+        """The descriptors found readable, their callbacks due at the next step."""
         self._watched: dict[socket.socket, Callable[[], None]] = {}
         """Each watched socket and what to call when the driver stops."""
-        self._callbacks: dict[socket.socket, Callable[[], None]] = {}
-        """Each watched socket's ``on_readable``."""
+        self._fds: dict[socket.socket, int] = {}
+        """Each watched socket's descriptor (a socket closed meanwhile has none)."""
+        self._callbacks: dict[int, Callable[[], None]] = {}
+        """Each watched descriptor's ``on_readable``."""
         self._rooms: list[Callable[[], bool]] = []
         self._runner = threading.Thread(target=self._run, name=f"ucom-clock-{name}",
                                         daemon=True)
@@ -260,7 +271,10 @@ class RealtimeDriver:
             return
         watched = list(self._watched.values())
         self._watched.clear()
-        self._selector.close()
+        if self._epoll is not None:
+            self._epoll.close()
+        if self._selector is not None:
+            self._selector.close()
         self._waker.close()
         self._wake_end.close()
         for on_stop in watched:
@@ -283,16 +297,24 @@ class RealtimeDriver:
         """From the driver's thread: call ``on_readable()`` (holding the lock, at the start
         of a step) whenever ``sock`` is readable, until :meth:`unwatch`; ``on_stop()``
         when the driver stops meanwhile (in the stopping thread)."""
-        self._selector.register(sock, selectors.EVENT_READ, on_readable)
+        fd = sock.fileno()
+        if fd in self._callbacks:
+            raise KeyError(f"{sock!r} (descriptor {fd}) is already watched")
+        self._register(fd)
         self._watched[sock] = on_stop
-        self._callbacks[sock] = on_readable
+        self._fds[sock] = fd
+        self._callbacks[fd] = on_readable
 
     def unwatch(self, sock: socket.socket) -> None:
         """From the driver's thread: stop watching ``sock`` (idempotent)."""
-        self._callbacks.pop(sock, None)
-        if self._watched.pop(sock, None) is not None:
+        fd = self._fds.pop(sock, None)
+        if self._watched.pop(sock, None) is not None and fd is not None:
+            self._callbacks.pop(fd, None)
             with contextlib.suppress(KeyError, ValueError, OSError):
-                self._selector.unregister(sock)
+                if self._epoll is not None:
+                    self._epoll.unregister(fd)
+                elif self._selector is not None:
+                    self._selector.unregister(fd)
 
     def wait_for_room(self, check: Callable[[], bool]) -> None:
         """From the driver's thread: call ``check()`` at the start of every step (holding
@@ -364,26 +386,40 @@ class RealtimeDriver:
                 self._sleep_until = time.monotonic() + wait
             self._select(wait if wait > 0 and not pending else 0.0)
 
+    def _register(self, fd: int) -> None:
+        if self._epoll is not None:
+            self._epoll.register(fd, select.EPOLLIN)
+        elif self._selector is not None:
+            self._selector.register(fd, selectors.EVENT_READ)
+
     def _select(self, timeout: float) -> None:
         """Wait up to ``timeout`` for a watched socket or a poke; note what is readable."""
         try:
-            events = self._selector.select(timeout)
+            if self._epoll is not None:
+                fds = [fd for fd, _ in self._epoll.poll(timeout if timeout > 0 else 0)]
+            elif self._selector is not None:
+                fds = [key.fd for key, _ in self._selector.select(timeout)]
+            else:
+                return
         except (OSError, ValueError):  # closed meanwhile (stopping)
             return
-        for key, _ in events:
-            if key.data is None:
+        waker = self._waker_fd
+        for fd in fds:
+            if fd == waker:
                 with contextlib.suppress(OSError):
                     self._waker.recv(4096)
             else:
-                self._readable.append(key.data)
+                self._readable.append(fd)
 
     def _run_readable(self) -> None:
         """The callbacks of the sockets found readable (a socket unwatched meanwhile is
         not called)."""
-        calls = self._readable[:]
+        fds = self._readable[:]
         self._readable.clear()
-        for call in calls:
-            if not any(c is call for c in self._callbacks.values()):
+        callbacks = self._callbacks
+        for fd in fds:
+            call = callbacks.get(fd)
+            if call is None:
                 continue
             try:
                 call()

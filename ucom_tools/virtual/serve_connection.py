@@ -24,9 +24,9 @@ from typing import Any
 
 import can
 
-from ucom_tools.virtual.fleet import HOST_AHEAD_US, Fleet, _send
+from ucom_tools.virtual.fleet import HOST_AHEAD_US, Fleet
 from ucom_tools.virtual.loss import FrameLoss
-from ucom_tools.virtual.serve_outbox import MAX_QUEUED_FRAMES, Outbox, encode_line
+from ucom_tools.virtual.serve_outbox import MAX_QUEUED_FRAMES, Outbox, encode_lines
 from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
 from ucom_tools.wire.socketcand import (
     CAN_EFF_FLAG,
@@ -301,20 +301,37 @@ class Connection:
             return
         self._splitter.feed(chunk)
         self._run_elements()
+        if not self._backlog:
+            return
         driver = self.fleet.driver
-        if self._backlog and driver is not None:
+        if driver is not None:
             driver.unwatch(self.sock)  # TCP slows the client meanwhile (back-pressure)
             self._room_checked = time.monotonic()
             driver.wait_for_room(self._room)
 
     def _run_elements(self) -> None:
-        """In the driver's thread: the elements fed, until the transmit queue is full."""
+        """In the driver's thread: the elements fed, until the transmit queue is full.
+        The frames of one call are ready at the same time, now (they came together)."""
+        splitter = self._splitter
+        backlog = self._backlog
+        t = -1.0
         try:
-            while self.alive and not self._backlog and \
-                    (element := self._splitter.next()) is not None:
-                self._execute(element)
+            while self.alive and not backlog and (element := splitter.next()) is not None:
+                port = self.port
+                frame = None if port is None else plain_send(element)
+                if port is None or frame is None:
+                    self._command(element)
+                    continue
+                if t < 0.0:
+                    t = self._now_us(port)
+                self._transmit(port, frame[0], frame[1], t=t)
         except ElementTooLong as err:
             self._give_back(err)
+
+    def _now_us(self, port: ClientPort) -> float:
+        """The fleet's time now: the wall clock's (the paced driver's), else its clock's."""
+        driver = self.fleet.driver
+        return port.sim.clock.now if driver is None else driver.now_us()
 
     def _room(self) -> bool:
         """In the driver's thread, every step while frames wait for the transmit queue:
@@ -341,29 +358,39 @@ class Connection:
             driver.watch(self.sock, self._on_readable, self._handback.set)
         return True
 
-    def _queue_now(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
-        """In the driver's thread: a frame onto the bus, ready now (a lagging fleet takes
-        it in its own present, as :meth:`Fleet.send_paced` does), or into the backlog."""
+    def _queue_now(self, port: ClientPort, arbitration_id: int, data: bytes,
+                   t: float = -1.0) -> None:
+        """In the driver's thread: a frame onto the bus, ready at ``t`` (negative: now; a
+        lagging fleet takes it in its own present, as :meth:`Fleet.send_paced` does), or
+        into the backlog (then it is ready when it leaves it)."""
         if self._backlog or port.sim.queued.get(port, 0) >= TX_QUEUE:
             self._backlog.append((arbitration_id, data))
             return
-        self._put_on_bus(port, arbitration_id, data)
+        self._put_on_bus(port, arbitration_id, data, t)
 
-    def _put_on_bus(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
+    def _put_on_bus(self, port: ClientPort, arbitration_id: int, data: bytes,
+                    t: float = -1.0) -> None:
         sim = port.sim
-        driver = self.fleet.driver
         clock = sim.clock
-        t = clock.now if driver is None else driver.now_us()
+        if t < 0.0:
+            t = self._now_us(port)
         if clock.quiet_until(t):
             clock.advance_to(t)  # an idle fleet's clock stands still: bring it to now
-        _send(sim, port, min(t, clock.now + HOST_AHEAD_US), arbitration_id & CAN_EFF_MASK,
-              data, bool(arbitration_id & CAN_EFF_FLAG))
+        ready = min(t, clock.now + HOST_AHEAD_US)
+        if arbitration_id & CAN_EFF_FLAG:  # as Fleet.send_paced queues it (fleet._send)
+            sim.send(port, ready, arbitration_id & CAN_EFF_MASK, data, extended=True)
+        else:
+            sim.send(port, ready, arbitration_id, data)
 
     def _execute(self, element: bytes) -> None:
         port = self.port
         if port is not None and (frame := plain_send(element)) is not None:
             self._transmit(port, *frame)  # the common case, without the general parsing
             return
+        self._command(element)
+
+    def _command(self, element: bytes) -> None:
+        """An element that is not a ``send`` in the usual form (:func:`plain_send`)."""
         try:
             verb, *args = element_words(element)
             command = self._commands.get(verb)
@@ -414,16 +441,22 @@ class Connection:
         return self.port
 
     def _transmit(self, port: ClientPort, arbitration_id: int, data: bytes, *,
-                  lossy: bool = True) -> None:
+                  lossy: bool = True, t: float = -1.0) -> None:
         """Queue a frame (identifier with :data:`CAN_EFF_FLAG` if extended) once the
         client's transmit queue has room.  Meanwhile this client's socket is not read
         (back-pressure); the wait releases the bus lock.  In the driver's thread the
-        frame goes onto the bus at once, or waits in the backlog."""
+        frame goes onto the bus at once (ready at ``t``, negative: now), or waits in the
+        backlog."""
         if lossy and self.loss is not None and self.loss.lost("from"):
             return  # lost on the way (--loss): the client cannot tell
         if self._handed:
-            self._queue_now(port, arbitration_id, data)
+            self._queue_now(port, arbitration_id, data, t)
             return
+        self._transmit_paced(port, arbitration_id, data)
+
+    def _transmit_paced(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
+        """:meth:`_transmit` from the connection's thread: through
+        :meth:`Fleet.send_paced`, waiting for room."""
         extended = bool(arbitration_id & CAN_EFF_FLAG)
         arbitration_id &= CAN_EFF_MASK
         sim = port.sim
@@ -442,7 +475,7 @@ class Connection:
         epoch = self.fleet.epoch
         try:
             while (batch := self.outbox.take()) is not None:
-                self.sock.sendall(b"".join([encode_line(line, epoch) for line in batch]))
+                self.sock.sendall(encode_lines(batch, epoch))
         except OSError as err:
             self._end(f"connection lost ({type(err).__name__})", dropped=False)
         except Exception:

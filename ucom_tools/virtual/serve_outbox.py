@@ -13,8 +13,9 @@ import binascii
 import threading
 from collections import deque
 from collections.abc import Callable
+from typing import Final
 
-from ucom_tools.wire.socketcand import CAN_EFF_FLAG, CAN_EFF_MASK, FRAME_EXT, FRAME_STD
+from ucom_tools.wire.socketcand import CAN_EFF_FLAG, CAN_EFF_MASK
 
 MAX_QUEUED_FRAMES = 10_000
 """Frames and replies that may wait for one client; one more and it is dropped."""
@@ -87,9 +88,10 @@ class Outbox:
             lines = self._lines
             if self._closed or self._writing or self._flushing or not lines:
                 return
-            batch = [lines.popleft() for _ in range(len(lines))]
+            batch = list(lines)
+            lines.clear()
             self._flushing = True
-        data = b"".join([encode_line(line, epoch) for line in batch])
+        data = encode_lines(batch, epoch)
         sent = 0
         try:
             sent = send(data)
@@ -136,13 +138,66 @@ class Outbox:
 def encode_line(line: Line, epoch: float) -> bytes:
     """A reply as is; a frame as ``< frame ID SEC.USEC HEXDATA >``, ID of 3 hex digits
     (standard) or 8 (extended), as socketcand writes them
-    (:func:`ucom_tools.wire.socketcand.frame_element`, inline: this runs for every frame
-    to every client)."""
-    if isinstance(line, bytes):
-        return line
-    arbitration_id, data, t_end = line
+    (:func:`ucom_tools.wire.socketcand.frame_element`, the same bytes)."""
+    return encode_lines([line], epoch)
+
+
+def encode_lines(lines: list[Line], epoch: float) -> bytes:
+    """:func:`encode_line` of each line, joined: what one write to the client carries.
+
+    This runs for every frame to every client, so a frame is put together from pieces
+    instead of ``%`` formatting a float: the identifier's ``< frame ID `` once per
+    identifier (:data:`_PREFIXES`), the time from its integer seconds and microseconds
+    (:func:`_append_time`), the data as hex digits."""
+    out: list[bytes] = []
+    prefixes = _PREFIXES
+    digits = _DIGITS
+    second = -1
+    second_text = b""
+    for line in lines:
+        if isinstance(line, bytes):
+            out.append(line)
+            continue
+        arbitration_id, data, t_end = line
+        prefix = prefixes.get(arbitration_id)
+        out.append(_prefix(arbitration_id) if prefix is None else prefix)
+        seconds = epoch + t_end / 1e6
+        if EXACT_FROM <= seconds < EXACT_UNTIL:
+            whole = int(seconds)
+            micro = round((seconds - whole) * 1e6)
+            if micro >= 1_000_000:  # rounded up to the next second
+                whole += 1
+                micro -= 1_000_000
+            if whole != second:  # the frames of one write are mostly in one second
+                second = whole
+                second_text = b"%d." % whole
+            out.append(second_text)
+            out.append(digits[micro // 1000])
+            out.append(digits[micro % 1000])
+            out.append(b" ")
+        else:
+            out.append(b"%.6f " % seconds)
+        out.append(_hexlify(data).upper())
+        out.append(b" >")
+    return b"".join(out)
+
+
+_PREFIXES: Final[dict[int, bytes]] = {}
+"""``< frame ID `` of each standard identifier met so far (at most 2048)."""
+_DIGITS: Final = [b"%03d" % n for n in range(1000)]
+"""Three decimal digits of each number below 1000."""
+_hexlify: Final = binascii.hexlify
+EXACT_FROM: Final = 2.0 ** 30
+"""From here on (January 2004, as seconds since 1970) a time's fraction times 10**6 is
+exact in a float: at most 22 bits of it are fraction, and 10**6 = 15625 * 2**6.  So
+``round`` of it is the correctly rounded (half to even) microsecond that ``%.6f`` prints
+(of larger times fewer bits are fraction; below it, ``%.6f`` itself is used)."""
+EXACT_UNTIL: Final = 2.0 ** 52
+
+
+def _prefix(arbitration_id: int) -> bytes:
     if arbitration_id & CAN_EFF_FLAG:
-        return FRAME_EXT % (arbitration_id & CAN_EFF_MASK, epoch + t_end / 1e6,
-                            binascii.hexlify(data).upper())
-    return FRAME_STD % (arbitration_id, epoch + t_end / 1e6, binascii.hexlify(data).upper())
+        return b"< frame %08X " % (arbitration_id & CAN_EFF_MASK)
+    prefix = _PREFIXES[arbitration_id] = b"< frame %03X " % arbitration_id
+    return prefix
 
