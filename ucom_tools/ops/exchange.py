@@ -173,7 +173,11 @@ class ExchangeWatch(OtherHosts):
     """Another host's cyclic exchange: MCA Alive and CI maps (process data) this host did
     not send (``man/ucom-protocol.7``, RUN TIME, Start sequence)."""
 
-    functions = frozenset({Function.MCA_ALIVE, Function.MCA_CONTROLLER_INPUT})
+    def __init__(self, link: Link) -> None:
+        super().__init__(link)
+        # set here, not as a class attribute: mypyc (this module is compiled) does not
+        # compile a class-level default of this kind, the instance would have none
+        self.functions = frozenset({Function.MCA_ALIVE, Function.MCA_CONTROLLER_INPUT})
 
     def judge(self, arbitration_id: int, data: bytes) -> str | None:
         if arbitration_id >> 6 == Function.MCA_ALIVE:

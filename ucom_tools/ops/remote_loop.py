@@ -28,6 +28,7 @@ from ucom_tools.ops.remote_report import BoardEvent, LoopStats, Value
 from ucom_tools.ops.remote_values import RemoteValues
 from ucom_tools.ops.robot import BusHandle, Robot
 from ucom_tools.protocol.dispatch import share_clock
+from ucom_tools.protocol.native import mypyc_attr
 from ucom_tools.wire import messages as wire_messages
 from ucom_tools.wire.codes import ErrorCode
 from ucom_tools.wire.ids import Function
@@ -52,6 +53,7 @@ RECENT_SAMPLES = 2_000
 """The cycles a running view's lateness figures are taken over (the last 2 s at 1 kHz)."""
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # RemotePart (ops/remote.py, from source)
 class RemoteLoop(RemoteValues):
     """The loop over the exchanges of ``robot``'s buses at one period (see the module
     docstring); :meth:`_start_loop` begins it, :meth:`_end_loop` ends it."""

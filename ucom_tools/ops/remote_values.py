@@ -18,10 +18,12 @@ from ucom_tools.ops.exchange import BusExchange
 from ucom_tools.ops.remote_report import RawSnapshot, Value
 from ucom_tools.ops.robot import Robot
 from ucom_tools.protocol.mca import values_of
+from ucom_tools.protocol.native import mypyc_attr
 from ucom_tools.wire import mca
 from ucom_tools.wire.ids import seq
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # RemoteLoop, RemotePart (from source)
 class RemoteValues:
     """The values of the boards of ``exchanges`` (one per bus of ``robot``) by name;
     :attr:`names` knows the edges once the boards are checked, :meth:`_bind_values`
