@@ -53,6 +53,11 @@ class EdgeRef:
     def raw(self, value: object, *, what: str | None = None) -> int:
         """The raw number of ``value`` (a number, or text: decimal or 0x hex); InputError
         naming the edge and its range when it does not fit exactly."""
+        spec = self.spec
+        if type(value) is int and spec.exponent <= 0:  # the usual case, exact as below
+            r = value * 10 ** -spec.exponent
+            if spec.minimum <= r <= spec.maximum:
+                return r
         try:
             if isinstance(value, float):
                 value = Decimal(repr(value))

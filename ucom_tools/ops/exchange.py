@@ -30,6 +30,7 @@ from ucom_tools.errors import BoardError, BusError, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import spec_of
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.dispatch import Periodic
+from ucom_tools.protocol.frames import data_frame
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import MASK_TABLE, BoardEdges, McaClient, values_of
 from ucom_tools.protocol.plan import BusPlan, CiMapPlan, needs_of, plan
@@ -226,6 +227,12 @@ class BusExchange:
         self._ci_fast: list[tuple[int, struct.Struct]] = []
         self._alive = can.Message(arbitration_id=mca.encode(mca.Alive(), ALL)[0], data=b"",
                                   is_extended_id=False)
+        self._indices: dict[tuple[int, int, str], int] = {}
+        """(board, kind, generic name) -> the edge's index (:meth:`index`), as found in
+        the boards' descriptions; emptied when a board is configured again."""
+        self._mapped: frozenset[tuple[int, int]] = frozenset(
+            s for c in self.plan.ci_maps for s in c.slots if s is not None)
+        """(board, CI index) of every CI a CI map carries (:meth:`set_ci`)."""
 
     # ------------------------------------------------------------------ start sequence
     def where(self, n: int) -> str:
@@ -266,6 +273,7 @@ class BusExchange:
         c = configure(self.mca, seq(n), self.where(n), block, self.plan,
                       tree_file=tree_file, edges=edges)
         self.configured[n] = c
+        self._indices.clear()
         for index in range(len(c.edges.ci)):
             self.ci.setdefault((n, index), 0)
         for unique, raw in c.written.items():
@@ -373,9 +381,9 @@ class BusExchange:
             for k in indices:
                 c, used, signs = self._ci_frames[k]
                 ident, packer = self._ci_fast[k]
-                out.append(can.Message(arbitration_id=ident, data=self._ci_data(
-                    c.number, signs, packer, [self.ci[s] for s in used]),
-                    is_extended_id=False))
+                out.append(data_frame(0.0, ident, bytearray(self._ci_data(  # can.Message(
+                    c.number, signs, packer, [self.ci[s] for s in used])),  # ...) as built
+                    is_extended_id=False, is_rx=True, channel=None))
             return out
         return frames
 
@@ -393,9 +401,16 @@ class BusExchange:
         self.link.dispatcher.pump(until)
 
     def index(self, n: int, kind: mca.Kind, name: str) -> int:
+        """The index of board ``n``'s edge of ``kind`` called ``name`` (generic), as it
+        described it; KeyError if it has none (looked up once: set_ci runs per value)."""
+        key = (n, int(kind), name)
+        found = self._indices.get(key)
+        if found is not None:
+            return found
         records = self.configured[n].edges.of(kind)
         for i, r in enumerate(records):
             if r.name == name:
+                self._indices[key] = i
                 return i
         raise KeyError(f"{self.where(n)} has no {kind.name} edge {name!r}")
 
@@ -404,7 +419,7 @@ class BusExchange:
         CI map if it has one, else written with acknowledgement now."""
         i = self.index(n, mca.Kind.CI, name)
         self.ci[(n, i)] = raw
-        if not any((n, i) in c.slots for c in self.plan.ci_maps):
+        if (n, i) not in self._mapped:
             self.mca.write(seq(n), mca.Kind.CI, i, [raw], self.configured[n].edges.ci)
 
     def so(self, n: int, name: str) -> int | None:
