@@ -328,24 +328,35 @@ class BusExchange:
         """One cycle of a PC loop at ``now`` (bus clock, seconds): every CI map whose
         interval has passed since it was last sent, and MCA Alive likewise; frames sent.
         Due by time, not by cycle count, so a loop that skips cycles still keeps them."""
-        sent = 0
         margin = 1e-4  # a cycle that comes a little early still counts
-        ci, ci_sent, send_raw = self.ci, self._ci_sent, self.link.send_raw
-        for k, interval, ident, packer, values_of_ci, number, signs in self._ci_cyclic:
-            if now - ci_sent.get(k, -1e9) + margin >= interval:
-                values = values_of_ci(ci)
-                try:  # _ci_data(), inlined
-                    data = packer.pack(*values).translate(MASK_TABLE)
-                except struct.error:
-                    data = self._ci_data(number, signs, packer, values)
-                send_raw(ident, data)
-                ci_sent[k] = now
-                sent += 1
-        if now - self._alive_sent + margin >= self._alive_interval:
-            send_raw(self._alive.arbitration_id, b"")
-            self._alive_sent = now
-            sent += 1
-        return sent
+        ci, ci_sent = self.ci, self._ci_sent
+        frames: list[tuple[int, bytes]] = []
+        due: list[int] = []  # the CI maps of frames, by index (-1: MCA Alive)
+        try:
+            for k, interval, ident, packer, values_of_ci, number, signs in self._ci_cyclic:
+                if now - ci_sent.get(k, -1e9) + margin >= interval:
+                    values = values_of_ci(ci)
+                    try:  # _ci_data(), inlined
+                        data = packer.pack(*values).translate(MASK_TABLE)
+                    except struct.error:
+                        data = self._ci_data(number, signs, packer, values)
+                    frames.append((ident, data))
+                    due.append(k)
+            if now - self._alive_sent + margin >= self._alive_interval:
+                frames.append((self._alive.arbitration_id, b""))
+                due.append(-1)
+        finally:  # one call for the cycle's frames (those before an error too), each
+            link = self.link  # noted as sent once the link has taken it
+            before = link.frames_sent
+            try:
+                link.send_frames(frames)
+            finally:
+                for k in due[:link.frames_sent - before]:
+                    if k < 0:
+                        self._alive_sent = now
+                    else:
+                        ci_sent[k] = now
+        return len(frames)
 
     @staticmethod
     def _ci_data(number: int, signs: list[tuple[int, bool]], packer: struct.Struct,

@@ -205,8 +205,11 @@ class RemoteLoop(RemoteValues):
                     return
                 assert isinstance(err, wire_messages.Error)
                 n = address.number
+                now = h.link.clock()
+                if self.virtual:  # when it came: the pump hands over a stretch's frames
+                    now -= max(0.0, h.link.dispatcher.stamp() - msg.timestamp)  # at its end
                 self.events.append(BoardEvent(
-                    round(h.link.clock() - started, 4), h.name, n, x.where(n), err.code,
+                    round(now - started, 4), h.name, n, x.where(n), err.code,
                     f"its watchdog stopped every motor: no MCA Alive for {err.detail} ms "
                     "(stopped until MCA Start)" if err.code is ErrorCode.WATCHDOG
                     else err.describe()))
