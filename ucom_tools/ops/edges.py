@@ -74,8 +74,10 @@ class EdgeRef:
 
     def value(self, raw: int) -> int | Decimal:
         """The edge's value of a raw number: an int when the edge has no decimals."""
-        v = self.spec.value(raw)
-        return int(raw) * 10 ** self.spec.exponent if self.spec.exponent >= 0 else v
+        exponent = self.spec.exponent
+        if exponent >= 0:  # no Decimal made to be thrown away (every SO value reported)
+            return int(raw) * 10 ** exponent
+        return self.spec.value(raw)
 
     def describe_range(self) -> str:
         return self.spec.describe_range()
