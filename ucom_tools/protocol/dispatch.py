@@ -108,7 +108,11 @@ class Dispatcher:
         sending thread."""
         self._lock = threading.RLock()
         """``_cond``'s lock: ``with self._lock`` is ``with self._cond`` without the Python
-        wrapper around it (the per-cycle paths take it several times)."""
+        wrapper around it (the per-cycle paths take it several times).  The reading flag
+        is set and cleared under it, never under ``_cond``: a stop signal's exception
+        can be raised in Condition's Python ``__exit__``, after the flag was set and
+        before the ``try`` that clears it, and then every later wait (the boards' stop)
+        would wait for a reader that is gone."""
         self._cond = threading.Condition(self._lock)
         self._sleepers = 0
         """Threads in ``_cond.wait``: the reader notifies only when there are any."""
@@ -247,7 +251,7 @@ class Dispatcher:
     def wait(self, sub: Subscription, deadline: float) -> can.Message | None:
         """The next frame for ``sub``, or None at ``deadline`` (on :attr:`clock`)."""
         while True:
-            with self._cond:
+            with self._lock:
                 if sub.queue:
                     return sub.queue.popleft()
                 if self.failure is not None:
@@ -265,7 +269,7 @@ class Dispatcher:
             try:
                 self._read_one(max(0.0, remaining))
             finally:
-                with self._cond:
+                with self._lock:
                     self._reading = False
                     if self._sleepers:
                         self._cond.notify_all()
@@ -413,7 +417,7 @@ class Dispatcher:
         count = 0
         while True:
             remaining = deadline - self.clock()
-            with self._cond:
+            with self._lock:
                 busy = self._reader is not None or self._reading
                 if busy:
                     if remaining <= 0:
@@ -428,7 +432,7 @@ class Dispatcher:
                 if taken is None:
                     taken = 1 if self._read_one(max(0.0, remaining)) else 0
             finally:
-                with self._cond:
+                with self._lock:
                     self._reading = False
                     if self._sleepers:
                         self._cond.notify_all()
