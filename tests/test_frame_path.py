@@ -10,9 +10,13 @@ the element-by-element path, python-can's constructor and ``dispatch``/``send`` 
 from __future__ import annotations
 
 import collections
+import contextlib
 import logging
 import math
 import random
+import socket
+import threading
+from collections.abc import Iterator
 from typing import Any
 
 import can
@@ -39,23 +43,44 @@ def attributes(msg: can.Message) -> tuple[Any, ...]:
     return tuple(getattr(msg, a) for a in ATTRIBUTES)
 
 
-def offline_bus(channel: str = "CAN0") -> SocketcandBus:
-    """A SocketcandBus without a connection: what its receiving code needs, no socket
-    (the elements are fed to its splitter by the test)."""
-    bus = SocketcandBus.__new__(SocketcandBus)
-    bus.channel = channel
+def _greet(listener: socket.socket, out: list[socket.socket]) -> None:
+    """A server's side of the handshake (``< hi >``, open, rawmode, echoes)."""
+    conn, _ = listener.accept()
+    conn.settimeout(5)
+    conn.sendall(b"< hi >")
+    heard = b""
+    for answer in (b"< ok >", b"< ok >", b"< echo >", b"< echo >", b"< echo >"):
+        while b">" not in heard:
+            heard += conn.recv(4096)
+        heard = heard.split(b">", 1)[1]
+        conn.sendall(answer)
+    out.append(conn)
+
+
+@contextlib.contextmanager
+def offline_bus(channel: str = "CAN0") -> Iterator[SocketcandBus]:
+    """A SocketcandBus whose receiving state is set by the test (the elements are fed to
+    its splitter, nothing is read from its socket): connected through the handshake, as
+    the class (compiled, its instances built only by its constructor) wants it."""
+    listener = socket.create_server(("127.0.0.1", 0))
+    conns: list[socket.socket] = []
+    greeter = threading.Thread(target=_greet, args=(listener, conns), daemon=True)
+    greeter.start()
+    bus = SocketcandBus(channel, "127.0.0.1", listener.getsockname()[1])
+    greeter.join(5)
+    listener.close()
     bus._where = "test:0"
     bus._splitter = ElementSplitter(on_skip=client._skipped)
     bus._arrival = 0.0
     bus.clock_offset = math.inf
     bus._pending = collections.deque()
     bus.server_errors = collections.deque(maxlen=client.SERVER_ERRORS_KEPT)
-    bus._broken = None
-    bus._closed = False
-    bus._batch = None
-    bus._batch_thread = None
-    bus.receive_own_messages = False
-    return bus
+    try:
+        yield bus
+    finally:
+        bus.shutdown()
+        for conn in conns:
+            conn.close()
 
 
 def element(rng: random.Random, stamp: float) -> bytes:
@@ -124,15 +149,16 @@ def test_runs_of_frames_are_read_as_one_element_at_a_time_would(
     data = stream(seed)
     results = []
     for take in (take_element_by_element, SocketcandBus._take_buffered):
-        bus = offline_bus()
-        caplog.clear()
-        with caplog.at_level(logging.DEBUG, logger="ucom_tools.transport.socketcand"):
-            for k, chunk in enumerate(chunks(data, seed)):
-                bus._arrival = 1_796_173_615.0 + k * 1e-4
-                bus._splitter.feed(chunk)
-                take(bus)
-        results.append(([attributes(m) for m in bus._pending], bus.clock_offset,
-                         list(bus.server_errors), [r.getMessage() for r in caplog.records]))
+        with offline_bus() as bus:
+            caplog.clear()
+            with caplog.at_level(logging.DEBUG, logger="ucom_tools.transport.socketcand"):
+                for k, chunk in enumerate(chunks(data, seed)):
+                    bus._arrival = 1_796_173_615.0 + k * 1e-4
+                    bus._splitter.feed(chunk)
+                    take(bus)
+            results.append(([attributes(m) for m in bus._pending], bus.clock_offset,
+                             list(bus.server_errors),
+                             [r.getMessage() for r in caplog.records]))
     assert results[0] == results[1]
     frames_read = results[0][0]
     assert len(frames_read) > 200  # the stream was mostly frames
@@ -192,23 +218,23 @@ def test_fast_messages_are_in_use_with_this_python_can() -> None:
 
 def test_send_data_writes_what_send_writes() -> None:
     rng = random.Random(3)
-    bus = offline_bus()
-    bus.hold()
-    for _ in range(3000):
-        ident = rng.randrange(0x800)
-        data = bytes(rng.randrange(256) for _ in range(rng.randrange(9)))
-        bus.send_data(ident, data)
-        assert bus._batch is not None
-        assert bus._batch[-1] == send_bytes(can.Message(arbitration_id=ident, data=data,
-                                                        is_extended_id=False))
-    for ident, data in [(0x800, b""), (-1, b"\x01"), (0x123, bytes(9))]:
-        with pytest.raises(can.CanOperationError) as fast:
+    with offline_bus() as bus:
+        bus.hold()
+        for _ in range(3000):
+            ident = rng.randrange(0x800)
+            data = bytes(rng.randrange(256) for _ in range(rng.randrange(9)))
             bus.send_data(ident, data)
-        with pytest.raises(can.CanOperationError) as plain:
-            bus.send(can.Message(arbitration_id=ident, data=data, is_extended_id=False,
-                                 check=False))
-        assert str(fast.value) == str(plain.value)
-    bus.release(write=False)
+            assert bus._batch is not None
+            assert bus._batch[-1] == send_bytes(can.Message(arbitration_id=ident, data=data,
+                                                            is_extended_id=False))
+        for ident, data in [(0x800, b""), (-1, b"\x01"), (0x123, bytes(9))]:
+            with pytest.raises(can.CanOperationError) as fast:
+                bus.send_data(ident, data)
+            with pytest.raises(can.CanOperationError) as plain:
+                bus.send(can.Message(arbitration_id=ident, data=data, is_extended_id=False,
+                                     check=False))
+            assert str(fast.value) == str(plain.value)
+        bus.release(write=False)
 
 
 class _Bus(can.BusABC):

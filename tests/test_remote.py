@@ -400,15 +400,32 @@ def test_a_loop_that_stalls_past_the_watchdog_is_told_which_boards_stopped(part)
 
 def test_run_exits_1_naming_the_boards_whose_watchdog_stopped_them(flashed, monkeypatch,
                                                                    ) -> None:
-    from ucom_tools.ops.exchange import BusExchange
-    real = BusExchange.send_cycle
-    calls = {"n": 0}
+    from ucom_tools.virtual.canbus import VirtualUcomBus
+    from ucom_tools.wire.ids import Function
+    cyclic = {"n": 0}
 
-    def stalls(self: BusExchange, now: float) -> int:  # the PC stops sending after a while
-        calls["n"] += 1
-        return real(self, now) if calls["n"] < 200 else 0
+    def stalled(ident: int) -> bool:  # the PC stops sending its cycles after a while:
+        if ident >> 6 == Function.MCA_ALIVE or (  # from the 200th frame of the loop on
+                ident >> 6 == Function.MCA_CONTROLLER_INPUT and ident & 0x20):  # (CI maps
+            cyclic["n"] += 1  # and MCA Alive) none reaches the bus; requests still do
+            return cyclic["n"] >= 200
+        return False
 
-    monkeypatch.setattr(BusExchange, "send_cycle", stalls)
+    def patch(name: str) -> None:  # the bus's way in for the PC's frames, both of them
+        real = getattr(VirtualUcomBus, name, None)
+        if real is None:
+            return
+
+        def send(self: VirtualUcomBus, *args: object, **kwargs: object) -> None:
+            first = args[0]
+            ident = first.arbitration_id if isinstance(first, can.Message) else first
+            assert isinstance(ident, int)
+            if not stalled(ident):
+                real(self, *args, **kwargs)
+        monkeypatch.setattr(VirtualUcomBus, name, send)
+
+    patch("send")
+    patch("send_data")
     code, out, err = ucom("remote", "run", "armar3", "--virtual", "armar3", "--state",
                           str(flashed), "--for", "0.3", "--json")
     assert code == 1, err

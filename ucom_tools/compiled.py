@@ -38,9 +38,15 @@ from pathlib import Path
 from types import ModuleType
 
 MODULES: tuple[str, ...] = (
+    "ucom_tools.ops.edges",
+    "ucom_tools.ops.exchange",
+    "ucom_tools.ops.remote_loop",
+    "ucom_tools.ops.remote_values",
     "ucom_tools.protocol.dispatch",
     "ucom_tools.protocol.frames",
+    "ucom_tools.protocol.link",
     "ucom_tools.protocol.mca",
+    "ucom_tools.transport.socketcand",
     "ucom_tools.virtual.application",
     "ucom_tools.virtual.board",
     "ucom_tools.virtual.clock",
@@ -65,10 +71,12 @@ MODULES: tuple[str, ...] = (
     "ucom_tools.wire.mca",
     "ucom_tools.wire.socketcand",
 )
-"""The modules compiled (``tools/compile.py`` reads this tuple): those the profiles of
-the served fleet and of the PC side put on top, and nothing that tests or users patch at
-run time (a compiled class's methods cannot be replaced: the conformance case that loses
-frames on purpose replaces ``Link.send_raw``, so ``protocol/link.py`` stays Python)."""
+"""The modules compiled (``tools/compile.py`` reads this tuple; kept sorted): those the
+profiles of the served fleet and of the PC side put on top.  A compiled class's methods
+cannot be replaced: the conformance case that loses frames on purpose replaces
+``Link.send_raw`` on an instance, so ``Link`` is compiled as a plain class
+(``native_class=False``, :mod:`ucom_tools.protocol.native`), and ``RemotePart`` (from
+source) may extend the compiled ``RemoteLoop``."""
 
 GROUP = "ucom_tools._native"
 """The compiled modules' shared library (``ucom_tools/_native__mypyc*.so``)."""

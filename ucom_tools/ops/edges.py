@@ -53,6 +53,11 @@ class EdgeRef:
     def raw(self, value: object, *, what: str | None = None) -> int:
         """The raw number of ``value`` (a number, or text: decimal or 0x hex); InputError
         naming the edge and its range when it does not fit exactly."""
+        spec = self.spec
+        if type(value) is int and spec.exponent <= 0:  # the usual case, exact as below
+            r = value * 10 ** -spec.exponent
+            if spec.minimum <= r <= spec.maximum:
+                return r
         try:
             if isinstance(value, float):
                 value = Decimal(repr(value))
@@ -69,8 +74,10 @@ class EdgeRef:
 
     def value(self, raw: int) -> int | Decimal:
         """The edge's value of a raw number: an int when the edge has no decimals."""
-        v = self.spec.value(raw)
-        return int(raw) * 10 ** self.spec.exponent if self.spec.exponent >= 0 else v
+        exponent = self.spec.exponent
+        if exponent >= 0:  # no Decimal made to be thrown away (every SO value reported)
+            return int(raw) * 10 ** exponent
+        return self.spec.value(raw)
 
     def describe_range(self) -> str:
         return self.spec.describe_range()

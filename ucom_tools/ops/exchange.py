@@ -30,6 +30,7 @@ from ucom_tools.errors import BoardError, BusError, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import spec_of
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.dispatch import Periodic
+from ucom_tools.protocol.frames import data_frame
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import MASK_TABLE, BoardEdges, McaClient, values_of
 from ucom_tools.protocol.plan import BusPlan, CiMapPlan, needs_of, plan
@@ -173,7 +174,11 @@ class ExchangeWatch(OtherHosts):
     """Another host's cyclic exchange: MCA Alive and CI maps (process data) this host did
     not send (``man/ucom-protocol.7``, RUN TIME, Start sequence)."""
 
-    functions = frozenset({Function.MCA_ALIVE, Function.MCA_CONTROLLER_INPUT})
+    def __init__(self, link: Link) -> None:
+        super().__init__(link)
+        # set here, not as a class attribute: mypyc (this module is compiled) does not
+        # compile a class-level default of this kind, the instance would have none
+        self.functions = frozenset({Function.MCA_ALIVE, Function.MCA_CONTROLLER_INPUT})
 
     def judge(self, arbitration_id: int, data: bytes) -> str | None:
         if arbitration_id >> 6 == Function.MCA_ALIVE:
@@ -222,6 +227,12 @@ class BusExchange:
         self._ci_fast: list[tuple[int, struct.Struct]] = []
         self._alive = can.Message(arbitration_id=mca.encode(mca.Alive(), ALL)[0], data=b"",
                                   is_extended_id=False)
+        self._indices: dict[tuple[int, int, str], int] = {}
+        """(board, kind, generic name) -> the edge's index (:meth:`index`), as found in
+        the boards' descriptions; emptied when a board is configured again."""
+        self._mapped: frozenset[tuple[int, int]] = frozenset(
+            s for c in self.plan.ci_maps for s in c.slots if s is not None)
+        """(board, CI index) of every CI a CI map carries (:meth:`set_ci`)."""
 
     # ------------------------------------------------------------------ start sequence
     def where(self, n: int) -> str:
@@ -262,6 +273,7 @@ class BusExchange:
         c = configure(self.mca, seq(n), self.where(n), block, self.plan,
                       tree_file=tree_file, edges=edges)
         self.configured[n] = c
+        self._indices.clear()
         for index in range(len(c.edges.ci)):
             self.ci.setdefault((n, index), 0)
         for unique, raw in c.written.items():
@@ -316,24 +328,35 @@ class BusExchange:
         """One cycle of a PC loop at ``now`` (bus clock, seconds): every CI map whose
         interval has passed since it was last sent, and MCA Alive likewise; frames sent.
         Due by time, not by cycle count, so a loop that skips cycles still keeps them."""
-        sent = 0
         margin = 1e-4  # a cycle that comes a little early still counts
-        ci, ci_sent, send_raw = self.ci, self._ci_sent, self.link.send_raw
-        for k, interval, ident, packer, values_of_ci, number, signs in self._ci_cyclic:
-            if now - ci_sent.get(k, -1e9) + margin >= interval:
-                values = values_of_ci(ci)
-                try:  # _ci_data(), inlined
-                    data = packer.pack(*values).translate(MASK_TABLE)
-                except struct.error:
-                    data = self._ci_data(number, signs, packer, values)
-                send_raw(ident, data)
-                ci_sent[k] = now
-                sent += 1
-        if now - self._alive_sent + margin >= self._alive_interval:
-            send_raw(self._alive.arbitration_id, b"")
-            self._alive_sent = now
-            sent += 1
-        return sent
+        ci, ci_sent = self.ci, self._ci_sent
+        frames: list[tuple[int, bytes]] = []
+        due: list[int] = []  # the CI maps of frames, by index (-1: MCA Alive)
+        try:
+            for k, interval, ident, packer, values_of_ci, number, signs in self._ci_cyclic:
+                if now - ci_sent.get(k, -1e9) + margin >= interval:
+                    values = values_of_ci(ci)
+                    try:  # _ci_data(), inlined
+                        data = packer.pack(*values).translate(MASK_TABLE)
+                    except struct.error:
+                        data = self._ci_data(number, signs, packer, values)
+                    frames.append((ident, data))
+                    due.append(k)
+            if now - self._alive_sent + margin >= self._alive_interval:
+                frames.append((self._alive.arbitration_id, b""))
+                due.append(-1)
+        finally:  # one call for the cycle's frames (those before an error too), each
+            link = self.link  # noted as sent once the link has taken it
+            before = link.frames_sent
+            try:
+                link.send_frames(frames)
+            finally:
+                for k in due[:link.frames_sent - before]:
+                    if k < 0:
+                        self._alive_sent = now
+                    else:
+                        ci_sent[k] = now
+        return len(frames)
 
     @staticmethod
     def _ci_data(number: int, signs: list[tuple[int, bool]], packer: struct.Struct,
@@ -369,9 +392,9 @@ class BusExchange:
             for k in indices:
                 c, used, signs = self._ci_frames[k]
                 ident, packer = self._ci_fast[k]
-                out.append(can.Message(arbitration_id=ident, data=self._ci_data(
-                    c.number, signs, packer, [self.ci[s] for s in used]),
-                    is_extended_id=False))
+                out.append(data_frame(0.0, ident, bytearray(self._ci_data(  # can.Message(
+                    c.number, signs, packer, [self.ci[s] for s in used])),  # ...) as built
+                    is_extended_id=False, is_rx=True, channel=None))
             return out
         return frames
 
@@ -389,9 +412,16 @@ class BusExchange:
         self.link.dispatcher.pump(until)
 
     def index(self, n: int, kind: mca.Kind, name: str) -> int:
+        """The index of board ``n``'s edge of ``kind`` called ``name`` (generic), as it
+        described it; KeyError if it has none (looked up once: set_ci runs per value)."""
+        key = (n, int(kind), name)
+        found = self._indices.get(key)
+        if found is not None:
+            return found
         records = self.configured[n].edges.of(kind)
         for i, r in enumerate(records):
             if r.name == name:
+                self._indices[key] = i
                 return i
         raise KeyError(f"{self.where(n)} has no {kind.name} edge {name!r}")
 
@@ -400,7 +430,7 @@ class BusExchange:
         CI map if it has one, else written with acknowledgement now."""
         i = self.index(n, mca.Kind.CI, name)
         self.ci[(n, i)] = raw
-        if not any((n, i) in c.slots for c in self.plan.ci_maps):
+        if (n, i) not in self._mapped:
             self.mca.write(seq(n), mca.Kind.CI, i, [raw], self.configured[n].edges.ci)
 
     def so(self, n: int, name: str) -> int | None:

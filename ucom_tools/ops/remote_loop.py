@@ -28,6 +28,7 @@ from ucom_tools.ops.remote_report import BoardEvent, LoopStats, Value
 from ucom_tools.ops.remote_values import RemoteValues
 from ucom_tools.ops.robot import BusHandle, Robot
 from ucom_tools.protocol.dispatch import share_clock
+from ucom_tools.protocol.native import mypyc_attr
 from ucom_tools.wire import messages as wire_messages
 from ucom_tools.wire.codes import ErrorCode
 from ucom_tools.wire.ids import Function
@@ -52,6 +53,7 @@ RECENT_SAMPLES = 2_000
 """The cycles a running view's lateness figures are taken over (the last 2 s at 1 kHz)."""
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # RemotePart (ops/remote.py, from source)
 class RemoteLoop(RemoteValues):
     """The loop over the exchanges of ``robot``'s buses at one period (see the module
     docstring); :meth:`_start_loop` begins it, :meth:`_end_loop` ends it."""
@@ -203,8 +205,11 @@ class RemoteLoop(RemoteValues):
                     return
                 assert isinstance(err, wire_messages.Error)
                 n = address.number
+                now = h.link.clock()
+                if self.virtual:  # when it came: the pump hands over a stretch's frames
+                    now -= max(0.0, h.link.dispatcher.stamp() - msg.timestamp)  # at its end
                 self.events.append(BoardEvent(
-                    round(h.link.clock() - started, 4), h.name, n, x.where(n), err.code,
+                    round(now - started, 4), h.name, n, x.where(n), err.code,
                     f"its watchdog stopped every motor: no MCA Alive for {err.detail} ms "
                     "(stopped until MCA Start)" if err.code is ErrorCode.WATCHDOG
                     else err.describe()))

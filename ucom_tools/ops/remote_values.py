@@ -10,18 +10,21 @@ dict copies, :meth:`RemoteValues.decode` turns it into values on any other threa
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping
+import struct
+from collections.abc import Callable, Iterator, Mapping, Sequence
 
 from ucom_tools.errors import InputError
 from ucom_tools.ops.edges import EdgeRef, Names
 from ucom_tools.ops.exchange import BusExchange
 from ucom_tools.ops.remote_report import RawSnapshot, Value
 from ucom_tools.ops.robot import Robot
-from ucom_tools.protocol.mca import values_of
+from ucom_tools.protocol.mca import ProcessImage, values_of
+from ucom_tools.protocol.native import mypyc_attr
 from ucom_tools.wire import mca
 from ucom_tools.wire.ids import seq
 
 
+@mypyc_attr(allow_interpreted_subclasses=True)  # RemoteLoop, RemotePart (from source)
 class RemoteValues:
     """The values of the boards of ``exchanges`` (one per bus of ``robot``) by name;
     :attr:`names` knows the edges once the boards are checked, :meth:`_bind_values`
@@ -37,6 +40,8 @@ class RemoteValues:
         """(bus, SO map number) -> the edge of each of its slots (None: not named)."""
         self._seen: dict[tuple[str, int], int] = {}
         self._last_raw: dict[EdgeRef, int] = {}
+        self._feeds: list[_SoFeed] = []
+        """Per SO map with named slots, what :meth:`_report_so` needs (:meth:`_bind_values`)."""
         self.on_values: Callable[[float, EdgeRef, Value], None] | None = None
         """Called with (time, edge, value) for every SO value a cycle saw change (and its
         first), and for every CI or PAR value set (recorders); the time on the base of the
@@ -52,12 +57,23 @@ class RemoteValues:
         the PAR values their trees wrote."""
         self._par = {}
         self._map_refs = {}
+        self._feeds = []
         by_slot = {(r.bus, r.board, r.index): r for r in self.names if r.kind is mca.Kind.SO}
         for bus, x in self.exchanges.items():
             for m in x.plan.so_maps:
                 if m.board in x.configured:
-                    self._map_refs[(bus, m.number)] = [by_slot.get((bus, m.board, i))
-                                                       for i in m.edges]
+                    refs = [by_slot.get((bus, m.board, i)) for i in m.edges]
+                    self._map_refs[(bus, m.number)] = refs
+                    records = x.configured[m.board].edges.so
+                    self._feeds.append(_SoFeed(bus, m.number, x.mca.image, refs,
+                                               [records[i] for i in m.edges]))
+        owners: dict[EdgeRef, int] = {}
+        for feed in self._feeds:
+            for ref in feed.refs:
+                if ref is not None:
+                    owners[ref] = owners.get(ref, 0) + 1
+        for feed in self._feeds:  # an edge in two maps: compared edge by edge only
+            feed.alone = all(ref is None or owners[ref] == 1 for ref in feed.refs)
         for ref in self.names:
             if ref.kind is mca.Kind.PAR:
                 written = self.exchanges[ref.bus].configured[ref.board].written
@@ -88,23 +104,32 @@ class RemoteValues:
         return None
 
     def _report_so(self) -> None:
-        """Hand every SO value of the maps that came since the last cycle to on_values."""
-        assert self.on_values is not None
-        for (bus, number), refs in self._map_refs.items():
-            image = self.exchanges[bus].mca.image
+        """Hand every SO value of the maps that came since the last cycle to on_values
+        (each map decoded once per frame, by its precompiled struct; a map whose values
+        are those it brought last time reports nothing, as edge by edge)."""
+        on_values = self.on_values
+        assert on_values is not None
+        last = self._last_raw
+        for feed in self._feeds:
+            image = feed.image
+            number = feed.number
             count = image.counts.get(number, 0)
-            if count == self._seen.get((bus, number), 0):
+            if count == feed.seen:
                 continue
-            self._seen[(bus, number)] = count
-            values = self._map_values(bus, number)
-            if values is None:
+            feed.seen = count
+            frame = image.frames.get(number)
+            if frame is None:
+                continue
+            values = feed.decode(frame)
+            self._so_cache[(feed.bus, number)] = (count, values)  # what _map_values gives
+            if feed.alone and values == feed.last:
                 continue
             stamp = image.stamps[number]
-            last = self._last_raw
-            for ref, raw in zip(refs, values, strict=True):
+            for ref, raw in zip(feed.refs, values, strict=True):
                 if ref is not None and last.get(ref) != raw:
                     last[ref] = raw
-                    self.on_values(stamp, ref, ref.value(raw))
+                    on_values(stamp, ref, ref.value(raw))
+            feed.last = values
 
     # ------------------------------------------------------------------ other threads
     def snapshot(self) -> RawSnapshot:
@@ -213,6 +238,41 @@ class RemoteValues:
                 if raw is not None:
                     out[self.names.name_of(ref)] = ref.value(raw)
         return out
+
+
+_CODES = {(1, True): "b", (1, False): "B", (2, True): "h", (2, False): "H",
+          (4, True): "i", (4, False): "I", (8, True): "q", (8, False): "Q"}
+
+
+class _SoFeed:
+    """One SO map as :meth:`RemoteValues._report_so` follows it: where its frames land,
+    the edge of each slot, a struct that unpacks its values (big-endian, as
+    :func:`~ucom_tools.wire.mca.unpack_values`; None when a width has no struct code),
+    the count of its frames seen and the values it brought last."""
+
+    def __init__(self, bus: str, number: int, image: ProcessImage,
+                 refs: list[EdgeRef | None], records: Sequence[mca.EdgeRecord]) -> None:
+        self.bus = bus
+        self.number = number
+        self.image = image
+        self.refs = refs
+        self.records = list(records)
+        codes = [_CODES.get((r.width, r.signed)) for r in records]
+        self.unpacker: struct.Struct | None = None
+        if all(c is not None for c in codes):
+            self.unpacker = struct.Struct(">" + "".join(c or "" for c in codes))
+        self.seen = 0
+        self.last: list[int] | None = None
+        self.alone = True
+        """No edge of this map is in another one (then equal values say nothing new)."""
+
+    def decode(self, frame: bytes) -> list[int]:
+        """The map's raw values (:func:`~ucom_tools.protocol.mca.values_of`'s, and its
+        FrameError when the length is wrong)."""
+        unpacker = self.unpacker
+        if unpacker is not None and len(frame) == unpacker.size:
+            return list(unpacker.unpack(frame))
+        return values_of(frame, self.records)
 
 
 class _SoView(Mapping[str, "Value | None"]):

@@ -108,7 +108,11 @@ class Dispatcher:
         sending thread."""
         self._lock = threading.RLock()
         """``_cond``'s lock: ``with self._lock`` is ``with self._cond`` without the Python
-        wrapper around it (the per-cycle paths take it several times)."""
+        wrapper around it (the per-cycle paths take it several times).  The reading flag
+        is set and cleared under it, never under ``_cond``: a stop signal's exception
+        can be raised in Condition's Python ``__exit__``, after the flag was set and
+        before the ``try`` that clears it, and then every later wait (the boards' stop)
+        would wait for a reader that is gone."""
         self._cond = threading.Condition(self._lock)
         self._sleepers = 0
         """Threads in ``_cond.wait``: the reader notifies only when there are any."""
@@ -125,6 +129,12 @@ class Dispatcher:
         (:func:`share_clock`)."""
         self._next_due: float | None = None
         """When the next periodic task is due (None: look)."""
+        advance = getattr(bus, "advance", None)
+        self._advance: Callable[[float], list[can.Message] | None] | None = \
+            advance if callable(advance) else None
+        """The bus's way to run its clock on and hand over every frame that came meanwhile
+        in one call (:meth:`~ucom_tools.virtual.canbus.VirtualUcomBus.advance`: the
+        in-process fleet in virtual time), if it has one: :meth:`pump` uses it."""
         send_data = getattr(bus, "send_data", None)
         self._send_data: Callable[[int, bytes, float | None], None] | None = \
             send_data if callable(send_data) else None
@@ -241,7 +251,7 @@ class Dispatcher:
     def wait(self, sub: Subscription, deadline: float) -> can.Message | None:
         """The next frame for ``sub``, or None at ``deadline`` (on :attr:`clock`)."""
         while True:
-            with self._cond:
+            with self._lock:
                 if sub.queue:
                     return sub.queue.popleft()
                 if self.failure is not None:
@@ -259,7 +269,7 @@ class Dispatcher:
             try:
                 self._read_one(max(0.0, remaining))
             finally:
-                with self._cond:
+                with self._lock:
                     self._reading = False
                     if self._sleepers:
                         self._cond.notify_all()
@@ -375,13 +385,39 @@ class Dispatcher:
                         sub.dropped += 1
                     sub.queue.append(msg)
 
+    def _advance_one(self, timeout: float) -> int | None:
+        """:meth:`_read_one` by the bus's ``advance``: send the periodic frames due, run
+        the bus's clock ``timeout`` on (or until the next periodic frame is due) and
+        dispatch every frame that came meanwhile, in order; how many (None: the bus
+        cannot now, read one by one)."""
+        advance = self._advance
+        if advance is None:
+            return None
+        dues = [d._run_due() for d in self.group]
+        nxt = min((t for t in dues if t is not None), default=None)
+        if nxt is not None:
+            timeout = max(0.0, min(timeout, nxt - self.clock()))
+        try:
+            msgs = advance(timeout)
+        except can.CanError as err:
+            raise self._fail(f"{self.name}: cannot receive: {err}") from err
+        if msgs is None:
+            return None
+        self.dispatch_all(msgs)
+        return len(msgs)
+
     def pump(self, deadline: float) -> int:
         """Read and dispatch everything until ``deadline``; returns the frames read.
-        (For callers that only feed callback subscribers, e.g. a cyclic exchange.)"""
+        (For callers that only feed callback subscribers, e.g. a cyclic exchange.)
+
+        On a bus that can ``advance`` (the in-process fleet in virtual time) the clock
+        runs from one periodic frame due to the next, not from frame to frame: the frames
+        that came meanwhile are dispatched together, each with its own time stamp, at
+        the end of the stretch (the periodic frames go out at the same bus times)."""
         count = 0
         while True:
             remaining = deadline - self.clock()
-            with self._cond:
+            with self._lock:
                 busy = self._reader is not None or self._reading
                 if busy:
                     if remaining <= 0:
@@ -392,14 +428,16 @@ class Dispatcher:
             if busy:
                 continue
             try:
-                got = self._read_one(max(0.0, remaining))
+                taken = self._advance_one(max(0.0, remaining))
+                if taken is None:
+                    taken = 1 if self._read_one(max(0.0, remaining)) else 0
             finally:
-                with self._cond:
+                with self._lock:
                     self._reading = False
                     if self._sleepers:
                         self._cond.notify_all()
-            if got:
-                count += 1
+            if taken:
+                count += taken
             elif self.clock() >= deadline:
                 return count
 

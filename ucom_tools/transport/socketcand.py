@@ -93,6 +93,15 @@ _CHUNK = 65536
 _CHANNEL = re.compile(r"[^\s<>]+")
 
 
+CONNECT_TIMEOUT_S = 3.0
+"""The default ``connect_timeout`` (the module docstring)."""
+HANDSHAKE_TIMEOUT_S = 2.0
+"""The default ``handshake_timeout``."""
+SEND_TIMEOUT_S = 2.0
+"""The default ``send_timeout``.  (Named constants rather than literals: mypyc cannot
+write the text signature of a method with literal defaults and ``**kwargs``, "non-default
+argument follows default argument"; with a constant it writes none.)"""
+
 PINGS = 3
 """``< echo >`` round trips measured after the handshake."""
 PING_WAIT_S = 0.1
@@ -151,8 +160,10 @@ class SocketcandBus(can.BusABC):
     ``< error ... >`` elements the server sent (they are also logged).
     """
 
-    def __init__(self, channel: str, host: str, port: int, *, connect_timeout: float = 3.0,
-                 handshake_timeout: float = 2.0, send_timeout: float = 2.0,
+    def __init__(self, channel: str, host: str, port: int, *,
+                 connect_timeout: float = CONNECT_TIMEOUT_S,
+                 handshake_timeout: float = HANDSHAKE_TIMEOUT_S,
+                 send_timeout: float = SEND_TIMEOUT_S,
                  receive_own_messages: bool = False, **kwargs: Any) -> None:
         if not isinstance(channel, str) or not _CHANNEL.fullmatch(channel):
             raise can.CanInitializationError(

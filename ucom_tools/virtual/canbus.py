@@ -22,6 +22,7 @@ from typing import Any
 import can
 
 from ucom_tools.errors import UcomError
+from ucom_tools.protocol.frames import data_frame
 from ucom_tools.signals import deferred
 from ucom_tools.virtual.fleet import Fleet, release_shared, shared_fleet
 from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
@@ -43,9 +44,8 @@ class HostPort:
 
     def on_frame(self, arbitration_id: int, data: bytes, t_end: float,
                  extended: bool = False) -> None:
-        msg = can.Message(timestamp=self.epoch + t_end / 1e6, arbitration_id=arbitration_id,
-                          data=data, is_extended_id=extended, channel=self.channel,
-                          is_rx=True)
+        msg = data_frame(self.epoch + t_end / 1e6, arbitration_id, bytearray(data),
+                         is_extended_id=extended, is_rx=True, channel=self.channel)
         if self.realtime:
             self.rt_inbox.put(msg)
         else:
@@ -122,9 +122,22 @@ class VirtualUcomBus(can.BusABC):
                 f"{29 if extended else 11} bits")
         if msg.dlc > 8:
             raise can.CanOperationError(f"DLC {msg.dlc}: at most 8")
-        data = bytes(msg.data[:msg.dlc])
+        self._send(msg.arbitration_id, bytes(msg.data[:msg.dlc]), extended, timeout)
+
+    def send_data(self, arbitration_id: int, data: bytes, timeout: float | None = None,
+                  ) -> None:
+        """:meth:`send` of a standard data frame given by its identifier and data, without
+        a ``can.Message`` (:meth:`~ucom_tools.protocol.dispatch.Dispatcher.send_data`:
+        the run time's frames); the same errors."""
+        if not 0 <= arbitration_id <= 0x7FF:
+            raise can.CanOperationError(f"identifier 0x{arbitration_id:X} has more than "
+                                        "11 bits")
+        if len(data) > 8:
+            raise can.CanOperationError(f"DLC {len(data)}: at most 8")
+        self._send(arbitration_id, bytes(data), False, timeout)
+
+    def _send(self, ident: int, data: bytes, extended: bool, timeout: float | None) -> None:
         sim, port = self.sim, self.port
-        ident = msg.arbitration_id
         if self.realtime:
             self.fleet.send_paced(sim, port, ident, data, timeout=timeout, extended=extended)
             if self.receive_own_messages:
@@ -154,6 +167,22 @@ class VirtualUcomBus(can.BusABC):
                     return None
                 if self._matches_filters(got[0]):
                     return got[0]
+
+    def advance(self, timeout: float) -> list[can.Message] | None:
+        """Run the fleet clock ``timeout`` seconds of virtual time on (every bus of the
+        fleet runs) and return every frame this bus received by then, in order, at once:
+        what :meth:`~ucom_tools.protocol.dispatch.Dispatcher.pump` does instead of one
+        :meth:`recv` per frame.  None where that is not the same: in real time, or with
+        filters (then ``recv`` applies them)."""
+        if self.realtime or self._filters:
+            return None
+        sim = self.sim
+        with deferred, sim.lock:
+            sim.run_until(sim.now + timeout * 1e6)
+            inbox = self.port.inbox
+            out = [msg for msg, _ in inbox]
+            inbox.clear()
+        return out
 
     def _next_virtual(self, deadline: float) -> tuple[can.Message, float] | None:
         port, sim = self.port, self.sim
