@@ -1,4 +1,5 @@
-"""Small builders shared by the tests (images and transfers), and ending the processes
+"""Small builders shared by the tests (images and transfers), a check that a bus's
+``send_data`` shortcut refuses what ``send`` refuses, and ending the processes
 they start."""
 
 from __future__ import annotations
@@ -7,6 +8,10 @@ import random
 import signal
 import subprocess
 from datetime import UTC, datetime
+from typing import Any
+
+import can
+import pytest
 
 from ucom_tools.protocol.programmer import Programmer, TransferResult
 from ucom_tools.wire.codes import Space, StatusOp, Target
@@ -51,3 +56,15 @@ def terminate(proc: subprocess.Popen[str], timeout: float = 15.0) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+def assert_send_data_refuses_as_send(bus: Any) -> None:
+    """``bus.send_data(id, data)`` (a bus's shortcut for a standard data frame) refuses a
+    bad identifier or an over-long payload with the same error text as ``bus.send``."""
+    for ident, data in [(0x800, b""), (-1, b"\x01"), (0x123, bytes(9))]:
+        with pytest.raises(can.CanOperationError) as fast:
+            bus.send_data(ident, data)
+        with pytest.raises(can.CanOperationError) as plain:
+            bus.send(can.Message(arbitration_id=ident, data=data, is_extended_id=False,
+                                 check=False))
+        assert str(fast.value) == str(plain.value)

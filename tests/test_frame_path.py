@@ -22,6 +22,7 @@ from typing import Any
 import can
 import pytest
 
+from tests.helpers import assert_send_data_refuses_as_send
 from ucom_tools.protocol import frames
 from ucom_tools.protocol.dispatch import Dispatcher
 from ucom_tools.transport import socketcand as client
@@ -227,13 +228,7 @@ def test_send_data_writes_what_send_writes() -> None:
             assert bus._batch is not None
             assert bus._batch[-1] == send_bytes(can.Message(arbitration_id=ident, data=data,
                                                             is_extended_id=False))
-        for ident, data in [(0x800, b""), (-1, b"\x01"), (0x123, bytes(9))]:
-            with pytest.raises(can.CanOperationError) as fast:
-                bus.send_data(ident, data)
-            with pytest.raises(can.CanOperationError) as plain:
-                bus.send(can.Message(arbitration_id=ident, data=data, is_extended_id=False,
-                                     check=False))
-            assert str(fast.value) == str(plain.value)
+        assert_send_data_refuses_as_send(bus)
         bus.release(write=False)
 
 

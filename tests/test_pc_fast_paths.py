@@ -11,6 +11,7 @@ from decimal import Decimal
 import can
 import pytest
 
+from tests.helpers import assert_send_data_refuses_as_send
 from ucom_tools.edgelists.model import EdgeKind, EdgeSpec
 from ucom_tools.errors import BusError, FrameError
 from ucom_tools.ops.edges import EdgeRef
@@ -130,12 +131,6 @@ def test_virtual_send_data_is_send(tmp_path) -> None:
     fleet = Fleet(load("armar3"))
     bus = VirtualUcomBus("CAN0", fleet=fleet)
     try:
-        for ident, data in [(0x800, b""), (-1, b"\x01"), (0x123, bytes(9))]:
-            with pytest.raises(can.CanOperationError) as fast:
-                bus.send_data(ident, data)
-            with pytest.raises(can.CanOperationError) as plain:
-                bus.send(can.Message(arbitration_id=ident, data=data, is_extended_id=False,
-                                     check=False))
-            assert str(fast.value) == str(plain.value)
+        assert_send_data_refuses_as_send(bus)
     finally:
         bus.shutdown()
