@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import heapq
+import random
+from collections.abc import Callable
+
+from ucom_tools.virtual.clock import FleetClock
 from ucom_tools.virtual.simbus import SimBus
 from ucom_tools.wire.canbits import frame_bits
 
@@ -62,3 +67,55 @@ def test_identical_identifiers_from_two_nodes_are_counted_as_clashes() -> None:
     bus.send(object(), 0.0, 0x0C1, b"\x02")
     bus.run_until(1000.0)
     assert bus.stats.clashes == 1
+
+
+def _events_run(seed: int, at: Callable[[float, int, Callable[[float], None]], None],
+                run: Callable[[], None]) -> list[tuple[float, int, int]]:
+    """Schedule 1,000 events (many at equal times and tiers), each of which may schedule
+    another while it runs (some in the past: at once), through ``at(t, tier, fn)``; run
+    them with ``run()``; the (time, tier, number) of each as it ran."""
+    rng = random.Random(seed)
+    ran: list[tuple[float, int, int]] = []
+    count = 0
+
+    def event(t: float, tier: int, number: int) -> None:
+        ran.append((t, tier, number))
+        if count < 2500 and rng.random() < 0.4:
+            schedule(t + rng.choice([-5.0, 0.0, 0.0, 1.0, 2.5]), rng.randrange(2))
+
+    def schedule(t: float, tier: int) -> None:
+        nonlocal count
+        number = count
+        count += 1
+        at(t, tier, lambda when: event(when, tier, number))
+
+    for _ in range(1000):
+        schedule(float(rng.randrange(50)), rng.randrange(2))
+    run()
+    return ran
+
+
+def test_the_clock_runs_events_by_time_then_tier_then_order_of_scheduling() -> None:
+    """Compiled, the clock keeps its events in a heap of its own (FleetClock._push/_pop),
+    from source in heapq (make test runs both): either way in the order of a reference
+    queue of (max(t, now), tier, sequence) tuples."""
+    clock = FleetClock()
+    got = _events_run(17, lambda t, tier, fn: clock.at(t, fn, tier=tier),
+                      lambda: clock.run_until(1e9))
+    queue: list[tuple[float, int, int, Callable[[float], None]]] = []
+    now, seq = 0.0, 0
+
+    def at(t: float, tier: int, fn: Callable[[float], None]) -> None:
+        nonlocal seq
+        heapq.heappush(queue, (max(t, now), tier, seq, fn))
+        seq += 1
+
+    def run() -> None:
+        nonlocal now
+        while queue:
+            now, _tier, _seq, fn = heapq.heappop(queue)
+            fn(now)
+
+    want = _events_run(17, at, run)
+    assert len(want) > 1500 and len({(t, tier) for t, tier, _ in want}) < len(want) / 4
+    assert got == want
