@@ -164,10 +164,12 @@ def _getter(keys: Sequence[tuple[int, int]],
 
 def _packer(signs: Sequence[tuple[int, bool]]) -> struct.Struct:
     """A struct that packs values of these (width, signed) big-endian, as
-    :func:`~ucom_tools.wire.mca.pack_values` does."""
-    codes = {(1, True): "b", (1, False): "B", (2, True): "h", (2, False): "H",
-             (4, True): "i", (4, False): "I", (8, True): "q", (8, False): "Q"}
-    return struct.Struct(">" + "".join(codes[w, signed] for w, signed in signs))
+    :func:`~ucom_tools.wire.mca.pack_values` does (:func:`~ucom_tools.wire.mca.
+    values_struct`; KeyError for a width it has no code for)."""
+    packer = mca.values_struct(signs)
+    if packer is None:
+        raise KeyError(f"no struct code for the widths of {list(signs)}")
+    return packer
 
 
 class ExchangeWatch(OtherHosts):

@@ -240,10 +240,6 @@ class RemoteValues:
         return out
 
 
-_CODES = {(1, True): "b", (1, False): "B", (2, True): "h", (2, False): "H",
-          (4, True): "i", (4, False): "I", (8, True): "q", (8, False): "Q"}
-
-
 class _SoFeed:
     """One SO map as :meth:`RemoteValues._report_so` follows it: where its frames land,
     the edge of each slot, a struct that unpacks its values (big-endian, as
@@ -257,10 +253,8 @@ class _SoFeed:
         self.image = image
         self.refs = refs
         self.records = list(records)
-        codes = [_CODES.get((r.width, r.signed)) for r in records]
-        self.unpacker: struct.Struct | None = None
-        if all(c is not None for c in codes):
-            self.unpacker = struct.Struct(">" + "".join(c or "" for c in codes))
+        self.unpacker: struct.Struct | None = mca.values_struct(
+            [(r.width, r.signed) for r in records])
         self.seen = 0
         self.last: list[int] | None = None
         self.alone = True

@@ -99,22 +99,15 @@ class Link:  # send_raw on an instance (frames lost on purpose), which a native 
     def send_raw(self, arbitration_id: int, data: bytes) -> None:
         """Hand one frame to the bus.  The interface may take a while to accept it (its
         transmit queue is full, a network bus pushes back): that wait is bounded like
-        every other, by the frames still ahead plus :data:`SEND_SLACK` and the margin."""
-        now = self.clock()
-        ahead = self._horizon - now if self._horizon > now else 0.0
-        limit = SHARED_BUS_FACTOR * ahead + SEND_SLACK + self.margin
-        try:
-            self.dispatcher.send_data(arbitration_id, data, timeout=limit)
-        except (can.CanError, OSError) as err:
-            self._offer_again(err, arbitration_id, data, limit)
-        self._horizon = (self._horizon if self._horizon > now else now) + \
-            self._frame_time[len(data)]
-        self.frames_sent += 1
+        every other, by the frames still ahead plus :data:`SEND_SLACK` and the margin
+        (:meth:`send_frames` of this one frame)."""
+        self.send_frames([(arbitration_id, data)])
 
     def send_frames(self, frames: list[tuple[int, bytes]]) -> None:
-        """:meth:`send_raw` of each frame in turn (a cyclic exchange's frames of one
-        cycle), with the link's attributes looked up once per call, not per frame: the
-        same limits, the same handling of a frame the bus does not take at once."""
+        """Hand each frame to the bus in turn (a cyclic exchange's frames of one cycle),
+        with the link's attributes looked up once per call, not per frame; each wait
+        bounded as :meth:`send_raw` says, a frame the bus does not take at once offered
+        again (:meth:`_offer_again`)."""
         if not frames:
             return
         send_data = self.dispatcher.send_data

@@ -15,7 +15,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Final
 
-from ucom_tools.wire.socketcand import CAN_EFF_FLAG, CAN_EFF_MASK
+from ucom_tools.wire.socketcand import CAN_EFF_FLAG, CAN_EFF_MASK, FRAME_EXT_HEAD, FRAME_STD_HEAD
 
 MAX_QUEUED_FRAMES = 10_000
 """Frames and replies that may wait for one client; one more and it is dropped."""
@@ -197,7 +197,7 @@ EXACT_UNTIL: Final = 2.0 ** 52
 
 def _prefix(arbitration_id: int) -> bytes:
     if arbitration_id & CAN_EFF_FLAG:
-        return b"< frame %08X " % (arbitration_id & CAN_EFF_MASK)
-    prefix = _PREFIXES[arbitration_id] = b"< frame %03X " % arbitration_id
+        return FRAME_EXT_HEAD % (arbitration_id & CAN_EFF_MASK)
+    prefix = _PREFIXES[arbitration_id] = FRAME_STD_HEAD % arbitration_id
     return prefix
 

@@ -98,6 +98,20 @@ def pack_values(specs: Sequence[tuple[int, bool]], values: Sequence[int]) -> byt
     return bytes(out)
 
 
+_STRUCT_CODES: Final = {(1, True): "b", (1, False): "B", (2, True): "h", (2, False): "H",
+                        (4, True): "i", (4, False): "I", (8, True): "q", (8, False): "Q"}
+
+
+def values_struct(specs: Sequence[tuple[int, bool]]) -> struct.Struct | None:
+    """A struct that packs and unpacks values of these (width, signed) as
+    :func:`pack_values` and :func:`unpack_values` lay them out (big-endian, one after the
+    other); None when a width has no struct code."""
+    codes = [_STRUCT_CODES.get(spec) for spec in specs]
+    if any(c is None for c in codes):
+        return None
+    return struct.Struct(">" + "".join([c for c in codes if c is not None]))
+
+
 def unpack_values(specs: Sequence[tuple[int, bool]], data: bytes) -> list[int]:
     """Bytes as raw values; the lengths must add up exactly."""
     need = sum(w for w, _ in specs)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import binascii
 import re
 from collections.abc import Callable
+from typing import Final
 
 MAX_ELEMENT = 4096
 """Longest element accepted from the other end, ``<`` and ``>`` included, in bytes."""
@@ -33,10 +34,16 @@ CAN_EFF_FLAG = 0x80000000
 CAN_EFF_MASK = 0x1FFFFFFF
 CAN_SFF_MASK = 0x7FF
 
-FRAME_STD = b"< frame %03X %.6f %s >"
+FRAME_STD_HEAD = b"< frame %03X "
+"""``< frame ID `` of a standard frame, ``%`` with its identifier (:data:`FRAME_STD`'s
+head: the serving path puts elements together from it, :mod:`~ucom_tools.virtual.
+serve_outbox`)."""
+FRAME_EXT_HEAD = b"< frame %08X "
+"""The same for an extended frame (the identifier without :data:`CAN_EFF_FLAG`)."""
+FRAME_STD = FRAME_STD_HEAD + b"%.6f %s >"
 """``< frame ID SEC.USEC DATA >`` of a standard frame, ``%`` with identifier, time in
 seconds and the data as upper-case hex digits (:func:`frame_element`)."""
-FRAME_EXT = b"< frame %08X %.6f %s >"
+FRAME_EXT = FRAME_EXT_HEAD + b"%.6f %s >"
 """The same for an extended frame (the identifier without :data:`CAN_EFF_FLAG`)."""
 SEND_STD = b"< send %03X %d %s >"
 """``< send ID DLC B0 B1 ... >`` of a standard frame with data, ``%`` with identifier,
@@ -192,8 +199,9 @@ def error_element(text: str, raw: bool = False) -> str:
 # ---------------------------------------------------------------------- frame
 def frame_element(can_id: int, seconds: float, data: bytes) -> bytes:
     """``< frame ID SEC.USEC DATA >`` as socketcand writes it; ``can_id`` with
-    :data:`CAN_EFF_FLAG` for an extended frame (the per-frame path of the server uses
-    :data:`FRAME_STD` and :data:`FRAME_EXT` directly)."""
+    :data:`CAN_EFF_FLAG` for an extended frame (the server's per-frame path puts the
+    same bytes together from :data:`FRAME_STD_HEAD` and :data:`FRAME_EXT_HEAD`:
+    :func:`~ucom_tools.virtual.serve_outbox.encode_lines`)."""
     if can_id & CAN_EFF_FLAG:
         return FRAME_EXT % (can_id & CAN_EFF_MASK, seconds, binascii.hexlify(data).upper())
     return FRAME_STD % (can_id, seconds, binascii.hexlify(data).upper())
@@ -319,7 +327,7 @@ def _hex_values() -> list[int]:
     return values
 
 
-_HEX_VALUE: list[int] = _hex_values()
+_HEX_VALUE: Final[list[int]] = _hex_values()
 """The value of each byte as a hex digit, -1 for the bytes that are none."""
 
 
