@@ -63,6 +63,9 @@ none longer than :data:`_FRAME_RUN_LONGEST`."""
 _FRAME_RUN_LONGEST = 80
 _FRAME_FIELDS = re.compile(rb"< frame ([0-9A-Fa-f]+) (\d+)\.(\d+) ([0-9A-Fa-f]*) ?>")
 """The fields of the elements :data:`_FRAME_RUN` took (it checked them already)."""
+_STD_RUN = re.compile(rb"(?:< frame [0-7][0-9A-Fa-f]{2} "
+                      rb"\d{1,20}\.\d{1,15} (?:[0-9A-Fa-f]{2}){0,8} ?>)+")
+""":data:`_FRAME_RUN` of standard frames only (:meth:`ElementSplitter.plain_data`)."""
 _PLAIN_SEND = re.compile(rb" ?send ([0-9A-Fa-f]{1,3}) ([0-8])((?: [0-9A-Fa-f]{1,2}){0,8}) ?")
 """A ``send`` element as clients write it (single blanks): the form :func:`plain_send`
 reads (without this expression; the tests hold the two to each other)."""
@@ -126,6 +129,32 @@ class ElementSplitter:
             return []
         end = self._pos = run.end()
         return _FRAME_FIELDS.findall(buf, pos, end)
+
+    def plain_data(self, arrival: float, offset: float,
+                   ) -> tuple[list[tuple[int, bytes, float]], float]:
+        """The standard data frames of the frame elements in the usual form from where the
+        unread part starts, up to the first other element (an extended frame's too, or an
+        unfinished one): identifier, data and time stamp on the reader's clock, the
+        reader's ``offset`` (``arrival`` minus the smallest difference between a frame's
+        arrival and its time stamp seen so far) updated frame by frame; and that offset.
+        Each frame's values are :func:`plain_fields`' (the time stamp
+        :func:`seconds_of`'s plus the offset); what is not one is left to :meth:`next`.
+        The run time's receiving path: one call per chunk, no ``can.Message``."""
+        if self.limit <= _FRAME_RUN_LONGEST:  # the elements' length must be checked
+            return [], offset
+        buf = self._buffer
+        pos = self._pos
+        run = _STD_RUN.match(buf, pos)
+        if run is None:
+            return [], offset
+        end = self._pos = run.end()
+        out: list[tuple[int, bytes, float]] = []
+        for ident, seconds, fraction, data in _FRAME_FIELDS.findall(buf, pos, end):
+            stamp = seconds_of(seconds, fraction)
+            if arrival - stamp < offset:
+                offset = arrival - stamp
+            out.append((int(ident, 16), binascii.unhexlify(data), stamp + offset))
+        return out, offset
 
     def unread(self) -> int:
         """Bytes fed and not yet returned as elements or skipped."""
