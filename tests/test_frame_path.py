@@ -157,7 +157,8 @@ def test_runs_of_frames_are_read_as_one_element_at_a_time_would(
                     bus._arrival = 1_796_173_615.0 + k * 1e-4
                     bus._splitter.feed(chunk)
                     take(bus)
-            results.append(([attributes(m) for m in bus._pending], bus.clock_offset,
+            results.append(([attributes(bus.message_of(m) if isinstance(m, tuple) else m)
+                              for m in bus._pending], bus.clock_offset,
                              list(bus.server_errors),
                              [r.getMessage() for r in caplog.records]))
     assert results[0] == results[1]

@@ -46,9 +46,11 @@ MODULES: tuple[str, ...] = (
     "ucom_tools.protocol.frames",
     "ucom_tools.protocol.link",
     "ucom_tools.protocol.mca",
+    "ucom_tools.signals",
     "ucom_tools.transport.socketcand",
     "ucom_tools.virtual.application",
     "ucom_tools.virtual.board",
+    "ucom_tools.virtual.canbus",
     "ucom_tools.virtual.clock",
     "ucom_tools.virtual.fpga",
     "ucom_tools.virtual.motor",
@@ -75,7 +77,7 @@ MODULES: tuple[str, ...] = (
 profiles of the served fleet and of the PC side put on top.  A compiled class's methods
 cannot be replaced: the conformance case that loses frames on purpose replaces
 ``Link.send_raw`` on an instance, so ``Link`` is compiled as a plain class
-(``native_class=False``, :mod:`ucom_tools.protocol.native`), and ``RemotePart`` (from
+(``native_class=False``, :mod:`ucom_tools.native`), and ``RemotePart`` (from
 source) may extend the compiled ``RemoteLoop``."""
 
 GROUP = "ucom_tools._native"

@@ -16,6 +16,8 @@ import threading
 from collections.abc import Iterator
 from typing import Any
 
+from ucom_tools.native import mypyc_attr
+
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
 """The signals that end a job as Ctrl-C does."""
 
@@ -23,7 +25,8 @@ _MAIN = threading.main_thread().ident
 _state: dict[str, int] = {"depth": 0, "pending": 0}
 
 
-class Terminated(KeyboardInterrupt):
+@mypyc_attr(native_class=False)  # compiled (deferred is on the fleet's per-frame path),
+class Terminated(KeyboardInterrupt):  # but a built-in exception's subclass
     """The job was ended by ``signum`` (SIGTERM or SIGHUP); handled as Ctrl-C."""
 
     def __init__(self, signum: int) -> None:

@@ -30,7 +30,6 @@ from ucom_tools.errors import BoardError, BusError, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import spec_of
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.dispatch import Periodic
-from ucom_tools.protocol.frames import data_frame
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import MASK_TABLE, BoardEdges, McaClient, values_of
 from ucom_tools.protocol.plan import BusPlan, CiMapPlan, needs_of, plan
@@ -373,9 +372,9 @@ class BusExchange:
 
     def start_alive(self) -> None:
         """MCA Alive as a periodic task of the dispatcher (until :meth:`stop_tasks`)."""
-        alive = self._alive
+        alive = [(self._alive.arbitration_id, b"")]
         self._tasks.append(self.link.dispatcher.every(
-            self.plan.alive_interval_us / 1e6, lambda: [alive], f"{self.bus.name} MCA Alive"))
+            self.plan.alive_interval_us / 1e6, lambda: alive, f"{self.bus.name} MCA Alive"))
 
     def _start_tasks(self) -> None:
         self.stop_tasks()
@@ -388,15 +387,15 @@ class BusExchange:
                                        f"{self.bus.name} CI maps every {interval:g} us"))
         self.start_alive()
 
-    def _ci_messages(self, indices: list[int]) -> Callable[[], list[can.Message]]:
-        def frames() -> list[can.Message]:
+    def _ci_messages(self, indices: list[int]) -> Callable[[], list[tuple[int, bytes]]]:
+        """The CI maps ``indices`` as a periodic task's frames (identifier, data)."""
+        def frames() -> list[tuple[int, bytes]]:
             out = []
             for k in indices:
                 c, used, signs = self._ci_frames[k]
                 ident, packer = self._ci_fast[k]
-                out.append(data_frame(0.0, ident, bytearray(self._ci_data(  # can.Message(
-                    c.number, signs, packer, [self.ci[s] for s in used])),  # ...) as built
-                    is_extended_id=False, is_rx=True, channel=None))
+                out.append((ident, self._ci_data(c.number, signs, packer,
+                                                 [self.ci[s] for s in used])))
             return out
         return frames
 

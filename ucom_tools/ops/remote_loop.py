@@ -22,13 +22,13 @@ from typing import Any, Self
 import can
 
 from ucom_tools.errors import BusError, FrameError, UcomError
+from ucom_tools.native import mypyc_attr
 from ucom_tools.ops.exchange import BusExchange
 from ucom_tools.ops.realtime import RealtimeScheduling, precise_sleep
 from ucom_tools.ops.remote_report import BoardEvent, LoopStats, Value
 from ucom_tools.ops.remote_values import RemoteValues
 from ucom_tools.ops.robot import BusHandle, Robot
 from ucom_tools.protocol.dispatch import share_clock
-from ucom_tools.protocol.native import mypyc_attr
 from ucom_tools.wire import messages as wire_messages
 from ucom_tools.wire.codes import ErrorCode
 from ucom_tools.wire.ids import Function

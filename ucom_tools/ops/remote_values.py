@@ -14,12 +14,12 @@ import struct
 from collections.abc import Callable, Iterator, Mapping, Sequence
 
 from ucom_tools.errors import InputError
+from ucom_tools.native import mypyc_attr
 from ucom_tools.ops.edges import EdgeRef, Names
 from ucom_tools.ops.exchange import BusExchange
 from ucom_tools.ops.remote_report import RawSnapshot, Value
 from ucom_tools.ops.robot import Robot
 from ucom_tools.protocol.mca import ProcessImage, values_of
-from ucom_tools.protocol.native import mypyc_attr
 from ucom_tools.wire import mca
 from ucom_tools.wire.ids import seq
 

@@ -30,7 +30,7 @@ from collections.abc import Callable, Iterable
 import can
 
 from ucom_tools.errors import BusError
-from ucom_tools.protocol.frames import data_frame
+from ucom_tools.protocol.frames import DataFrame, data_frame
 from ucom_tools.wire.canbits import frame_bits
 
 STUFF_SAMPLE = 16
@@ -43,25 +43,36 @@ POLL_S = 0.05
 Accepts = Callable[[can.Message], bool]
 """A subscriber's filter.  It must look only at the identifier and the frame's type
 (extended, remote, error): its answer is kept per identifier."""
+OnData = Callable[[int, bytes, float], None]
+"""A subscriber's callback for standard data frames by identifier, data and time stamp."""
 
 
 class Subscription:
-    """Frames a client takes: queued for :meth:`Dispatcher.wait`, or passed to ``on_frame``."""
+    """Frames a client takes: queued for :meth:`Dispatcher.wait`, passed to ``on_frame``,
+    or, standard data frames (all a filter that takes only those gets), to ``on_data`` as
+    identifier, data and time stamp: no ``can.Message`` where the bus hands over
+    :data:`~ucom_tools.protocol.frames.DataFrame` s (the run time's SO maps)."""
 
     def __init__(self, accepts: Accepts, name: str,
-                 on_frame: Callable[[can.Message], None] | None = None) -> None:
+                 on_frame: Callable[[can.Message], None] | None = None,
+                 on_data: OnData | None = None) -> None:
         self.accepts = accepts
         self.name = name
         self.on_frame = on_frame
+        self.on_data = on_data
         self.queue: deque[can.Message] = deque()
         self.dropped = 0
+
+
+Frames = Callable[[], Iterable[can.Message | tuple[int, bytes]]]
+"""A periodic task's frames: messages, or standard data frames as (identifier, data),
+sent without a ``can.Message`` (:meth:`Dispatcher.send_data`)."""
 
 
 class Periodic:
     """Frames sent every ``period`` seconds of the bus clock, due at ``start + k period``."""
 
-    def __init__(self, period: float, frames: Callable[[], Iterable[can.Message]],
-                 name: str, due: float) -> None:
+    def __init__(self, period: float, frames: Frames, name: str, due: float) -> None:
         if period <= 0:
             raise ValueError("period must be positive")
         self.period = period
@@ -129,12 +140,31 @@ class Dispatcher:
         (:func:`share_clock`)."""
         self._next_due: float | None = None
         """When the next periodic task is due (None: look)."""
-        advance = getattr(bus, "advance", None)
-        self._advance: Callable[[float], list[can.Message] | None] | None = \
+        advance = getattr(bus, "advance_frames", None)
+        self._advance: Callable[[float], list[can.Message | DataFrame] | None] | None = \
             advance if callable(advance) else None
         """The bus's way to run its clock on and hand over every frame that came meanwhile
-        in one call (:meth:`~ucom_tools.virtual.canbus.VirtualUcomBus.advance`: the
-        in-process fleet in virtual time), if it has one: :meth:`pump` uses it."""
+        in one call (:meth:`~ucom_tools.virtual.canbus.VirtualUcomBus.advance_frames`:
+        the in-process fleet in virtual time), if it has one: :meth:`pump` uses it."""
+        ready = getattr(bus, "recv_ready_frames", None)
+        self._ready: Callable[[int], list[can.Message | DataFrame] | None] | None = \
+            ready if callable(ready) else None
+        """The bus's way to hand over every frame that has arrived in one call, without
+        waiting (:meth:`~ucom_tools.transport.socketcand.SocketcandBus.
+        recv_ready_frames`), if it has one: :meth:`drain` uses it."""
+        message_of = getattr(bus, "message_of", None)
+        self._message_of: Callable[[DataFrame], can.Message] | None = \
+            message_of if callable(message_of) else None
+        """The message the bus's ``recv`` gives for a :data:`DataFrame` it handed over
+        (a bus with ``advance_frames`` or ``recv_ready_frames`` has one)."""
+        send_many = getattr(bus, "send_data_many", None)
+        self._send_many: Callable[[list[tuple[int, bytes]], float | None], None] | None = \
+            send_many if callable(send_many) else None
+        """The bus's way to send several standard data frames in one call, all or none
+        (:meth:`~ucom_tools.transport.socketcand.SocketcandBus.send_data_many`), if it
+        has one."""
+        self.batches = self._send_many is not None
+        """Whether :meth:`send_data_many` hands frames to the bus in one call."""
         send_data = getattr(bus, "send_data", None)
         self._send_data: Callable[[int, bytes, float | None], None] | None = \
             send_data if callable(send_data) else None
@@ -143,8 +173,12 @@ class Dispatcher:
 
     # ------------------------------------------------------------------ subscribers
     def subscribe(self, accepts: Accepts, name: str,
-                  on_frame: Callable[[can.Message], None] | None = None) -> Subscription:
-        sub = Subscription(accepts, name, on_frame)
+                  on_frame: Callable[[can.Message], None] | None = None, *,
+                  on_data: OnData | None = None) -> Subscription:
+        """Frames that ``accepts`` takes from now on: to ``on_frame``, or ``on_data``
+        (standard data frames only: an ``accepts`` that takes no other), else queued for
+        :meth:`wait`."""
+        sub = Subscription(accepts, name, on_frame, on_data)
         with self._cond:
             self.subscriptions.append(sub)
             self._routes = {}
@@ -194,15 +228,43 @@ class Dispatcher:
             for tap in taps:
                 tap(out)
 
+    def send_data_many(self, frames: list[tuple[int, bytes]], timeout: float | None,
+                       ) -> None:
+        """:meth:`send_data` of each frame, in one call to a bus that :attr:`batches`
+        (within ``timeout`` for all of them; if the bus raises, it took none), else one
+        by one."""
+        fast = self._send_many
+        if fast is None:
+            for ident, data in frames:
+                self.send_data(ident, data, timeout)
+            return
+        with self._send_lock:
+            fast(frames, timeout)
+        self.sent += len(frames)
+        taps = self.taps
+        for ident, data in frames:
+            nominal = 47 + 8 * len(data)  # _count_data(), inlined
+            self._nominal += nominal
+            counted = self._frames_counted = self._frames_counted + 1
+            if counted % STUFF_SAMPLE == 1:
+                self._sample_nominal += nominal
+                self._sample_exact += frame_bits(ident, bytes(data))
+            if taps:
+                out = data_frame(self._stamp(), ident, bytearray(data),
+                                 is_extended_id=False, is_rx=False, channel=self.name)
+                for tap in taps:
+                    tap(out)
+
     def stamp(self) -> float:
         """Now, on the time base of this bus's received frames' timestamps (what a sent
         frame is stamped with for the taps)."""
         return self._stamp()
 
-    def every(self, period: float, frames: Callable[[], Iterable[can.Message]], name: str,
+    def every(self, period: float, frames: Frames, name: str,
               *, start: float | None = None) -> Periodic:
         """Send ``frames()`` every ``period`` seconds of :attr:`clock`, the first time at
-        ``start`` (now when None)."""
+        ``start`` (now when None); a frame given as (identifier, data) by
+        :meth:`send_data`."""
         task = Periodic(period, frames, name, self.clock() if start is None else start)
         with self._cond:
             self._tasks.append(task)
@@ -223,7 +285,7 @@ class Dispatcher:
         nxt = self._next_due
         if nxt is not None and self.clock() < nxt:
             return nxt  # nothing due (the common case: no lock taken)
-        with self._cond:
+        with self._lock:  # (_cond's lock, without Condition's Python __enter__)
             if self._in_tasks:
                 return min(t.due for t in self._tasks) if self._tasks else None
             self._in_tasks = True
@@ -237,14 +299,17 @@ class Dispatcher:
                 missed = int(delay // task.period)
                 task.late += missed
                 task.max_delay = max(task.max_delay, delay)
-                for msg in task.frames():
-                    self.send(msg, timeout=task.period)
+                for frame in task.frames():
+                    if isinstance(frame, tuple):
+                        self.send_data(frame[0], frame[1], task.period)
+                    else:
+                        self.send(frame, timeout=task.period)
                 task.sent += 1
                 task.due += (missed + 1) * task.period
             self._next_due = min((t.due for t in tasks if not t.cancelled), default=None)
             return self._next_due
         finally:
-            with self._cond:
+            with self._lock:
                 self._in_tasks = False
 
     # ------------------------------------------------------------------ receiving
@@ -350,31 +415,54 @@ class Dispatcher:
         """Hand a received frame to every subscriber that takes it."""
         self.dispatch_all((msg,))
 
-    def dispatch_all(self, msgs: Iterable[can.Message]) -> None:
+    def dispatch_all(self, msgs: Iterable[can.Message | DataFrame]) -> None:
         """:meth:`dispatch` of each frame in turn, with the per-frame work inlined: the
         loop of the run time hands over some 16 frames a millisecond (counting, taps,
-        the route of a standard data frame looked up by its identifier alone)."""
-        for msg in msgs:
+        the route of a standard data frame looked up by its identifier alone).  A frame
+        may be a :data:`~ucom_tools.protocol.frames.DataFrame` from the bus (then its
+        message is built only for a tap or a subscriber without ``on_data``)."""
+        taps = self.taps
+        for item in msgs:
             self.received += 1
-            ident = msg.arbitration_id
-            plain = not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame)
+            msg: can.Message | None
+            if isinstance(item, tuple):
+                ident, data, stamp = item
+                msg = None
+                plain = True
+            else:
+                msg = item
+                ident = msg.arbitration_id
+                plain = not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame)
+                data = bytes(msg.data) if plain else b""
+                stamp = msg.timestamp
             if plain:
-                data = msg.data
                 nominal = 47 + 8 * len(data)  # _count_data(), inlined
                 self._nominal += nominal
                 counted = self._frames_counted = self._frames_counted + 1
                 if counted % STUFF_SAMPLE == 1:
                     self._sample_nominal += nominal
-                    self._sample_exact += frame_bits(ident, bytes(data))
-            for tap in self.taps:
-                tap(msg)
+                    self._sample_exact += frame_bits(ident, data)
+            if taps:
+                if msg is None:
+                    msg = self._message(item)
+                for tap in taps:
+                    tap(msg)
             subs = self._routes.get(ident) if plain else None
             if subs is None:
+                if msg is None:
+                    msg = self._message(item)
                 subs = self._route(msg)
             if not subs:
                 self.unclaimed[ident >> 6] += 1
                 continue
             for sub in subs:
+                on_data = sub.on_data
+                if on_data is not None:  # (it takes standard data frames only)
+                    if plain:
+                        on_data(ident, data, stamp)
+                    continue
+                if msg is None:
+                    msg = self._message(item)
                 on_frame = sub.on_frame
                 if on_frame is not None:
                     on_frame(msg)
@@ -385,8 +473,19 @@ class Dispatcher:
                         sub.dropped += 1
                     sub.queue.append(msg)
 
+    def _message(self, item: can.Message | DataFrame) -> can.Message:
+        """The message of a frame :meth:`dispatch_all` was handed."""
+        if not isinstance(item, tuple):
+            return item
+        message_of = self._message_of
+        if message_of is not None:
+            return message_of(item)
+        ident, data, stamp = item
+        return data_frame(stamp, ident, bytearray(data), is_extended_id=False, is_rx=True,
+                          channel=self.name)
+
     def _advance_one(self, timeout: float) -> int | None:
-        """:meth:`_read_one` by the bus's ``advance``: send the periodic frames due, run
+        """:meth:`_read_one` by the bus's ``advance_frames``: send the periodic frames due, run
         the bus's clock ``timeout`` on (or until the next periodic frame is due) and
         dispatch every frame that came meanwhile, in order; how many (None: the bus
         cannot now, read one by one)."""
@@ -453,8 +552,8 @@ class Dispatcher:
             for d in self.group:  # the periodic frames due, once (not once per frame)
                 d._run_due()
             recv, dispatch = self.bus.recv, self.dispatch
-            ready = getattr(self.bus, "recv_ready", None)
-            if callable(ready):  # a bus that hands over what has arrived in one call
+            ready = self._ready
+            if ready is not None:  # a bus that hands over what has arrived in one call
                 try:
                     msgs = ready(limit)
                 except can.CanError as err:

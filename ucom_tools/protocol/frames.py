@@ -1,4 +1,5 @@
-"""``can.Message`` built without its constructor, for the per-frame paths.
+"""``can.Message`` built without its constructor, for the per-frame paths; and
+:data:`DataFrame`, a received frame without one.
 
 The run time's loop builds a message for every frame it receives over socketcand, and for
 every frame it sends while a tap (a recorder) listens; python-can's constructor, with its
@@ -11,6 +12,13 @@ is used only while ``can.Message`` has exactly the attributes set here (python-c
 from __future__ import annotations
 
 import can
+
+DataFrame = tuple[int, bytes, float]
+"""A received standard (11-bit) data frame as the run time's receiving paths carry it:
+identifier, data and time stamp, no ``can.Message``.  A bus that hands these over
+(``recv_ready_frames``, ``advance_frames``: :class:`~ucom_tools.protocol.dispatch.
+Dispatcher`) builds the message its ``recv`` would have given with ``message_of``, for
+the subscribers and taps that take messages."""
 
 _ATTRIBUTES = frozenset({"arbitration_id", "bitrate_switch", "channel", "data", "dlc",
                          "error_state_indicator", "is_error_frame", "is_extended_id",

@@ -23,8 +23,8 @@ from dataclasses import dataclass
 import can
 
 from ucom_tools.errors import BusError, FrameError
+from ucom_tools.native import mypyc_attr
 from ucom_tools.protocol.dispatch import Dispatcher
-from ucom_tools.protocol.native import mypyc_attr
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.canbits import worst_frame_bits
 from ucom_tools.wire.ids import Address, Direction
@@ -107,14 +107,32 @@ class Link:  # send_raw on an instance (frames lost on purpose), which a native 
         """Hand each frame to the bus in turn (a cyclic exchange's frames of one cycle),
         with the link's attributes looked up once per call, not per frame; each wait
         bounded as :meth:`send_raw` says, a frame the bus does not take at once offered
-        again (:meth:`_offer_again`)."""
+        again (:meth:`_offer_again`).  A bus that takes a cycle's frames in one call
+        (:meth:`~ucom_tools.protocol.dispatch.Dispatcher.send_data_many`: socketcand)
+        gets them so, within the last frame's bound; if it refuses them, it took none
+        (all or nothing), and they are handed over one by one."""
         if not frames:
             return
-        send_data = self.dispatcher.send_data
         frame_time = self._frame_time
         base = SEND_SLACK + self.margin
         now = self.clock()
         horizon = self._horizon
+        dispatcher = self.dispatcher
+        if dispatcher.batches:
+            start = horizon if horizon > now else now
+            last = start
+            for _, data in frames:
+                last += frame_time[len(data)]
+            final = last - frame_time[len(frames[-1][1])]  # the last frame's horizon before it
+            try:
+                dispatcher.send_data_many(frames, SHARED_BUS_FACTOR * (final - now) + base)
+            except (can.CanError, OSError):
+                pass  # none was taken: one by one, with their own bounds and retries
+            else:
+                self._horizon = last
+                self.frames_sent += len(frames)
+                return
+        send_data = dispatcher.send_data
         try:
             for ident, data in frames:
                 limit = SHARED_BUS_FACTOR * (horizon - now if horizon > now else 0.0) + base

@@ -66,10 +66,15 @@ class ProcessImage:
     counts: dict[int, int] = field(default_factory=dict)
 
     def take(self, msg: can.Message) -> None:
-        """A received SO map (every one the boards send: :func:`mca.mask` inlined)."""
-        number = msg.arbitration_id & 0x1F
-        self.frames[number] = bytes(msg.data).translate(MASK_TABLE)
-        self.stamps[number] = msg.timestamp
+        """A received SO map, as a message (:meth:`take_data`)."""
+        self.take_data(msg.arbitration_id, bytes(msg.data), msg.timestamp)
+
+    def take_data(self, arbitration_id: int, data: bytes, stamp: float) -> None:
+        """A received SO map by identifier, data and time stamp (every one the boards
+        send: :func:`mca.mask` inlined)."""
+        number = arbitration_id & 0x1F
+        self.frames[number] = data.translate(MASK_TABLE)
+        self.stamps[number] = stamp
         counts = self.counts
         counts[number] = counts.get(number, 0) + 1
 
@@ -91,7 +96,7 @@ class McaClient:
         dispatcher = link.dispatcher
         self._sub = dispatcher.subscribe(_answer, f"{link.name} run time")
         self._maps = dispatcher.subscribe(_so_map, f"{link.name} process data",
-                                          on_frame=self.image.take)
+                                          on_data=self.image.take_data)
 
     def close(self) -> None:
         self.link.dispatcher.unsubscribe(self._sub)

@@ -55,29 +55,24 @@ import selectors
 import socket
 import threading
 import time
-from binascii import hexlify, unhexlify
+from binascii import hexlify
 from collections import deque
 from collections.abc import Iterator
 from typing import Any
 
 import can
 
-from ucom_tools.protocol.frames import FAST as FAST_MESSAGES
-from ucom_tools.protocol.frames import new_message
+from ucom_tools.protocol.frames import DataFrame, data_frame
 from ucom_tools.wire.socketcand import (
     CAN_EFF_FLAG,
     CAN_EFF_MASK,
     CAN_SFF_MASK,
-    EXACT_FLOAT,
-    FRACTION_SCALES,
     MAX_ELEMENT,
     SEND_EMPTY,
     SEND_STD,
     ElementSplitter,
     frame_words,
-    plain_fields,
     plain_frame,
-    seconds_of,
 )
 from ucom_tools.wire.socketcand import send_element as wire_send_element
 
@@ -182,7 +177,9 @@ class SocketcandBus(can.BusABC):
         self.clock_offset = math.inf
         """This machine's clock minus the server's, as measured (seconds; inf until the
         first frame)."""
-        self._pending: deque[can.Message] = deque()
+        self._pending: deque[can.Message | DataFrame] = deque()
+        """What arrived and was not yet taken: standard data frames as
+        :data:`~ucom_tools.protocol.frames.DataFrame` s, others as messages."""
         self.round_trip_s: float | None = None
         """The longest of the round trips measured while connecting (``< rawmode >`` and
         :data:`PINGS` ``< echo >``): what the deadlines of a network bus add."""
@@ -279,7 +276,8 @@ class SocketcandBus(can.BusABC):
             if self._closed:
                 raise self._shut_down()
             if self._pending:
-                return self._pending.popleft(), False
+                item = self._pending.popleft()
+                return (self.message_of(item) if isinstance(item, tuple) else item), False
             self._check_usable()
             self._take_buffered()
             if self._pending:
@@ -288,10 +286,12 @@ class SocketcandBus(can.BusABC):
             if not self._read_more(remaining):
                 return None, False
 
-    def recv_ready(self, limit: int = 1000) -> list[can.Message] | None:
+    def recv_ready_frames(self, limit: int = 1000) -> list[can.Message | DataFrame] | None:
         """Every frame that has arrived, without waiting (at most about ``limit``): what
-        a loop that polls its buses takes in one call, not one ``recv`` per frame.  None
-        when the bus has filters (then ``recv`` applies them).
+        a loop that polls its buses takes in one call, not one ``recv`` per frame; a
+        standard data frame as a :data:`~ucom_tools.protocol.frames.DataFrame`
+        (:meth:`message_of` is the message ``recv`` would give), any other as a message.
+        None when the bus has filters (then ``recv`` applies them).
 
         A read that returns less than it could have emptied the socket's buffer: what
         comes after it came after this call, and the next one takes it (no second read
@@ -314,61 +314,31 @@ class SocketcandBus(can.BusABC):
         pending.clear()
         return out
 
+    def message_of(self, frame: DataFrame) -> can.Message:
+        """The message :meth:`recv` gives for a frame :meth:`recv_ready_frames` handed
+        over as a :data:`~ucom_tools.protocol.frames.DataFrame`."""
+        ident, data, stamp = frame
+        return data_frame(stamp, ident, bytearray(data), is_extended_id=False, is_rx=True,
+                          channel=self.channel)
+
     def _take_buffered(self) -> None:
-        """Every complete element buffered, taken: runs of frame elements in the usual
-        form at once (:meth:`_take_plain`), any other element by :meth:`_take`."""
+        """Every complete element buffered, taken: runs of standard frame elements in the
+        usual form at once (:meth:`ElementSplitter.plain_data`, as
+        :data:`~ucom_tools.protocol.frames.DataFrame` s stamped on this machine's clock:
+        what :meth:`_take` and :meth:`_local` give, without a message), any other
+        element by :meth:`_take`."""
         splitter = self._splitter
+        pending = self._pending
         while splitter.unread():
-            fields = splitter.plain_frames()
-            if fields:
-                self._take_plain(fields)
+            frames, self.clock_offset = splitter.plain_data(self._arrival, self.clock_offset)
+            if frames:
+                pending.extend(frames)
                 if not splitter.unread():
                     return
             element = self._pop_element()
             if element is None:
                 return
             self._take(element)
-
-    def _take_plain(self, fields: list[tuple[bytes, bytes, bytes, bytes]]) -> None:
-        """:meth:`_take` of frame elements in the usual form, given their fields
-        (:meth:`ElementSplitter.plain_frames`): what :func:`plain_frame`, ``can.Message``
-        and :meth:`_local` do, inlined (:func:`~ucom_tools.protocol.frames.data_frame`;
-        the loop of the run time takes some 16 of these every millisecond)."""
-        if not FAST_MESSAGES:
-            for ident, seconds, fraction, data in fields:
-                can_id, stamp, payload = plain_fields(ident, seconds, fraction, data)
-                self._pending.append(self._local(can.Message(
-                    timestamp=stamp, arbitration_id=can_id & CAN_EFF_MASK, data=payload,
-                    is_extended_id=can_id > CAN_EFF_MASK, is_rx=True,
-                    channel=self.channel)))
-            return
-        arrival = self._arrival
-        offset = self.clock_offset
-        channel = self.channel
-        append = self._pending.append
-        message = can.Message
-        for ident, seconds, fraction, data in fields:
-            digits = int(seconds + fraction)
-            scale = FRACTION_SCALES.get(len(fraction))
-            stamp = digits / scale if scale is not None and digits <= EXACT_FLOAT \
-                else seconds_of(seconds, fraction)
-            if arrival - stamp < offset:
-                offset = arrival - stamp
-            msg = new_message(message)
-            msg.timestamp = stamp + offset
-            msg.arbitration_id = int(ident, 16)
-            msg.is_extended_id = len(ident) == 8
-            msg.is_remote_frame = False
-            msg.is_error_frame = False
-            msg.channel = channel
-            msg.is_fd = False
-            msg.is_rx = True
-            msg.bitrate_switch = False
-            msg.error_state_indicator = False
-            msg.data = octets = bytearray(unhexlify(data))
-            msg.dlc = len(octets)
-            append(msg)
-        self.clock_offset = offset
 
     def _take(self, element: bytes) -> None:
         """One element between its brackets: a frame to :attr:`_pending`, an error noted."""
@@ -483,6 +453,29 @@ class SocketcandBus(can.BusABC):
             self._pending.append(can.Message(
                 timestamp=time.time(), arbitration_id=arbitration_id, is_extended_id=False,
                 data=bytes(data), is_rx=False, channel=self.channel))
+
+    def send_data_many(self, frames: list[tuple[int, bytes]], timeout: float | None = None,
+                       ) -> None:
+        """:meth:`send_data` of each frame, in one write (or one piece of the batch held:
+        :meth:`hold`) within ``timeout``: all of them or none (a frame that is not a
+        standard data frame of at most 8 bytes: each sent by :meth:`send_data` in turn,
+        which refuses it as :meth:`send` does)."""
+        elements = []
+        for ident, data in frames:
+            n = len(data)
+            if not 0 <= ident <= CAN_SFF_MASK or n > 8:
+                for ident2, data2 in frames:
+                    self.send_data(ident2, data2, timeout)
+                return
+            elements.append(SEND_STD % (ident, n, hexlify(data, b" ").upper()) if n
+                            else SEND_EMPTY % ident)
+        self._put(b"".join(elements), timeout)
+        if self.receive_own_messages:
+            now = time.time()
+            for ident, data in frames:
+                self._pending.append(can.Message(
+                    timestamp=now, arbitration_id=ident, is_extended_id=False,
+                    data=bytes(data), is_rx=False, channel=self.channel))
 
     def _put(self, element: bytes, timeout: float | None) -> None:
         """Collect ``element`` when this thread holds a batch (:meth:`hold`), else write it

@@ -22,7 +22,7 @@ from typing import Any
 import can
 
 from ucom_tools.errors import UcomError
-from ucom_tools.protocol.frames import data_frame
+from ucom_tools.protocol.frames import DataFrame, data_frame
 from ucom_tools.signals import deferred
 from ucom_tools.virtual.fleet import Fleet, release_shared, shared_fleet
 from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
@@ -39,21 +39,46 @@ class HostPort:
         self.epoch = epoch
         self.channel = channel
         self.realtime = realtime
-        self.inbox: deque[tuple[can.Message, float]] = deque()
+        self.inbox: deque[can.Message | DataFrame] = deque()
+        """Virtual time: what arrived and was not yet taken, a standard data frame as a
+        :data:`~ucom_tools.protocol.frames.DataFrame` (:meth:`message` builds its
+        message), an extended one as a message."""
         self.rt_inbox: queue.SimpleQueue[can.Message] = queue.SimpleQueue()
 
     def on_frame(self, arbitration_id: int, data: bytes, t_end: float,
                  extended: bool = False) -> None:
-        msg = data_frame(self.epoch + t_end / 1e6, arbitration_id, bytearray(data),
-                         is_extended_id=extended, is_rx=True, channel=self.channel)
+        stamp = self.epoch + t_end / 1e6
         if self.realtime:
-            self.rt_inbox.put(msg)
+            self.rt_inbox.put(data_frame(stamp, arbitration_id, bytearray(data),
+                                         is_extended_id=extended, is_rx=True,
+                                         channel=self.channel))
+        elif extended:
+            self.inbox.append(data_frame(stamp, arbitration_id, bytearray(data),
+                                         is_extended_id=True, is_rx=True,
+                                         channel=self.channel))
         else:
-            self.inbox.append((msg, t_end))
+            self.inbox.append((arbitration_id, bytes(data), stamp))
+
+    def message(self, item: can.Message | DataFrame) -> can.Message:
+        """The message of an item of :attr:`inbox`."""
+        if not isinstance(item, tuple):
+            return item
+        ident, data, stamp = item
+        return data_frame(stamp, ident, bytearray(data), is_extended_id=False, is_rx=True,
+                          channel=self.channel)
 
     def on_extended_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None:
         """A frame with a 29-bit identifier (another host's: boards send none)."""
         self.on_frame(arbitration_id, data, t_end, extended=True)
+
+
+def _init_error(err: UcomError) -> can.CanInitializationError:
+    """python-can's error for a bus that cannot be opened, caused by ``err`` (set here
+    too: compiled, ``raise ... from err`` leaves ``__cause__`` unset, and the CLI gives
+    the cause's own exit code)."""
+    error = can.CanInitializationError(str(err))
+    error.__cause__ = err
+    return error
 
 
 class VirtualUcomBus(can.BusABC):
@@ -76,7 +101,7 @@ class VirtualUcomBus(can.BusABC):
                 fleet = shared_fleet(topology, Path(state_dir) if state_dir else None,
                                      realtime)
             except UcomError as err:
-                raise can.CanInitializationError(str(err)) from err
+                raise _init_error(err) from err
         elif "/" in name:
             name = name.rsplit("/", 1)[1]
         if not name:
@@ -86,7 +111,7 @@ class VirtualUcomBus(can.BusABC):
         except UcomError as err:
             if self._shared:
                 release_shared(fleet)
-            raise can.CanInitializationError(str(err)) from err
+            raise _init_error(err) from err
         self.fleet = fleet
         self.realtime = fleet.realtime
         self.receive_own_messages = receive_own_messages
@@ -165,13 +190,15 @@ class VirtualUcomBus(can.BusABC):
                 got = self._next_virtual(deadline)
                 if got is None:
                     return None
-                if self._matches_filters(got[0]):
-                    return got[0]
+                if self._matches_filters(got):
+                    return got
 
-    def advance(self, timeout: float) -> list[can.Message] | None:
+    def advance_frames(self, timeout: float) -> list[can.Message | DataFrame] | None:
         """Run the fleet clock ``timeout`` seconds of virtual time on (every bus of the
-        fleet runs) and return every frame this bus received by then, in order, at once:
-        what :meth:`~ucom_tools.protocol.dispatch.Dispatcher.pump` does instead of one
+        fleet runs) and return every frame this bus received by then, in order, at once,
+        a standard data frame as a :data:`~ucom_tools.protocol.frames.DataFrame`
+        (:meth:`message_of` builds the message ``recv`` gives): what
+        :meth:`~ucom_tools.protocol.dispatch.Dispatcher.pump` does instead of one
         :meth:`recv` per frame.  None where that is not the same: in real time, or with
         filters (then ``recv`` applies them)."""
         if self.realtime or self._filters:
@@ -180,11 +207,15 @@ class VirtualUcomBus(can.BusABC):
         with deferred, sim.lock:
             sim.run_until(sim.now + timeout * 1e6)
             inbox = self.port.inbox
-            out = [msg for msg, _ in inbox]
+            out = list(inbox)
             inbox.clear()
         return out
 
-    def _next_virtual(self, deadline: float) -> tuple[can.Message, float] | None:
+    def message_of(self, frame: DataFrame) -> can.Message:
+        """The message :meth:`recv` gives for a frame :meth:`advance_frames` handed over."""
+        return self.port.message(frame)
+
+    def _next_virtual(self, deadline: float) -> can.Message | None:
         port, sim = self.port, self.sim
         inbox = port.inbox
         if not inbox:
@@ -192,7 +223,7 @@ class VirtualUcomBus(can.BusABC):
                 return None  # nothing can ever arrive in virtual time
             sim.run_until(deadline, stop=lambda: bool(inbox))
         if inbox:
-            return inbox.popleft()
+            return port.message(inbox.popleft())
         return None
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
@@ -204,7 +235,7 @@ class VirtualUcomBus(can.BusABC):
         with deferred, self.sim.lock:
             deadline = INF if timeout is None else self.sim.now + timeout * 1e6
             got = self._next_virtual(deadline)
-        return (got[0], False) if got else (None, False)
+        return got, False
 
     def state_failures(self) -> list[str]:
         """Why boards of this bus could not save their flash to the state directory (their

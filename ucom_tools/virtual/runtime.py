@@ -33,6 +33,7 @@ from ucom_tools.wire.ids import Function
 
 _FORMAT: Final = {(2, True): "h", (2, False): "H", (4, True): "i", (4, False): "I"}
 _MASK_TABLE: Final = bytes(b ^ mca.MAP_MASK for b in range(256))
+_ALIVE: Final = int(Function.MCA_ALIVE)
 """``bytes.translate`` table of :func:`ucom_tools.wire.mca.mask`."""
 
 FRAME_COST_US: Final = 4.0
@@ -274,6 +275,9 @@ class McaRuntime:
     def on_frame(self, function: int, data: bytes, t: float) -> None:
         """A generic MCA frame addressed to this board (or broadcast)."""
         self.stats.frames += 1
+        if function == _ALIVE and not data:  # the PC's, every few ms: what decode() gives
+            self.last_alive = t
+            return
         try:
             _, msg = mca.decode(function << 6, data)
         except FrameError as err:  # wrong length or reserved value

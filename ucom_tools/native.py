@@ -6,7 +6,9 @@ with mypy, which a build needs anyway), else a decorator that changes nothing: t
 pure-Python run time needs neither mypy nor mypy_extensions.  Used for
 
 - ``native_class=False``: a class whose methods tests or conformance cases replace on
-  an instance (``Link.send_raw``); its methods are compiled all the same;
+  an instance (``Link.send_raw``), or that extends a built-in type other than
+  ``object`` (:class:`~ucom_tools.signals.Terminated`, a ``KeyboardInterrupt``); its
+  methods are compiled all the same;
 - ``allow_interpreted_subclasses=True``: a compiled class that a class from source
   extends (``RemotePart`` of ``RemoteLoop``).
 """
