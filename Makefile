@@ -43,11 +43,12 @@ lint: $(STAMP)
 
 # the pure-Python path, where the suite above ran the compiled modules: the frame traces
 # recorded from it bit for bit, the models', the simulated bus's and frame lengths' own
-# tests, and the PC's frame path (its shortcuts against the plain way)
+# tests, and the PC's frame path (its shortcuts against the plain way, and the receiving
+# scan against the regular expressions it replaced)
 PURE_TESTS := tests/test_fidelity.py tests/test_compiled.py tests/test_simbus.py \
     tests/test_board.py tests/test_armar3_model.py tests/test_lauron4_model.py \
     tests/test_mutants.py tests/test_canbits.py tests/test_frame_path.py \
-    tests/test_pc_fast_paths.py
+    tests/test_pc_fast_paths.py tests/test_plain_data.py
 
 test: lint $(COMPILED)
 	$(BIN)/python -m pytest

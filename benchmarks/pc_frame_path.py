@@ -17,9 +17,12 @@ runs is reported.
 
 Figures: ``us_per_frame`` (CPU per frame received or sent, the socket system calls
 included), ``us_per_cycle``, ``frames_per_cycle``, and ``all_us_per_frame`` (every run:
-the spread says how noisy the machine was).  No target (``make bench`` passes it): it
-compares versions of the frame path, run from each worktree.  ``--json`` prints the
-figures as one JSON object.
+the spread says how noisy the machine was); ``plain_data_us_per_frame``, the receiving
+parse alone: the cycles' chunks, as the server wrote them, fed to an
+:class:`~ucom_tools.wire.socketcand.ElementSplitter` and taken by its ``plain_data``
+after each run (the best of the runs; the client above reads through ``plain_frames``).
+No target (``make bench`` passes it): it compares versions of the frame path, run from
+each worktree.  ``--json`` prints the figures as one JSON object.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import socket
 import sys
 import threading
@@ -45,6 +49,7 @@ from ucom_tools.protocol.mca import McaClient  # noqa: E402
 from ucom_tools.transport.socketcand import SocketcandBus  # noqa: E402
 from ucom_tools.wire import mca  # noqa: E402
 from ucom_tools.wire.ids import ALL, Function  # noqa: E402
+from ucom_tools.wire.socketcand import ElementSplitter  # noqa: E402
 
 SO_MAPS = ((0x3A1, 8), (0x3A2, 8), (0x3A3, 8), (0x3A4, 4))
 """SO maps a bus of ARMAR-III receives every cycle: identifier, data bytes."""
@@ -119,11 +124,14 @@ def one_run(cycles: int, tap: bool) -> dict[str, float]:
         server.setblocking(False)
         cpu = 0.0
         frames0 = d.received + d.sent
+        chunks = []
         for k in range(cycles):
             stamp = time.time()
-            server.sendall(b"".join(b"< frame %03X %.6f %s >" % (
+            chunk = b"".join(b"< frame %03X %.6f %s >" % (
                 ident, stamp + 1e-4 * i, bytes(n).hex().upper().encode())
-                for i, (ident, n) in enumerate(SO_MAPS)))
+                for i, (ident, n) in enumerate(SO_MAPS))
+            server.sendall(chunk)
+            chunks.append(chunk)
             t0 = time.thread_time()
             bus.hold()
             for ident, data in payloads:
@@ -141,7 +149,25 @@ def one_run(cycles: int, tap: bool) -> dict[str, float]:
             raise SystemExit(f"only {d.received} of {cycles * len(SO_MAPS)} frames came")
     return {"us_per_frame": round(1e6 * cpu / frames, 3),
             "us_per_cycle": round(1e6 * cpu / cycles, 2),
-            "frames_per_cycle": round(frames / cycles, 2)}
+            "frames_per_cycle": round(frames / cycles, 2),
+            "plain_data_us_per_frame": round(1e6 * parse_time(chunks), 3)}
+
+
+def parse_time(chunks: list[bytes]) -> float:
+    """CPU seconds per frame of the chunks fed to a splitter and taken by plain_data."""
+    splitter = ElementSplitter()
+    arrival = time.time()
+    offset = math.inf
+    taken = 0
+    t0 = time.thread_time()
+    for chunk in chunks:
+        splitter.feed(chunk)
+        frames, offset = splitter.plain_data(arrival, offset)
+        taken += len(frames)
+    cpu = time.thread_time() - t0
+    if taken != len(chunks) * len(SO_MAPS):
+        raise SystemExit(f"plain_data took {taken} of {len(chunks) * len(SO_MAPS)} frames")
+    return cpu / taken
 
 
 def main() -> None:
@@ -153,6 +179,7 @@ def main() -> None:
     args = ap.parse_args()
     runs = [one_run(args.cycles, args.tap) for _ in range(args.runs)]
     figures: dict[str, Any] = min(runs, key=lambda r: r["us_per_frame"])
+    figures["plain_data_us_per_frame"] = min(r["plain_data_us_per_frame"] for r in runs)
     figures.update(cycles=args.cycles, runs=args.runs, tap=args.tap,
                    all_us_per_frame=[r["us_per_frame"] for r in runs])
     if args.json:
@@ -163,6 +190,8 @@ def main() -> None:
     print(f"  {figures['us_per_frame']} us of CPU per frame (best; all: "
           f"{figures['all_us_per_frame']}), {figures['us_per_cycle']} us per cycle of "
           f"{figures['frames_per_cycle']} frames")
+    print(f"  {figures['plain_data_us_per_frame']} us of CPU per frame to feed the chunks to a "
+          "splitter and take them with plain_data, alone")
 
 
 if __name__ == "__main__":

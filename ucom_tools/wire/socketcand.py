@@ -16,8 +16,9 @@ of ``ucom fleet serve`` (:mod:`ucom_tools.virtual.socketcand`).  The rules are t
 
 An identifier that is extended carries :data:`CAN_EFF_FLAG` here, as SocketCAN's
 ``can_id`` does (what socketcand passes to the kernel).  Nothing here does I/O; the
-functions on the per-frame paths are written for speed (one regular expression match, no
-objects beyond the result).
+functions on the per-frame paths are written for speed: one regular-expression match, or
+one scan byte by byte (:func:`plain_send`, :meth:`ElementSplitter.plain_data`; native
+code where mypyc compiles the module), and hardly an object beyond the result.
 """
 
 from __future__ import annotations
@@ -25,7 +26,10 @@ from __future__ import annotations
 import binascii
 import re
 from collections.abc import Callable
-from typing import Final
+from typing import TYPE_CHECKING, Final
+
+if TYPE_CHECKING:  # the native integer type where mypyc compiles this (annotations only)
+    from mypy_extensions import i64
 
 MAX_ELEMENT = 4096
 """Longest element accepted from the other end, ``<`` and ``>`` included, in bytes."""
@@ -63,9 +67,6 @@ none longer than :data:`_FRAME_RUN_LONGEST`."""
 _FRAME_RUN_LONGEST = 80
 _FRAME_FIELDS = re.compile(rb"< frame ([0-9A-Fa-f]+) (\d+)\.(\d+) ([0-9A-Fa-f]*) ?>")
 """The fields of the elements :data:`_FRAME_RUN` took (it checked them already)."""
-_STD_RUN = re.compile(rb"(?:< frame [0-7][0-9A-Fa-f]{2} "
-                      rb"\d{1,20}\.\d{1,15} (?:[0-9A-Fa-f]{2}){0,8} ?>)+")
-""":data:`_FRAME_RUN` of standard frames only (:meth:`ElementSplitter.plain_data`)."""
 _PLAIN_SEND = re.compile(rb" ?send ([0-9A-Fa-f]{1,3}) ([0-8])((?: [0-9A-Fa-f]{1,2}){0,8}) ?")
 """A ``send`` element as clients write it (single blanks): the form :func:`plain_send`
 reads (without this expression; the tests hold the two to each other)."""
@@ -139,21 +140,23 @@ class ElementSplitter:
         arrival and its time stamp seen so far) updated frame by frame; and that offset.
         Each frame's values are :func:`plain_fields`' (the time stamp
         :func:`seconds_of`'s plus the offset); what is not one is left to :meth:`next`.
-        The run time's receiving path: one call per chunk, no ``can.Message``."""
+        The run time's receiving path: one call per chunk, no ``can.Message``; read byte
+        by byte (:func:`_std_data`) from a copy of the buffer as ``bytes`` (what the
+        compiled code indexes natively), :data:`_STD_WINDOW` bytes at a time."""
         if self.limit <= _FRAME_RUN_LONGEST:  # the elements' length must be checked
             return [], offset
         buf = self._buffer
-        pos = self._pos
-        run = _STD_RUN.match(buf, pos)
-        if run is None:
-            return [], offset
-        end = self._pos = run.end()
+        size = len(buf)
+        start = self._pos
         out: list[tuple[int, bytes, float]] = []
-        for ident, seconds, fraction, data in _FRAME_FIELDS.findall(buf, pos, end):
-            stamp = seconds_of(seconds, fraction)
-            if arrival - stamp < offset:
-                offset = arrival - stamp
-            out.append((int(ident, 16), binascii.unhexlify(data), stamp + offset))
+        while True:
+            stop = min(size, start + _STD_WINDOW)
+            text = bytes(buf) if start == 0 and stop == size else bytes(buf[start:stop])
+            taken, offset = _std_data(text, arrival, offset, out)
+            start += taken
+            if stop == size or stop - start >= _STD_LONGEST:
+                break  # where the run stops is in the window (or no more bytes came)
+        self._pos = start
         return out, offset
 
     def unread(self) -> int:
@@ -258,7 +261,7 @@ def plain_frame(element: bytes) -> tuple[int, float, bytes] | None:
 
 FRACTION_SCALES = {n: 10.0 ** n for n in range(1, 16)}
 """10 to the power of a fraction's digits, as a float (exact up to 10**22)."""
-EXACT_FLOAT = 1 << 53
+EXACT_FLOAT: Final = 1 << 53
 """Integers up to this are exact as floats."""
 
 
@@ -282,6 +285,89 @@ def seconds_of(seconds: bytes, fraction: bytes) -> float:
     if scale is None or digits > EXACT_FLOAT:
         return float(seconds + b"." + fraction)
     return digits / scale
+
+
+_FRACTION_SCALE: Final[tuple[float, ...]] = (1.0, *FRACTION_SCALES.values())
+""":data:`FRACTION_SCALES` by the number of digits, as a tuple."""
+_UNHEXLIFY: Final = binascii.unhexlify
+_STD_LONGEST: Final = 67
+"""The longest element :func:`_std_data` takes: ``< frame ID `` (12 bytes), 20 + 1 + 15
+for the time stamp, a blank, 16 data digits and `` >``."""
+_STD_WINDOW: Final = 4096
+"""Bytes of the buffer :meth:`ElementSplitter.plain_data` copies at a time (the copy of a
+long buffer for a short run would cost more than the run)."""
+
+
+def _std_data(text: bytes, arrival: float, offset: float,
+              out: list[tuple[int, bytes, float]]) -> tuple[int, float]:
+    """:meth:`ElementSplitter.plain_data` of ``text``, its frames appended to ``out``:
+    where the run of elements stops in ``text``, and the offset.
+
+    The elements it takes, back to back from the start: ``< frame ``, an identifier of 3
+    hex digits 000..7FF, a blank, 1-20 decimal digits, ``.``, 1-15 decimal digits, a
+    blank, 0-8 pairs of hex digits, an optional blank and ``>``.  Read byte by byte in
+    one scan (native in the compiled module: ``i64`` indices and digits), the time
+    stamp's digits as they come; an element that ``text`` ends in is not taken (its
+    reads run past the end: ``IndexError``)."""
+    hex_value = _HEX_DIGIT
+    n: i64 = len(text)
+    i: i64 = 0
+    try:
+        while i < n:
+            if text[i] != 60 or text[i + 1] != 32 or text[i + 2] != 102 \
+                    or text[i + 3] != 114 or text[i + 4] != 97 or text[i + 5] != 109 \
+                    or text[i + 6] != 101 or text[i + 7] != 32:
+                break  # not "< frame "
+            high: i64 = text[i + 8] - 48
+            middle: i64 = hex_value[text[i + 9]]
+            low: i64 = hex_value[text[i + 10]]
+            if high < 0 or high > 7 or middle > 15 or low > 15 or text[i + 11] != 32:
+                break  # not an identifier 000..7FF and a blank
+            start: i64 = i + 12
+            j: i64 = start
+            digits: i64 = 0  # SEC and FRACTION's (beyond 18 of them wrong, and not used)
+            c: i64 = text[j]
+            while 48 <= c <= 57:
+                digits = digits * 10 + c - 48
+                j += 1
+                c = text[j]
+            point: i64 = j
+            if j == start or j - start > 20 or c != 46:
+                break  # not 1-20 digits and "."
+            j += 1
+            c = text[j]
+            while 48 <= c <= 57:
+                digits = digits * 10 + c - 48
+                j += 1
+                c = text[j]
+            places: i64 = j - point - 1
+            if places < 1 or places > 15 or c != 32:
+                break  # not 1-15 digits and a blank
+            blank: i64 = j
+            j += 1
+            while hex_value[text[j]] <= 15:
+                j += 1
+            last: i64 = j
+            if (last - blank - 1) & 1 or last - blank - 1 > 16:
+                break  # not 0-8 pairs of hex digits
+            c = text[j]
+            if c == 32:
+                j += 1
+                c = text[j]
+            if c != 62:
+                break  # not ">"
+            if blank - start > 19 or digits > EXACT_FLOAT:  # more than 18 digits, or big
+                stamp = seconds_of(text[start:point], text[point + 1:blank])
+            else:
+                stamp = float(digits) / _FRACTION_SCALE[places]  # seconds_of's value
+            if arrival - stamp < offset:
+                offset = arrival - stamp
+            out.append((high << 8 | middle << 4 | low, _UNHEXLIFY(text[blank + 1:last]),
+                        stamp + offset))
+            i = j + 1
+    except IndexError:
+        pass  # text ends in the element at i
+    return i, offset
 
 
 def frame_words(words: list[str]) -> tuple[int, float, bytes]:
@@ -358,6 +444,9 @@ def _hex_values() -> list[int]:
 
 _HEX_VALUE: Final[list[int]] = _hex_values()
 """The value of each byte as a hex digit, -1 for the bytes that are none."""
+_HEX_DIGIT: Final = bytes(value & 0xFF for value in _HEX_VALUE)
+""":data:`_HEX_VALUE` as ``bytes``, 255 for the bytes that are no hex digit (the compiled
+code indexes ``bytes`` natively, a list through its objects: :func:`_std_data`)."""
 
 
 def plain_send(element: bytes) -> tuple[int, bytes] | None:
