@@ -20,7 +20,7 @@ included), ``us_per_cycle``, ``frames_per_cycle``, and ``all_us_per_frame`` (eve
 the spread says how noisy the machine was); ``plain_data_us_per_frame``, the receiving
 parse alone: the cycles' chunks, as the server wrote them, fed to an
 :class:`~ucom_tools.wire.socketcand.ElementSplitter` and taken by its ``plain_data``
-after each run (the best of the runs; the client above reads through ``plain_frames``).
+after each run (the best of the runs; the client above reads through it too).
 No target (``make bench`` passes it): it compares versions of the frame path, run from
 each worktree.  ``--json`` prints the figures as one JSON object.
 """

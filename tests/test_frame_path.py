@@ -1,7 +1,7 @@
 """The run time's per-frame paths, fast and plain, give the same frames.
 
 The socketcand client reads runs of frame elements in the usual form in one go
-(:meth:`ElementSplitter.plain_frames`, :meth:`SocketcandBus._take_plain`), sends a
+(:meth:`ElementSplitter.plain_data`, :meth:`SocketcandBus._take_buffered`), sends a
 standard data frame without a ``can.Message`` (``send_data``), and the dispatcher hands a
 batch of frames over at once (``dispatch_all``, ``send_data``): each must do exactly what
 the element-by-element path, python-can's constructor and ``dispatch``/``send`` do.
@@ -30,7 +30,6 @@ from ucom_tools.transport.socketcand import SocketcandBus, send_bytes
 from ucom_tools.wire.socketcand import (
     ElementSplitter,
     ElementTooLong,
-    plain_fields,
     plain_frame,
     seconds_of,
 )
@@ -171,21 +170,22 @@ def test_a_frame_run_is_not_taken_past_a_short_splitter_limit() -> None:
     to next(), which enforces the limit."""
     splitter = ElementSplitter(limit=20)
     splitter.feed(b"< frame 123 1.000000 0011 >")
-    assert splitter.plain_frames() == []
+    assert splitter.plain_data(0.0, math.inf) == ([], math.inf)
     with pytest.raises(ElementTooLong):
         splitter.next()
 
 
-def test_plain_fields_are_plain_frame() -> None:
+def test_plain_data_is_plain_frame() -> None:
     rng = random.Random(1)
     for _ in range(2000):
         text = element(rng, rng.random() * 2e9)
         splitter = ElementSplitter()
         splitter.feed(text)
-        fields = splitter.plain_frames()
-        if fields:
-            assert len(fields) == 1
-            assert plain_fields(*fields[0]) == plain_frame(text[1:-1])
+        frames, _ = splitter.plain_data(1e12, 0.0)  # the offset stays 0: stamps as sent
+        if frames:
+            assert len(frames) == 1
+            ident, data, stamp = frames[0]
+            assert (ident, stamp, data) == plain_frame(text[1:-1])
 
 
 def test_seconds_of_is_float() -> None:
@@ -233,13 +233,52 @@ def test_send_data_writes_what_send_writes() -> None:
         bus.release(write=False)
 
 
-class _Bus(can.BusABC):
-    """A bus that notes what it was given to send, with or without ``send_data``."""
+def test_send_data_many_writes_what_send_data_writes() -> None:
+    """A cycle's frames in one call are the bytes of each frame's send_data, in order, as
+    one piece; with a frame that is not a standard one of at most 8 bytes, each is
+    sent by send_data (and that one refused as send refuses it)."""
+    rng = random.Random(5)
+    with offline_bus() as bus:
+        bus.hold()
+        for _ in range(500):
+            frames = [(rng.randrange(0x800),
+                       bytes(rng.randrange(256) for _ in range(rng.randrange(9))))
+                      for _ in range(rng.randrange(1, 12))]
+            for ident, data in frames:
+                bus.send_data(ident, data)
+            assert bus._batch is not None
+            one_by_one = b"".join(bus._batch)
+            bus._batch.clear()
+            bus.send_data_many(frames)
+            assert bus._batch == [one_by_one]
+            bus._batch.clear()
+        for bad in [(0x800, b""), (0x123, bytes(9))]:
+            with pytest.raises(can.CanOperationError) as many:
+                bus.send_data_many([(0x100, b"\x01"), bad])
+            assert bus._batch == [send_bytes(can.Message(arbitration_id=0x100, data=b"\x01",
+                                                         is_extended_id=False))]
+            bus._batch.clear()
+            with pytest.raises(can.CanOperationError) as one:
+                bus.send_data(*bad)
+            assert str(many.value) == str(one.value)
+        bus.release(write=False)
 
-    def __init__(self, fast: bool) -> None:
+
+class _Bus(can.BusABC):
+    """A bus that notes what it was given to send, with or without ``send_data`` (and
+    ``send_data_many``: ``many``)."""
+
+    def __init__(self, fast: bool, many: bool = False) -> None:
         self.sent: list[tuple[int, bytes]] = []
+        self.calls = 0
         if fast:
             self.send_data = lambda ident, data, timeout=None: self.sent.append((ident, data))
+        if many:
+            def send_data_many(frames: list[tuple[int, bytes]],
+                               timeout: float | None = None) -> None:
+                self.calls += 1
+                self.sent.extend(frames)
+            self.send_data_many = send_data_many
         super().__init__(channel="test")
 
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
@@ -263,6 +302,62 @@ def test_dispatcher_send_data_is_send() -> None:
     assert seen[True] == seen[False] and seen[True]
     assert fast_d.bus.sent == plain_d.bus.sent
     assert (fast_d.sent, fast_d.bits) == (plain_d.sent, plain_d.bits)
+
+
+def test_dispatcher_send_data_many_is_send_data_of_each() -> None:
+    """The frames, the taps' messages, the counts and the bits are those of send_data
+    frame by frame; a bus without send_data_many gets them so; with one, in one call."""
+    frames = [(ident, bytes(ident % 9)) for ident in range(0, 0x800, 7)]
+    seen: dict[str, list[tuple[Any, ...]]] = {}
+    dispatchers = {}
+    for way in ("one by one", "without", "many"):
+        d = Dispatcher(_Bus(True, many=way == "many"), "CAN0")
+        d._stamp = lambda: 5.0
+        seen[way] = []
+        d.taps.append(lambda msg, way=way: seen[way].append(attributes(msg)))
+        if way == "one by one":
+            for ident, data in frames:
+                d.send_data(ident, data, timeout=1.0)
+        else:
+            assert d.batches == (way == "many")
+            for k in range(0, len(frames), 10):
+                d.send_data_many(frames[k:k + 10], timeout=1.0)
+        dispatchers[way] = d
+    want = dispatchers["one by one"]
+    for way in ("without", "many"):
+        d = dispatchers[way]
+        assert seen[way] == seen["one by one"] and seen[way]
+        assert (d.bus.sent, d.sent, d.bits) == (want.bus.sent, want.sent, want.bits)
+    assert dispatchers["many"].bus.calls == -(-len(frames) // 10)
+
+
+def test_link_send_frames_in_one_call_keeps_the_horizon() -> None:
+    """Link.send_frames to a bus that takes a cycle's frames in one call: the frames in
+    one call, counted and the wire horizon moved as one by one; a bus that refuses the
+    call took none, and the frames then go one by one."""
+    from ucom_tools.protocol.link import Link
+
+    frames = [(0x100 + k, bytes(k % 9)) for k in range(12)]
+    links = {}
+    for many in (False, True):
+        link = Link(_Bus(True, many=many), "CAN0", margin=0.01)
+        link.clock = lambda: 100.0
+        link.send_frames(frames)
+        links[many] = link
+    one, batch = links[False], links[True]
+    assert batch.bus.calls == 1 and batch.bus.sent == one.bus.sent == frames
+    assert (batch.frames_sent, batch._horizon) == (one.frames_sent, one._horizon)
+
+    refusing = _Bus(True, many=True)
+
+    def refuse(frames: list[tuple[int, bytes]], timeout: float | None = None) -> None:
+        raise can.CanOperationError("no room")
+    refusing.send_data_many = refuse
+    link = Link(refusing, "CAN0", margin=0.01)
+    link.clock = lambda: 100.0
+    link.send_frames(frames)
+    assert refusing.sent == frames and link.frames_sent == len(frames)
+    assert link._horizon == one._horizon
 
 
 def dispatch_one(d: Dispatcher, msg: can.Message) -> None:

@@ -1,6 +1,8 @@
-"""ElementSplitter.plain_data, the receiving path's scan byte by byte, takes what the
-regular expressions it replaced took: the same elements (and stops where they stopped),
-the same identifiers, data and time stamps (bit for bit), the same offset.
+"""ElementSplitter.plain_data, the receiving path's scan byte by byte (compiled) or its
+regular expressions (from source), takes what the regular expressions took: the same
+elements (and stops where they stopped), the same identifiers, data and time stamps (bit
+for bit), the same offset.  Each check runs both ways (``_scanned``, ``_matched``) and
+``plain_data`` itself, on either build.
 
 The reference is the former implementation, kept here: a match of ``_STD_RUN``, then
 ``_FRAME_FIELDS.findall`` over it and :func:`seconds_of` per frame.  Each case feeds the
@@ -84,6 +86,11 @@ def check(buf: bytes, arrival: float = 1764654321.5, offset: float = math.inf, *
         assert splitter.next() == LEAD[1:-1]
     text = LEAD + buf if lead else buf
     want, want_offset, end = reference(text, pos, limit, arrival, offset)
+    if limit > _FRAME_RUN_LONGEST:  # both ways, whichever plain_data takes (_NATIVE)
+        for way in (wire._scanned, wire._matched):
+            frames, way_offset, way_end = way(bytearray(text), pos, arrival, offset)
+            assert (exact(frames, way_offset), way_end) == (exact(want, want_offset), end), \
+                (way, buf)
     got, got_offset = splitter.plain_data(arrival, offset)
     assert exact(got, got_offset) == exact(want, want_offset), buf
     assert splitter.unread() == len(text) - end, buf

@@ -58,7 +58,7 @@ import time
 from binascii import hexlify
 from collections import deque
 from collections.abc import Iterator
-from typing import Any
+from typing import Any, Final
 
 import can
 
@@ -86,6 +86,10 @@ SERVER_ERRORS_KEPT = 100
 _CHUNK = 65536
 
 _CHANNEL = re.compile(r"[^\s<>]+")
+_SEND_HEADS: Final[dict[int, bytes]] = {}
+"""``< send ID DLC `` by ``ID << 4 | DLC`` (:meth:`SocketcandBus.send_data_many`)."""
+_HEX_BLANK: Final = [b"%02X " % octet for octet in range(256)]
+"""Each byte's two upper-case hex digits and a blank."""
 
 
 CONNECT_TIMEOUT_S = 3.0
@@ -460,16 +464,23 @@ class SocketcandBus(can.BusABC):
         :meth:`hold`) within ``timeout``: all of them or none (a frame that is not a
         standard data frame of at most 8 bytes: each sent by :meth:`send_data` in turn,
         which refuses it as :meth:`send` does)."""
-        elements = []
+        pieces: list[bytes] = []  # SEND_STD's bytes, from cached pieces (no formatting)
+        heads = _SEND_HEADS
         for ident, data in frames:
             n = len(data)
             if not 0 <= ident <= CAN_SFF_MASK or n > 8:
                 for ident2, data2 in frames:
                     self.send_data(ident2, data2, timeout)
                 return
-            elements.append(SEND_STD % (ident, n, hexlify(data, b" ").upper()) if n
-                            else SEND_EMPTY % ident)
-        self._put(b"".join(elements), timeout)
+            key = ident << 4 | n
+            head = heads.get(key)
+            if head is None:
+                head = heads[key] = b"< send %03X %d " % (ident, n)
+            pieces.append(head)
+            for octet in data:
+                pieces.append(_HEX_BLANK[octet])
+            pieces.append(b">")
+        self._put(b"".join(pieces), timeout)
         if self.receive_own_messages:
             now = time.time()
             for ident, data in frames:

@@ -17,8 +17,8 @@ of ``ucom fleet serve`` (:mod:`ucom_tools.virtual.socketcand`).  The rules are t
 An identifier that is extended carries :data:`CAN_EFF_FLAG` here, as SocketCAN's
 ``can_id`` does (what socketcand passes to the kernel).  Nothing here does I/O; the
 functions on the per-frame paths are written for speed: one regular-expression match, or
-one scan byte by byte (:func:`plain_send`, :meth:`ElementSplitter.plain_data`; native
-code where mypyc compiles the module), and hardly an object beyond the result.
+one scan byte by byte (:func:`plain_send`, :meth:`ElementSplitter.plain_data` where mypyc
+compiles the module: native code), and hardly an object beyond the result.
 """
 
 from __future__ import annotations
@@ -59,14 +59,18 @@ _HEX = re.compile(r"[0-9A-Fa-f]+", re.ASCII)
 _TIMESTAMP = re.compile(r"\d+(?:\.\d+)?", re.ASCII)
 _FRAME = re.compile(rb" frame ([0-9A-Fa-f]{3}|[0-9A-Fa-f]{8}) (\d+\.\d+) ([0-9A-Fa-f]{0,16}) ?\Z")
 """The usual frame element (contiguous data, single blanks), read in one match."""
-_FRAME_RUN = re.compile(rb"(?:< frame (?:[0-7][0-9A-Fa-f]{2}|[01][0-9A-Fa-f]{7}) "
-                        rb"\d{1,20}\.\d{1,15} (?:[0-9A-Fa-f]{2}){0,8} ?>)+")
-"""Consecutive frame elements in the usual form, brackets included, each one that
-:func:`plain_frame` reads (identifier in range, an even number of data digits), and
-none longer than :data:`_FRAME_RUN_LONGEST`."""
-_FRAME_RUN_LONGEST = 80
+_STD_RUN = re.compile(rb"(?:< frame [0-7][0-9A-Fa-f]{2} "
+                      rb"\d{1,20}\.\d{1,15} (?:[0-9A-Fa-f]{2}){0,8} ?>)+")
+"""Consecutive standard frame elements in the usual form, brackets included, each one
+that :func:`plain_frame` reads (identifier in range, an even number of data digits), and
+none longer than :data:`_STD_RUN_LONGEST` (:func:`_matched`)."""
+_STD_RUN_LONGEST = 80
 _FRAME_FIELDS = re.compile(rb"< frame ([0-9A-Fa-f]+) (\d+)\.(\d+) ([0-9A-Fa-f]*) ?>")
-"""The fields of the elements :data:`_FRAME_RUN` took (it checked them already)."""
+"""The fields of the elements :data:`_STD_RUN` took (it checked them already)."""
+_NATIVE: Final = not __file__.endswith(".py")
+"""This module runs compiled (:mod:`ucom_tools.compiled`): :meth:`ElementSplitter.
+plain_data` scans byte by byte (:func:`_scanned`); from source the regular expressions are
+faster (:func:`_matched`).  Both take the same frames (``tests/test_plain_data.py``)."""
 _PLAIN_SEND = re.compile(rb" ?send ([0-9A-Fa-f]{1,3}) ([0-8])((?: [0-9A-Fa-f]{1,2}){0,8}) ?")
 """A ``send`` element as clients write it (single blanks): the form :func:`plain_send`
 reads (without this expression; the tests hold the two to each other)."""
@@ -114,23 +118,6 @@ class ElementSplitter:
             return bytes(buf[pos + 1:end])
         return self._next_after_skipping()
 
-    def plain_frames(self) -> list[tuple[bytes, bytes, bytes, bytes]]:
-        """The fields of the frame elements in the usual form (:func:`plain_frame`'s)
-        from where the unread part starts, up to the first other element (or an
-        unfinished one): identifier, seconds, fraction and data, as hex and decimal
-        digits.  Two passes of the regular-expression engine over the buffer, not a call
-        per element (a chunk of the server's frames is mostly these); what is not one is
-        left to :meth:`next`.  Convert with :func:`plain_fields`."""
-        if self.limit <= _FRAME_RUN_LONGEST:  # the elements' length must be checked
-            return []
-        buf = self._buffer
-        pos = self._pos
-        run = _FRAME_RUN.match(buf, pos)
-        if run is None:
-            return []
-        end = self._pos = run.end()
-        return _FRAME_FIELDS.findall(buf, pos, end)
-
     def plain_data(self, arrival: float, offset: float,
                    ) -> tuple[list[tuple[int, bytes, float]], float]:
         """The standard data frames of the frame elements in the usual form from where the
@@ -138,26 +125,16 @@ class ElementSplitter:
         unfinished one): identifier, data and time stamp on the reader's clock, the
         reader's ``offset`` (``arrival`` minus the smallest difference between a frame's
         arrival and its time stamp seen so far) updated frame by frame; and that offset.
-        Each frame's values are :func:`plain_fields`' (the time stamp
-        :func:`seconds_of`'s plus the offset); what is not one is left to :meth:`next`.
-        The run time's receiving path: one call per chunk, no ``can.Message``; read byte
-        by byte (:func:`_std_data`) from a copy of the buffer as ``bytes`` (what the
-        compiled code indexes natively), :data:`_STD_WINDOW` bytes at a time."""
-        if self.limit <= _FRAME_RUN_LONGEST:  # the elements' length must be checked
+        Each frame's values are :func:`plain_frame`'s (the time stamp plus the offset);
+        what is not one is left to :meth:`next`.  The run time's receiving path: one call
+        per chunk, no ``can.Message``."""
+        if self.limit <= _STD_RUN_LONGEST:  # the elements' length must be checked
             return [], offset
-        buf = self._buffer
-        size = len(buf)
-        start = self._pos
-        out: list[tuple[int, bytes, float]] = []
-        while True:
-            stop = min(size, start + _STD_WINDOW)
-            text = bytes(buf) if start == 0 and stop == size else bytes(buf[start:stop])
-            taken, offset = _std_data(text, arrival, offset, out)
-            start += taken
-            if stop == size or stop - start >= _STD_LONGEST:
-                break  # where the run stops is in the window (or no more bytes came)
-        self._pos = start
-        return out, offset
+        if _NATIVE:
+            frames, offset, self._pos = _scanned(self._buffer, self._pos, arrival, offset)
+        else:
+            frames, offset, self._pos = _matched(self._buffer, self._pos, arrival, offset)
+        return frames, offset
 
     def unread(self) -> int:
         """Bytes fed and not yet returned as elements or skipped."""
@@ -265,16 +242,6 @@ EXACT_FLOAT: Final = 1 << 53
 """Integers up to this are exact as floats."""
 
 
-def plain_fields(ident: bytes, seconds: bytes, fraction: bytes, data: bytes,
-                 ) -> tuple[int, float, bytes]:
-    """:func:`plain_frame`'s result from the fields :meth:`ElementSplitter.plain_frames`
-    gives (the per-frame loop of the client does the same inline)."""
-    can_id = int(ident, 16)
-    if len(ident) == 8:
-        can_id |= CAN_EFF_FLAG
-    return can_id, seconds_of(seconds, fraction), binascii.unhexlify(data)
-
-
 def seconds_of(seconds: bytes, fraction: bytes) -> float:
     """``float(b"SEC.FRACTION")``, the same value: an integer of the digits divided by a
     power of ten is rounded once, as the parse is, and this costs half as much as
@@ -285,6 +252,41 @@ def seconds_of(seconds: bytes, fraction: bytes) -> float:
     if scale is None or digits > EXACT_FLOAT:
         return float(seconds + b"." + fraction)
     return digits / scale
+
+
+def _matched(buf: bytearray, pos: int, arrival: float, offset: float,
+             ) -> tuple[list[tuple[int, bytes, float]], float, int]:
+    """:meth:`ElementSplitter.plain_data` of ``buf`` from ``pos`` by two passes of the
+    regular-expression engine over it: the frames, the offset and where the run ends."""
+    run = _STD_RUN.match(buf, pos)
+    if run is None:
+        return [], offset, pos
+    end = run.end()
+    out: list[tuple[int, bytes, float]] = []
+    for ident, seconds, fraction, data in _FRAME_FIELDS.findall(buf, pos, end):
+        stamp = seconds_of(seconds, fraction)
+        if arrival - stamp < offset:
+            offset = arrival - stamp
+        out.append((int(ident, 16), binascii.unhexlify(data), stamp + offset))
+    return out, offset, end
+
+
+def _scanned(buf: bytearray, pos: int, arrival: float, offset: float,
+             ) -> tuple[list[tuple[int, bytes, float]], float, int]:
+    """:func:`_matched` by one scan byte by byte (:func:`_std_data`) of a copy of the
+    buffer as ``bytes`` (what the compiled code indexes natively), :data:`_STD_WINDOW`
+    bytes at a time."""
+    size = len(buf)
+    start = pos
+    out: list[tuple[int, bytes, float]] = []
+    while True:
+        stop = min(size, start + _STD_WINDOW)
+        text = bytes(buf) if start == 0 and stop == size else bytes(buf[start:stop])
+        taken, offset = _std_data(text, arrival, offset, out)
+        start += taken
+        if stop == size or stop - start >= _STD_LONGEST:
+            break  # where the run stops is in the window (or no more bytes came)
+    return out, offset, start
 
 
 _FRACTION_SCALE: Final[tuple[float, ...]] = (1.0, *FRACTION_SCALES.values())
