@@ -314,7 +314,12 @@ class BusExchange:
         """Per CI map: its identifier, and a struct that packs its values (16 bit each)."""
         self._alive = can.Message(arbitration_id=mca.encode(mca.Alive(), ALL)[0], data=b"",
                                   is_extended_id=False)
-        self._ci_sent: dict[int, float] = {}
+        self._ci_sent = [-1e9] * len(self._ci_frames)
+        """When each CI map was last sent (bus clock), by index."""
+        self._ci_last: list[tuple[tuple[int, ...], bytes] | None] = \
+            [None] * len(self._ci_frames)
+        """Each CI map's values last sent and their payload (values that did not change
+        are not packed again)."""
         self._alive_sent = -1e9
         self._ci_cyclic = [(k, c.interval_us / 1e6, ident, packer, _getter(used), c.number,
                             signs)
@@ -330,17 +335,23 @@ class BusExchange:
         interval has passed since it was last sent, and MCA Alive likewise; frames sent.
         Due by time, not by cycle count, so a loop that skips cycles still keeps them."""
         margin = 1e-4  # a cycle that comes a little early still counts
-        ci, ci_sent = self.ci, self._ci_sent
+        ci, ci_sent, ci_last = self.ci, self._ci_sent, self._ci_last
+        mask_table = MASK_TABLE
         frames: list[tuple[int, bytes]] = []
         due: list[int] = []  # the CI maps of frames, by index (-1: MCA Alive)
         try:
             for k, interval, ident, packer, values_of_ci, number, signs in self._ci_cyclic:
-                if now - ci_sent.get(k, -1e9) + margin >= interval:
+                if now - ci_sent[k] + margin >= interval:
                     values = values_of_ci(ci)
-                    try:  # _ci_data(), inlined
-                        data = packer.pack(*values).translate(MASK_TABLE)
-                    except struct.error:
-                        data = self._ci_data(number, signs, packer, values)
+                    last = ci_last[k]
+                    if last is not None and last[0] == values:
+                        data = last[1]
+                    else:
+                        try:  # _ci_data(), inlined
+                            data = packer.pack(*values).translate(mask_table)
+                        except struct.error:
+                            data = self._ci_data(number, signs, packer, values)
+                        ci_last[k] = (values, data)
                     frames.append((ident, data))
                     due.append(k)
             if now - self._alive_sent + margin >= self._alive_interval:

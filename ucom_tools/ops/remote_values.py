@@ -33,6 +33,8 @@ class RemoteValues:
     def __init__(self, robot: Robot, exchanges: dict[str, BusExchange]) -> None:
         self.robot = robot
         self.exchanges = exchanges
+        self._first_clock: Callable[[], float] | None = None
+        """The first bus's clock (:meth:`_clock`), looked up once."""
         self.names = Names(())
         self._so_cache: dict[tuple[str, int], tuple[int, list[int]]] = {}
         self._par: dict[EdgeRef, int] = {}
@@ -49,8 +51,10 @@ class RemoteValues:
 
     def _clock(self) -> float:
         """The bus clock (of the first bus: in virtual time they share one)."""
-        first = next(iter(self.robot.buses.values()))
-        return first.link.clock()
+        clock = self._first_clock
+        if clock is None:
+            clock = self._first_clock = next(iter(self.robot.buses.values())).link.clock
+        return clock()
 
     def _bind_values(self) -> None:
         """After the boards are configured: the edge of every slot of their SO maps, and
