@@ -20,7 +20,6 @@ import contextlib
 import heapq
 import itertools
 import logging
-import math
 import select
 import selectors
 import socket
@@ -41,16 +40,14 @@ STEP_MIN_S = 0.0005
 """The least wall time between two steps of the paced driver: the events due meanwhile run
 together in the next step (in virtual time, in their order, as always), so a busy fleet
 wakes its driver at most 2,000 times a second, not once per frame start and end.  (The
-wait is in whole milliseconds, rounded up, as epoll's timeout: up to
-:data:`WAKE_SLACK_S` a sleep that a client's data does not cut short, longer one in
-epoll, which data or a poke end.  So
-a frame may reach a client up to about a millisecond later than it ended on the bus; its
-timestamp still says when it ended.)"""
+wait's timeout is in whole milliseconds, epoll's, rounded up: without a client's data
+or a poke to wake it, a busy driver sleeps 1 ms, so a frame may reach a client up to
+about that much later than it ended on the bus; its timestamp still says when it
+ended.  Served at 1 kHz, the PC's writes wake it once a millisecond.)"""
 WAKE_SLACK_S = 0.001
-"""Work handed to the driver (:meth:`RealtimeDriver.submit`) and data on the sockets it
-watches wake it only when it would otherwise sleep longer than this: a busy fleet takes
-a client's frames at its next step, without a thread wake-up per frame (a wake-up costs
-the writer too), an idle one at once."""
+"""Work handed to the driver (:meth:`RealtimeDriver.submit`) wakes it only when it would
+otherwise sleep longer than this: a busy fleet takes a client's frames at its next step,
+without a thread wake-up per frame, an idle one at once."""
 LAG_WARN_US = 50_000.0
 """A paced fleet this far behind the wall clock after a step is reported: the machine
 cannot run it in real time (its frames reach clients late, its timing is off)."""
@@ -387,16 +384,7 @@ class RealtimeDriver:
             wait = max(wait, STEP_MIN_S - (time.monotonic() - last))
             if wait > 0:
                 self._sleep_until = time.monotonic() + wait
-            if 0 < wait <= WAKE_SLACK_S and not pending:
-                # a short sleep, as submit()'s work: what the sockets bring meanwhile is
-                # taken at the next step, a client's write does not wake the driver (a
-                # wake-up costs the writer too: the PC's loop at 1 kHz, four writes a
-                # cycle); then the sockets found readable, without waiting
-                time.sleep(math.ceil(wait * 1000) / 1000)  # as long as epoll's would be
-                self._sleep_until = 0.0
-                self._select(0.0)
-            else:
-                self._select(wait if wait > 0 and not pending else 0.0)
+            self._select(wait if wait > 0 and not pending else 0.0)
 
     def _register(self, fd: int) -> None:
         if self._epoll is not None:
