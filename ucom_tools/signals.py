@@ -14,15 +14,15 @@ import contextlib
 import signal
 import threading
 from collections.abc import Iterator
-from typing import Any
+from typing import Any, Final
 
 from ucom_tools.native import mypyc_attr
 
-STOP_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+STOP_SIGNALS: Final = (signal.SIGTERM, signal.SIGHUP)
 """The signals that end a job as Ctrl-C does."""
 
-_MAIN = threading.main_thread().ident
-_state: dict[str, int] = {"depth": 0, "pending": 0}
+_MAIN: Final = threading.main_thread().ident
+_state: Final[dict[str, int]] = {"depth": 0, "pending": 0}
 
 
 @mypyc_attr(native_class=False)  # compiled (deferred is on the fleet's per-frame path),

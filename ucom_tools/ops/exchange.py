@@ -18,6 +18,7 @@ import operator
 import struct
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
+from typing import Final
 
 import can
 
@@ -38,7 +39,7 @@ from ucom_tools.protocol.watch import OtherHosts
 from ucom_tools.wire import mca
 from ucom_tools.wire.ids import ALL, Address, Function, seq
 
-_KIND = {Kind.CI: mca.Kind.CI, Kind.SO: mca.Kind.SO, Kind.PAR: mca.Kind.PAR}
+_KIND: Final = {Kind.CI: mca.Kind.CI, Kind.SO: mca.Kind.SO, Kind.PAR: mca.Kind.PAR}
 
 
 class ExchangeError(InputError):

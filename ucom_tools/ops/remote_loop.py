@@ -17,7 +17,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable, Mapping
-from typing import Any, Self
+from typing import Any, Final, Self
 
 import can
 
@@ -33,23 +33,23 @@ from ucom_tools.wire import messages as wire_messages
 from ucom_tools.wire.codes import ErrorCode
 from ucom_tools.wire.ids import Function
 
-SPIN_S = 0.0001
+SPIN_S: Final = 0.0001
 """The most the loop spins before a deadline.  A sleep wakes a little late (the thread's
 timer slack is made small, see :func:`~ucom_tools.ops.realtime.precise_sleep`, but the
 wake-up itself takes some 30-60 us); the loop sleeps until that lateness, as measured on
 its own sleeps (:data:`WAKE_GAIN`), before the deadline and spins the rest.  A fixed
 spin of 0.1 ms cost about 3 % of a core at 1 kHz for the same median lateness."""
-WAKE_GAIN = 0.05
+WAKE_GAIN: Final = 0.05
 """How fast the expected wake-up lateness follows the measured one (a running mean over
 some 20 sleeps; each measurement counts at most :data:`SPIN_S`, so a sleep cut short by
 preemption does not make the loop spin long)."""
-DRAIN_EVERY_S = 0.001
+DRAIN_EVERY_S: Final = 0.001
 """At rates below 1 kHz the loop takes what the buses delivered at least this often while
 it waits, so that no receive buffer fills."""
-SWITCH_INTERVAL_S = 0.0001
+SWITCH_INTERVAL_S: Final = 0.0001
 """While the loop runs, Python switches threads this often (default 5 ms: a second
 thread, a live view say, could keep the loop from its deadline that long)."""
-RECENT_SAMPLES = 2_000
+RECENT_SAMPLES: Final = 2_000
 """The cycles a running view's lateness figures are taken over (the last 2 s at 1 kHz)."""
 
 

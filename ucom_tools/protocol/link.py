@@ -19,6 +19,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import Final
 
 import can
 
@@ -29,7 +30,7 @@ from ucom_tools.wire import messages as m
 from ucom_tools.wire.canbits import worst_frame_bits
 from ucom_tools.wire.ids import Address, Direction
 
-_ANSWERS = frozenset(f.value for f in m.BOOTLOADER_FUNCTIONS
+_ANSWERS: Final = frozenset(f.value for f in m.BOOTLOADER_FUNCTIONS
                       if f.direction is Direction.BOARD_TO_HOST)
 
 
@@ -39,9 +40,9 @@ def _bootloader_answer(msg: can.Message) -> bool:
         (msg.arbitration_id >> 6) in _ANSWERS
 
 
-SEND_SLACK = 1.0
+SEND_SLACK: Final = 1.0
 """Seconds an interface may take to accept a frame beyond the frames ahead of it."""
-SHARED_BUS_FACTOR = 2.0
+SHARED_BUS_FACTOR: Final = 2.0
 """Wire times in deadlines are multiplied by this: the bus may carry other traffic."""
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Final
 
 import can
 
@@ -24,7 +25,7 @@ from ucom_tools.wire.answers import AppReport
 from ucom_tools.wire.codes import ReportChannel
 from ucom_tools.wire.ids import ALL, Address, Function
 
-_ANSWERS = frozenset({Function.MCA_READY, Function.MCA_DUMPIO_DESCR, Function.MCA_DSP_CI,
+_ANSWERS: Final = frozenset({Function.MCA_READY, Function.MCA_DUMPIO_DESCR, Function.MCA_DSP_CI,
                       Function.ERROR})
 
 
@@ -52,7 +53,7 @@ class BoardEdges:
         return (self.ci, self.so, self.par)[kind]
 
 
-MASK_TABLE = bytes(b ^ mca.MAP_MASK for b in range(256))
+MASK_TABLE: Final = bytes(b ^ mca.MAP_MASK for b in range(256))
 """:func:`mca.mask` as a translation table (the process image unmasks every SO map)."""
 
 
@@ -79,7 +80,7 @@ class ProcessImage:
         counts[number] = counts.get(number, 0) + 1
 
 
-SAME_BASE_S = 600.0
+SAME_BASE_S: Final = 600.0
 """A frame stamped up to this long before a request is a late answer to an earlier one;
 one stamped longer before is on another time base (an adapter that counts from its own
 start), which says nothing about when it came, and is taken as before."""

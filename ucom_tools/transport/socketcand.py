@@ -81,11 +81,11 @@ __all__ = ["MAX_ELEMENT", "PINGS", "ElementSplitter", "SocketcandBus", "parse_fr
 
 log = logging.getLogger(__name__)
 
-SERVER_ERRORS_KEPT = 100
+SERVER_ERRORS_KEPT: Final = 100
 """How many ``< error ... >`` texts :attr:`SocketcandBus.server_errors` keeps (the newest)."""
-_CHUNK = 65536
+_CHUNK: Final = 65536
 
-_CHANNEL = re.compile(r"[^\s<>]+")
+_CHANNEL: Final = re.compile(r"[^\s<>]+")
 _SEND_HEADS: Final[dict[int, bytes]] = {}
 """``< send ID DLC `` by ``ID << 4 | DLC`` (:meth:`SocketcandBus.send_data_many`)."""
 _HEX_BLANK: Final = [b"%02X " % octet for octet in range(256)]
@@ -101,9 +101,9 @@ SEND_TIMEOUT_S = 2.0
 write the text signature of a method with literal defaults and ``**kwargs``, "non-default
 argument follows default argument"; with a constant it writes none.)"""
 
-PINGS = 3
+PINGS: Final = 3
 """``< echo >`` round trips measured after the handshake."""
-PING_WAIT_S = 0.1
+PING_WAIT_S: Final = 0.1
 """The least an echo is waited for (more on a slow connection: 20 rawmode round trips)."""
 
 def parse_frame(words: list[str], channel: str) -> can.Message:

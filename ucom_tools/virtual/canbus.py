@@ -17,7 +17,7 @@ import queue
 import time
 from collections import deque
 from pathlib import Path
-from typing import Any
+from typing import Any, Final
 
 import can
 
@@ -28,7 +28,7 @@ from ucom_tools.virtual.fleet import Fleet, release_shared, shared_fleet
 from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
 from ucom_tools.wire.canbits import MAX_EXTENDED_ID
 
-INF = float("inf")
+INF: Final = float("inf")
 
 
 class HostPort:
