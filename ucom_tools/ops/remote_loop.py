@@ -49,6 +49,9 @@ it waits, so that no receive buffer fills."""
 SWITCH_INTERVAL_S: Final = 0.0001
 """While the loop runs, Python switches threads this often (default 5 ms: a second
 thread, a live view say, could keep the loop from its deadline that long)."""
+_monotonic: Final = time.monotonic
+_sleep: Final = time.sleep
+"""Bound once: the loop's wait calls them every cycle."""
 RECENT_SAMPLES: Final = 2_000
 """The cycles a running view's lateness figures are taken over (the last 2 s at 1 kHz)."""
 
@@ -253,15 +256,15 @@ class RemoteLoop(RemoteValues):
                 h.link.dispatcher.pump(deadline)
             return
         while True:
-            now = time.monotonic()
+            now = _monotonic()
             remaining = deadline - now
             if remaining <= 0:
                 return
             early = self._wake_late
             if remaining > early:
                 nap = min(DRAIN_EVERY_S, remaining - early)
-                time.sleep(nap)
-                woke = time.monotonic()
+                _sleep(nap)
+                woke = _monotonic()
                 late = min(max(woke - now - nap, 0.0), SPIN_S)
                 self._wake_late = early + WAKE_GAIN * (late - early)
                 if deadline - woke > DRAIN_EVERY_S:

@@ -181,6 +181,8 @@ class SocketcandBus(can.BusABC):
         self.clock_offset = math.inf
         """This machine's clock minus the server's, as measured (seconds; inf until the
         first frame)."""
+        self._into = bytearray(_CHUNK)
+        """What :meth:`_poll` reads into."""
         self._pending: deque[can.Message | DataFrame] = deque()
         """What arrived and was not yet taken: standard data frames as
         :data:`~ucom_tools.protocol.frames.DataFrame` s, others as messages."""
@@ -389,14 +391,18 @@ class SocketcandBus(can.BusABC):
             raise self._shut_down()
         if self._broken is not None:
             raise can.CanOperationError(self._broken)
-        try:
-            chunk = self._sock.recv(_CHUNK)
+        into = self._into
+        try:  # into a buffer of the bus's own: recv(_CHUNK) would allocate 64 KiB a call
+            got = self._sock.recv_into(into)
         except BlockingIOError:
             return 0
         except (OSError, ValueError) as err:  # ValueError: closed by shutdown() meanwhile
             raise self._lost(err) from err
-        self._buffer(chunk)
-        return len(chunk)
+        if not got:
+            raise self._fail(f"socketcand {self._where} closed the connection")
+        self._arrival = time.time()
+        self._splitter.feed(memoryview(into)[:got])
+        return got
 
     def _read_more(self, timeout: float | None) -> bool:
         """Wait up to ``timeout`` for data and buffer it; False if none came in time."""

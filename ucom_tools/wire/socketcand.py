@@ -100,7 +100,7 @@ class ElementSplitter:
         """Where the unread part of the buffer starts: the elements taken are dropped at
         the next :meth:`feed`, not one at a time (a chunk of many is cut in linear time)."""
 
-    def feed(self, chunk: bytes) -> None:
+    def feed(self, chunk: bytes | memoryview) -> None:
         if self._pos:
             del self._buffer[:self._pos]
             self._pos = 0
