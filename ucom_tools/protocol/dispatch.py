@@ -217,7 +217,12 @@ class Dispatcher:
         with self._send_lock:
             fast(arbitration_id, data, timeout)
         self.sent += 1
-        nominal = 47 + 8 * len(data)  # _count_data(), inlined
+        self._note_sent(arbitration_id, data)
+
+    def _note_sent(self, arbitration_id: int, data: bytes) -> None:
+        """A standard data frame the bus took: counted (:meth:`_count_data`, inlined) and
+        shown to the taps."""
+        nominal = 47 + 8 * len(data)
         self._nominal += nominal
         counted = self._frames_counted = self._frames_counted + 1
         if counted % STUFF_SAMPLE == 1:
@@ -243,19 +248,8 @@ class Dispatcher:
         with self._send_lock:
             fast(frames, timeout)
         self.sent += len(frames)
-        taps = self.taps
         for ident, data in frames:
-            nominal = 47 + 8 * len(data)  # _count_data(), inlined
-            self._nominal += nominal
-            counted = self._frames_counted = self._frames_counted + 1
-            if counted % STUFF_SAMPLE == 1:
-                self._sample_nominal += nominal
-                self._sample_exact += frame_bits(ident, bytes(data))
-            if taps:
-                out = data_frame(self._stamp(), ident, bytearray(data),
-                                 is_extended_id=False, is_rx=False, channel=self.name)
-                for tap in taps:
-                    tap(out)
+            self._note_sent(ident, data)
 
     def stamp(self) -> float:
         """Now, on the time base of this bus's received frames' timestamps (what a sent
