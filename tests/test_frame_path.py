@@ -235,8 +235,8 @@ def test_send_data_writes_what_send_writes() -> None:
 
 def test_send_data_many_writes_what_send_data_writes() -> None:
     """A cycle's frames in one call are the bytes of each frame's send_data, in order, as
-    one piece; with a frame that is not a standard one of at most 8 bytes, each is
-    sent by send_data (and that one refused as send refuses it)."""
+    one piece; with a frame that is not a standard one of at most 8 bytes, none (that
+    one refused as send refuses it)."""
     rng = random.Random(5)
     with offline_bus() as bus:
         bus.hold()
@@ -255,9 +255,7 @@ def test_send_data_many_writes_what_send_data_writes() -> None:
         for bad in [(0x800, b""), (0x123, bytes(9))]:
             with pytest.raises(can.CanOperationError) as many:
                 bus.send_data_many([(0x100, b"\x01"), bad])
-            assert bus._batch == [send_bytes(can.Message(arbitration_id=0x100, data=b"\x01",
-                                                         is_extended_id=False))]
-            bus._batch.clear()
+            assert bus._batch == []
             with pytest.raises(can.CanOperationError) as one:
                 bus.send_data(*bad)
             assert str(many.value) == str(one.value)

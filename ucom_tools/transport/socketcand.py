@@ -468,16 +468,21 @@ class SocketcandBus(can.BusABC):
                        ) -> None:
         """:meth:`send_data` of each frame, in one write (or one piece of the batch held:
         :meth:`hold`) within ``timeout``: all of them or none (a frame that is not a
-        standard data frame of at most 8 bytes: each sent by :meth:`send_data` in turn,
-        which refuses it as :meth:`send` does)."""
+        standard data frame of at most 8 bytes: none, refused as :meth:`send` refuses
+        it)."""
         pieces: list[bytes] = []  # SEND_STD's bytes, from cached pieces (no formatting)
         heads = _SEND_HEADS
         for ident, data in frames:
             n = len(data)
             if not 0 <= ident <= CAN_SFF_MASK or n > 8:
-                for ident2, data2 in frames:
-                    self.send_data(ident2, data2, timeout)
-                return
+                try:  # send()'s refusal of it, nothing sent
+                    send_bytes(can.Message(arbitration_id=ident, data=data,
+                                           is_extended_id=False, check=False))
+                except ValueError as err:
+                    raise can.CanOperationError(
+                        f"socketcand {self._where} cannot send {err}") from err
+                raise can.CanOperationError(f"socketcand {self._where} cannot send "
+                                            f"identifier {ident:#x} with {n} bytes")
             key = ident << 4 | n
             head = heads.get(key)
             if head is None:
