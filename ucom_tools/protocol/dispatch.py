@@ -31,7 +31,7 @@ from typing import Final
 import can
 
 from ucom_tools.errors import BusError
-from ucom_tools.protocol.frames import DataFrame, data_frame
+from ucom_tools.protocol.frames import DataFrame, data_frame, received_message
 from ucom_tools.wire.canbits import frame_bits
 
 STUFF_SAMPLE: Final = 64
@@ -476,9 +476,7 @@ class Dispatcher:
         message_of = self._message_of
         if message_of is not None:
             return message_of(item)
-        ident, data, stamp = item
-        return data_frame(stamp, ident, bytearray(data), is_extended_id=False, is_rx=True,
-                          channel=self.name)
+        return received_message(item, self.name)
 
     def _advance_one(self, timeout: float) -> int | None:
         """:meth:`_read_one` by the bus's ``advance_frames``: send the periodic frames due, run

@@ -51,3 +51,11 @@ def data_frame(timestamp: float, arbitration_id: int, data: bytearray, *,
     msg.data = data
     msg.dlc = len(data)
     return msg
+
+
+def received_message(frame: DataFrame, channel: str | None) -> can.Message:
+    """The received message of a :data:`DataFrame` on ``channel``: what a bus's ``recv``
+    gives for it (its data copied into a bytearray, as python-can's own messages hold)."""
+    ident, data, stamp = frame
+    return data_frame(stamp, ident, bytearray(data), is_extended_id=False, is_rx=True,
+                      channel=channel)

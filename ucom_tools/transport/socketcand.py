@@ -62,7 +62,7 @@ from typing import Any, Final
 
 import can
 
-from ucom_tools.protocol.frames import DataFrame, data_frame
+from ucom_tools.protocol.frames import DataFrame, received_message
 from ucom_tools.wire.socketcand import (
     CAN_EFF_FLAG,
     CAN_EFF_MASK,
@@ -323,9 +323,7 @@ class SocketcandBus(can.BusABC):
     def message_of(self, frame: DataFrame) -> can.Message:
         """The message :meth:`recv` gives for a frame :meth:`recv_ready_frames` handed
         over as a :data:`~ucom_tools.protocol.frames.DataFrame`."""
-        ident, data, stamp = frame
-        return data_frame(stamp, ident, bytearray(data), is_extended_id=False, is_rx=True,
-                          channel=self.channel)
+        return received_message(frame, self.channel)
 
     def _take_buffered(self) -> None:
         """Every complete element buffered, taken: runs of standard frame elements in the

@@ -22,7 +22,7 @@ from typing import Any, Final
 import can
 
 from ucom_tools.errors import UcomError
-from ucom_tools.protocol.frames import DataFrame, data_frame
+from ucom_tools.protocol.frames import DataFrame, data_frame, received_message
 from ucom_tools.signals import deferred
 from ucom_tools.virtual.fleet import Fleet, release_shared, shared_fleet
 from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
@@ -63,9 +63,7 @@ class HostPort:
         """The message of an item of :attr:`inbox`."""
         if not isinstance(item, tuple):
             return item
-        ident, data, stamp = item
-        return data_frame(stamp, ident, bytearray(data), is_extended_id=False, is_rx=True,
-                          channel=self.channel)
+        return received_message(item, self.channel)
 
     def on_extended_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None:
         """A frame with a 29-bit identifier (another host's: boards send none)."""
