@@ -6,10 +6,13 @@ import can
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from ucom_tools.errors import FrameError
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
+from ucom_tools.protocol.timeouts import DEFAULT
 from ucom_tools.virtual.canbus import VirtualUcomBus
 from ucom_tools.virtual.fleet import Fleet
+from ucom_tools.wire import messages as m
 from ucom_tools.wire.ids import seq
 
 frames = st.lists(st.tuples(st.integers(0, 0x7FF), st.binary(max_size=8)), min_size=1,
@@ -45,3 +48,72 @@ def test_python_can_finds_the_virtual_fleet_by_interface_name() -> None:
         assert len(client.init_chain().acks) == 1
     from ucom_tools.virtual.fleet import forget_shared
     forget_shared()
+
+
+class _LateAcks(can.BusABC):
+    """The virtual bus behind a link that holds the first ``count`` Init Acks of board
+    number ``number`` back for ``delay`` seconds of bus time (a network's delay spike): the
+    PC asks again, the board answers again, and the first answer comes after all."""
+
+    def __init__(self, inner: VirtualUcomBus, number: int, delay: float, count: int = 1,
+                 ) -> None:
+        self.inner, self.number, self.delay, self.count = inner, number, delay, count
+        self.clock, self.stamp = inner.clock, inner.stamp
+        self.held: list[tuple[float, can.Message]] = []
+        self.channel_info = "late acks"
+        super().__init__(channel=None)
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.inner.send(msg, timeout)
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        end = self.clock() + (timeout or 0.0)
+        while True:
+            now = self.clock()
+            if self.held and self.held[0][0] <= now:
+                return self.held.pop(0)[1]
+            wait = end - now
+            if self.held:
+                wait = min(wait, self.held[0][0] - now)
+            msg = self.inner.recv(max(0.0, wait))
+            if msg is None:
+                if self.clock() >= end and not (self.held and self.held[0][0] <= self.clock()):
+                    return None
+                continue
+            try:
+                _, got = m.decode(msg.arbitration_id, bytes(msg.data))
+            except FrameError:
+                return msg
+            if self.count and isinstance(got, m.InitAck) and got.seq_id == self.number:
+                self.count -= 1
+                self.held.append((self.clock() + self.delay, msg))
+                continue
+            return msg
+
+    def shutdown(self) -> None:
+        super().shutdown()
+        self.inner.shutdown()
+
+
+def test_an_init_ack_that_comes_after_its_retry_costs_the_chain_nothing() -> None:
+    """Board 2's first answer is held back past the step's wait: the host asks again, the
+    board answers again, the chain goes on, and the late answer is recorded as what it is
+    (every Init Ack seen, in order: the conformance suite counts them) without making
+    the board two boards or cutting the chain short."""
+    fleet = Fleet.load("armar3")
+    bus = _LateAcks(VirtualUcomBus("CAN0", fleet=fleet), number=2,
+                    delay=2 * DEFAULT.init_step)
+    try:
+        client = BootloaderClient(Link(bus))
+        result = client.init_chain()
+        assert bus.count == 0 and not bus.held  # the first answer was held back, then came
+        serials = [b.identity.serial for b in sorted(fleet.boards["CAN0"],
+                                                     key=lambda b: b.identity.position)]
+        expected = list(zip((1, 2, 3), serials, strict=True))
+        assert [(a.seq_id, a.serial) for a in result.acks][:3] == expected
+        assert [(a.seq_id, a.serial) for a in result.acks[3:]] == [expected[1]]  # the late one
+        assert result.numbers == [1, 2, 3] and not result.duplicates()
+        for n, serial in expected:
+            assert client.info(seq(n)).serial == serial
+    finally:
+        bus.shutdown()
