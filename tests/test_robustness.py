@@ -12,6 +12,7 @@ from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.timeouts import DEFAULT
 from ucom_tools.virtual.canbus import VirtualUcomBus
 from ucom_tools.virtual.fleet import Fleet
+from ucom_tools.virtual.loss import LossyBus
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.ids import seq
 
@@ -50,49 +51,41 @@ def test_python_can_finds_the_virtual_fleet_by_interface_name() -> None:
     forget_shared()
 
 
-class _LateAcks(can.BusABC):
+class _LateAcks(LossyBus):
     """The virtual bus behind a link that holds the first ``count`` Init Acks of board
     number ``number`` back for ``delay`` seconds of bus time (a network's delay spike): the
-    PC asks again, the board answers again, and the first answer comes after all."""
+    PC asks again, the board answers again, and the first answer comes after all.
+    (:class:`LossyBus` with no loss gives the wrapper: the inner bus's clock and stamps.)"""
 
     def __init__(self, inner: VirtualUcomBus, number: int, delay: float, count: int = 1,
                  ) -> None:
-        self.inner, self.number, self.delay, self.count = inner, number, delay, count
-        self.clock, self.stamp = inner.clock, inner.stamp
+        super().__init__(inner)
+        self.number, self.delay, self.count = number, delay, count
         self.held: list[tuple[float, can.Message]] = []
-        self.channel_info = "late acks"
-        super().__init__(channel=None)
 
-    def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        self.inner.send(msg, timeout)
+    def _due(self) -> bool:
+        return bool(self.held) and self.held[0][0] <= self.clock()
 
-    def recv(self, timeout: float | None = None) -> can.Message | None:
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         end = self.clock() + (timeout or 0.0)
         while True:
-            now = self.clock()
-            if self.held and self.held[0][0] <= now:
-                return self.held.pop(0)[1]
-            wait = end - now
-            if self.held:
-                wait = min(wait, self.held[0][0] - now)
-            msg = self.inner.recv(max(0.0, wait))
+            if self._due():
+                return self.held.pop(0)[1], False
+            until = min(end, self.held[0][0]) if self.held else end
+            msg, _ = super()._recv_internal(max(0.0, until - self.clock()))
             if msg is None:
-                if self.clock() >= end and not (self.held and self.held[0][0] <= self.clock()):
-                    return None
+                if self.clock() >= end and not self._due():
+                    return None, False
                 continue
             try:
                 _, got = m.decode(msg.arbitration_id, bytes(msg.data))
             except FrameError:
-                return msg
+                return msg, False
             if self.count and isinstance(got, m.InitAck) and got.seq_id == self.number:
                 self.count -= 1
                 self.held.append((self.clock() + self.delay, msg))
                 continue
-            return msg
-
-    def shutdown(self) -> None:
-        super().shutdown()
-        self.inner.shutdown()
+            return msg, False
 
 
 def test_an_init_ack_that_comes_after_its_retry_costs_the_chain_nothing() -> None:
