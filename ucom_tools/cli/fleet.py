@@ -130,7 +130,7 @@ class _Processes(click.ParamType):
                    "'< error too many clients (N) >' and closed.")
 @click.option("--processes", type=_Processes(), default="auto", show_default=True,
               help="auto: serve each bus from a process of its own when TOPOLOGY has more "
-                   "than one bus (a fleet at 1 kHz needs more than one core), but no more "
+                   "than one bus (each bus steps on its own), but no more "
                    "processes than this machine has cores; 1: the whole fleet in this "
                    "process; N: the buses shared out among N processes (at most one per "
                    "bus).")
