@@ -9,7 +9,8 @@ every 10 ms), the loop at 1 kHz for ``--seconds`` (default 10).  Figures:
 - ``rate_hz``: cycles per wall second; ``missed_pct``: cycles the loop skipped because
   it came a whole period late, of all cycles due;
 - ``jitter_p50_ms``, ``jitter_p99_ms``, ``jitter_max_ms``: how long after its deadline
-  each cycle sent its frames;
+  each cycle sent its frames; ``longest_gap_ms``: the longest time between the sends of
+  two cycles (no MCA Alive meanwhile; the boards' watchdog is 50 ms);
 - ``so_age_p99_ms``: from the end of an SO frame on the (served) bus, its timestamp, to
   the frame's values being available to the PC's loop (the board samples its sensors
   before it sends, 0.7 ms earlier with three axes in the model), measured by one more
@@ -265,6 +266,7 @@ def run(port: int, seconds: float, buses: tuple[str, ...], server: int, realtime
         for _ in range(WARM_UP_CYCLES):  # the loop goes on at once (watchdogs: 50 ms)
             part.cycle()
         part.stats.late.clear()
+        part.stats.longest_gap_s = 0.0
         cycles0, missed0 = part.stats.cycles, part.stats.missed
         traffic = part.traffic()
         dispatchers = [h.link.dispatcher for h in part.robot.buses.values()]
@@ -298,6 +300,7 @@ def run(port: int, seconds: float, buses: tuple[str, ...], server: int, realtime
             "jitter_p50_ms": round(percentile(late, 50) * 1e3, 3),
             "jitter_p99_ms": round(percentile(late, 99) * 1e3, 3),
             "jitter_max_ms": round(max(late, default=0.0) * 1e3, 3),
+            "longest_gap_ms": round(s.longest_gap_s * 1e3, 3),
             "so_age_p99_ms": round(percentile(ages, 99) * 1e3, 3),
             "cpu_pct": round(100 * cpu / wall, 1),
             "serve_cpu_pct": round(100 * serve_cpu / wall, 1),
@@ -359,7 +362,8 @@ def main() -> None:
     print(f"ARMAR-III ({', '.join(buses)}) at 1 kHz over socketcand (fleet serve in another "
           f"process), {args.seconds:g} s, loop scheduling {figures['realtime']}, run time "
           f"{figures['run_time']}:")
-    print(f"  loop        {figures['rate_hz']} Hz, {figures['missed_pct']} % missed")
+    print(f"  loop        {figures['rate_hz']} Hz, {figures['missed_pct']} % missed, the "
+          f"longest gap between two cycles {figures['longest_gap_ms']} ms")
     print(f"  CPU         PC side {figures['cpu_pct']} %, fleet serve "
           f"{figures['serve_cpu_pct']} % (all its processes; the busiest "
           f"{figures['serve_cpu_busiest_pct']} %), {figures['cores']} cores")

@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import csv
 import json
+import re
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -23,7 +25,7 @@ from ucom_tools.ops.remote import MappingError, RemotePart
 from ucom_tools.virtual.loss import LossyBus
 from ucom_tools.wire import mca
 from ucom_tools.wire.fpga import Reg
-from ucom_tools.wire.ids import seq
+from ucom_tools.wire.ids import Function, decode_id, seq
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -388,7 +390,9 @@ def test_a_loop_that_stalls_past_the_watchdog_is_told_which_boards_stopped(part)
     assert part.events == []  # cycling: nothing to report
     for h in part.robot.buses.values():  # the PC's program stalls 200 ms: no MCA Alive
         h.link.dispatcher.pump(h.link.clock() + 0.2)
+    assert part.stats.longest_gap_s == pytest.approx(0.001)  # one period each so far
     part.cycle()
+    assert part.stats.longest_gap_s >= 0.2  # the loop was away: no MCA Alive meanwhile
     stopped = {(e.bus, e.board) for e in part.events if e.stopped_motors}
     configured = {(bus, n) for bus, x in part.exchanges.items() for n in x.configured}
     assert stopped == configured
@@ -433,11 +437,128 @@ def test_run_exits_1_naming_the_boards_whose_watchdog_stopped_them(flashed, monk
     assert {e["where"] for e in events if e["stopped_motors"]} >= {
         "CAN0 board 3 (head right)", "CAN3 board 1 (platform)"}
     assert all(e["error"] == "WATCHDOG" for e in events if e["stopped_motors"])
+    # the loop kept its deadlines (the frames were lost on the way): not blamed on it
+    assert json.loads(out)["run"]["longest_gap_ms"] == pytest.approx(1.0)
     code, out, err = ucom("remote", "run", "armar3", "--virtual", "armar3", "--state",
                           str(flashed), "--for", "0.3")
     assert code == 1
     assert "ucom: CAN0 board 3 (head right) at " in err
     assert "its watchdog stopped every motor: no MCA Alive for " in err
+    assert "did not run for" not in err
+
+
+class _SlowReady(LossyBus):
+    """A virtual bus whose board ``number`` answers late, once ``armed``: its first MCA
+    Ready then comes ``delay`` seconds of bus time after it was sent (a busy network or
+    fleet).  (:class:`LossyBus` with no loss: the inner bus's clock, stamps, sending.)"""
+
+    def __init__(self, inner: can.BusABC, number: int, delay: float) -> None:
+        super().__init__(inner)
+        self.number, self.delay, self.armed = number, delay, False
+        self.held: list[tuple[float, can.Message]] = []
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        end = self.clock() + (timeout or 0.0)
+        while True:
+            if self.held and self.held[0][0] <= self.clock():
+                return self.held.pop(0)[1], False
+            until = min(end, self.held[0][0]) if self.held else end
+            msg, _ = super()._recv_internal(max(0.0, until - self.clock()))
+            if msg is None:
+                if self.clock() >= end and not (self.held and self.held[0][0] <= end):
+                    return None, False
+                continue
+            if (self.armed and not msg.is_extended_id
+                    and decode_id(msg.arbitration_id) == (Function.MCA_READY,
+                                                          seq(self.number))):
+                self.armed = False
+                self.held.append((self.clock() + self.delay, msg))
+                continue
+            return msg, False
+
+
+def test_a_slow_stop_of_one_board_does_not_let_the_others_watchdogs_fire() -> None:
+    """The boards are stopped one by one, each asked and answered: when the first one's
+    answer takes longer than the watchdog time (a transport with a margin to match), MCA
+    Alive still goes out meanwhile, so the others are stopped by the PC, not by their
+    watchdog."""
+    fleet = programmed("armar3")
+    slow: dict[str, _SlowReady] = {}
+
+    def wrap(bus: can.BusABC) -> can.BusABC:
+        slow[bus.channel_info] = _SlowReady(bus, 1, 0.08)
+        return slow[bus.channel_info]
+    robot = robot_of(fleet, wrap=wrap)
+    for h in robot.buses.values():
+        h.link.margin = 0.25  # the wait for an answer outlasts the late one
+    part = RemotePart(robot, bind(robot.topology))
+    try:
+        part.start()
+        for _ in range(20):
+            part.cycle()
+        for b in slow.values():
+            b.armed = True
+        assert part.stop() == []
+        assert all(not b.armed and not b.held for b in slow.values())  # each answered late
+        assert [e for e in part.events if e.stopped_motors] == []
+        for bus, x in part.exchanges.items():
+            for n in x.configured:
+                runtime = fleet.boards[bus][n - 1].application.runtime
+                assert runtime is not None and runtime.state is mca.RunState.STOPPED
+    finally:
+        part.close()
+        robot.close()
+
+
+def test_a_loop_kept_from_running_past_the_watchdog_is_named_as_the_cause(
+        flashed, tmp_path, monkeypatch) -> None:
+    """Over a served bus (wall clock): the PC's loop is kept off the processor for 150 ms
+    once (its 100th cycle); the boards' watchdog stops them, and the summary says the
+    loop itself was away that long, which a dropped frame or a slow fleet would not."""
+    import shutil
+    import threading
+
+    from ucom_tools.virtual.fleet import Fleet
+    from ucom_tools.virtual.socketcand import FleetServer
+    state = Path(shutil.copytree(flashed, tmp_path / "state"))
+    fleet = Fleet.load("armar3", state_dir=state, realtime=True)
+    server = FleetServer(fleet, "127.0.0.1", 0)
+    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
+    thread.start()
+    real = RemotePart.cycle
+    calls = {"n": 0}
+
+    def cycle(self: RemotePart):  # type: ignore[no-untyped-def]
+        calls["n"] += 1
+        if calls["n"] == 100:
+            time.sleep(0.15)  # the fault itself: this machine keeps the loop away
+        return real(self)
+    monkeypatch.setattr(RemotePart, "cycle", cycle)
+    try:
+        args = ("remote", "run", "armar3", "-i", "socketcand", "--host", "127.0.0.1",
+                "--port", str(server.address[1]), "--bus", "CAN0", "--for", "0.5")
+        code, out, err = ucom(*args, "--json")
+        assert code == 1, err
+        run = json.loads(out)["run"]
+        assert run["missed"] >= 140 and run["longest_gap_ms"] >= 150
+        assert any(e["stopped_motors"] for e in json.loads(out)["events"])
+        calls["n"] = 0
+        code, out, err = ucom(*args)
+        assert code == 1
+        gap = re.search(r"\(the longest gap between two cycles ([0-9.]+) ms\)", out)
+        assert gap is not None and float(gap[1]) >= 150, out
+        text = " ".join(err.split())
+        assert "its watchdog stopped every motor" in text
+        away = re.search(r"ucom: the PC's loop itself did not run for ([0-9]+) ms at a time",
+                         text)
+        assert away is not None and int(away[1]) >= 150, text
+        assert "(the boards' watchdog: 50 ms): this machine kept it from its deadlines; " \
+            "--realtime runs it under SCHED_FIFO" in text
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join(10)
+        fleet.close()
 
 
 def test_a_rate_too_slow_for_the_watchdog_is_refused(flashed) -> None:

@@ -198,7 +198,8 @@ def _value_text(v: object) -> str:
 def _stats_json(part: RemotePart, loads: dict[str, float]) -> dict[str, Any]:
     s = part.stats
     return {"cycles": s.cycles, "rate_hz": round(s.rate(part._clock()), 1),
-            "missed": s.missed, "jitter_ms": {
+            "missed": s.missed, "longest_gap_ms": round(s.longest_gap_s * 1e3, 3),
+            "jitter_ms": {
                 "p50": round(s.percentile(50) * 1e3, 3),
                 "p99": round(s.percentile(99) * 1e3, 3),
                 "max": round(max(s.late, default=0.0) * 1e3, 3)},
@@ -263,8 +264,11 @@ def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) 
                        "flag (--json lists every value)[/]")
     s = part.stats
     clock = "virtual time" if part.virtual else "wall clock"
+    gap = (f" (the longest gap between two cycles {s.longest_gap_s * 1e3:.1f} ms)"
+           if s.missed else "")
     stdout().print(
-        f"{s.cycles} cycles at {s.rate(part._clock()):.0f} Hz ({clock}), {s.missed} missed, "
+        f"{s.cycles} cycles at {s.rate(part._clock()):.0f} Hz ({clock}), {s.missed} missed"
+        f"{gap}, "
         f"lateness p50 {s.percentile(50) * 1e3:.3f} ms, p99 {s.percentile(99) * 1e3:.3f} "
         f"ms; bus load " + ", ".join(f"{n} {v:.1%}" for n, v in loads.items())
         + ("" if part.scheduling is None else f"; {_realtime_text(part)}"))
@@ -431,11 +435,27 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                     stderr().print(f"[red]ucom: could not stop {escape(p)}: its watchdog "
                                    "stops it[/]", soft_wrap=True)
                 _print_events(part.events)
+                if stopped:
+                    _print_loop_away(part)
                 _print_writes(part.writes)
     if stopped and not interrupted:
         ctx.exit(EXIT_FAILED)
     if interrupted:
         ctx.exit(interrupted)
+
+
+def _print_loop_away(part: RemotePart) -> None:
+    """After watchdog stops: whether the PC's own loop was away that long (no MCA Alive
+    sent), which points at this machine's load rather than the bus or the boards."""
+    watchdog_ms = min((x.plan.alive_ms for x in part.exchanges.values()), default=0)
+    gap_ms = part.stats.longest_gap_s * 1e3
+    if part.virtual or not watchdog_ms or gap_ms < watchdog_ms:
+        return
+    hint = ("" if part.scheduling is not None and part.scheduling.used
+            else "; --realtime runs it under SCHED_FIFO")
+    stderr().print(f"[yellow]ucom: the PC's loop itself did not run for {gap_ms:.0f} ms at "
+                   f"a time (the boards' watchdog: {watchdog_ms} ms): this machine kept it "
+                   f"from its deadlines{hint}[/]", soft_wrap=True)
 
 
 def _write_json(w: WriteEvent) -> dict[str, Any]:

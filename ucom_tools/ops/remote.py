@@ -257,6 +257,8 @@ class RemotePart(RemoteLoop):
             return []
         self._running = False
         problems: list[str] = []
+        for _, x in self._handles():  # as at the start: while the boards are stopped one
+            x.start_alive()  # by one (each asked, maybe again), no other's watchdog fires
 
         def stop_bus(h: BusHandle, x: BusExchange) -> list[str]:
             out = []

@@ -70,6 +70,8 @@ class RemoteLoop(RemoteValues):
         self._running = False
         self._k = 0
         self._deadline = 0.0
+        self._sent_at = -1.0
+        """When the last cycle was sent (the loop's clock; negative: none yet)."""
         self._switch: float | None = None
         self._wake_late = SPIN_S / 2
         """How late a sleep of the loop wakes, as measured (:data:`WAKE_GAIN`)."""
@@ -122,6 +124,7 @@ class RemoteLoop(RemoteValues):
         self.stats = LoopStats(self.period_s, started_wall=time.perf_counter(),
                                started_clock=clock)
         self._deadline = clock
+        self._sent_at = -1.0
         self._k = 0
         if not self.virtual:
             for h, _ in self._handles():
@@ -153,6 +156,9 @@ class RemoteLoop(RemoteValues):
             self._prepare()  # once, in the loop's own thread
         self._wait(self._deadline)
         now = self._clock()
+        if self._sent_at >= 0.0 and now - self._sent_at > self.stats.longest_gap_s:
+            self.stats.longest_gap_s = now - self._sent_at
+        self._sent_at = now
         late = now - self._deadline
         if late >= self.period_s:  # the loop came a whole period late or more
             skipped = int(late // self.period_s)

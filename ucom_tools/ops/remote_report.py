@@ -146,6 +146,10 @@ class LoopStats:
     cycles: int = 0
     missed: int = 0
     """Cycles that could not be sent at all: the loop came more than a period late."""
+    longest_gap_s: float = 0.0
+    """The longest time between the sends of two cycles (about one period while the loop
+    keeps up).  No MCA Alive went out meanwhile: a gap as long as the boards' watchdog
+    time stops them, and then the PC's loop, not the bus or the boards, was away."""
     late: deque[float] = field(default_factory=lambda: deque(maxlen=JITTER_SAMPLES))
     started_wall: float = 0.0
     started_clock: float = 0.0
