@@ -1,6 +1,6 @@
-"""Small builders shared by the tests (images and transfers), a check that a bus's
-``send_data`` shortcut refuses what ``send`` refuses, and ending the processes
-they start."""
+"""Small builders shared by the tests (images and transfers, ARMAR-III's head as a robot
+of its own), a check that a bus's ``send_data`` shortcut refuses what ``send`` refuses,
+and ending the processes they start."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import random
 import signal
 import subprocess
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any
 
 import can
@@ -19,6 +20,18 @@ from ucom_tools.wire.ids import ALL, Address
 from ucom_tools.wire.transfer import TransferPlan
 
 WHEN = datetime(2026, 11, 22, 12, 0, tzinfo=UTC)
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def head_topology(where: Path) -> Path:
+    """ARMAR-III's CAN0 (neck and head: 3 boards) as a robot of its own, with its trees:
+    a topology file in ``where``."""
+    text = (ROOT / "ucom_tools/config/topologies/armar3.toml").read_text()
+    head = text[:text.index("[[bus]]", text.index("[[bus]]") + 1)]
+    head = head.replace('tree = "attribute_trees/', f'tree = "{ROOT}/attribute_trees/')
+    path = where / "head.toml"
+    path.write_text(head)
+    return path
 
 
 def image_words(p_words: int, x_words: int = 0, seed: int = 1) -> dict[tuple[Space, int], int]:

@@ -106,3 +106,72 @@ def test_a_lagging_paced_fleet_takes_a_hosts_frame_in_its_own_present(
         assert t2 == now2 + HOST_AHEAD_US < driver.now_us() - lag / 2  # not 0.5 s ahead
     finally:
         fleet.close()
+
+
+def test_a_fleet_kept_from_running_goes_on_from_there_and_no_watchdog_fires(
+        tmp_path, caplog) -> None:
+    """The served fleet's thread is kept from running for 120 ms (here: another thread
+    holds the fleet's lock; on a busy machine, the scheduler or a virtual machine's host)
+    while the PC's loop goes on sending over socketcand: the fleet does not run its boards
+    through the pause faster than the wall clock (they would see no MCA Alive for 120 ms
+    and their watchdogs would fire), it goes on from where it stopped; its frames are
+    stamped with the wall clock's time after it, and the pause is reported."""
+    import subprocess
+    import sys
+    import threading
+
+    from tests.helpers import ROOT, head_topology
+    from ucom_tools.ops.remote import RemotePart
+    from ucom_tools.virtual.fleet import Fleet
+    from ucom_tools.virtual.socketcand import FleetServer
+
+    topology = str(head_topology(tmp_path))
+    state = tmp_path / "state"
+    flash = subprocess.run([sys.executable, "-m", "ucom_tools", "flash",
+                            str(ROOT / "firmware_images/armar3.fl.S"), "--virtual", topology,
+                            "--state", str(state)], capture_output=True, text=True,
+                           timeout=120)
+    assert flash.returncode == 0, flash.stderr
+    fleet = Fleet.load(topology, state_dir=state, realtime=True)
+    server = FleetServer(fleet, "127.0.0.1", 0)
+    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
+    thread.start()
+    ages: list[tuple[float, float]] = []
+    try:
+        with caplog.at_level(logging.WARNING, logger="ucom.bus"), RemotePart.open(
+                topology, interface="socketcand",
+                host="127.0.0.1", port=server.address[1], channels=("CAN0",)) as part:
+            part.robot.buses["CAN0"].link.dispatcher.subscribe(
+                lambda msg: msg.arbitration_id >> 6 == 14, "SO age",
+                on_data=lambda ident, data, stamp: ages.append((time.time(), stamp)))
+            for _ in range(200):
+                part.cycle()
+            driver = fleet.driver
+            assert driver is not None
+            before = driver.slipped_us
+            released = threading.Event()
+
+            def hold() -> None:
+                with fleet.clock.lock:
+                    time.sleep(0.12)  # the fault itself: the fleet is not run
+                released.set()
+            holder = threading.Thread(target=hold)
+            holder.start()
+            resumed = 0.0
+            for _ in range(400):
+                part.cycle()
+                if not resumed and released.is_set():
+                    resumed = time.time()
+            holder.join()
+            assert part.stats.longest_gap_s < 0.05  # the PC kept sending MCA Alive
+            stops = [e for e in part.events if e.stopped_motors]
+        assert stops == []
+        assert driver.slipped_us - before >= 100_000
+        after = sorted(now - stamp for now, stamp in ages if stamp > resumed + 0.05)
+        assert after and after[len(after) // 2] < 0.05  # not 120 ms in the past
+        assert any("was kept from running for " in r.getMessage() for r in caplog.records)
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join(10)
+        fleet.close()

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+from tests.helpers import head_topology
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import McaClient
 from ucom_tools.transport.socketcand import SocketcandBus
@@ -34,16 +35,6 @@ off the processor, and a board then latches although its PC is alive and well; 1
 tells a stop by the PC from one by the watchdog at once (the tests wait 20 s)."""
 
 
-def _topology(tmp_path: Path) -> Path:
-    """ARMAR-III's CAN0 (neck and head: 3 boards) as a robot of its own, with its trees."""
-    text = (ROOT / "ucom_tools/config/topologies/armar3.toml").read_text()
-    head = text[:text.index("[[bus]]", text.index("[[bus]]") + 1)]
-    head = head.replace('tree = "attribute_trees/', f'tree = "{ROOT}/attribute_trees/')
-    path = tmp_path / "head.toml"
-    path.write_text(head)
-    return path
-
-
 def _ucom(*args: str, **kwargs: object) -> subprocess.Popen[str]:
     return subprocess.Popen([sys.executable, "-m", "ucom_tools", *args], text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -57,7 +48,7 @@ def flashed(tmp_path_factory: pytest.TempPathFactory) -> Path:
     where = tmp_path_factory.mktemp("flashed-head")
     flash = subprocess.run([sys.executable, "-m", "ucom_tools", "flash",
                             str(ROOT / "firmware_images/armar3.fl.S"), "--virtual",
-                            str(_topology(where)), "--state", str(where / "state")],
+                            str(head_topology(where)), "--state", str(where / "state")],
                            capture_output=True, text=True, timeout=120)
     assert flash.returncode == 0, flash.stderr
     return where / "state"
@@ -66,7 +57,7 @@ def flashed(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture
 def served(flashed: Path, tmp_path: Path) -> Iterator[tuple[Path, int]]:
     """The head robot flashed, then served in another process; (topology, port)."""
-    topo = _topology(tmp_path)
+    topo = head_topology(tmp_path)
     state = Path(shutil.copytree(flashed, tmp_path / "state"))
     server = _ucom("fleet", "serve", str(topo), "--state", str(state), "--port", "0")
     try:

@@ -34,9 +34,11 @@ INF: Final = float("inf")
 class HostPort:
     """The host's attachment to a simulated bus; collects the frames it receives."""
 
-    def __init__(self, sim: SimBus, epoch: float, realtime: bool, channel: str) -> None:
+    def __init__(self, sim: SimBus, fleet: Fleet, realtime: bool, channel: str) -> None:
         self.sim = sim
-        self.epoch = epoch
+        self.fleet = fleet
+        """Its ``epoch`` stamps the frames (read per frame: a paced fleet's epoch moves on
+        after a pause, :data:`~ucom_tools.virtual.clock.SLIP_US`)."""
         self.channel = channel
         self.realtime = realtime
         self.inbox: deque[can.Message | DataFrame] = deque()
@@ -47,7 +49,7 @@ class HostPort:
 
     def on_frame(self, arbitration_id: int, data: bytes, t_end: float,
                  extended: bool = False) -> None:
-        stamp = self.epoch + t_end / 1e6
+        stamp = self.fleet.epoch + t_end / 1e6
         if self.realtime:
             self.rt_inbox.put(data_frame(stamp, arbitration_id, bytearray(data),
                                          is_extended_id=extended, is_rx=True,
@@ -113,7 +115,7 @@ class VirtualUcomBus(can.BusABC):
         self.fleet = fleet
         self.realtime = fleet.realtime
         self.receive_own_messages = receive_own_messages
-        self.port = HostPort(self.sim, fleet.epoch, self.realtime, name)
+        self.port = HostPort(self.sim, fleet, self.realtime, name)
         self.sim.attach(self.port)
         self.channel_info = f"virtual UCoM bus {fleet.name}/{name}"
         super().__init__(channel=name, **kwargs)

@@ -20,6 +20,7 @@ import contextlib
 import heapq
 import itertools
 import logging
+import math
 import select
 import selectors
 import socket
@@ -48,6 +49,17 @@ WAKE_SLACK_S = 0.001
 """Work handed to the driver (:meth:`RealtimeDriver.submit`) wakes it only when it would
 otherwise sleep longer than this: a busy fleet takes a client's frames at its next step,
 without a thread wake-up per frame, an idle one at once."""
+SLIP_US = 5_000.0
+"""A paced driver that was not run for this long when due (woken that much after its
+wait's end, or kept from the fleet's lock: a machine busy with other work, a virtual
+machine's host that took the processor) and finds the fleet behind by as much does not
+catch up: its clock goes on from where it stopped, as if the pause had not happened (the
+driver's time base and the fleet's epoch move on by the pause).  Catching up would run
+the boards through the pause faster than the wall clock while the clients' frames came
+at the wall clock's pace: the boards would see a stretch of virtual time without the
+PC's MCA Alive, and their watchdogs would stop them for a pause of the simulation, not
+of the PC.  A fleet behind because its own steps are slow catches up as before (in
+steps of :data:`MAX_STEP_US`), and says so when it stays behind (:data:`LAG_WARN_US`)."""
 LAG_WARN_US = 50_000.0
 """A paced fleet this far behind the wall clock after a step is reported: the machine
 cannot run it in real time (its frames reach clients late, its timing is off)."""
@@ -226,6 +238,16 @@ class RealtimeDriver:
         self.t0 = time.monotonic() - clock.now / 1e6
         self.worst_lag_us = 0.0
         """The most the fleet fell behind the wall clock after a step (0: kept up)."""
+        self.slipped_us = 0.0
+        """The pauses its clock went on from (:data:`SLIP_US`), in all."""
+        self.slips = 0
+        """How many."""
+        self.on_slip: Callable[[float], None] | None = None
+        """Called (holding the lock) with each pause in microseconds after the time base
+        moved on by it: the fleet moves its epoch, so that time stamps stay the wall
+        clock's."""
+        self._slip_window_us = 0.0
+        self._slip_window_start = 0.0
         self._next_lag_report = 0.0
         self._behind_since: float | None = None
         self._stop = False
@@ -341,10 +363,22 @@ class RealtimeDriver:
         after = self._after
         readable = self._readable
         last = 0.0
+        waited_from = -1.0  # the last wait: from when, how long asked, when it returned
+        asked = returned = 0.0
         while not self._stop:
             self._sleep_until = 0.0
             last = time.monotonic()
             with clock.lock:
+                if waited_from >= 0.0:
+                    # not run when due: woken that much after the wait's end (a busy
+                    # machine, a virtual machine's host) or kept from the lock
+                    paused = (max(0.0, returned - waited_from - asked)
+                              + time.monotonic() - returned) * 1e6
+                    if paused > SLIP_US:
+                        first = clock.next_event_time()
+                        behind = 0.0 if first is None else self.now_us() - first
+                        if behind > SLIP_US:  # go on from there, do not catch up
+                            self._slip(min(paused, behind))
                 if pending:
                     # an idle fleet's clock stands where its last step left it (up to a
                     # wait ago): bring it to the time of the first work first, so that a
@@ -379,12 +413,19 @@ class RealtimeDriver:
                 self._run_after()
             self._note_lag(self.now_us() - clock.now)
             if target < now:
+                waited_from = returned = time.monotonic()
+                asked = 0.0
                 continue
             wait = 0.5 if nxt is None else min(0.5, max(0.0, (nxt - now) / 1e6))
             wait = max(wait, STEP_MIN_S - (time.monotonic() - last))
             if wait > 0:
                 self._sleep_until = time.monotonic() + wait
-            self._select(wait if wait > 0 and not pending else 0.0)
+            asked = wait if wait > 0 and not pending else 0.0
+            waited_from = time.monotonic()
+            self._select(asked)
+            returned = time.monotonic()
+            if self._epoll is not None:  # its timeout: whole milliseconds, rounded up
+                asked = math.ceil(asked * 1000) / 1000
 
     def _register(self, fd: int) -> None:
         if self._epoll is not None:
@@ -446,6 +487,29 @@ class RealtimeDriver:
                 call()
             except Exception:
                 log.exception("work after a step of the fleet failed")
+
+    def _slip(self, pause_us: float) -> None:
+        """Holding the lock: the time base moves on by ``pause_us`` (:data:`SLIP_US`);
+        reported (logger ``ucom.bus``) when the pauses of one second add up to
+        :data:`LAG_WARN_US`."""
+        self.t0 += pause_us / 1e6
+        self.slipped_us += pause_us
+        self.slips += 1
+        if self.on_slip is not None:
+            self.on_slip(pause_us)
+        t = time.monotonic()
+        if t - self._slip_window_start > LAG_PERSIST_S:
+            self._slip_window_start, self._slip_window_us = t, 0.0
+        self._slip_window_us += pause_us
+        if self._slip_window_us >= LAG_WARN_US and t >= self._next_lag_report:
+            self._next_lag_report = t + LAG_WARN_EVERY_S
+            log.warning("%s was kept from running for %.0f ms within a second (%d pauses "
+                        "so far, %.0f ms in all): its clock goes on from where each pause "
+                        "began, so that its boards do not take a pause for a PC that went "
+                        "quiet; a machine that does this often cannot run the fleet in "
+                        "real time", self.name, self._slip_window_us / 1000, self.slips,
+                        self.slipped_us / 1000)
+            self._slip_window_us = 0.0
 
     def _note_lag(self, behind_us: float) -> None:
         """``behind_us``: how far the fleet is behind the wall clock after a step;

@@ -89,6 +89,7 @@ class Fleet:
         if realtime:
             self._driver = RealtimeDriver(
                 self.clock, f"{topology.name} ({', '.join(b.name for b in topology.buses)})")
+            self._driver.on_slip = self._slipped
             self._driver.start()
 
     @classmethod
@@ -114,6 +115,12 @@ class Fleet:
         except KeyError:
             raise UcomError(f"fleet {self.name!r} has no bus {name!r}; buses: "
                             + ", ".join(self.buses)) from None
+
+    def _slipped(self, pause_us: float) -> None:
+        """The driver's time base moved on by a pause (:data:`~ucom_tools.virtual.clock.
+        SLIP_US`): so does the epoch, so that frames are stamped with the wall clock's
+        time at which they are on the simulated bus."""
+        self.epoch += pause_us / 1e6
 
     def now_us(self, sim: SimBus | None = None) -> float:
         """The fleet's time now: the wall clock's when paced, else the clock's."""
