@@ -230,7 +230,11 @@ class RealtimeDriver:
     it when readable, and their callbacks run at the start of the next step, holding the
     lock, before the fleet runs on: a client's frames are read by the thread that steps
     the fleet, without a reader thread, and a fleet that catches up after a stall takes
-    them before it runs its boards past them."""
+    them before it runs its boards past them.
+
+    A driver that was not run when due for longer than :data:`SLIP_US` goes on from where
+    the pause began (:attr:`on_slip` moves the fleet's epoch with it) instead of running
+    the boards through the pause to catch up."""
 
     def __init__(self, clock: FleetClock, name: str = "fleet") -> None:
         self.clock = clock
