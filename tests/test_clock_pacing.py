@@ -3,6 +3,7 @@ says so, one that keeps up does not."""
 
 from __future__ import annotations
 
+import itertools
 import logging
 import time
 
@@ -108,14 +109,31 @@ def test_a_lagging_paced_fleet_takes_a_hosts_frame_in_its_own_present(
         fleet.close()
 
 
-def test_a_fleet_kept_from_running_goes_on_from_there_and_no_watchdog_fires(
-        tmp_path, caplog) -> None:
-    """The served fleet's thread is kept from running for 120 ms (here: another thread
-    holds the fleet's lock; on a busy machine, the scheduler or a virtual machine's host)
-    while the PC's loop goes on sending over socketcand: the fleet does not run its boards
-    through the pause faster than the wall clock (they would see no MCA Alive for 120 ms
-    and their watchdogs would fire), it goes on from where it stopped; its frames are
-    stamped with the wall clock's time after it, and the pause is reported."""
+class _AliveTimes:
+    """A node on a simulated bus: the virtual end times of the MCA Alive frames on it."""
+
+    def __init__(self) -> None:
+        self.times: list[float] = []
+
+    def on_frame(self, arbitration_id: int, data: bytes, t_end: float, *extra: object) -> None:
+        if arbitration_id >> 6 == 26:  # MCA Alive
+            self.times.append(t_end)
+
+    def on_extended_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None:
+        pass
+
+
+@pytest.mark.parametrize("pause", ["lock", "step"])
+def test_a_paused_fleet_does_not_let_its_boards_watchdogs_fire(
+        tmp_path, caplog, pause: str) -> None:
+    """The served fleet is not run for 150 ms while the PC's loop goes on sending over
+    socketcand: ``lock``, another thread holds the fleet's lock (the driver is woken late:
+    a busy machine, a virtual machine's host) - it goes on from where it stopped, its
+    frames stamped with the wall clock's time after the pause, the pause reported;
+    ``step``, a step takes that long (kept from running in the middle of one) - it catches
+    up at twice the wall clock's pace.  Either way the boards get the PC's MCA Alive at
+    least every two of its intervals (running through the pause at once, they got none for
+    150 ms and their watchdogs stopped them although the PC never paused)."""
     import subprocess
     import sys
     import threading
@@ -137,6 +155,8 @@ def test_a_fleet_kept_from_running_goes_on_from_there_and_no_watchdog_fires(
     thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
     thread.start()
     ages: list[tuple[float, float]] = []
+    alive = _AliveTimes()
+    fleet.buses["CAN0"].attach(alive)
     try:
         with caplog.at_level(logging.WARNING, logger="ucom.bus"), RemotePart.open(
                 topology, interface="socketcand",
@@ -149,28 +169,44 @@ def test_a_fleet_kept_from_running_goes_on_from_there_and_no_watchdog_fires(
             driver = fleet.driver
             assert driver is not None
             before = driver.slipped_us
+            interval = part.exchanges["CAN0"].plan.alive_interval_us
             released = threading.Event()
+            with fleet.clock.lock:
+                paused_at = fleet.clock.now
 
-            def hold() -> None:
-                with fleet.clock.lock:
-                    time.sleep(0.12)  # the fault itself: the fleet is not run
-                released.set()
+            def hold() -> None:  # the fault itself: the fleet is not run for 150 ms
+                if pause == "lock":
+                    with fleet.clock.lock:
+                        time.sleep(0.15)
+                    released.set()
+                else:
+                    def slow(t: float) -> None:
+                        time.sleep(0.15)
+                        released.set()
+                    with fleet.clock.lock:
+                        fleet.clock.at(fleet.clock.now + 100, slow)
             holder = threading.Thread(target=hold)
             holder.start()
             resumed = 0.0
-            for _ in range(400):
+            for _ in range(600):
                 part.cycle()
                 if not resumed and released.is_set():
                     resumed = time.time()
             holder.join()
-            assert part.stats.longest_gap_s < 0.05  # the PC kept sending MCA Alive
+            assert resumed and part.stats.longest_gap_s < 0.05  # the PC sent MCA Alive
             stops = [e for e in part.events if e.stopped_motors]
         assert stops == []
-        assert driver.slipped_us - before >= 100_000
-        after = sorted(now - stamp for now, stamp in ages if stamp > resumed + 0.05)
-        assert after and after[len(after) // 2] < 0.05  # not 120 ms in the past
-        assert any("was kept from running for " in r.getMessage() for r in caplog.records)
+        after = [t for t in alive.times if t >= paused_at]
+        gaps = [b - a for a, b in itertools.pairwise(after)]
+        assert len(after) > 10 and max(gaps) <= 2.5 * interval, (max(gaps), interval)
+        if pause == "lock":
+            assert driver.slipped_us - before >= 100_000
+            later = sorted(now - stamp for now, stamp in ages if stamp > resumed + 0.05)
+            assert later and later[len(later) // 2] < 0.05  # not 150 ms in the past
+            assert any("was kept from running for " in r.getMessage()
+                       for r in caplog.records)
     finally:
+        fleet.buses["CAN0"].detach(alive)
         server.shutdown()
         server.server_close()
         thread.join(10)

@@ -60,6 +60,12 @@ at the wall clock's pace: the boards would see a stretch of virtual time without
 PC's MCA Alive, and their watchdogs would stop them for a pause of the simulation, not
 of the PC.  A fleet behind because its own steps are slow catches up as before (in
 steps of :data:`MAX_STEP_US`), and says so when it stays behind (:data:`LAG_WARN_US`)."""
+CATCH_UP_RATE = 2.0
+"""A fleet behind the wall clock by more than :data:`SLIP_US` that was not found paused
+(its own steps were slow, or it was kept from running in the middle of one) catches up at
+most this fast against the wall clock: at twice its pace the boards still get the PC's
+MCA Alive at least every two of its intervals (the watchdog time is five), where running
+through the lag at once would give them none for as long as the lag."""
 LAG_WARN_US = 50_000.0
 """A paced fleet this far behind the wall clock after a step is reported: the machine
 cannot run it in real time (its frames reach clients late, its timing is off)."""
@@ -366,12 +372,12 @@ class RealtimeDriver:
         pending = self._pending
         after = self._after
         readable = self._readable
-        last = 0.0
+        last = previous = 0.0
         waited_from = -1.0  # the last wait: from when, how long asked, when it returned
         asked = returned = 0.0
         while not self._stop:
             self._sleep_until = 0.0
-            last = time.monotonic()
+            previous, last = last, time.monotonic()
             with clock.lock:
                 if waited_from >= 0.0:
                     # not run when due: woken that much after the wait's end (a busy
@@ -402,9 +408,13 @@ class RealtimeDriver:
                 now = self.now_us()
                 first = clock.next_event_time()
                 # a fleet behind the wall clock catches up in steps of MAX_STEP_US, so
-                # clients' work is taken in between and the lag can be seen
-                target = now if first is None else min(now, max(first, clock.now)
-                                                         + MAX_STEP_US)
+                # clients' work is taken in between and the lag can be seen; when far
+                # behind, at most at CATCH_UP_RATE times the wall clock's pace
+                limited = first is not None and now - first > SLIP_US and previous > 0.0
+                step = MAX_STEP_US
+                if limited:
+                    step = min(step, CATCH_UP_RATE * 1e6 * max(last - previous, STEP_MIN_S))
+                target = now if first is None else min(now, max(first, clock.now) + step)
                 self._advance(target)
                 if self._rooms:
                     # the step may have emptied a transmit queue that a client's frames
@@ -416,7 +426,7 @@ class RealtimeDriver:
             if after:
                 self._run_after()
             self._note_lag(self.now_us() - clock.now)
-            if target < now:
+            if target < now and not limited:
                 waited_from = returned = time.monotonic()
                 asked = 0.0
                 continue
