@@ -43,10 +43,10 @@ the baseline's thread likewise); ``realtime`` says how the loop was scheduled.
 Targets (``targets_met``, MET or NOT MET in the text): missed < 0.1 % (or no more than
 the baseline's missed share beside the exchange: what this machine's scheduler gives a
 1 kHz thread under the same load), lateness p99 < 0.3 ms and at most the baseline's
-alone (the stricter of the two), no
-watchdog stops, SO age p99 < 3 ms, the served fleet's CPU at most half a core
-(``serve_cpu_pct`` <= 50), the PC side's at most 0.15 of a core (``cpu_pct`` <= 15), bus
-load under 70 % on every bus.  ``--json`` prints the figures as one JSON object.
+alone (the stricter of the two), no watchdog stops, SO age p99 < 3 ms, the served
+fleet's CPU at most half a core (``serve_cpu_pct`` <= 50), the PC side's at most 0.15
+of a core (``cpu_pct`` <= 15), bus load under 70 % on every bus.  ``--json`` prints the
+figures as one JSON object.
 """
 
 from __future__ import annotations
@@ -76,8 +76,9 @@ from ucom_tools.ops.remote import RemotePart  # noqa: E402
 
 IMAGE = ROOT / "firmware_images" / "armar3.fl.S"
 WARM_UP_CYCLES = 200
-PERIOD_S = 0.001
 """Cycles run before the measurement starts (the exchange has just started)."""
+PERIOD_S = 0.001
+"""The loop's and the baseline's period (1 kHz)."""
 
 
 def percentile(values: list[float], p: float) -> float:
