@@ -1,12 +1,13 @@
 """Small builders shared by the tests (images and transfers, ARMAR-III's head as a robot
-of its own), a check that a bus's ``send_data`` shortcut refuses what ``send`` refuses,
-and ending the processes they start."""
+of its own, a bus that holds answers back), a check that a bus's ``send_data`` shortcut
+refuses what ``send`` refuses, and ending the processes they start."""
 
 from __future__ import annotations
 
 import random
 import signal
 import subprocess
+from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -15,12 +16,45 @@ import can
 import pytest
 
 from ucom_tools.protocol.programmer import Programmer, TransferResult
+from ucom_tools.virtual.loss import LossyBus
 from ucom_tools.wire.codes import Space, StatusOp, Target
 from ucom_tools.wire.ids import ALL, Address
 from ucom_tools.wire.transfer import TransferPlan
 
 WHEN = datetime(2026, 11, 22, 12, 0, tzinfo=UTC)
 ROOT = Path(__file__).resolve().parent.parent
+
+
+class HeldBack(LossyBus):
+    """A virtual bus that holds each received frame ``hold(msg)`` picks back for ``delay``
+    seconds of bus time (a network's delay spike, a busy fleet), every other frame as it
+    comes.  (:class:`LossyBus` with no loss gives the wrapper: the inner bus's clock,
+    stamps, sending and shutdown.)"""
+
+    def __init__(self, inner: can.BusABC, hold: Callable[[can.Message], bool],
+                 delay: float) -> None:
+        super().__init__(inner)
+        self.hold, self.delay = hold, delay
+        self.held: list[tuple[float, can.Message]] = []
+
+    def _due(self, t: float) -> bool:
+        return bool(self.held) and self.held[0][0] <= t
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        end = self.clock() + (timeout or 0.0)
+        while True:
+            if self._due(self.clock()):
+                return self.held.pop(0)[1], False
+            until = min(end, self.held[0][0]) if self.held else end
+            msg, _ = super()._recv_internal(max(0.0, until - self.clock()))
+            if msg is None:
+                if self.clock() >= end and not self._due(end):
+                    return None, False
+                continue
+            if self.hold(msg):
+                self.held.append((self.clock() + self.delay, msg))
+                continue
+            return msg, False
 
 
 def head_topology(where: Path) -> Path:

@@ -6,13 +6,13 @@ import can
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from tests.helpers import HeldBack
 from ucom_tools.errors import FrameError
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.timeouts import DEFAULT
 from ucom_tools.virtual.canbus import VirtualUcomBus
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.loss import LossyBus
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.ids import seq
 
@@ -51,41 +51,23 @@ def test_python_can_finds_the_virtual_fleet_by_interface_name() -> None:
     forget_shared()
 
 
-class _LateAcks(LossyBus):
-    """The virtual bus behind a link that holds the first ``count`` Init Acks of board
-    number ``number`` back for ``delay`` seconds of bus time (a network's delay spike): the
-    PC asks again, the board answers again, and the first answer comes after all.
-    (:class:`LossyBus` with no loss gives the wrapper: the inner bus's clock and stamps.)"""
+class _LateAcks:
+    """What :class:`~tests.helpers.HeldBack` holds: the first ``count`` Init Acks of board
+    number ``number`` (the PC asks again, the board answers again, the first answer comes
+    after all)."""
 
-    def __init__(self, inner: VirtualUcomBus, number: int, delay: float, count: int = 1,
-                 ) -> None:
-        super().__init__(inner)
-        self.number, self.delay, self.count = number, delay, count
-        self.held: list[tuple[float, can.Message]] = []
+    def __init__(self, number: int, count: int = 1) -> None:
+        self.number, self.count = number, count
 
-    def _due(self) -> bool:
-        return bool(self.held) and self.held[0][0] <= self.clock()
-
-    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
-        end = self.clock() + (timeout or 0.0)
-        while True:
-            if self._due():
-                return self.held.pop(0)[1], False
-            until = min(end, self.held[0][0]) if self.held else end
-            msg, _ = super()._recv_internal(max(0.0, until - self.clock()))
-            if msg is None:
-                if self.clock() >= end and not self._due():
-                    return None, False
-                continue
-            try:
-                _, got = m.decode(msg.arbitration_id, bytes(msg.data))
-            except FrameError:
-                return msg, False
-            if self.count and isinstance(got, m.InitAck) and got.seq_id == self.number:
-                self.count -= 1
-                self.held.append((self.clock() + self.delay, msg))
-                continue
-            return msg, False
+    def __call__(self, msg: can.Message) -> bool:
+        try:
+            _, got = m.decode(msg.arbitration_id, bytes(msg.data))
+        except FrameError:
+            return False
+        if self.count and isinstance(got, m.InitAck) and got.seq_id == self.number:
+            self.count -= 1
+            return True
+        return False
 
 
 def test_an_init_ack_that_comes_after_its_retry_costs_the_chain_nothing() -> None:
@@ -94,12 +76,12 @@ def test_an_init_ack_that_comes_after_its_retry_costs_the_chain_nothing() -> Non
     (every Init Ack seen, in order: the conformance suite counts them) without making
     the board two boards or cutting the chain short."""
     fleet = Fleet.load("armar3")
-    bus = _LateAcks(VirtualUcomBus("CAN0", fleet=fleet), number=2,
-                    delay=2 * DEFAULT.init_step)
+    late = _LateAcks(2)
+    bus = HeldBack(VirtualUcomBus("CAN0", fleet=fleet), late, delay=2 * DEFAULT.init_step)
     try:
         client = BootloaderClient(Link(bus))
         result = client.init_chain()
-        assert bus.count == 0 and not bus.held  # the first answer was held back, then came
+        assert late.count == 0 and not bus.held  # the first answer was held back, then came
         serials = [b.identity.serial for b in sorted(fleet.boards["CAN0"],
                                                      key=lambda b: b.identity.position)]
         expected = list(zip((1, 2, 3), serials, strict=True))
