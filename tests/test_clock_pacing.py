@@ -6,6 +6,7 @@ from __future__ import annotations
 import itertools
 import logging
 import time
+from pathlib import Path
 
 import pytest
 
@@ -123,88 +124,119 @@ class _AliveTimes:
         pass
 
 
-@pytest.mark.parametrize("pause", ["lock", "step"])
-def test_a_paused_fleet_does_not_let_its_boards_watchdogs_fire(
-        tmp_path, caplog, pause: str) -> None:
-    """The served fleet is not run for 150 ms while the PC's loop goes on sending over
-    socketcand: ``lock``, another thread holds the fleet's lock (the driver is woken late:
-    a busy machine, a virtual machine's host) - it goes on from where it stopped, its
-    frames stamped with the wall clock's time after the pause, the pause reported;
-    ``step``, a step takes that long (kept from running in the middle of one) - it catches
-    up at twice the wall clock's pace.  Either way the boards get the PC's MCA Alive at
-    least every two of its intervals (running through the pause at once, they got none for
-    150 ms and their watchdogs stopped them although the PC never paused)."""
+@pytest.fixture(scope="module")
+def head(tmp_path_factory: pytest.TempPathFactory) -> tuple[str, Path]:
+    """ARMAR-III's head (CAN0) as a robot of its own, flashed: its topology and state."""
     import subprocess
     import sys
-    import threading
 
     from tests.helpers import ROOT, head_topology
-    from ucom_tools.ops.remote import RemotePart
-    from ucom_tools.virtual.fleet import Fleet
-    from ucom_tools.virtual.socketcand import FleetServer
-
-    topology = str(head_topology(tmp_path))
-    state = tmp_path / "state"
+    where = tmp_path_factory.mktemp("head")
+    topology = str(head_topology(where))
     flash = subprocess.run([sys.executable, "-m", "ucom_tools", "flash",
                             str(ROOT / "firmware_images/armar3.fl.S"), "--virtual", topology,
-                            "--state", str(state)], capture_output=True, text=True,
+                            "--state", str(where / "state")], capture_output=True, text=True,
                            timeout=120)
     assert flash.returncode == 0, flash.stderr
+    return topology, where / "state"
+
+
+def _premise(gap_s: float, watchdog_s: float) -> None:
+    """The tests below need the PC's own loop to keep sending MCA Alive: a machine that
+    kept it away for the watchdog time makes the boards stop rightly."""
+    if gap_s >= watchdog_s:
+        pytest.skip(f"this machine kept the PC's loop away for {gap_s * 1e3:.0f} ms (the "
+                    f"watchdog: {watchdog_s * 1e3:.0f} ms): the premise does not hold")
+
+
+def test_a_served_fleet_stopped_by_the_system_does_not_stop_its_boards(head) -> None:
+    """``fleet serve`` is stopped for 300 ms (SIGSTOP: what a busy machine or a virtual
+    machine's host does to it, in a wait or in the middle of a step) while the PC's loop
+    goes on sending over socketcand: the fleet must not run its boards through the pause
+    faster than the wall clock, or they see no MCA Alive for as long and their watchdogs
+    stop them although the PC never paused (before: every board, every time)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from ucom_tools.ops.remote import RemotePart
+    topology, state = head
+    server = subprocess.Popen([sys.executable, "-m", "ucom_tools", "fleet", "serve", topology,
+                               "--state", str(state), "--port", "0"], text=True,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        assert server.stdout is not None
+        line = server.stdout.readline()
+        assert line.startswith("listening on 127.0.0.1:"), line
+        port = int(line.rsplit(":", 1)[1])
+        with RemotePart.open(topology, interface="socketcand", host="127.0.0.1", port=port,
+                             channels=("CAN0",)) as part:
+            for _ in range(300):
+                part.cycle()
+            os.kill(server.pid, signal.SIGSTOP)  # the fault itself
+            stopped_at = time.monotonic()
+            resumed = False
+            for _ in range(1000):
+                part.cycle()
+                if not resumed and time.monotonic() - stopped_at >= 0.3:
+                    os.kill(server.pid, signal.SIGCONT)
+                    resumed = True
+            stops = [e for e in part.events if e.stopped_motors]
+            gap = part.stats.longest_gap_s
+        _premise(gap, 0.05)
+        assert stops == []
+    finally:
+        os.kill(server.pid, signal.SIGCONT)
+        server.send_signal(signal.SIGINT)
+        try:
+            server.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            server.kill()
+            server.wait()
+
+
+def test_a_slow_step_is_caught_up_at_twice_the_wall_clocks_pace(head) -> None:
+    """One step of the served fleet takes 150 ms (kept from running in the middle of it)
+    while the PC's loop goes on: the fleet catches up at most at twice the wall clock's
+    pace, so its boards get the PC's MCA Alive at least every two of the PC's intervals
+    (running through the lag at once, they got none for 150 ms and stopped)."""
+    import threading
+
+    from ucom_tools.ops.remote import RemotePart
+    from ucom_tools.virtual.clock import CATCH_UP_RATE
+    from ucom_tools.virtual.fleet import Fleet
+    from ucom_tools.virtual.socketcand import FleetServer
+    topology, state = head
     fleet = Fleet.load(topology, state_dir=state, realtime=True)
     server = FleetServer(fleet, "127.0.0.1", 0)
     thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
     thread.start()
-    ages: list[tuple[float, float]] = []
     alive = _AliveTimes()
     fleet.buses["CAN0"].attach(alive)
     try:
-        with caplog.at_level(logging.WARNING, logger="ucom.bus"), RemotePart.open(
-                topology, interface="socketcand",
-                host="127.0.0.1", port=server.address[1], channels=("CAN0",)) as part:
-            part.robot.buses["CAN0"].link.dispatcher.subscribe(
-                lambda msg: msg.arbitration_id >> 6 == 14, "SO age",
-                on_data=lambda ident, data, stamp: ages.append((time.time(), stamp)))
+        with RemotePart.open(topology, interface="socketcand", host="127.0.0.1",
+                             port=server.address[1], channels=("CAN0",)) as part:
             for _ in range(200):
                 part.cycle()
-            driver = fleet.driver
-            assert driver is not None
-            before = driver.slipped_us
             interval = part.exchanges["CAN0"].plan.alive_interval_us
-            released = threading.Event()
+
+            def slow(t: float) -> None:
+                time.sleep(0.15)  # the fault itself
             with fleet.clock.lock:
                 paused_at = fleet.clock.now
-
-            def hold() -> None:  # the fault itself: the fleet is not run for 150 ms
-                if pause == "lock":
-                    with fleet.clock.lock:
-                        time.sleep(0.15)
-                    released.set()
-                else:
-                    def slow(t: float) -> None:
-                        time.sleep(0.15)
-                        released.set()
-                    with fleet.clock.lock:
-                        fleet.clock.at(fleet.clock.now + 100, slow)
-            holder = threading.Thread(target=hold)
-            holder.start()
-            resumed = 0.0
+                fleet.clock.at(paused_at + 100, slow)
             for _ in range(600):
                 part.cycle()
-                if not resumed and released.is_set():
-                    resumed = time.time()
-            holder.join()
-            assert resumed and part.stats.longest_gap_s < 0.05  # the PC sent MCA Alive
             stops = [e for e in part.events if e.stopped_motors]
+            gap = part.stats.longest_gap_s
+        _premise(gap, 0.05)
         assert stops == []
         after = [t for t in alive.times if t >= paused_at]
         gaps = [b - a for a, b in itertools.pairwise(after)]
-        assert len(after) > 10 and max(gaps) <= 2.5 * interval, (max(gaps), interval)
-        if pause == "lock":
-            assert driver.slipped_us - before >= 100_000
-            later = sorted(now - stamp for now, stamp in ages if stamp > resumed + 0.05)
-            assert later and later[len(later) // 2] < 0.05  # not 150 ms in the past
-            assert any("was kept from running for " in r.getMessage()
-                       for r in caplog.records)
+        # the PC's own lateness stretches its intervals; the pause must not add to them
+        bound = CATCH_UP_RATE * (interval + gap * 1e6) + interval
+        assert len(after) > 10 and max(gaps) <= bound, (max(gaps), bound)
     finally:
         fleet.buses["CAN0"].detach(alive)
         server.shutdown()
