@@ -160,6 +160,7 @@ def test_a_served_fleet_stopped_by_the_system_does_not_stop_its_boards(head) -> 
     import subprocess
     import sys
 
+    from tests.helpers import terminate
     from ucom_tools.ops.remote import RemotePart
     topology, state = head
     server = subprocess.Popen([sys.executable, "-m", "ucom_tools", "fleet", "serve", topology,
@@ -187,13 +188,9 @@ def test_a_served_fleet_stopped_by_the_system_does_not_stop_its_boards(head) -> 
         _premise(gap, 0.05)
         assert stops == []
     finally:
-        os.kill(server.pid, signal.SIGCONT)
-        server.send_signal(signal.SIGINT)
-        try:
-            server.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            server.kill()
-            server.wait()
+        if server.poll() is None:
+            os.kill(server.pid, signal.SIGCONT)
+        terminate(server)
 
 
 def test_a_slow_step_is_caught_up_at_twice_the_wall_clocks_pace(head) -> None:
