@@ -545,3 +545,40 @@ def test_a_rate_too_slow_for_the_watchdog_is_refused(flashed) -> None:
     assert code == 3
     assert ("--rate: at 50 Hz the loop sends MCA Alive every 20 ms, and the boards' "
             "watchdog (10 ms) wants it at least every 5 ms") in " ".join(err.split())
+
+
+def test_ctrl_c_between_the_loops_sleeps_ends_the_run_at_once(flashed, tmp_path) -> None:
+    """A Ctrl-C that comes while the loop computes rather than sleeps (a busy machine; here
+    a rate it cannot keep, so it never sleeps) ends ``run`` at the next cycle: the compiled
+    loop passes through the interpreter once a cycle, so that Python runs the signal
+    handler (before, such a Ctrl-C waited for the end of the run: 'remote run --for 60'
+    went on for a minute, seen on a loaded machine)."""
+    import shutil
+    import signal
+    import threading
+
+    from ucom_tools.virtual.fleet import Fleet
+    from ucom_tools.virtual.socketcand import FleetServer
+    state = Path(shutil.copytree(flashed, tmp_path / "state"))
+    fleet = Fleet.load("armar3", state_dir=state, realtime=True)
+    server = FleetServer(fleet, "127.0.0.1", 0)
+    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
+    thread.start()
+    try:
+        with RemotePart.open("armar3", interface="socketcand", host="127.0.0.1",
+                             port=server.address[1], channels=("CAN0",),
+                             rate_hz=10_000.0) as part:
+            timer = threading.Timer(0.3, signal.raise_signal, args=(signal.SIGINT,))
+            started = time.monotonic()
+            timer.start()
+            try:
+                with pytest.raises(KeyboardInterrupt):
+                    part.run(10.0)
+            finally:
+                timer.cancel()
+            assert time.monotonic() - started < 5.0
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join(10)
+        fleet.close()

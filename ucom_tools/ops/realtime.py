@@ -41,6 +41,15 @@ def precise_sleep() -> bool:
         return False
 
 
+def let_signals_in() -> None:
+    """Nothing, in interpreted Python, called by the compiled loop once a cycle: entering
+    it lets Python run a signal handler that is pending.  A loop compiled with mypyc never
+    passes through the interpreter otherwise, and its sleep runs the handler only when the
+    signal comes during it: a Ctrl-C that came while the loop computed (a busy machine)
+    waited for the end of the run.  (This module stays interpreted: it is not in
+    :data:`ucom_tools.compiled.MODULES`.)"""
+
+
 @dataclass
 class RealtimeScheduling:
     """The calling thread's switch to ``SCHED_FIFO`` and back (:meth:`enter`,

@@ -24,7 +24,7 @@ import can
 from ucom_tools.errors import BusError, FrameError, UcomError
 from ucom_tools.native import mypyc_attr
 from ucom_tools.ops.exchange import BusExchange
-from ucom_tools.ops.realtime import RealtimeScheduling, precise_sleep
+from ucom_tools.ops.realtime import RealtimeScheduling, let_signals_in, precise_sleep
 from ucom_tools.ops.remote_report import BoardEvent, LoopStats, Value
 from ucom_tools.ops.remote_values import RemoteValues
 from ucom_tools.ops.robot import BusHandle, Robot
@@ -155,6 +155,7 @@ class RemoteLoop(RemoteValues):
         if not self._prepared:
             self._prepare()  # once, in the loop's own thread
         self._wait(self._deadline)
+        let_signals_in()  # a Ctrl-C that came while the loop computed: raised here
         now = self._clock()
         if self._sent_at >= 0.0 and now - self._sent_at > self.stats.longest_gap_s:
             self.stats.longest_gap_s = now - self._sent_at
