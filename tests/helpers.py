@@ -4,10 +4,12 @@ refuses what ``send`` refuses, and ending the processes they start."""
 
 from __future__ import annotations
 
+import contextlib
 import random
 import signal
 import subprocess
-from collections.abc import Callable
+import threading
+from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -55,6 +57,26 @@ class HeldBack(LossyBus):
                 self.held.append((self.clock() + self.delay, msg))
                 continue
             return msg, False
+
+
+@contextlib.contextmanager
+def served_in_process(topology: str, state: Path | None = None,
+                      ) -> Iterator[tuple[Any, int]]:
+    """``topology`` (with the flash in ``state``), paced and served over socketcand from
+    this process on 127.0.0.1: (the fleet, its port); closed afterwards."""
+    from ucom_tools.virtual.fleet import Fleet
+    from ucom_tools.virtual.socketcand import FleetServer
+    fleet = Fleet.load(topology, state_dir=state, realtime=True)
+    server = FleetServer(fleet, "127.0.0.1", 0)
+    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
+    thread.start()
+    try:
+        yield fleet, server.address[1]
+    finally:
+        server.shutdown()
+        server.server_close()
+        thread.join(10)
+        fleet.close()
 
 
 def head_topology(where: Path) -> Path:

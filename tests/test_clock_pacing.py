@@ -198,22 +198,15 @@ def test_a_slow_step_is_caught_up_at_twice_the_wall_clocks_pace(head) -> None:
     while the PC's loop goes on: the fleet catches up at most at twice the wall clock's
     pace, so its boards get the PC's MCA Alive at least every two of the PC's intervals
     (running through the lag at once, they got none for 150 ms and stopped)."""
-    import threading
-
+    from tests.helpers import served_in_process
     from ucom_tools.ops.remote import RemotePart
     from ucom_tools.virtual.clock import CATCH_UP_RATE
-    from ucom_tools.virtual.fleet import Fleet
-    from ucom_tools.virtual.socketcand import FleetServer
     topology, state = head
-    fleet = Fleet.load(topology, state_dir=state, realtime=True)
-    server = FleetServer(fleet, "127.0.0.1", 0)
-    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
-    thread.start()
     alive = _AliveTimes()
-    fleet.buses["CAN0"].attach(alive)
-    try:
+    with served_in_process(topology, state) as (fleet, port):
+        fleet.buses["CAN0"].attach(alive)
         with RemotePart.open(topology, interface="socketcand", host="127.0.0.1",
-                             port=server.address[1], channels=("CAN0",)) as part:
+                             port=port, channels=("CAN0",)) as part:
             for _ in range(200):
                 part.cycle()
             interval = part.exchanges["CAN0"].plan.alive_interval_us
@@ -234,9 +227,3 @@ def test_a_slow_step_is_caught_up_at_twice_the_wall_clocks_pace(head) -> None:
         # the PC's own lateness stretches its intervals; the pause must not add to them
         bound = CATCH_UP_RATE * (interval + gap * 1e6) + interval
         assert len(after) > 10 and max(gaps) <= bound, (max(gaps), bound)
-    finally:
-        fleet.buses["CAN0"].detach(alive)
-        server.shutdown()
-        server.server_close()
-        thread.join(10)
-        fleet.close()

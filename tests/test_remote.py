@@ -15,7 +15,7 @@ import can
 import pytest
 from click.testing import CliRunner
 
-from tests.helpers import HeldBack
+from tests.helpers import HeldBack, served_in_process
 from tests.runtime_rig import programmed, robot_of
 from ucom_tools.cli.main import cli
 from ucom_tools.config.attrtree.robot import bind
@@ -494,15 +494,7 @@ def test_a_loop_kept_from_running_past_the_watchdog_is_named_as_the_cause(
     once (its 100th cycle); the boards' watchdog stops them, and the summary says the
     loop itself was away that long, which a dropped frame or a slow fleet would not."""
     import shutil
-    import threading
-
-    from ucom_tools.virtual.fleet import Fleet
-    from ucom_tools.virtual.socketcand import FleetServer
     state = Path(shutil.copytree(flashed, tmp_path / "state"))
-    fleet = Fleet.load("armar3", state_dir=state, realtime=True)
-    server = FleetServer(fleet, "127.0.0.1", 0)
-    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
-    thread.start()
     real = RemotePart.cycle
     calls = {"n": 0}
 
@@ -512,9 +504,9 @@ def test_a_loop_kept_from_running_past_the_watchdog_is_named_as_the_cause(
             time.sleep(0.15)  # the fault itself: this machine keeps the loop away
         return real(self)
     monkeypatch.setattr(RemotePart, "cycle", cycle)
-    try:
+    with served_in_process("armar3", state) as (_, port):
         args = ("remote", "run", "armar3", "-i", "socketcand", "--host", "127.0.0.1",
-                "--port", str(server.address[1]), "--bus", "CAN0", "--for", "0.5")
+                "--port", str(port), "--bus", "CAN0", "--for", "0.5")
         code, out, err = ucom(*args, "--json")
         assert code == 1, err
         run = json.loads(out)["run"]
@@ -532,11 +524,6 @@ def test_a_loop_kept_from_running_past_the_watchdog_is_named_as_the_cause(
         assert away is not None and int(away[1]) >= 150, text
         assert "(the boards' watchdog: 50 ms): this machine kept it from its deadlines; " \
             "--realtime runs it under SCHED_FIFO" in text
-    finally:
-        server.shutdown()
-        server.server_close()
-        thread.join(10)
-        fleet.close()
 
 
 def test_a_rate_too_slow_for_the_watchdog_is_refused(flashed) -> None:
@@ -556,18 +543,10 @@ def test_ctrl_c_between_the_loops_sleeps_ends_the_run_at_once(flashed, tmp_path)
     import shutil
     import signal
     import threading
-
-    from ucom_tools.virtual.fleet import Fleet
-    from ucom_tools.virtual.socketcand import FleetServer
     state = Path(shutil.copytree(flashed, tmp_path / "state"))
-    fleet = Fleet.load("armar3", state_dir=state, realtime=True)
-    server = FleetServer(fleet, "127.0.0.1", 0)
-    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
-    thread.start()
-    try:
+    with served_in_process("armar3", state) as (_, port):  # noqa: SIM117 (port first)
         with RemotePart.open("armar3", interface="socketcand", host="127.0.0.1",
-                             port=server.address[1], channels=("CAN0",),
-                             rate_hz=10_000.0) as part:
+                             port=port, channels=("CAN0",), rate_hz=10_000.0) as part:
             timer = threading.Timer(0.3, signal.raise_signal, args=(signal.SIGINT,))
             started = time.monotonic()
             timer.start()
@@ -577,8 +556,3 @@ def test_ctrl_c_between_the_loops_sleeps_ends_the_run_at_once(flashed, tmp_path)
             finally:
                 timer.cancel()
             assert time.monotonic() - started < 5.0
-    finally:
-        server.shutdown()
-        server.server_close()
-        thread.join(10)
-        fleet.close()

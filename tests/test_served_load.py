@@ -6,19 +6,18 @@ a tenth of the image, then nothing, and never answered its END)."""
 
 from __future__ import annotations
 
-import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
+from tests.helpers import served_in_process
 from ucom_tools.image import load_image
 from ucom_tools.ops.flash import flash
 from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.virtual import clock as clock_mod
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.virtual.simbus import TX_QUEUE
-from ucom_tools.virtual.socketcand import FleetServer
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -31,16 +30,8 @@ queue (TX_QUEUE frames of at most 160 bits at 1 Mbit/s: about 5 ms)."""
 def late_waking_fleet(monkeypatch: pytest.MonkeyPatch) -> Iterator[tuple[Fleet, int]]:
     assert LATE_WAKE_S > 2 * TX_QUEUE * 160e-6
     monkeypatch.setattr(clock_mod, "STEP_MIN_S", LATE_WAKE_S)
-    fleet = Fleet.load(str(REPO / "tests/data/armar3_can0.toml"), realtime=True)
-    server = FleetServer(fleet, "127.0.0.1", 0)
-    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
-    thread.start()
-    try:
-        yield fleet, server.address[1]
-    finally:
-        server.shutdown()
-        thread.join(timeout=10)
-        fleet.close()
+    with served_in_process(str(REPO / "tests/data/armar3_can0.toml")) as served:
+        yield served
 
 
 def test_a_late_waking_driver_still_feeds_the_bus_a_whole_image(
