@@ -403,11 +403,17 @@ class BusExchange:
         """The CI maps ``indices`` as a periodic task's frames (identifier, data)."""
         def frames() -> list[tuple[int, bytes]]:
             out = []
-            for k in indices:
-                c, used, signs = self._ci_frames[k]
-                ident, packer = self._ci_fast[k]
-                out.append((ident, self._ci_data(c.number, signs, packer,
-                                                 [self.ci[s] for s in used])))
+            ci, ci_last, cyclic = self.ci, self._ci_last, self._ci_cyclic
+            for k in indices:  # values that did not change are not packed again
+                _, _, ident, packer, values_of_ci, number, signs = cyclic[k]
+                values = values_of_ci(ci)
+                last = ci_last[k]
+                if last is not None and last[0] == values:
+                    data = last[1]
+                else:
+                    data = self._ci_data(number, signs, packer, values)
+                    ci_last[k] = (values, data)
+                out.append((ident, data))
             return out
         return frames
 

@@ -8,6 +8,7 @@ three axes, CI/SO/PAR, the load, the quiet-cycle shortcut) is
 from __future__ import annotations
 
 import math
+import struct
 from dataclasses import dataclass
 from typing import Final
 
@@ -202,9 +203,21 @@ class _Axis:
 
     def state(self) -> tuple[object, ...]:
         """Everything a cycle reads or writes but the time since the count changed and
-        Settled's time (floats by their bits: 0.0 is not -0.0)."""
-        return tuple(v.hex() if isinstance(v, float) else (type(v), v)
-                     for v in (getattr(self, name) for name in _STATE))
+        Settled's time (:data:`_STATE`; floats by their bits: 0.0 is not -0.0).
+
+        Spelt out, not a loop over the names: the quiet check (``Armar3Model.step``)
+        takes it twice a cycle of a board at rest, and ``getattr`` by name with a float's
+        ``hex()`` cost some 20,000 instructions a call (a tenth of a moving fleet's
+        time in process); ``tests/test_armar3_axis_state.py`` holds it to :data:`_STATE`."""
+        pos_previous, vel_previous = self.pos_previous, self.vel_previous
+        return (self.active, self.anchor, self.command, self.hold, self.joint_channel,
+                self.joint_position, self.joint_view, self.k, self.motor_channel,
+                self.motor_position, self.motor_view, self.reset_answer, self.sensed,
+                self.settled, self.stall_anchor, pos_previous is None, vel_previous is None,
+                _FLOAT_BITS.pack(self.homing_us, self.pos_sum, self.pwm, self.raw,
+                                 self.stall_us, self.value, self.vel_sum,
+                                 0.0 if pos_previous is None else pos_previous,
+                                 0.0 if vel_previous is None else vel_previous))
 
     def reset_velocity(self, position: int) -> None:
         self.anchor = position
@@ -408,3 +421,5 @@ class _Axis:
 _STATE: Final = tuple(sorted(set(_AXIS_SLOTS) - {"since_us", "settled_us", "so_slots",
                                                 "ci_slots"}))
 """What :meth:`_Axis.state` compares."""
+_FLOAT_BITS: Final = struct.Struct("<9d")
+"""The float part of :meth:`_Axis.state`, by its bits."""
