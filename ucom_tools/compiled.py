@@ -54,6 +54,7 @@ MODULES: tuple[str, ...] = (
     "ucom_tools.virtual.clock",
     "ucom_tools.virtual.fpga",
     "ucom_tools.virtual.motor",
+    "ucom_tools.virtual.numeric",
     "ucom_tools.virtual.nvmem",
     "ucom_tools.virtual.plant",
     "ucom_tools.virtual.port",

@@ -91,6 +91,17 @@ class Periodic:
         self.cancelled = False
 
 
+
+def _earliest(times: list[float | None]) -> float | None:
+    """The earliest of ``times`` that is not None (None if none is): ``min()`` of a
+    generator with ``default=`` as a loop, which mypyc compiles (the builtin is an
+    interpreter call, several times a step of a pump)."""
+    out: float | None = None
+    for t in times:
+        if t is not None and (out is None or t < out):
+            out = t
+    return out
+
 class Dispatcher:
     """The reader of one bus and the frames' subscribers."""
 
@@ -302,7 +313,11 @@ class Dispatcher:
                         self.send(frame, timeout=task.period)
                 task.sent += 1
                 task.due += (missed + 1) * task.period
-            self._next_due = min((t.due for t in tasks if not t.cancelled), default=None)
+            earliest: float | None = None  # the earliest due (a loop: min() of a generator
+            for t in tasks:  # with default= is an interpreter call, every step of a pump)
+                if not t.cancelled and (earliest is None or t.due < earliest):
+                    earliest = t.due
+            self._next_due = earliest
             return self._next_due
         finally:
             with self._lock:
@@ -341,7 +356,7 @@ class Dispatcher:
         """Send the periodic frames due, read one frame (waiting up to ``timeout``, or
         until the next periodic frame is due) and dispatch it; False if none came."""
         dues = [d._run_due() for d in self.group]
-        nxt = min((t for t in dues if t is not None), default=None)
+        nxt = _earliest(dues)
         if nxt is not None:
             timeout = max(0.0, min(timeout, nxt - self.clock()))
         try:
@@ -487,7 +502,7 @@ class Dispatcher:
         if advance is None:
             return None
         dues = [d._run_due() for d in self.group]
-        nxt = min((t for t in dues if t is not None), default=None)
+        nxt = _earliest(dues)
         if nxt is not None:
             timeout = max(0.0, min(timeout, nxt - self.clock()))
         try:

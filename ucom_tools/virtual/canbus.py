@@ -59,7 +59,8 @@ class HostPort:
                                          is_extended_id=True, is_rx=True,
                                          channel=self.channel))
         else:
-            self.inbox.append((arbitration_id, bytes(data), stamp))
+            self.inbox.append((arbitration_id, data if type(data) is bytes else bytes(data),
+                               stamp))
 
     def message(self, item: can.Message | DataFrame) -> can.Message:
         """The message of an item of :attr:`inbox`."""
@@ -159,7 +160,8 @@ class VirtualUcomBus(can.BusABC):
                                         "11 bits")
         if len(data) > 8:
             raise can.CanOperationError(f"DLC {len(data)}: at most 8")
-        self._send(arbitration_id, bytes(data), False, timeout)
+        self._send(arbitration_id, data if type(data) is bytes else bytes(data), False,
+                   timeout)
 
     def _send(self, ident: int, data: bytes, extended: bool, timeout: float | None) -> None:
         sim, port = self.sim, self.port

@@ -86,6 +86,7 @@ from ucom_tools.virtual.motor import (
     AxisParams,
     MotorAxis,
 )
+from ucom_tools.virtual.numeric import round_half_even
 from ucom_tools.wire.fpga import Reg
 
 CURRENT_SENSE_V_PER_A: Final = 0.5
@@ -113,7 +114,7 @@ Direction`` bit set): the plant of a virtual board whose joints are not known.""
 
 def _adc(volts: float) -> int:
     volts = volts if volts < ADC_FULL_SCALE_V else ADC_FULL_SCALE_V
-    return round((volts if volts > 0.0 else 0.0) / ADC_FULL_SCALE_V * ADC_MAX)
+    return round_half_even((volts if volts > 0.0 else 0.0) / ADC_FULL_SCALE_V * ADC_MAX)
 
 
 _ADC_ZERO: Final = _adc(0.0)

@@ -162,11 +162,12 @@ class SimBus:
         self.queued[sender] += 1
         if track:
             self._tracked.add(token)
+        if type(data) is not bytes:  # (bytes(data) of bytes looks up __bytes__: costly)
+            data = bytes(data)
         if extended:
-            self.clock.at(t_ready, self._ready, arbitration_id, token, bytes(data), sender,
-                          True)
+            self.clock.at(t_ready, self._ready, arbitration_id, token, data, sender, True)
         else:
-            self.clock.at(t_ready, self._ready, arbitration_id, token, bytes(data), sender)
+            self.clock.at(t_ready, self._ready, arbitration_id, token, data, sender)
         return token
 
     def send_alone(self, sender: object, t_ready: float, arbitration_id: int,

@@ -15,6 +15,7 @@ from typing import Final
 from ucom_tools.edgelists.armar3 import AXES, SPEC, Command
 from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.virtual.fpga import QuadratureDecoder
+from ucom_tools.virtual.numeric import round_half_even
 from ucom_tools.virtual.programs.base import Hardware
 from ucom_tools.wire.fpga import Reg
 
@@ -351,13 +352,13 @@ class _Axis:
         joint_so, motor_so, voltage_so, answer_so, velocity_so, settled_so = self.so_slots
         so[joint_so] = self.joint_view
         so[motor_so] = self.motor_view
-        so[voltage_so] = min(3300, round(adc[self.k] * 3300 / 4095))
+        so[voltage_so] = min(3300, round_half_even(adc[self.k] * 3300 / 4095))
         so[answer_so] = self.reset_answer
-        velocity = round(self.value)
+        velocity = round_half_even(self.value)
         so[velocity_so] = -32768 if velocity < -32768 else 32767 if velocity > 32767 \
             else velocity
         so[settled_so] = int(self.settled)
-        return round(-self.pwm if c.invert_pwm else self.pwm)
+        return round_half_even(-self.pwm if c.invert_pwm else self.pwm)
 
     def _velocity_loop(self, error: float, c: _Config) -> float:
         """The inner loop: a discrete PID ``u = P e + I sum(e) + D (e - e_prev)`` whose sum

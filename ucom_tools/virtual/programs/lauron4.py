@@ -75,6 +75,7 @@ from typing import Final
 
 from ucom_tools.edgelists.lauron4 import AXES, PWM_FULL, SPEC, LegMode, Status
 from ucom_tools.edgelists.model import EdgeKind, ProgramSpec
+from ucom_tools.virtual.numeric import round_half_even
 from ucom_tools.virtual.programs.base import Hardware
 from ucom_tools.virtual.programs.lauron4_leg import (  # the board's constants re-exported
     ADC_FORCE,
@@ -307,7 +308,7 @@ class Lauron4Model:
             if dt_us > 0:
                 sign = -1 if direction >> motor & 1 else 1
                 a.velocity = sign * moved / MOTOR_COUNTS_PER_UNIT * 1e6 / dt_us
-            a.current = round(math.copysign(adc[a.k] * CURRENT_MA_PER_LSB, a.command))
+            a.current = round_half_even(math.copysign(adc[a.k] * CURRENT_MA_PER_LSB, a.command))
         tau_us = self.par[_FOOT_FILTER] * 1000.0
         blend = 1.0 if tau_us == 0 else 1.0 - math.exp(-dt_us / tau_us)
         for i, channel in enumerate(ADC_FORCE):
@@ -414,7 +415,7 @@ class Lauron4Model:
             self._settle(a, target, error, dt_us)
             w_motor = a.velocity * UNIT_RAD * GEAR_RATIO
             volts = MOTOR_RESISTANCE * a.command / 1000.0 + MOTOR_KE * w_motor
-            pwm = round(_clamp(volts / supply * PWM_FULL, -pwm_limit, pwm_limit))
+            pwm = round_half_even(_clamp(volts / supply * PWM_FULL, -pwm_limit, pwm_limit))
             if motor_direction >> k & 1:
                 pwm = -pwm
             registers[_PWM0 + k] = pwm & 0xFFFF
@@ -459,7 +460,7 @@ class Lauron4Model:
         for a in self.axes:
             k = a.k
             so[_POSITION[k]] = a.position
-            so[_VELOCITY[k]] = int(_clamp(round(a.velocity), -32768, 32767))
+            so[_VELOCITY[k]] = int(_clamp(round_half_even(a.velocity), -32768, 32767))
             so[_CURRENT[k]] = int(_clamp(a.current, -10000, 10000))
             limit = par[_ILIMIT[k]]
             flags = ((_REFERENCED if a.referenced else 0)
@@ -469,7 +470,8 @@ class Lauron4Model:
             status |= flags << 4 * k
         threshold = par[_CONTACT_THRESHOLD]
         for i, index in enumerate(_FORCE):
-            so[index] = int(_clamp(round(self.forces[i]), -5000, 5000)) if threshold else 0
+            so[index] = (int(_clamp(round_half_even(self.forces[i]), -5000, 5000))
+                         if threshold else 0)
         so[_GROUND_CONTACT] = int(bool(threshold) and self.forces[2] > threshold)
         so[_LEG_STATUS] = status
         so[_SUPPLY_VOLTAGE] = min(40950, self.hw.adc[ADC_SUPPLY] * SUPPLY_MV_PER_LSB)

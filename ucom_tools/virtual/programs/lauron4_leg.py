@@ -13,6 +13,7 @@ from typing import Final
 from ucom_tools.edgelists.lauron4 import AXES, PWM_FULL
 from ucom_tools.virtual.fpga import VirtualFpga
 from ucom_tools.virtual.motor import SUBSTEP_S as _SUBSTEP_S
+from ucom_tools.virtual.numeric import round_half_even
 from ucom_tools.virtual.plant import (
     ADC_FULL_SCALE_V,
     ADC_MAX,
@@ -106,7 +107,7 @@ def _foot_z(beta: float, gamma: float) -> float:
 
 
 def _adc(volts: float) -> int:
-    return round(_clamp(volts, 0.0, ADC_FULL_SCALE_V) / ADC_FULL_SCALE_V * ADC_MAX)
+    return round_half_even(_clamp(volts, 0.0, ADC_FULL_SCALE_V) / ADC_FULL_SCALE_V * ADC_MAX)
 
 
 class LegPlant:
@@ -275,9 +276,9 @@ class LegPlant:
         for k, joint in enumerate(self.joints):
             adc[k] = _adc(abs(joint.current) * CURRENT_SENSE_V_PER_A)
         for channel, f in zip(ADC_FORCE, self.force, strict=True):
-            reading = ADC_MID + round(f * 10 / FORCE_DECI_N_PER_LSB)
+            reading = ADC_MID + round_half_even(f * 10 / FORCE_DECI_N_PER_LSB)
             adc[channel] = int(_clamp(reading, 0, ADC_MAX)) if self.foot_sensor else 0
-        adc[ADC_SUPPLY] = int(_clamp(round(self.supply_v * 1000 / SUPPLY_MV_PER_LSB),
+        adc[ADC_SUPPLY] = int(_clamp(round_half_even(self.supply_v * 1000 / SUPPLY_MV_PER_LSB),
                                      0, ADC_MAX))
         inputs = 0
         for k, (joint, mark) in enumerate(zip(self.joints, self.marks, strict=True)):

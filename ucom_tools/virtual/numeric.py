@@ -1,0 +1,33 @@
+"""Numeric helpers of the board models that the compiled run time calls in its inner
+loops, each the same value as the builtin it stands for, for every float.
+
+Why: mypyc compiles ``round(x)`` into a call of the builtin through the interpreter,
+which looks up ``float.__round__`` and builds a bound method each time (some 600
+instructions; ARMAR-III's axes round about 120 times a virtual millisecond);
+:func:`round_half_even` is a few compiled comparisons.  ``tests/test_numeric.py`` holds
+it to ``round`` (ties, signs, the last float below a half, the edges of exact integers,
+random values of every magnitude).
+"""
+
+from __future__ import annotations
+
+
+def round_half_even(x: float) -> int:
+    """``round(x)``: the nearest integer, a tie to the even one; ValueError for NaN,
+    OverflowError for an infinity, as ``round``.
+
+    ``int(x)`` truncates toward zero exactly, and ``x - int(x)`` is exact too (for
+    ``|x| >= 1`` both lie within a factor of two, Sterbenz's lemma; below 1 the
+    integer part is 0), so comparing that fraction with one half decides as ``round``
+    does."""
+    i = int(x)
+    frac = x - i
+    if frac > 0.5:
+        return i + 1
+    if frac < -0.5:
+        return i - 1
+    if frac == 0.5:
+        return i + 1 if i & 1 else i
+    if frac == -0.5:
+        return i - 1 if i & 1 else i
+    return i
