@@ -174,8 +174,8 @@ class VirtualUcomBus(can.BusABC):
             if sim.send_alone(port, sim.now, ident, data, extended=extended) is None:
                 # virtual time: queue the frame like an adapter's TX queue; the clock
                 # runs on when the host waits (or here, while the queue is full)
-                if sim.queued[port] >= TX_QUEUE:
-                    sim.run_until(INF, stop=lambda: sim.queued[port] < TX_QUEUE)
+                if sim.queued.get(port, 0) >= TX_QUEUE:
+                    sim.run_until(INF, stop=lambda: sim.queued.get(port, 0) < TX_QUEUE)
                 sim.send(port, sim.now, ident, data, extended=extended)
         if self.receive_own_messages:
             port.on_frame(ident, data, sim.now, extended)

@@ -41,7 +41,6 @@ identifier, extended."""
 
 _heappush: Final = heapq.heappush
 _heappop: Final = heapq.heappop
-_frame_bits: Final = frame_bits
 
 TX_QUEUE: Final = 32
 """Frames a host may have waiting for the bus before ``send`` blocks (real time only),
@@ -68,8 +67,15 @@ class BusStats:
     """Error frames seen (:meth:`SimBus.error_frame`)."""
     extended: int = 0
     """Extended frames among :attr:`frames` (they have no function)."""
-    by_function: Counter[int] = field(default_factory=Counter)
-    """Standard frames by function (identifier bits 10-6)."""
+    function_counts: list[int] = field(default_factory=lambda: [0] * 32)
+    """Standard frames by function (identifier bits 10-6), indexed by it: a list, not a
+    Counter, because the bus counts every frame (a Counter is a dict subclass written
+    in Python: each ``+= 1`` went through the interpreter)."""
+
+    @property
+    def by_function(self) -> Counter[int]:
+        """:attr:`function_counts` as a Counter of the functions seen."""
+        return Counter({f: n for f, n in enumerate(self.function_counts) if n})
 
     def load(self, elapsed_us: float) -> float:
         return self.busy_us / elapsed_us if elapsed_us > 0 else 0.0
@@ -109,7 +115,7 @@ class SimBus:
         """Chain positions p (0-based) whose init input is cut off from board p-1's output."""
         self.sent_marks: dict[int, float] = {}
         self._tracked: set[int] = set()
-        self.queued: Counter[object] = Counter()
+        self.queued: dict[object, int] = {}
         """Frames each sender has queued that are not on the wire yet (its TX queue)."""
         self.drop: Callable[[object, int, bytes], bool] | None = None
         """Fault injection: ``drop(node, id, data)`` true = ``node`` misses that standard
@@ -159,7 +165,8 @@ class SimBus:
             raise ValueError(f"extended identifier 0x{arbitration_id:X}: more than 29 bits")
         token = self._next_token
         self._next_token = token + 1
-        self.queued[sender] += 1
+        queued = self.queued  # (a plain dict: a Counter's += goes through Python)
+        queued[sender] = queued.get(sender, 0) + 1
         if track:
             self._tracked.add(token)
         if type(data) is not bytes:  # (bytes(data) of bytes looks up __bytes__: costly)
@@ -182,13 +189,14 @@ class SimBus:
             raise ValueError(f"extended identifier 0x{arbitration_id:X}: more than 29 bits")
         clock = self.clock
         start = t_ready if t_ready > clock.now else clock.now
-        bits = _frame_bits(arbitration_id, data, extended=True) if extended else \
-            _frame_bits(arbitration_id, data)
+        bits = frame_bits(arbitration_id, data, extended=True) if extended else \
+            frame_bits(arbitration_id, data)
         t_end = start + bits * self.us_per_bit
         if not clock.quiet_until(t_end):
             return None
         clock.advance_to(t_end)
-        self.queued[sender] += 1
+        queued = self.queued  # (a plain dict: a Counter's += goes through Python)
+        queued[sender] = queued.get(sender, 0) + 1
         self._deliver(t_end, arbitration_id, -1, data, sender, bits, extended)
         return t_end
 
@@ -228,8 +236,8 @@ class SimBus:
             _heappush(contenders, queue.popleft())
         else:
             del self._waiting[key]
-        bits = _frame_bits(arbitration_id, data, extended=True) if extended else \
-            _frame_bits(arbitration_id, data)
+        bits = frame_bits(arbitration_id, data, extended=True) if extended else \
+            frame_bits(arbitration_id, data)
         self._busy = True
         self.clock.at(t + bits * self.us_per_bit, self._end, arbitration_id, token, data,
                       sender, bits, extended)
@@ -249,7 +257,8 @@ class SimBus:
         stats.bits += bits
         stats.payload_bits += 8 * len(data)
         stats.busy_us += duration
-        self.queued[sender] -= 1
+        queued = self.queued
+        queued[sender] = queued.get(sender, 0) - 1
         if token >= 0 and token in self._tracked:
             self._tracked.discard(token)
             self.sent_marks[token] = t_end
@@ -260,7 +269,7 @@ class SimBus:
                 if node is not sender and take is not None:
                     take(arbitration_id, data, t_end)
             return
-        stats.by_function[arbitration_id >> 6] += 1
+        stats.function_counts[arbitration_id >> 6] += 1
         drop = self.drop
         for node in self.nodes:
             if node is not sender and (drop is None or not drop(node, arbitration_id, data)):
