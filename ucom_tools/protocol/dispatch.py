@@ -91,7 +91,6 @@ class Periodic:
         self.cancelled = False
 
 
-
 def _earliest(times: list[float | None]) -> float | None:
     """The earliest of ``times`` that is not None (None if none is): ``min()`` of a
     generator with ``default=`` as a loop, which mypyc compiles (the builtin is an
@@ -101,6 +100,7 @@ def _earliest(times: list[float | None]) -> float | None:
         if t is not None and (out is None or t < out):
             out = t
     return out
+
 
 class Dispatcher:
     """The reader of one bus and the frames' subscribers."""
