@@ -16,7 +16,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Final
+from typing import ClassVar, Final
 
 from ucom_tools.config.topology import Timing
 from ucom_tools.errors import FrameError
@@ -75,6 +75,10 @@ class VirtualBoard:
 
     ``fault`` makes it a mutant board: a fault of :mod:`~ucom_tools.virtual.mutants`
     (InputError for an unknown name), fixed for the board's life."""
+
+    takes_board_frames: ClassVar[bool] = False
+    """The bus offers a board no frame another board sent (:class:`~ucom_tools.virtual.
+    simbus.Node`): :meth:`on_frame` ignores each of them."""
 
     def __init__(self, bus: SimBus, identity: Identity, *, timing: Timing | None = None,
                  powered: bool = True, state_file: Path | None = None,

@@ -34,6 +34,7 @@ from typing import Final, Protocol
 
 from ucom_tools.virtual.clock import FleetClock
 from ucom_tools.wire.canbits import MAX_EXTENDED_ID, arbitration_key, frame_bits
+from ucom_tools.wire.ids import Direction, Function
 
 _Entry = tuple[int, int, bytes, object, int, bool]
 """A frame ready to contend: arbitration key, token (the order queued), data, sender,
@@ -42,6 +43,12 @@ identifier, extended."""
 _heappush: Final = heapq.heappush
 _heappop: Final = heapq.heappop
 
+_FROM_BOARD: Final = tuple(
+    any(f.value == code and f.direction is Direction.BOARD_TO_HOST for f in Function)
+    for code in range(32))
+"""Per function (identifier bits 10-6): a board sends it (its answers, Error, the run time's
+SO maps), which no board takes from another board."""
+
 TX_QUEUE: Final = 32
 """Frames a host may have waiting for the bus before ``send`` blocks (real time only),
 like the transmit queue of a CAN adapter."""
@@ -49,7 +56,11 @@ like the transmit queue of a CAN adapter."""
 
 class Node(Protocol):
     """Anything attached to the bus that receives frames.  A node that takes extended
-    frames too has ``on_extended_frame(arbitration_id, data, t_end)`` as well."""
+    frames too has ``on_extended_frame(arbitration_id, data, t_end)`` as well.  A node
+    with ``takes_board_frames`` false (a board) is not offered the frames of the
+    functions boards send (:data:`_FROM_BOARD`), as a CAN controller's acceptance filter
+    keeps them from its software: its ``on_frame`` would ignore each of them (the fault
+    injection of :attr:`SimBus.drop` is still asked for every node and frame)."""
 
     def on_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None: ...
 
@@ -110,6 +121,8 @@ class SimBus:
         self._arbitration_due = False
         self._next_token = 0
         self.nodes: list[Node] = []
+        self._board_listeners: list[Node] = []
+        """The nodes offered the frames of :data:`_FROM_BOARD` (see :class:`Node`)."""
         self.chain: list[ChainMember] = []
         self.broken_before: set[int] = set()
         """Chain positions p (0-based) whose init input is cut off from board p-1's output."""
@@ -149,11 +162,17 @@ class SimBus:
     def attach(self, node: Node) -> None:
         with self.lock:
             self.nodes.append(node)
+            self._listen()
 
     def detach(self, node: Node) -> None:
         with self.lock:
             if node in self.nodes:
                 self.nodes.remove(node)
+                self._listen()
+
+    def _listen(self) -> None:
+        self._board_listeners = [n for n in self.nodes
+                                 if getattr(n, "takes_board_frames", True)]
 
     # ---------------------------------------------------------------- frames
     def send(self, sender: object, t_ready: float, arbitration_id: int, data: bytes,
@@ -269,10 +288,16 @@ class SimBus:
                 if node is not sender and take is not None:
                     take(arbitration_id, data, t_end)
             return
-        stats.function_counts[arbitration_id >> 6] += 1
+        function = arbitration_id >> 6
+        stats.function_counts[function] += 1
         drop = self.drop
+        if drop is None:
+            for node in self._board_listeners if _FROM_BOARD[function] else self.nodes:
+                if node is not sender:
+                    node.on_frame(arbitration_id, data, t_end)
+            return
         for node in self.nodes:
-            if node is not sender and (drop is None or not drop(node, arbitration_id, data)):
+            if node is not sender and not drop(node, arbitration_id, data):
                 node.on_frame(arbitration_id, data, t_end)
 
     ERROR_FRAME_BITS = 20

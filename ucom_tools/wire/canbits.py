@@ -17,7 +17,10 @@ flash transfer stays cheap.
 
 from __future__ import annotations
 
-from typing import Final
+from typing import TYPE_CHECKING, Final
+
+if TYPE_CHECKING:  # only the compiler needs it: annotations of locals are never evaluated
+    from mypy_extensions import i64
 
 CRC15_POLY: Final = 0x4599
 FIXED_TAIL_BITS: Final = 1 + 2 + 7 + 3  # CRC delimiter, ACK slot + delimiter, EOF, IFS
@@ -96,9 +99,6 @@ def _stuff_table() -> tuple[tuple[int, int], ...]:
 
 
 _STUFF_TABLE: Final = _stuff_table()
-_STUFF_PACKED: Final = tuple(s * 256 | added << 16 for s, added in _STUFF_TABLE)
-""":data:`_STUFF_TABLE` as one int per entry: the next state as its index (state * 256) in
-the low 16 bits, the stuff bits added above them (no tuple to unpack per byte)."""
 
 
 def stuff_bits(region: int, nbits: int) -> int:
@@ -138,13 +138,25 @@ def _extended_frame_bits(arbitration_id: int, data: bytes, remote: bool) -> int:
     return nbits + 15 + stuff_bits(region, nbits + 15) + FIXED_TAIL_BITS
 
 
-_HEADS: Final[dict[int, tuple[int, int, int]]] = {}
-"""Per identifier and DLC (``id << 4 | dlc``) of a data frame: the CRC register after the
-header (SOF to DLC, 19 bits, which :func:`crc15` pads to 3 bytes), and the stuffing state
-(index into the table) and stuff bits after its 17 bits behind SOF (up to DLC bit 0)."""
+_CRC_HIGH: Final = bytes(c >> 8 for c in _CRC_TABLE)
+_CRC_LOW: Final = bytes(c & 0xFF for c in _CRC_TABLE)
+""":data:`_CRC_TABLE` as two byte strings, the high and the low byte of each entry: a byte
+string's item is a native integer where this module is compiled (a tuple's is an object
+to unbox)."""
+_STUFF_NEXT: Final = bytes(s for s, _added in _STUFF_TABLE)
+_STUFF_ADDED: Final = bytes(added for _s, added in _STUFF_TABLE)
+""":data:`_STUFF_TABLE` as two byte strings: the next stuffing state (0-7) and the stuff
+bits the byte added, at ``state * 256 + byte``."""
+
+_NO_HEAD: Final = -1
+_HEADS: Final[list[int]] = [_NO_HEAD] * (0x800 << 4)
+"""Per identifier and DLC (index ``id << 4 | dlc``) of a standard data frame, once it was
+seen: the CRC register after the header (SOF to DLC, 19 bits, which :func:`crc15` pads to
+3 bytes) in bits 0-14, the stuffing state after its 17 bits behind SOF (up to DLC bit 1)
+in bits 15-17 and the stuff bits they needed above; :data:`_NO_HEAD` before."""
 
 
-def _head(arbitration_id: int, dlc: int) -> tuple[int, int, int]:
+def _head(arbitration_id: int, dlc: int) -> int:
     header = (arbitration_id << 7) | dlc  # 18 bits: ID, RTR=0, IDE=0, r0=0, DLC
     crc = 0
     for byte in header.to_bytes(3, "big"):
@@ -153,7 +165,7 @@ def _head(arbitration_id: int, dlc: int) -> tuple[int, int, int]:
     for i in range(17, 0, -1):
         state, a = _stuff_step(state, (header >> i) & 1)
         added += a
-    return crc, state * 256, added
+    return crc | state << 15 | added << 18
 
 
 def frame_bits(arbitration_id: int, data: bytes, remote: bool = False,
@@ -162,37 +174,45 @@ def frame_bits(arbitration_id: int, data: bytes, remote: bool = False,
     (11-bit identifier) unless ``extended`` (29-bit).
 
     A data frame's header part (CRC register and stuffing state after SOF to DLC bit 1)
-    is computed once per identifier and DLC; the rest walks DLC bit 0, the data and the
-    CRC byte by byte: the same bits in the same order as over the whole frame
-    (:func:`_frame_bits_general`, which remote frames take).  Not cached: compiled, the
-    walk costs less than looking up (identifier, data) in a dictionary (callgrind, the
-    in-process fleet: an lru_cache and a plain dict both cost more than they saved)."""
+    is computed once per identifier and DLC (:data:`_HEADS`); the rest walks DLC bit 0,
+    the data and the CRC byte by byte with tables of bytes: the same bits in the same
+    order as over the whole frame (:func:`_frame_bits_general`, which remote frames take;
+    ``tests/test_canbits.py`` holds both to a bit-by-bit reference).  Compiled, every
+    step is arithmetic on 64-bit integers (``i64``: no tagged integers, no objects); a
+    cache of whole frames cost more than it saved."""
     if extended:
         return _extended_frame_bits(arbitration_id, data, remote)
     dlc = len(data)
     if remote or dlc > 8 or not 0 <= arbitration_id <= 0x7FF:
         return _frame_bits_general(arbitration_id, data, remote)
     key = arbitration_id << 4 | dlc
-    head = _HEADS.get(key)
-    if head is None:
+    head: i64 = _HEADS[key]
+    if head == _NO_HEAD:
         head = _HEADS[key] = _head(arbitration_id, dlc)
-    crc, state, added = head
-    table = _CRC_TABLE
-    stuff = _STUFF_PACKED
+    crc: i64 = head & 0x7FFF
+    state: i64 = (head >> 7) & 0x700  # its index into the stuffing tables (state * 256)
+    added: i64 = head >> 18
+    high, low = _CRC_HIGH, _CRC_LOW
+    nxt, add = _STUFF_NEXT, _STUFF_ADDED
     # the bits after the head, DLC bit 0, the data and the CRC, stuffed a byte at a time:
     # each byte to stuff is the previous data bit (``carry``; first DLC bit 0) and the
     # data byte's 7 high bits; the last two bytes the last data bit and the CRC
-    carry = dlc & 1
-    for byte in data:
-        crc = ((crc << 8) & 0x7FFF) ^ table[((crc >> 7) ^ byte) & 0xFF]
-        step = stuff[state + (carry << 7 | byte >> 1)]
-        state = step & 0xFFFF
-        added += step >> 16
+    carry: i64 = dlc & 1
+    n: i64 = dlc
+    i: i64 = 0
+    while i < n:
+        byte: i64 = data[i]
+        k: i64 = ((crc >> 7) ^ byte) & 0xFF
+        crc = ((crc << 8) & 0x7FFF) ^ (high[k] << 8 | low[k])
+        k = state + (carry << 7 | byte >> 1)
+        state = nxt[k] << 8
+        added += add[k]
         carry = byte & 1
-    last = carry << 15 | crc
-    step = stuff[state + (last >> 8)]
-    added += (step >> 16) + (stuff[(step & 0xFFFF) + (last & 0xFF)] >> 16)
-    return 34 + 8 * dlc + added + FIXED_TAIL_BITS
+        i += 1
+    last: i64 = carry << 15 | crc
+    k = state + (last >> 8)
+    added += add[k] + add[(nxt[k] << 8) + (last & 0xFF)]
+    return 34 + 8 * n + added + FIXED_TAIL_BITS
 
 
 def worst_frame_bits(dlc: int, extended: bool = False) -> int:
