@@ -310,7 +310,7 @@ def run(port: int, seconds: float, buses: tuple[str, ...], server: int, realtime
             "cpu_us_per_frame": round(1e6 * cpu / max(1, frames), 2),
             "serve_cpu_us_per_frame": round(1e6 * serve_cpu / max(1, frames), 2),
             "bus_load_pct": {n: round(100 * v, 1) for n, v in loads.items()},
-            "realtime": "normal" if part.scheduling is None else part.scheduling.describe(),
+            "realtime": part.scheduled_as,
             "watchdog_stops": len({(e.bus, e.board) for e in stops}),
             "watchdog_stop_times_s": sorted({round(e.time, 2) for e in stops})[:10]}
 

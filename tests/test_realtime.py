@@ -1,4 +1,5 @@
-"""``--realtime``: the PC loop's thread under SCHED_FIFO, or a reason why not."""
+"""``--realtime``: the PC loop's thread under SCHED_FIFO, or a reason why not; without it,
+a short time slice at normal priority."""
 
 from __future__ import annotations
 
@@ -7,7 +8,14 @@ import threading
 
 import pytest
 
-from ucom_tools.ops.realtime import PRIORITY, RealtimeScheduling
+from ucom_tools.ops.realtime import (
+    PRIORITY,
+    SLICE_NS,
+    RealtimeScheduling,
+    restore_slice,
+    short_slice,
+    thread_slice,
+)
 
 linux = pytest.mark.skipif(not hasattr(os, "sched_setscheduler"), reason="Linux scheduling")
 
@@ -60,3 +68,55 @@ def test_leave_from_another_thread_does_nothing() -> None:
     rt.active, rt._thread = True, -1  # entered by some other thread
     rt.leave()
     assert rt.active
+
+
+def _slice_in_a_thread() -> dict[str, int | None]:
+    """short_slice and restore_slice in a thread of its own, the slices seen on the way."""
+    seen: dict[str, int | None] = {}
+
+    def loop_thread() -> None:
+        seen["before"] = thread_slice()
+        seen["given"] = short_slice()
+        seen["during"] = thread_slice()
+        if seen["given"] is not None:
+            restore_slice(seen["given"])
+        seen["after"] = thread_slice()
+
+    t = threading.Thread(target=loop_thread)
+    t.start()
+    t.join(timeout=10)
+    return seen
+
+
+@linux
+def test_a_short_time_slice_for_the_calling_thread_and_back() -> None:
+    runner = thread_slice()
+    seen = _slice_in_a_thread()
+    assert thread_slice() == runner  # the runner's thread was never touched
+    if seen["given"] is None:  # nothing changed where the kernel keeps its own
+        assert seen["during"] == seen["before"] == seen["after"]
+        pytest.skip("this kernel keeps its own time slice (a thread's own: Linux 6.12)")
+    assert seen["given"] == seen["before"] != SLICE_NS
+    assert seen["during"] == SLICE_NS
+    assert seen["after"] == seen["before"]
+
+
+@linux
+def test_no_slice_is_asked_for_under_sched_fifo() -> None:
+    outcome: dict[str, object] = {}
+
+    def loop_thread() -> None:
+        rt = RealtimeScheduling()
+        if not rt.enter():
+            outcome["refused"] = rt.refused
+            return
+        outcome["given"] = short_slice()
+        outcome["slice"] = thread_slice()
+        rt.leave()
+
+    t = threading.Thread(target=loop_thread)
+    t.start()
+    t.join(timeout=10)
+    if "refused" in outcome:
+        pytest.skip(f"SCHED_FIFO: {outcome['refused']}")
+    assert outcome == {"given": None, "slice": None}

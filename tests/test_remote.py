@@ -216,6 +216,36 @@ def test_run_for_json_has_every_edge_and_the_loop_figures(flashed) -> None:
     assert run["planned_load"]["CAN0"]["nominal"] == pytest.approx(0.6328, abs=1e-4)
 
 
+def test_the_loop_asks_for_a_short_time_slice_on_real_buses_and_gives_it_back(
+        flashed, tmp_path) -> None:
+    """At normal priority over socketcand the loop's thread runs with a 0.1 ms time slice
+    where the kernel grants one (said in the run's figures), and has its own back after
+    the run; in virtual time nothing waits for the wall, and no slice is asked for."""
+    import shutil
+    import threading
+
+    from ucom_tools.ops.realtime import short_slice, thread_slice
+    probe: dict[str, int | None] = {}
+    t = threading.Thread(target=lambda: probe.update(given=short_slice()))
+    t.start()
+    t.join(timeout=10)
+    granted = probe["given"] is not None  # the probe's thread ended with its slice
+    state = Path(shutil.copytree(flashed, tmp_path / "state"))
+    before = thread_slice()
+    with served_in_process("armar3", state) as (_, port):
+        code, out, err = ucom("remote", "run", "armar3", "-i", "socketcand", "--host",
+                              "127.0.0.1", "--port", str(port), "--bus", "CAN0", "--for",
+                              "0.3", "--json")
+    assert code == 0, err
+    assert json.loads(out)["run"]["realtime"] == (
+        "normal, time slice 0.1 ms" if granted else "normal")
+    assert thread_slice() == before  # this thread ran the loop: its slice is back
+    code, out, err = ucom("remote", "run", "armar3", "--virtual", "armar3", "--state",
+                          str(state), "--for", "0.1", "--json")
+    assert code == 0, err
+    assert json.loads(out)["run"]["realtime"] == "normal"
+
+
 def test_run_text_says_what_the_joints_did(flashed) -> None:
     code, out, err = ucom("remote", "run", "armar3", "--virtual", "armar3", "--state",
                           str(flashed), "--for", "0.5", "--set", "Neck Yaw Target=-400")

@@ -10,6 +10,12 @@ what it needs and no more.  The priority is below the kernel's interrupt threads
 PREEMPT_RT), so the network and CAN drivers the loop depends on still run first.
 
 A refusal is not an error: the loop runs at normal priority and the reason is reported.
+
+At normal priority the loop's thread asks for a short time slice (:func:`short_slice`):
+Linux's fair scheduler (EEVDF, kernel 6.12 and later) lets a thread that wakes with a
+shorter slice than the running task's preempt it, so the loop gets the processor at its
+deadline instead of after another process's slice (1.4 ms on two cores); any thread may
+ask.
 """
 
 from __future__ import annotations
@@ -20,12 +26,89 @@ import os
 import sys
 import threading
 from dataclasses import dataclass
+from typing import Final
 
 PRIORITY = 40
 """SCHED_FIFO priority of the loop's thread: below the kernel's IRQ threads (50)."""
 TIMER_SLACK_NS = 1000
 """The loop thread's timer slack (Linux's default is 50 us: a sleep may end that late)."""
 _PR_SET_TIMERSLACK = 29
+SLICE_NS: Final = 100_000
+"""The time slice the loop's thread asks for at normal priority: the least Linux grants
+(its default is 0.7 ms times 1 + log2 of the processors, at most 8 of them).
+Measured over ``fleet serve armar3`` on two cores (``remote run --for 10``, five runs in
+turns): lateness p99 0.024-0.072 ms against 0.052-0.119 ms with the default slice."""
+_SCHED_SYSCALLS: Final = {"x86_64": (314, 315), "aarch64": (274, 275)}
+"""``sched_setattr`` and ``sched_getattr`` by machine (Python has neither)."""
+
+
+class _SchedAttr(ctypes.Structure):
+    """``struct sched_attr`` (sched_setattr(2)), its first version's 56 bytes."""
+
+    _fields_ = [("size", ctypes.c_uint32), ("sched_policy", ctypes.c_uint32),
+                ("sched_flags", ctypes.c_uint64), ("sched_nice", ctypes.c_int32),
+                ("sched_priority", ctypes.c_uint32), ("sched_runtime", ctypes.c_uint64),
+                ("sched_deadline", ctypes.c_uint64), ("sched_period", ctypes.c_uint64),
+                ("util_min", ctypes.c_uint32), ("util_max", ctypes.c_uint32)]
+
+
+def _sched_attr() -> tuple[ctypes.CDLL, int, _SchedAttr] | None:
+    """libc, sched_setattr's number and the calling thread's attributes, or None where
+    they cannot be had (not Linux, another machine, a kernel without them)."""
+    numbers = _SCHED_SYSCALLS.get(os.uname().machine) if sys.platform.startswith(
+        "linux") else None
+    if numbers is None:
+        return None
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        attr = _SchedAttr()
+        if libc.syscall(numbers[1], 0, ctypes.byref(attr), ctypes.sizeof(attr), 0) != 0:
+            return None
+    except (OSError, AttributeError):
+        return None
+    return libc, numbers[0], attr
+
+
+def thread_slice() -> int | None:
+    """The calling thread's time slice in nanoseconds under the fair policy (None where
+    that cannot be read, or the thread is not under it)."""
+    got = _sched_attr()
+    if got is None or got[2].sched_policy != os.SCHED_OTHER:
+        return None
+    return int(got[2].sched_runtime)
+
+
+def short_slice(slice_ns: int = SLICE_NS) -> int | None:
+    """Give the calling thread a time slice of ``slice_ns`` under the fair policy (its nice
+    value kept); returns the slice it had, for :func:`restore_slice`, or None where the
+    thread is not under that policy or the kernel does not keep the slice (before 6.12,
+    another system), and then nothing changed."""
+    got = _sched_attr()
+    if got is None:
+        return None
+    libc, setattr_nr, before = got
+    if before.sched_policy != os.SCHED_OTHER:
+        return None  # SCHED_FIFO (--realtime) or another policy: no slice to ask for
+    if not _set_slice(libc, setattr_nr, before, slice_ns):
+        return None
+    if thread_slice() != slice_ns:  # accepted and ignored: an older kernel
+        _set_slice(libc, setattr_nr, before, int(before.sched_runtime))
+        return None
+    return int(before.sched_runtime)
+
+
+def restore_slice(slice_ns: int) -> None:
+    """The calling thread's slice back to ``slice_ns`` (what :func:`short_slice` gave)."""
+    got = _sched_attr()
+    if got is not None and got[2].sched_policy == os.SCHED_OTHER:
+        _set_slice(got[0], got[1], got[2], slice_ns)
+
+
+def _set_slice(libc: ctypes.CDLL, setattr_nr: int, current: _SchedAttr, slice_ns: int,
+               ) -> bool:
+    attr = _SchedAttr(size=ctypes.sizeof(_SchedAttr), sched_policy=os.SCHED_OTHER,
+                      sched_nice=current.sched_nice, sched_runtime=slice_ns)
+    return bool(libc.syscall(setattr_nr, 0, ctypes.byref(attr), 0) == 0)
 
 
 def precise_sleep() -> bool:

@@ -15,6 +15,7 @@ The in-process fleet in virtual time: the loop drives the fleet clock, nothing w
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from collections.abc import Callable, Mapping
 from typing import Any, Final, Self
@@ -24,7 +25,14 @@ import can
 from ucom_tools.errors import BusError, FrameError, UcomError
 from ucom_tools.native import mypyc_attr
 from ucom_tools.ops.exchange import BusExchange
-from ucom_tools.ops.realtime import RealtimeScheduling, let_signals_in, precise_sleep
+from ucom_tools.ops.realtime import (
+    SLICE_NS,
+    RealtimeScheduling,
+    let_signals_in,
+    precise_sleep,
+    restore_slice,
+    short_slice,
+)
 from ucom_tools.ops.remote_report import BoardEvent, LoopStats, Value
 from ucom_tools.ops.remote_values import RemoteValues
 from ucom_tools.ops.robot import BusHandle, Robot
@@ -89,6 +97,12 @@ class RemoteLoop(RemoteValues):
         """``realtime``: the loop's thread under SCHED_FIFO from its first cycle to the stop
         (``scheduling.active``; ``scheduling.refused`` says why not).  Not in virtual time,
         where the loop drives the clock and nothing waits for the wall."""
+        self.slice_ns: int | None = None
+        """On real buses at normal priority: the time slice the loop's thread runs with
+        (:func:`~ucom_tools.ops.realtime.short_slice`), None where the kernel keeps its
+        own (or under ``realtime``)."""
+        self._slice_before: tuple[int, int] | None = None
+        """The loop's thread and the slice it had before, to give back at the end."""
         self.each_cycle: list[Callable[[], None]] = []
         """Called on the loop's thread at the end of every cycle, after the sends (the
         network share, :mod:`ucom_tools.net.share`: writes from the network are applied
@@ -97,6 +111,14 @@ class RemoteLoop(RemoteValues):
 
     def _handles(self) -> list[tuple[BusHandle, BusExchange]]:
         return [(self.robot.buses[n], x) for n, x in self.exchanges.items()]
+
+    @property
+    def scheduled_as(self) -> str:
+        """How the loop's thread is (or was) scheduled: 'SCHED_FIFO 40', 'normal', or
+        'normal (why not SCHED_FIFO)'; with ', time slice 0.1 ms' where it runs at normal
+        priority with the short slice it asked for (:attr:`slice_ns`)."""
+        text = "normal" if self.scheduling is None else self.scheduling.describe()
+        return text if self.slice_ns is None else f"{text}, time slice {self.slice_ns / 1e6:g} ms"
 
     @property
     def running(self) -> bool:
@@ -141,6 +163,11 @@ class RemoteLoop(RemoteValues):
             x.stop_tasks()
         if self.scheduling is not None:
             self.scheduling.leave()
+        if self._slice_before is not None:
+            thread, before = self._slice_before
+            if thread == threading.get_ident():  # a thread's own slice, as its policy
+                restore_slice(before)
+                self._slice_before = None
         self._prepared = False
         if self._switch is not None:
             sys.setswitchinterval(self._switch)
@@ -229,14 +256,19 @@ class RemoteLoop(RemoteValues):
                 f"{h.name} board errors", on_frame=on_error)))
 
     def _prepare(self) -> None:
-        """The loop's thread: SCHED_FIFO (``realtime``), precise sleeps; and the buses
-        whose frames of a cycle can go out in one write."""
+        """The loop's thread: SCHED_FIFO (``realtime``), else a short time slice; precise
+        sleeps; and the buses whose frames of a cycle can go out in one write."""
         self._prepared = True
         rt = self.scheduling
         if rt is not None:
             rt.enter()
         if not self.virtual:
             precise_sleep()
+            if rt is None or not rt.active:
+                before = short_slice()
+                if before is not None:
+                    self._slice_before = (threading.get_ident(), before)
+                    self.slice_ns = SLICE_NS
         self._batching = [(h.name, h.link.dispatcher.bus) for h, _ in self._handles()
                           if not self.virtual and callable(
                               getattr(h.link.dispatcher.bus, "hold", None))]
