@@ -41,6 +41,7 @@ sys.path.insert(0, str(ROOT))
 from ucom_tools.image import load_image  # noqa: E402
 from ucom_tools.ops.flash import flash, listen_first  # noqa: E402
 from ucom_tools.ops.robot import ConnectSpec, open_robot  # noqa: E402
+from ucom_tools.signals import stop_signals  # noqa: E402
 
 IMAGE = ROOT / "firmware_images" / "armar3.fl.S"
 BOARDS = 11
@@ -149,4 +150,5 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    with stop_signals():  # SIGTERM and SIGHUP as Ctrl-C: a served fleet is stopped too
+        sys.exit(main())

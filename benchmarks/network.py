@@ -55,6 +55,7 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.runtime import percentile, served_armar3  # noqa: E402
 from ucom_tools.net.share import open_shared  # noqa: E402
 from ucom_tools.ops.remote import RemotePart  # noqa: E402
+from ucom_tools.signals import stop_signals  # noqa: E402
 from ucom_tools.wire import mca  # noqa: E402
 from ucom_tools.wire.ids import Function  # noqa: E402
 
@@ -364,4 +365,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    with stop_signals():  # SIGTERM and SIGHUP as Ctrl-C: a served fleet is stopped too
+        main()

@@ -73,6 +73,7 @@ sys.path.insert(0, str(ROOT))
 from ucom_tools import compiled  # noqa: E402
 from ucom_tools.ops.realtime import RealtimeScheduling  # noqa: E402
 from ucom_tools.ops.remote import RemotePart  # noqa: E402
+from ucom_tools.signals import stop_signals  # noqa: E402
 
 IMAGE = ROOT / "firmware_images" / "armar3.fl.S"
 WARM_UP_CYCLES = 200
@@ -389,4 +390,5 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    with stop_signals():  # SIGTERM and SIGHUP as Ctrl-C: a served fleet is stopped too
+        main()

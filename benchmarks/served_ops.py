@@ -55,6 +55,7 @@ from ucom_tools.image import load_image  # noqa: E402
 from ucom_tools.ops.enumerate import enumerate_bus  # noqa: E402
 from ucom_tools.ops.flash import flash  # noqa: E402
 from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot  # noqa: E402
+from ucom_tools.signals import stop_signals  # noqa: E402
 
 IMAGE = ROOT / "firmware_images" / "armar3.fl.S"
 LOCAL = "127.0.0.1"
@@ -149,4 +150,5 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    with stop_signals():  # SIGTERM and SIGHUP as Ctrl-C: a served fleet is stopped too
+        sys.exit(main())
