@@ -88,15 +88,18 @@ the same order: by time, tier, sequence (all distinct), whatever the heap's layo
 
 
 class _Scheduled:
-    """One event of a compiled clock: :data:`Event`'s fields, typed."""
+    """One event of a compiled clock: :data:`Event`'s fields, typed; ``call`` is what the
+    callback is called with, its time first (empty: the time alone): a call with one
+    tuple of arguments, where ``callback(t, *args)`` built a list and a tuple of them
+    for every event (some 400 instructions, for two events of every frame)."""
 
     def __init__(self, t: float, tier: int, seq: int, callback: Callable[..., None],
-                 args: tuple[Any, ...]) -> None:
+                 call: tuple[Any, ...]) -> None:
         self.t = t
         self.tier = tier
         self.seq = seq
         self.callback = callback
-        self.args = args
+        self.call = call
 
 
 def _before(a: _Scheduled, b: _Scheduled) -> bool:
@@ -127,7 +130,8 @@ class FleetClock:
         if _NATIVE:
             seq = self._next_seq
             self._next_seq = seq + 1
-            self._push(_Scheduled(t if t > now else now, tier, seq, callback, args))
+            when = t if t > now else now
+            self._push(_Scheduled(when, tier, seq, callback, (when,) + args if args else ()))
         else:
             _heappush(self._events,
                       (t if t > now else now, tier, next(self._seq), callback, args))
@@ -193,9 +197,9 @@ class FleetClock:
                 e = self._pop()
                 t = e.t
                 self.now = t
-                args = e.args
-                if args:
-                    e.callback(t, *args)
+                call = e.call
+                if call:
+                    e.callback(*call)
                 else:
                     e.callback(t)
                 if stop is not None and stop():
