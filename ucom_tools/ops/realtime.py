@@ -36,8 +36,9 @@ _PR_SET_TIMERSLACK = 29
 SLICE_NS: Final = 100_000
 """The time slice the loop's thread asks for at normal priority: the least Linux grants
 (its default is 0.7 ms times 1 + log2 of the processors, at most 8 of them).
-Measured over ``fleet serve armar3`` on two cores (``remote run --for 10``, five runs in
-turns): lateness p99 0.024-0.072 ms against 0.052-0.119 ms with the default slice."""
+Measured over ``fleet serve armar3`` on two cores beside a process that keeps one of them
+busy (``benchmarks/runtime.py``, three runs in turns): lateness p99 0.020-0.048 ms against
+0.036-0.173 ms with the default slice; on an otherwise idle machine the same as without."""
 _SCHED_SYSCALLS: Final = {"x86_64": (314, 315), "aarch64": (274, 275)}
 """``sched_setattr`` and ``sched_getattr`` by machine (Python has neither)."""
 
