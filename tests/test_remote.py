@@ -21,7 +21,7 @@ from ucom_tools.cli.main import cli
 from ucom_tools.config.attrtree.robot import bind
 from ucom_tools.edgelists.armar3 import SPEC
 from ucom_tools.edgelists.model import EdgeKind
-from ucom_tools.errors import InputError
+from ucom_tools.errors import InputError, UcomError
 from ucom_tools.ops.remote import MappingError, RemotePart
 from ucom_tools.virtual.loss import LossyBus
 from ucom_tools.wire import mca
@@ -476,6 +476,42 @@ def test_run_exits_1_naming_the_boards_whose_watchdog_stopped_them(flashed, monk
     assert "ucom: CAN0 board 3 (head right) at " in err
     assert "its watchdog stopped every motor: no MCA Alive for " in err
     assert "did not run for" not in err
+
+
+@pytest.mark.parametrize("cut", ["ctrl-c", "error"])
+def test_a_start_cut_short_stops_the_boards_it_had_started(cut: str) -> None:
+    """Ctrl-C (or an error) while the boards are started one by one: the part is
+    running from the first MCA Start on, so its stop (``close``, the ``with`` block's
+    end) stops the boards already started instead of leaving them to their watchdog
+    (over a loaded machine's socketcand, a Ctrl-C in that window left them latched)."""
+    fleet = programmed("armar3")
+    fired = {"n": 0}
+
+    def wrap(bus: can.BusABC) -> can.BusABC:
+        def drop(direction: str, msg: can.Message) -> bool:  # board 2's start on CAN0
+            if (direction == "tx" and not fired["n"] and not msg.is_extended_id
+                    and decode_id(msg.arbitration_id) == (Function.MCA_START, seq(2))
+                    and msg.data[:1] == bytes([mca.StartOp.START])):
+                fired["n"] += 1
+                raise KeyboardInterrupt if cut == "ctrl-c" else can.CanOperationError("cut")
+            return False
+        return LossyBus(bus, drop=drop)
+    robot = robot_of(fleet, wrap=wrap)
+    part = RemotePart(robot, bind(robot.topology))
+    try:
+        with pytest.raises((KeyboardInterrupt, UcomError, can.CanError)):
+            part.start()
+        assert fired["n"] == 1
+        first = fleet.boards["CAN0"][0].application.runtime
+        assert first is not None and first.state is mca.RunState.RUNNING  # started
+        assert part.stop() == []
+        for boards in fleet.boards.values():
+            for board in boards:
+                runtime = board.application.runtime if board.application else None
+                assert runtime is None or runtime.state is mca.RunState.STOPPED, board
+    finally:
+        part.close()
+        robot.close()
 
 
 def test_a_slow_stop_of_one_board_does_not_let_the_others_watchdogs_fire() -> None:

@@ -398,11 +398,12 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                 # imported before the start: the first cycles must follow it within the
                 # boards' watchdog time, and prompt_toolkit takes a while to import
                 from ucom_tools.cli.live import live_view as live
-            part.start(force=force)
-            for ref, raw in raws:
-                part.set(ref, ref.value(raw))
-            before = part.traffic()
-            try:
+            before: dict[str, tuple[float, int]] | None = None
+            try:  # from the first board's start on: Ctrl-C stops the boards started
+                part.start(force=force)
+                for ref, raw in raws:
+                    part.set(ref, ref.value(raw))
+                before = part.traffic()
                 if seconds is not None:
                     part.run(seconds)
                 elif live is not None:
@@ -414,7 +415,7 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                 how = f"terminated ({e.name})" if isinstance(e, Terminated) else "interrupted"
             except RemoteStop as e:  # from the network, with --allow-writes
                 how = str(e)
-            loads = part.load_between(before, part.traffic())
+            loads = {} if before is None else part.load_between(before, part.traffic())
             problems = part.stop()
             if how:
                 stderr().print(f"[yellow]{escape(how)}: "

@@ -138,9 +138,12 @@ class RemoteLoop(RemoteValues):
                 h.link.dispatcher.start()
         for _, x in self._handles():
             x.start_alive()
+        # running from the first MCA Start on: a start cut short (Ctrl-C, a board that
+        # does not start) leaves a part that stop() stops, the boards started so far
+        # with them, not to their watchdog
+        self._running = True
         for _, x in self._handles():
             x.start_exchange(periodic=False)
-        self._running = True
         clock = self._clock()
         self._listen_for_events(clock)
         self.stats = LoopStats(self.period_s, started_wall=time.perf_counter(),
