@@ -208,13 +208,7 @@ def _stats_json(part: RemotePart, loads: dict[str, float]) -> dict[str, Any]:
                                  "worst": round(x.plan.worst, 4)}
                              for n, x in part.exchanges.items()},
             "virtual_time": part.virtual,
-            "realtime": _realtime_text(part)}
-
-
-def _realtime_text(part: RemotePart) -> str:
-    """How the loop was scheduled (:attr:`~ucom_tools.ops.remote_loop.RemoteLoop.
-    scheduled_as`)."""
-    return part.scheduled_as
+            "realtime": part.scheduled_as}
 
 
 def _boards_json(part: RemotePart) -> list[dict[str, Any]]:
@@ -272,7 +266,7 @@ def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) 
         f"{gap}, "
         f"lateness p50 {s.percentile(50) * 1e3:.3f} ms, p99 {s.percentile(99) * 1e3:.3f} "
         f"ms; bus load " + ", ".join(f"{n} {v:.1%}" for n, v in loads.items())
-        + ("" if part.scheduling is None else f"; {_realtime_text(part)}"))
+        + ("" if part.scheduling is None else f"; {part.scheduled_as}"))
 
 
 @remote.command("run")

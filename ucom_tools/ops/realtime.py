@@ -105,6 +105,33 @@ def restore_slice(slice_ns: int) -> None:
         _set_slice(got[0], got[1], got[2], slice_ns)
 
 
+@dataclass
+class ShortSlice:
+    """The calling thread's short time slice (:func:`short_slice`, :meth:`enter`) and back
+    (:meth:`leave`, only from the thread that asked), as :class:`RealtimeScheduling`
+    does for SCHED_FIFO; ``granted``: the slice in nanoseconds the thread runs (or ran)
+    with, None where the kernel keeps its own."""
+
+    granted: int | None = None
+    _thread: int | None = None
+    _before: int = 0
+
+    def enter(self) -> bool:
+        """Ask for :data:`SLICE_NS`; False where it is not granted (nothing changed)."""
+        before = short_slice()
+        if before is None:
+            return False
+        self._thread, self._before, self.granted = threading.get_ident(), before, SLICE_NS
+        return True
+
+    def leave(self) -> None:
+        """The slice the thread had before (another thread's call does nothing)."""
+        if self._thread is None or threading.get_ident() != self._thread:
+            return
+        restore_slice(self._before)
+        self._thread = None
+
+
 def _set_slice(libc: ctypes.CDLL, setattr_nr: int, current: _SchedAttr, slice_ns: int,
                ) -> bool:
     attr = _SchedAttr(size=ctypes.sizeof(_SchedAttr), sched_policy=os.SCHED_OTHER,

@@ -15,7 +15,6 @@ The in-process fleet in virtual time: the loop drives the fleet clock, nothing w
 from __future__ import annotations
 
 import sys
-import threading
 import time
 from collections.abc import Callable, Mapping
 from typing import Any, Final, Self
@@ -26,12 +25,10 @@ from ucom_tools.errors import BusError, FrameError, UcomError
 from ucom_tools.native import mypyc_attr
 from ucom_tools.ops.exchange import BusExchange
 from ucom_tools.ops.realtime import (
-    SLICE_NS,
     RealtimeScheduling,
+    ShortSlice,
     let_signals_in,
     precise_sleep,
-    restore_slice,
-    short_slice,
 )
 from ucom_tools.ops.remote_report import BoardEvent, LoopStats, Value
 from ucom_tools.ops.remote_values import RemoteValues
@@ -97,12 +94,10 @@ class RemoteLoop(RemoteValues):
         """``realtime``: the loop's thread under SCHED_FIFO from its first cycle to the stop
         (``scheduling.active``; ``scheduling.refused`` says why not).  Not in virtual time,
         where the loop drives the clock and nothing waits for the wall."""
-        self.slice_ns: int | None = None
-        """On real buses at normal priority: the time slice the loop's thread runs with
-        (:func:`~ucom_tools.ops.realtime.short_slice`), None where the kernel keeps its
-        own (or under ``realtime``)."""
-        self._slice_before: tuple[int, int] | None = None
-        """The loop's thread and the slice it had before, to give back at the end."""
+        self.time_slice = ShortSlice()
+        """On real buses at normal priority: the loop's thread's short time slice
+        (``time_slice.granted``: None where the kernel keeps its own, or under
+        ``realtime``), given back at the end."""
         self.each_cycle: list[Callable[[], None]] = []
         """Called on the loop's thread at the end of every cycle, after the sends (the
         network share, :mod:`ucom_tools.net.share`: writes from the network are applied
@@ -116,9 +111,10 @@ class RemoteLoop(RemoteValues):
     def scheduled_as(self) -> str:
         """How the loop's thread is (or was) scheduled: 'SCHED_FIFO 40', 'normal', or
         'normal (why not SCHED_FIFO)'; with ', time slice 0.1 ms' where it runs at normal
-        priority with the short slice it asked for (:attr:`slice_ns`)."""
+        priority with the short slice it asked for (:attr:`time_slice`)."""
         text = "normal" if self.scheduling is None else self.scheduling.describe()
-        return text if self.slice_ns is None else f"{text}, time slice {self.slice_ns / 1e6:g} ms"
+        granted = self.time_slice.granted
+        return text if granted is None else f"{text}, time slice {granted / 1e6:g} ms"
 
     @property
     def running(self) -> bool:
@@ -166,11 +162,7 @@ class RemoteLoop(RemoteValues):
             x.stop_tasks()
         if self.scheduling is not None:
             self.scheduling.leave()
-        if self._slice_before is not None:
-            thread, before = self._slice_before
-            if thread == threading.get_ident():  # a thread's own slice, as its policy
-                restore_slice(before)
-                self._slice_before = None
+        self.time_slice.leave()
         self._prepared = False
         if self._switch is not None:
             sys.setswitchinterval(self._switch)
@@ -268,10 +260,7 @@ class RemoteLoop(RemoteValues):
         if not self.virtual:
             precise_sleep()
             if rt is None or not rt.active:
-                before = short_slice()
-                if before is not None:
-                    self._slice_before = (threading.get_ident(), before)
-                    self.slice_ns = SLICE_NS
+                self.time_slice.enter()
         self._batching = [(h.name, h.link.dispatcher.bus) for h, _ in self._handles()
                           if not self.virtual and callable(
                               getattr(h.link.dispatcher.bus, "hold", None))]
