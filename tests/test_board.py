@@ -197,6 +197,17 @@ def test_flow_control_pauses_the_stream_for_slow_flash(host) -> None:
     assert all(b.overruns == 0 for b in h.boards)
 
 
+def test_the_host_keeps_a_slow_boards_ring_from_filling(host) -> None:
+    """Boards that need 1.6 ms a data frame: by their ring size and time per frame (Ready
+    ERASED) the host holds its frames back before a ring fills, where PAUSE alone came too
+    late for a host ahead of the bus: one round, no frame lost to an overrun."""
+    fleet = chain_topology(3, timing="[timing]\nword_program_us = 400.0")
+    h = host(fleet)
+    result = program(h, plan_of(image_words(4000)))
+    assert result.all_verified and (result.rounds, result.resent_frames) == (1, 0)
+    assert [b.overruns for b in h.boards] == [0, 0, 0]
+
+
 def test_only_missed_frames_are_sent_again(host) -> None:
     h = host("armar3", "CAN1")
     victim = h.boards[1]

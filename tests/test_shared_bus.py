@@ -129,8 +129,13 @@ def test_a_second_flash_is_refused_while_the_first_sends_data_and_the_first_veri
         tmp_path: Path) -> None:
     """Boards that take 0.4 ms a word keep the first flash sending data for seconds; the
     second, started meanwhile, hears its frames before sending anything: exit 4, naming
-    them; the first is not disturbed and verifies every board."""
-    topo = head_topology(tmp_path, "[timing]\nword_program_us = 400.0\n\n")
+    them; the first is not disturbed and verifies every board.  Their receive ring is
+    small (24 frames, PAUSE at 16, RESUME at 8), so the bus is never silent for as long
+    as the second listens (the quiet time, about 0.1 s): with the default ring a board
+    paused the stream for 103 ms, and a second host that listened across one heard only
+    the boards' Ready RESUME (refused all the same, but not by the data)."""
+    topo = head_topology(tmp_path, "[timing]\nword_program_us = 400.0\nrx_capacity = 24\n"
+                         "high_water = 16\nlow_water = 8\n\n")
     with served(topo) as port:
         watch = SocketcandBus("CAN0", LOCAL, port)  # only listens
         first = ucom("flash", FIRMWARE, *socketcand(port, topo), "--json")

@@ -112,3 +112,23 @@ def test_ucom_cli_flashes_a_served_fleet_over_socketcand() -> None:
         (bus,) = json.loads(r.stdout)["buses"]
         assert (bus["name"], bus["expected"], bus["found"]) == ("CAN1", 5, 3)
         assert "found 3 of 5 expected boards" in bus["diagnosis"][0]["message"]
+
+
+def test_a_host_far_ahead_of_the_bus_does_not_overrun_slow_boards(tmp_path: Path) -> None:
+    """Boards that need 1.6 ms a data frame (0.4 ms a word) where the bus carries one in
+    0.13 ms: ucom hands its frames to socketcand far ahead of the bus, so a board's PAUSE
+    reaches it after many more frames are on their way.  By each board's ring size and
+    time per frame (its Ready ERASED) ucom keeps the rings from filling: every board
+    verifies in one round, nothing is sent again (before: 19 rounds, 7426 frames again)."""
+    from tests.test_shared_bus import head_topology
+
+    topo = head_topology(tmp_path, "[timing]\nword_program_us = 400.0\n\n")
+    with served(str(topo)) as port:
+        r = _ucom("flash", "firmware_images/armar3.fl.S", "-i", "socketcand", "--host",
+                  "127.0.0.1", "--port", str(port), "--topology", str(topo), "--json")
+    assert r.returncode == 0, r.stderr
+    import json
+    data = json.loads(r.stdout)
+    assert [b["outcome"] for b in data["boards"]] == ["verified"] * 3
+    (bus,) = data["buses"]
+    assert (bus["rounds"], bus["resent_frames"]) == (1, 0), bus

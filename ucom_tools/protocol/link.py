@@ -77,6 +77,13 @@ class Link:  # send_raw on an instance (frames lost on purpose), which a native 
         self.frames_sent = 0
 
     # ------------------------------------------------------------------ timing
+    @property
+    def horizon(self) -> float:
+        """When the frames handed to the bus so far will have passed, as this link reckons
+        (on :attr:`clock`: each frame's worst wire time, one after the other, from when it
+        was handed over or the previous one passed)."""
+        return self._horizon
+
     def wire_time(self, frames: int, dlc: int = 8) -> float:
         """Worst-case seconds ``frames`` frames of ``dlc`` bytes take on this bus."""
         return frames * self._frame_time[dlc]

@@ -37,6 +37,7 @@ from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.protocol.watch import ProgrammingWatch
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.answers import MAX_REPORTS
+from ucom_tools.wire.canbits import unstuffed_bits
 from ucom_tools.wire.codes import (
     ErrorCode,
     PrepareFault,
@@ -60,6 +61,9 @@ REFUSALS = frozenset({ErrorCode.PROTECTED_ADDRESS, ErrorCode.UNMAPPED_ADDRESS,
 """Errors by which a board refuses a transfer (asking again would not help)."""
 POLL_EVERY = 8
 """Frames between two looks at the receive queue while streaming (PAUSE, Error)."""
+RING_RESERVE = 8
+"""Frames of a board's receive ring the host leaves free by its own reckoning
+(:meth:`Programmer._admit`): what its estimate of when its frames pass may be off by."""
 PROGRESS_WINDOW = 4
 """Rounds in a row that brought no progress (no board verified, what no board lacks
 changed) end the transfer.  One such round is no verdict: on a bus losing 5 % of the
@@ -112,6 +116,12 @@ class _Board:
         """Preamble questions to this board that brought no answer at all."""
         self.fault: str | None = None
         self.frame_us = 100.0
+        """Microseconds the board needs per data frame (its Ready ERASED)."""
+        self.ring = 0
+        """Frames its receive ring holds (its Ready ERASED; 0: not told)."""
+        self.busy_until = 0.0
+        """When, by the host's reckoning, the board will have worked off the data frames
+        sent so far (link clock)."""
         self.result: m.ProgramResult | None = None
         self.reports: list[m.ProgramMissing | m.ProgramPartial] = []
         self.missing: Missing | None = None
@@ -304,6 +314,7 @@ class Programmer:
         sent = 0
         sent_bytes = 0
         send_raw = self.link.send_raw
+        filling = self._filling()
         others = self.others
         if others is not None and needed:
             others.sending_data()
@@ -317,7 +328,11 @@ class Programmer:
                 self._send(block.header())
                 raw = block.payload()
                 for slot in sorted(needed[i]):  # the hot path: frames as (identifier, bytes)
+                    if filling:
+                        self._admit(filling)
                     send_raw(DATA_ID | slot, raw[8 * slot:8 * slot + 8])
+                    if filling:
+                        self._admitted(filling)
                     sent += 1
                     if sent % POLL_EVERY == 0:
                         self._poll()
@@ -329,6 +344,45 @@ class Programmer:
             if others is not None:
                 others.resume()
         return sent
+
+    def _filling(self) -> list[_Board]:
+        """The boards whose receive ring this host's data frames can fill: those that
+        said how large it is and need longer per frame than the shortest data frame takes
+        on the bus (the others keep up with any sender)."""
+        shortest = unstuffed_bits(8) / self.link.bitrate
+        return [b for b in self._state.values()
+                if b.alive and b.erased and b.ring and b.frame_us / 1e6 > shortest]
+
+    def _admit(self, filling: list[_Board]) -> None:
+        """Wait, handling what arrives, until the next data frame finds room in every
+        filling board's ring by the host's reckoning: no board holds more than its ring
+        less :data:`RING_RESERVE` frames when the frame passes (at the link's horizon, or
+        a frame's wire time from now).  PAUSE alone cannot promise that where the host runs
+        ahead of the bus (a network bus, a deep transmit queue): the frames handed over
+        before PAUSE arrives reach the board all the same.  The wait is bounded by what the
+        boards have to work off."""
+        link = self.link
+        wire = link.wire_time(1)
+        gate = max(b.busy_until - max(1, b.ring - RING_RESERVE) * b.frame_us / 1e6
+                   for b in filling)
+        while True:
+            now = link.clock()
+            horizon = link.horizon
+            if (horizon if horizon > now else now) + wire >= gate:
+                return
+            got = link.recv_until(gate - wire)
+            if got is not None:
+                self._handle(got)
+                if self._paused:
+                    self._poll()  # a board paused meanwhile: its RESUME first
+
+    def _admitted(self, filling: list[_Board]) -> None:
+        """A data frame was handed over: it reaches every board at the link's horizon and
+        keeps it busy for its time per frame."""
+        passes = self.link.horizon
+        for b in filling:
+            busy = b.busy_until
+            b.busy_until = (busy if busy > passes else passes) + b.frame_us / 1e6
 
     def _poll(self) -> None:
         """Handle what arrived; while a board paused, wait for its RESUME, at most as long
@@ -429,6 +483,7 @@ class Programmer:
             if msg.reason is ReadyReason.ERASED:
                 b.erased = True
                 b.frame_us = float(msg.value32 or b.frame_us)
+                b.ring = msg.value16
             elif msg.reason is ReadyReason.PAUSE:
                 drain = msg.value16 * b.frame_us / 1e6
                 self._paused[got.address] = self.link.deadline(drain)
