@@ -201,6 +201,32 @@ def test_ci_map_values_are_range_checked_slot_by_slot(can0) -> None:
     assert can0.boards[0].leds()["red"] == "on"  # a frame it could not take
 
 
+def test_a_ci_map_reaches_exactly_the_boards_that_defined_it_as_they_change(can0) -> None:
+    """The bus offers a CI map frame only to the boards whose program defined the map (a
+    CAN controller's acceptance filter, cached per identifier) and follows each change at
+    once: the map dropped by one board and defined by another, the maps cleared."""
+    can0.bring_up()
+    one, two = can0.runtime(1).model, can0.runtime(2).model
+
+    def send(values: list[int]) -> None:
+        can0.mca.send_map(9, mca.pack_values([(2, True)] * 3, values))
+        assert _errors(can0) == []
+
+    can0.mca.admin(seq(1), mca.AdminData.ci_map(9, [0, 1, 2, mca.NO_EDGE]))
+    send([1, 2, 3])
+    assert one.ci[:3] == [1, 2, 3]
+    can0.mca.admin(seq(1), mca.AdminData.ci_map(9, [mca.NO_EDGE] * 4))
+    can0.mca.admin(seq(2), mca.AdminData.ci_map(9, [0, 1, 2, mca.NO_EDGE]))
+    send([3, 1, 2])
+    assert (one.ci[:3], two.ci[:3]) == ([1, 2, 3], [3, 1, 2])
+    can0.mca.admin(seq(2), mca.AdminData(mca.AdminOp.CLEAR_MAPS))
+    send([0, 3, 3])
+    assert (one.ci[:3], two.ci[:3]) == ([1, 2, 3], [3, 1, 2])
+    can0.mca.admin(seq(1), mca.AdminData.ci_map(9, [2, 1, 0, mca.NO_EDGE]))
+    send([2, 0, 1])
+    assert (one.ci[:3], two.ci[:3]) == ([1, 0, 2], [3, 1, 2])
+
+
 # ---------------------------------------------------------------------- control over CAN
 def test_a_target_step_over_can_arrives_without_overshoot_and_settles(can0) -> None:
     can0.bring_up()

@@ -109,6 +109,11 @@ class DspProgram:
         elif not address.is_broadcast:
             self.board.error(t, ErrorCode.NOT_RUNNING, function)
 
+    def takes_ci_map(self, number: int) -> bool:
+        """Whether the program takes CI map ``number`` (its run time defined it)."""
+        runtime = self.runtime
+        return runtime is not None and number in runtime.ci_maps
+
     def on_map(self, number: int, data: bytes, t: float) -> None:
         """A CI process-data frame."""
         if self.runtime is not None:

@@ -184,7 +184,20 @@ class VirtualBoard:
     def _end_application(self) -> None:
         if self.application is not None:
             self.application.end()
-        self.application = None
+            self.application = None
+            self.filters_changed()
+
+    def takes_ci_map(self, number: int) -> bool:
+        """Whether the board's CAN controller passes CI map ``number`` on to its software
+        (:class:`~ucom_tools.virtual.simbus.Node`): while it is powered and its program's
+        run time defined that map.  :meth:`on_frame` would ignore every other CI map frame,
+        at no cost to the program's load."""
+        app = self.application
+        return self._powered and number != 0 and app is not None and app.takes_ci_map(number)
+
+    def filters_changed(self) -> None:
+        """What :meth:`takes_ci_map` answers may have changed: the bus asks again."""
+        self.bus.filters_changed()
 
     def running(self, program: object) -> bool:
         """Is ``program`` still the one this board runs (no reset or power loss since)?"""

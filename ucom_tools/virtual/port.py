@@ -47,6 +47,10 @@ class BoardPort(Protocol):
     def persist(self, record_only: bool = False) -> None:
         """Write the non-volatile memory to the fleet's state directory (if any)."""
 
+    def filters_changed(self) -> None:
+        """The CI maps the board's program takes changed (its CAN controller's acceptance
+        filter, :meth:`~ucom_tools.virtual.simbus.SimBus.filters_changed`)."""
+
 
 class ProgramHost(BoardPort, Protocol):
     """What a started DSP program sees of its board: the X: window with the FPGA, its own

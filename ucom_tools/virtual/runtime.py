@@ -66,8 +66,11 @@ class SoMap:
     pick: Callable[[list[int]], tuple[int, ...]] = field(init=False, repr=False,
                                                           compare=False)
     """The map's values out of the SO list, as a tuple (built once)."""
+    pack: Callable[..., bytes] = field(init=False, repr=False, compare=False)
+    """:attr:`layout`'s ``pack``, bound once (not looked up for every frame)."""
 
     def __post_init__(self) -> None:
+        self.pack = self.layout.pack
         if len(self.edges) == 1:
             only = self.edges[0]
             self.pick = lambda so: (so[only],)
@@ -85,6 +88,12 @@ class CiMap:
     """Bytes a frame of this map must have: up to its last used slot."""
     checks: tuple[tuple[int, int, int, int], ...] = ()
     """Per used slot, in slot order: (slot, edge index, the edge's minimum, maximum)."""
+    unpack: Callable[[bytes], tuple[int, ...]] = field(init=False, repr=False,
+                                                       compare=False)
+    """:attr:`layout`'s ``unpack``, bound once (not looked up for every frame)."""
+
+    def __post_init__(self) -> None:
+        self.unpack = self.layout.unpack
 
 
 @dataclass
@@ -135,10 +144,12 @@ class McaRuntime:
         """Fleet time (us) of the last watchdog latch."""
         self.stopped = False
         self._last_tick = t
+        self._on_tick: Callable[[float], None] = self._tick
+        """:meth:`_tick` bound once (each read of ``self._tick`` makes a new bound method)."""
         self._kinds = {k: spec.of(EdgeKind(k)) for k in mca.Kind}
         self._values = {mca.Kind.CI: model.ci, mca.Kind.SO: model.so, mca.Kind.PAR: model.par}
         model.stop()
-        port.at(t + model.loop_us(), self._tick)
+        port.at(t + model.loop_us(), self._on_tick)
         self._ready(t, Function.MCA_READY, b"\0\0")
 
     # ------------------------------------------------------------------ life
@@ -178,7 +189,7 @@ class McaRuntime:
                 self._send_maps_slow(t + (loop if loop < work else work))
             else:
                 self._send_maps(t + (loop if loop < work else work))  # min(work, loop)
-        self.port.at(t + span, self._tick)
+        self.port.at(t + span, self._on_tick)
 
     def _overrun(self, t: float, work: float, loop: float) -> None:
         s = self.stats
@@ -226,7 +237,7 @@ class McaRuntime:
                 m.countdown = countdown
                 continue
             m.countdown = m.period
-            send(t, m.arbitration_id, m.layout.pack(*m.pick(so)).translate(_MASK_TABLE))
+            send(t, m.arbitration_id, m.pack(*m.pick(so)).translate(_MASK_TABLE))
 
     def _send_maps_slow(self, t: float) -> None:
         """so-slow: :meth:`_send_maps` with each map's countdown in tenths of a cycle, so
@@ -252,10 +263,12 @@ class McaRuntime:
             self.can_error(t)
             self._map_error(t, ErrorCode.BAD_LENGTH, number << 8 | len(data))
             return
-        raws = m.layout.unpack(data[:8].ljust(8, b"\x55").translate(_MASK_TABLE))
+        raws = m.unpack((data if len(data) == 8 else data[:8].ljust(8, b"\x55"))
+                        .translate(_MASK_TABLE))
         checks = m.checks
         for slot, _index, minimum, maximum in checks:
-            if not minimum <= raws[slot] <= maximum and self._range_check:
+            raw: int = raws[slot]
+            if not minimum <= raw <= maximum and self._range_check:
                 # nothing of the frame is taken (a value cannot be trusted, its neighbours
                 # neither)
                 self._map_error(t, ErrorCode.OUT_OF_RANGE, number << 8 | slot)
@@ -416,6 +429,7 @@ class McaRuntime:
         elif msg.op is mca.AdminOp.CLEAR_MAPS:
             self.so_maps.clear()
             self.ci_maps.clear()
+            self.port.filters_changed()
         elif msg.op is mca.AdminOp.SO_MAP:
             so = self._kinds[mca.Kind.SO]
             used = [i for i in msg.edges if i != mca.NO_EDGE]
@@ -440,6 +454,7 @@ class McaRuntime:
                 return
             if all(i == mca.NO_EDGE for i in slots):
                 self.ci_maps.pop(msg.map_no, None)
+                self.port.filters_changed()
             else:
                 layout = struct.Struct(">" + "".join(
                     "H" if i == mca.NO_EDGE else _FORMAT[2, ci[i].signed] for i in slots))
@@ -448,6 +463,7 @@ class McaRuntime:
                                for n, i in enumerate(slots) if i != mca.NO_EDGE)
                 self.ci_maps[msg.map_no] = CiMap(msg.map_no, tuple(slots), layout, needs,
                                                  checks)
+                self.port.filters_changed()
         self._ready(t, function, bytes((msg.op, msg.args[0] if msg.args else 0)))
 
     # ------------------------------------------------------------------ shown

@@ -43,6 +43,7 @@ identifier, extended."""
 _heappush: Final = heapq.heappush
 _heappop: Final = heapq.heappop
 
+_MCA_CI: Final = int(Function.MCA_CONTROLLER_INPUT)
 _FROM_BOARD: Final = tuple(
     any(f.value == code and f.direction is Direction.BOARD_TO_HOST for f in Function)
     for code in range(32))
@@ -59,8 +60,11 @@ class Node(Protocol):
     frames too has ``on_extended_frame(arbitration_id, data, t_end)`` as well.  A node
     with ``takes_board_frames`` false (a board) is not offered the frames of the
     functions boards send (:data:`_FROM_BOARD`), as a CAN controller's acceptance filter
-    keeps them from its software: its ``on_frame`` would ignore each of them (the fault
-    injection of :attr:`SimBus.drop` is still asked for every node and frame)."""
+    keeps them from its software: its ``on_frame`` would ignore each of them.  Likewise a
+    node with ``takes_ci_map(number)`` is offered a CI process-data frame (function
+    MCA_CONTROLLER_INPUT, identifier type 1) only for the maps it answers true for; it
+    calls :meth:`SimBus.filters_changed` whenever that answer may change.  The fault
+    injection of :attr:`SimBus.drop` is still asked for every node and frame."""
 
     def on_frame(self, arbitration_id: int, data: bytes, t_end: float) -> None: ...
 
@@ -123,6 +127,9 @@ class SimBus:
         self.nodes: list[Node] = []
         self._board_listeners: list[Node] = []
         """The nodes offered the frames of :data:`_FROM_BOARD` (see :class:`Node`)."""
+        self._ci_takers: dict[int, list[Node]] = {}
+        """Per CI process-data identifier, the nodes offered its frames (see :class:`Node`);
+        filled as frames come, emptied by :meth:`filters_changed`."""
         self.chain: list[ChainMember] = []
         self.broken_before: set[int] = set()
         """Chain positions p (0-based) whose init input is cut off from board p-1's output."""
@@ -133,6 +140,11 @@ class SimBus:
         self.drop: Callable[[object, int, bytes], bool] | None = None
         """Fault injection: ``drop(node, id, data)`` true = ``node`` misses that standard
         frame (extended frames are not offered to it)."""
+        # the clock's callbacks of every frame, bound once (``self._ready`` makes a new
+        # bound method each time it is read)
+        self._on_ready: Callable[..., None] = self._ready
+        self._on_arbitrate: Callable[[float], None] = self._arbitrate
+        self._on_end: Callable[..., None] = self._end
 
     # ---------------------------------------------------------------- the clock's
     @property
@@ -173,6 +185,23 @@ class SimBus:
     def _listen(self) -> None:
         self._board_listeners = [n for n in self.nodes
                                  if getattr(n, "takes_board_frames", True)]
+        self._ci_takers = {}
+
+    def filters_changed(self) -> None:
+        """A node's ``takes_ci_map`` may answer differently from now on (a board's program
+        defined or dropped a CI map, started or ended)."""
+        if self._ci_takers:
+            self._ci_takers = {}
+
+    def _ci_takers_of(self, arbitration_id: int) -> list[Node]:
+        number = arbitration_id & 0x1F
+        takers: list[Node] = []
+        for node in self.nodes:
+            takes = getattr(node, "takes_ci_map", None)
+            if takes is None or takes(number):
+                takers.append(node)
+        self._ci_takers[arbitration_id] = takers
+        return takers
 
     # ---------------------------------------------------------------- frames
     def send(self, sender: object, t_ready: float, arbitration_id: int, data: bytes,
@@ -191,9 +220,9 @@ class SimBus:
         if type(data) is not bytes:  # (bytes(data) of bytes looks up __bytes__: costly)
             data = bytes(data)
         if extended:
-            self.clock.at(t_ready, self._ready, arbitration_id, token, data, sender, True)
+            self.clock.at(t_ready, self._on_ready, arbitration_id, token, data, sender, True)
         else:
-            self.clock.at(t_ready, self._ready, arbitration_id, token, data, sender)
+            self.clock.at(t_ready, self._on_ready, arbitration_id, token, data, sender)
         return token
 
     def send_alone(self, sender: object, t_ready: float, arbitration_id: int,
@@ -238,7 +267,7 @@ class SimBus:
     def _want_arbitration(self, t: float) -> None:
         if not self._busy and not self._arbitration_due:
             self._arbitration_due = True
-            self.clock.at(t, self._arbitrate, tier=1)  # after every frame ready at t
+            self.clock.at(t, self._on_arbitrate, tier=1)  # after every frame ready at t
 
     def _arbitrate(self, t: float) -> None:
         self._arbitration_due = False
@@ -258,7 +287,7 @@ class SimBus:
         bits = frame_bits(arbitration_id, data, extended=True) if extended else \
             frame_bits(arbitration_id, data)
         self._busy = True
-        self.clock.at(t + bits * self.us_per_bit, self._end, arbitration_id, token, data,
+        self.clock.at(t + bits * self.us_per_bit, self._on_end, arbitration_id, token, data,
                       sender, bits, extended)
 
     def _end(self, t: float, arbitration_id: int, token: int, data: bytes, sender: object,
@@ -292,7 +321,15 @@ class SimBus:
         stats.function_counts[function] += 1
         drop = self.drop
         if drop is None:
-            for node in self._board_listeners if _FROM_BOARD[function] else self.nodes:
+            if function == _MCA_CI and arbitration_id & 0x20:
+                takers = self._ci_takers.get(arbitration_id)
+                if takers is None:
+                    takers = self._ci_takers_of(arbitration_id)
+            elif _FROM_BOARD[function]:
+                takers = self._board_listeners
+            else:
+                takers = self.nodes
+            for node in takers:
                 if node is not sender:
                     node.on_frame(arbitration_id, data, t_end)
             return
