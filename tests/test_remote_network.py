@@ -36,9 +36,22 @@ tells a stop by the PC from one by the watchdog at once (the tests wait 20 s).""
 
 
 def _ucom(*args: str, **kwargs: object) -> subprocess.Popen[str]:
+    env = dict(os.environ, PYTHONFAULTHANDLER="1")  # SIGABRT dumps every thread's stack
     return subprocess.Popen([sys.executable, "-m", "ucom_tools", *args], text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env,
                             **kwargs)  # type: ignore[call-overload]
+
+
+def _ended(proc: subprocess.Popen[str], what: str) -> tuple[str, str]:
+    """What ``proc`` wrote once it ended; where it overran :data:`DEADLINE_S`, the test
+    fails with its threads' stacks (faulthandler on SIGABRT) and what it had written."""
+    try:
+        return proc.communicate(timeout=DEADLINE_S)
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGABRT)
+        out, err = proc.communicate(timeout=DEADLINE_S)
+        pytest.fail(f"{what}: still running after {DEADLINE_S:g} s; its stacks and output:"
+                    f"\n{err}\n{out}")
 
 
 @pytest.fixture(scope="module")
@@ -191,7 +204,7 @@ def test_ctrl_c_stops_the_boards_and_exits_130(served) -> None:
         assert observer.wait_for(mca.RunState.RUNNING, time.monotonic() + DEADLINE_S) == {
             mca.RunState.RUNNING}
         remote.send_signal(signal.SIGINT)
-        _, err = remote.communicate(timeout=DEADLINE_S)
+        _, err = _ended(remote, "ucom remote run after Ctrl-C")
         assert remote.returncode == 130, err
         # stopped by the PC (MCA Start STOP), not latched by the watchdog (a latch stays:
         # waited for, the STOPPED the served fleet may take a moment to apply, as the
