@@ -212,6 +212,8 @@ def test_run_for_json_has_every_edge_and_the_loop_figures(flashed) -> None:
     assert abs(values["Right Eye Joint Sensor"][1] - 700) <= 20
     run = data["run"]
     assert run["cycles"] >= 400 and run["missed"] == 0 and run["virtual_time"]
+    # the loop's rate over its run: the boards' stop afterwards is no time of the loop's
+    assert run["rate_hz"] == pytest.approx(1000.0, abs=3.0)
     assert 0.6 < run["bus_load"]["CAN0"] < 0.7
     assert run["planned_load"]["CAN0"]["nominal"] == pytest.approx(0.6328, abs=1e-4)
 

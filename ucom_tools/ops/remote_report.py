@@ -153,6 +153,8 @@ class LoopStats:
     late: deque[float] = field(default_factory=lambda: deque(maxlen=JITTER_SAMPLES))
     started_wall: float = 0.0
     started_clock: float = 0.0
+    ended_clock: float | None = None
+    """When the loop ended (the boards' stop began); None while it runs."""
 
     def percentile(self, p: float, last: int | None = None) -> float:
         """Lateness in seconds that ``p`` % of the cycles stayed under (of the ``last``
@@ -165,8 +167,10 @@ class LoopStats:
         return ordered[min(len(ordered) - 1, int(p / 100 * len(ordered)))]
 
     def rate(self, now: float) -> float:
-        """Cycles per second of the bus clock since the start."""
-        span = now - self.started_clock
+        """Cycles per second of the bus clock from the start to ``now``, or to the loop's
+        end once it ended (the boards' stop afterwards is no time of the loop's)."""
+        end = now if self.ended_clock is None else self.ended_clock
+        span = end - self.started_clock
         return self.cycles / span if span > 0 else 0.0
 
 
