@@ -256,8 +256,7 @@ class RemotePart(RemoteLoop):
         if not self._running:
             return []
         self._running = False
-        if self.stats.cycles:
-            self.stats.ended_clock = self._clock()
+        self.stats.ended_clock = self._clock()
         problems: list[str] = []
         for _, x in self._handles():  # as at the start: while the boards are stopped one
             x.start_alive()  # by one (each asked, maybe again), no other's watchdog fires

@@ -246,8 +246,8 @@ class McaRuntime:
         for m in self.so_maps.values():
             due, m.countdown = mutants.so_slow_step(m.countdown, m.period)
             if due:
-                data = m.layout.pack(*[so[i] for i in m.edges])
-                self.port.send_raw(t, m.arbitration_id, mca.mask(data))
+                self.port.send_raw(t, m.arbitration_id,
+                                   m.pack(*m.pick(so)).translate(_MASK_TABLE))
 
     # ------------------------------------------------------------------ frames
     def on_map(self, number: int, data: bytes, t: float) -> None:
