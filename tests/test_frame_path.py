@@ -26,7 +26,7 @@ from tests.helpers import assert_send_data_refuses_as_send
 from ucom_tools.protocol import frames
 from ucom_tools.protocol.dispatch import Dispatcher
 from ucom_tools.transport import socketcand as client
-from ucom_tools.transport.socketcand import SocketcandBus, send_bytes
+from ucom_tools.transport.socketcand import PINGS, SocketcandBus, send_bytes
 from ucom_tools.wire.socketcand import (
     ElementSplitter,
     ElementTooLong,
@@ -49,7 +49,7 @@ def _greet(listener: socket.socket, out: list[socket.socket]) -> None:
     conn.settimeout(5)
     conn.sendall(b"< hi >")
     heard = b""
-    for answer in (b"< ok >", b"< ok >", b"< echo >", b"< echo >", b"< echo >"):
+    for answer in (b"< ok >", b"< ok >", *[b"< echo >"] * PINGS):
         while b">" not in heard:
             heard += conn.recv(4096)
         heard = heard.split(b">", 1)[1]

@@ -101,8 +101,11 @@ SEND_TIMEOUT_S = 2.0
 write the text signature of a method with literal defaults and ``**kwargs``, "non-default
 argument follows default argument"; with a constant it writes none.)"""
 
-PINGS: Final = 3
-"""``< echo >`` round trips measured after the handshake."""
+PINGS: Final = 4
+"""``< echo >`` round trips measured after the handshake.  The first does not count: a
+server may answer it only once its switch to raw mode is done (``ucom fleet serve``
+attaches a client to its bus 20 ms after the rawmode ``< ok >``, for python-can's
+client)."""
 PING_WAIT_S: Final = 0.1
 """The least an echo is waited for (more on a slow connection: 20 rawmode round trips)."""
 
@@ -188,7 +191,8 @@ class SocketcandBus(can.BusABC):
         :data:`~ucom_tools.protocol.frames.DataFrame` s, others as messages."""
         self.round_trip_s: float | None = None
         """The longest of the round trips measured while connecting (``< rawmode >`` and
-        :data:`PINGS` ``< echo >``): what the deadlines of a network bus add."""
+        the :data:`PINGS` ``< echo >`` but the first): what the deadlines of a network bus
+        add; None when the server answered no echo."""
         self._send_lock = threading.Lock()
         self._batch: list[bytes] | None = None
         self._batch_thread: int | None = None
@@ -215,13 +219,16 @@ class SocketcandBus(can.BusABC):
         sent = time.monotonic()
         self._handshake_send("< rawmode >")
         self._expect("ok", "< rawmode >")
-        trips = [time.monotonic() - sent]
+        rawmode = time.monotonic() - sent
+        echoes: list[float] = []
         for _ in range(PINGS):  # a server that does not echo costs at most this much
-            trip = self._ping(min(self.handshake_timeout, max(PING_WAIT_S, 20 * trips[0])))
+            trip = self._ping(min(self.handshake_timeout, max(PING_WAIT_S, 20 * rawmode)))
             if trip is None:
                 break
-            trips.append(trip)
-        self.round_trip_s = max(trips)
+            echoes.append(trip)
+        # the first echo may have waited for the server's switch to raw mode; a server
+        # that answers none leaves the round trip unknown (the fixed margin)
+        self.round_trip_s = max([rawmode, *(echoes[1:] or echoes)]) if echoes else None
 
     def _ping(self, wait: float) -> float | None:
         """One ``< echo >`` round trip in seconds, or None when the server does not answer

@@ -266,6 +266,9 @@ class RealtimeDriver:
         self._slip_window_start = 0.0
         self._next_lag_report = 0.0
         self._behind_since: float | None = None
+        self.steps = 0
+        """The steps taken so far (each loop of the driver: the callbacks of readable
+        sockets, the work handed to it, the fleet run up to the wall clock)."""
         self._stop = False
         self._pending: deque[tuple[float, Callable[[], None]]] = deque()
         self._after: list[Callable[[], None]] = []
@@ -383,6 +386,7 @@ class RealtimeDriver:
         asked = returned = 0.0
         while not self._stop:
             self._sleep_until = 0.0
+            self.steps += 1
             previous, last = last, time.monotonic()
             with clock.lock:
                 if waited_from >= 0.0:

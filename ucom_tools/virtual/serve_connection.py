@@ -433,7 +433,31 @@ class Connection:
         self._transmit(port, arbitration_id, data)
 
     def _echo(self, args: list[str]) -> None:
+        """``< echo >``: in raw mode on a paced fleet (read by the driver) answered after
+        the fleet's next step, as the answer to a frame would come, behind the frames
+        the bus carried before it; so the client's round trip holds the step latency
+        that its frames' answers see (a busy machine's driver wakes late).  Otherwise at
+        once."""
+        driver = self.fleet.driver
+        port = self.port
+        if self._handed and driver is not None and port is not None:
+            port.sim.clock.at(driver.now_us(), self._echo_due, driver.steps)
+            return
         self.reply("< echo >")
+
+    def _echo_due(self, t: float, read_in: int) -> None:
+        """(a fleet clock event, holding the lock) the echo read in step ``read_in``:
+        answered after this step if it is a later one, else due again in the next."""
+        driver = self.fleet.driver
+        port = self.port
+        if driver is not None and port is not None and driver.steps == read_in:
+            port.sim.clock.at(driver.now_us(), self._echo_due, read_in)
+        elif not self.fleet.after_step(self._echo_now):
+            self._echo_now()
+
+    def _echo_now(self) -> None:
+        if self.alive:
+            self.reply("< echo >")
 
     def _require_open(self) -> ClientPort:
         if self.port is None:

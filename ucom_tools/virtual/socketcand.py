@@ -51,7 +51,9 @@ python-can's client reads ``< hi >`` and each ``< ok >`` with a single ``recv(25
 and fails if anything arrives glued to them.  So after the rawmode ``< ok >`` the server
 waits until it is written, then
 :data:`~ucom_tools.virtual.serve_connection.RAWMODE_SETTLE_S` (20 ms), and only then
-attaches the client to the bus.
+attaches the client to the bus.  From then on ``< echo >`` is answered after the fleet's
+next step (behind the frames of that step), as the answer to a frame would come: the
+client's measured round trip holds the server's step latency.
 
 A connection can also start in another process: :mod:`ucom_tools.virtual.multiserve`
 greets the client and reads its ``< open BUS >`` with
