@@ -45,3 +45,29 @@ def test_a_late_waking_driver_still_feeds_the_bus_a_whole_image(
         robot.close()
     assert result.all_verified, [b.detail for b in result.failed]
     assert len(result.boards) == len(fleet.boards["CAN0"]) == 3
+
+
+def test_a_served_round_trip_holds_the_drivers_step_latency_not_the_raw_mode_switch(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The echo is answered after the fleet's next step, as a frame's answer comes: a
+    driver that wakes every 20 ms makes the round trip (and so every deadline's margin)
+    that long; a prompt one keeps it far below the server's 20 ms switch to raw mode,
+    which only the first echo waits for."""
+    from ucom_tools.transport.socketcand import SocketcandBus
+    from ucom_tools.virtual.serve_connection import RAWMODE_SETTLE_S
+
+    def round_trip(port: int) -> float:
+        bus = SocketcandBus("CAN0", "127.0.0.1", port)
+        try:
+            assert bus.round_trip_s is not None
+            return bus.round_trip_s
+        finally:
+            bus.shutdown()
+
+    with served_in_process(str(REPO / "tests/data/armar3_can0.toml")) as (_, port):
+        prompt = min(round_trip(port) for _ in range(3))
+    monkeypatch.setattr(clock_mod, "STEP_MIN_S", LATE_WAKE_S)
+    with served_in_process(str(REPO / "tests/data/armar3_can0.toml")) as (_, port):
+        late = round_trip(port)
+    assert prompt < RAWMODE_SETTLE_S / 2
+    assert late >= 0.9 * LATE_WAKE_S

@@ -188,6 +188,49 @@ def test_connect_timeout_bounds_a_server_that_never_accepts() -> None:
     assert 0.25 < took < 1.3
 
 
+def test_the_round_trip_leaves_out_the_first_echo_and_is_unknown_without_echoes() -> None:
+    """The first echo may wait for the server's switch to raw mode (fleet serve: 20 ms):
+    it does not count, the later ones do; a server that answers no echo leaves the round
+    trip unknown, so the network margin is the fixed one (ucom-protocol.7, TIMEOUTS)."""
+    from ucom_tools.ops.robot import TRANSPORT_MARGIN, network_margin
+    late = 0.06  # within the wait for an echo (PING_WAIT_S)
+
+    def slow_first(peer: Peer) -> None:
+        peer.say("< hi >")
+        peer.hear("< open CAN0 >")
+        peer.say("< ok >")
+        peer.hear("< rawmode >")
+        peer.say("< ok >")
+        for i in range(PINGS):
+            peer.hear("< echo >")
+            if i == 0:
+                time.sleep(late)  # the server's switch, not a wait for the client
+            peer.say("< echo >")
+        peer.wait_closed()
+
+    def no_echo(peer: Peer) -> None:
+        peer.say("< hi >")
+        peer.hear("< open CAN0 >")
+        peer.say("< ok >")
+        peer.hear("< rawmode >")
+        peer.say("< ok >")
+        peer.wait_closed()
+
+    with FakeServer(slow_first) as server:
+        bus = within(5, lambda: SocketcandBus("CAN0", LOCAL, server.port))
+        try:
+            assert bus.round_trip_s is not None and bus.round_trip_s < late / 3
+        finally:
+            bus.shutdown()
+    with FakeServer(no_echo) as server:
+        bus = within(5, lambda: SocketcandBus("CAN0", LOCAL, server.port))
+        try:
+            assert bus.round_trip_s is None
+            assert network_margin(bus.round_trip_s) == TRANSPORT_MARGIN["socketcand"]
+        finally:
+            bus.shutdown()
+
+
 @pytest.mark.parametrize(("answers", "what"), [
     ((), "the connection"),
     (("< hi >",), "< open CAN0 >"),
