@@ -50,7 +50,10 @@ PURE_TESTS := tests/test_fidelity.py tests/test_compiled.py tests/test_simbus.py
     tests/test_mutants.py tests/test_canbits.py tests/test_frame_path.py \
     tests/test_pc_fast_paths.py tests/test_plain_data.py
 
-test: lint $(COMPILED)
+# lint beside the build (mypyc type-checks on its own, without mypy's cache), each one's
+# output together
+test: $(STAMP)
+	@$(MAKE) --no-print-directory -j2 --output-sync=target lint compiled
 	$(BIN)/python -m pytest
 	UCOM_PURE_PYTHON=1 $(BIN)/python -m pytest $(PURE_TESTS)
 
