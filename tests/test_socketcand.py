@@ -119,16 +119,31 @@ def test_a_host_far_ahead_of_the_bus_does_not_overrun_slow_boards(tmp_path: Path
     0.13 ms: ucom hands its frames to socketcand far ahead of the bus, so a board's PAUSE
     reaches it after many more frames are on their way.  By each board's ring size and
     time per frame (its Ready ERASED) ucom keeps the rings from filling: every board
-    verifies in one round, nothing is sent again (before: 19 rounds, 7426 frames again)."""
+    verifies in one round, nothing is sent again (before: 19 rounds, 7426 frames again).
+
+    Unless the served fleet stalls (a busy machine: its driver goes on from where the
+    stall began, and its boards did not work meanwhile): then the frames handed over
+    during the stall may find a ring full, at most one frame per 1.6 ms lost, sent again
+    in a second round (measured with two busy loops beside it: slips of 40-90 ms, 19-49
+    frames again)."""
+    from tests.helpers import served_in_process
     from tests.test_shared_bus import head_topology
 
     topo = head_topology(tmp_path, "[timing]\nword_program_us = 400.0\n\n")
-    with served(str(topo)) as port:
+    with served_in_process(str(topo)) as (fleet, port):
         r = _ucom("flash", "firmware_images/armar3.fl.S", "-i", "socketcand", "--host",
                   "127.0.0.1", "--port", str(port), "--topology", str(topo), "--json")
+        driver = fleet.driver
+        assert driver is not None
+        stalled_us = driver.slipped_us
     assert r.returncode == 0, r.stderr
     import json
     data = json.loads(r.stdout)
     assert [b["outcome"] for b in data["boards"]] == ["verified"] * 3
     (bus,) = data["buses"]
-    assert (bus["rounds"], bus["resent_frames"]) == (1, 0), bus
+    if stalled_us == 0:
+        assert (bus["rounds"], bus["resent_frames"]) == (1, 0), bus
+    else:
+        frame_us = 4 * 400.0 + 10.0  # four words and the frame's overhead
+        assert bus["rounds"] <= 2, (bus, stalled_us)
+        assert bus["resent_frames"] <= 1 + stalled_us / frame_us, (bus, stalled_us)
