@@ -123,9 +123,9 @@ def test_a_host_far_ahead_of_the_bus_does_not_overrun_slow_boards(tmp_path: Path
 
     Unless the served fleet stalls (a busy machine: its driver goes on from where the
     stall began, and its boards did not work meanwhile): then the frames handed over
-    during the stall may find a ring full, at most one frame per 1.6 ms lost, sent again
-    in a second round (measured with two busy loops beside it: slips of 40-90 ms, 19-49
-    frames again)."""
+    during the stall may find a ring full, on each board at most one frame per 1.6 ms
+    stalled, sent again in a second round (measured with two busy loops beside it: slips
+    of 40-90 ms, 19-49 frames again; in the suite on three workers 91 ms, 61)."""
     from tests.helpers import served_in_process
     from tests.test_shared_bus import head_topology
 
@@ -146,4 +146,5 @@ def test_a_host_far_ahead_of_the_bus_does_not_overrun_slow_boards(tmp_path: Path
     else:
         frame_us = 4 * 400.0 + 10.0  # four words and the frame's overhead
         assert bus["rounds"] <= 2, (bus, stalled_us)
-        assert bus["resent_frames"] <= 1 + stalled_us / frame_us, (bus, stalled_us)
+        boards = len(data["boards"])  # each may lose other frames than the others
+        assert bus["resent_frames"] <= boards * (1 + stalled_us / frame_us), (bus, stalled_us)
