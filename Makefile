@@ -1,5 +1,5 @@
 # ucom-tools: `make demo` sets up .venv and runs the main job on the virtual fleet;
-# `make test` runs lint, type checks and the test suite (compiled, then the pure path);
+# `make test` runs lint, type checks and the test suite (compiled, and the pure path beside it);
 # `make compiled` builds the compiled run time (demo, test and bench do it first),
 # `make pure` removes it.
 PYTHON ?= python3
@@ -7,7 +7,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean compiled pure
+.PHONY: demo test test-compiled test-pure lint bench clean compiled pure
 
 # the run time's hot modules compiled with mypyc in place (ucom_tools/compiled.py lists
 # them; tools/compile.py builds them, or says why not and leaves the package pure Python)
@@ -18,7 +18,7 @@ COMPILED_SOURCES := $(shell sed -n 's/^    "ucom_tools\.\([a-z0-9_.]*\)",$$/ucom
 $(STAMP): pyproject.toml
 	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "ucom-tools needs Python >= 3.11"'
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --disable-pip-version-check -e '.[test,plot]'
+	$(BIN)/python -m pip install --quiet --disable-pip-version-check --no-compile -e '.[test,plot]'
 	@touch $(STAMP)
 
 $(COMPILED): $(STAMP) ucom_tools/compiled.py tools/compile.py $(COMPILED_SOURCES)
@@ -50,12 +50,18 @@ PURE_TESTS := tests/test_fidelity.py tests/test_compiled.py tests/test_simbus.py
     tests/test_mutants.py tests/test_canbits.py tests/test_frame_path.py \
     tests/test_pc_fast_paths.py tests/test_plain_data.py
 
-# lint beside the build (mypyc type-checks on its own, without mypy's cache), each one's
-# output together
+# lint beside the build (mypyc type-checks on its own, without mypy's cache), then the
+# pure-Python path beside the compiled suite, in a process of its own (the suite waits for
+# its fleets' real time more than it computes); each one's output together, when it ends
 test: $(STAMP)
 	@$(MAKE) --no-print-directory -j2 --output-sync=target lint compiled
+	@$(MAKE) --no-print-directory -j2 --output-sync=target test-compiled test-pure
+
+test-compiled: $(COMPILED)
 	$(BIN)/python -m pytest
-	UCOM_PURE_PYTHON=1 $(BIN)/python -m pytest $(PURE_TESTS)
+
+test-pure: $(STAMP)
+	UCOM_PURE_PYTHON=1 $(BIN)/python -m pytest -n 0 -p no:cacheprovider $(PURE_TESTS)
 
 bench: $(COMPILED)
 	@fail=""; for b in benchmarks/*.py; do echo "== $$b"; $(BIN)/python $$b || fail="$$fail $$b"; \
