@@ -5,10 +5,15 @@ the answer's time stamp lies between the request's sending and the answer's arri
 
 from __future__ import annotations
 
+import threading
 import time
 
 import can
+import pytest
 
+from ucom_tools.virtual.board import VirtualBoard
+from ucom_tools.virtual.fleet import Fleet
+from ucom_tools.virtual.socketcand import FleetServer
 from ucom_tools.wire import messages
 from ucom_tools.wire import requests as rq
 from ucom_tools.wire.codes import InitOp
@@ -22,11 +27,41 @@ TOLERANCE_S = 0.001
 
 def test_an_answer_after_an_idle_bus_is_stamped_with_the_wall_time(
         served_armar3: tuple[str, int]) -> None:
-    host, port = served_armar3
+    _answers_stamped_with_the_wall_time(*served_armar3, idle_s=IDLE_S)
+
+
+def test_a_fleet_slow_to_build_still_stamps_with_the_wall_time(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """The fleet's time starts when its driver does, not when it began to build its
+    boards: on a busy machine that took milliseconds, and every frame was stamped that
+    much before it was on the bus (a clean-clone CI run: an answer 1.7 ms before its
+    request was sent)."""
+    built = VirtualBoard.power_on
+
+    def slowly(board: VirtualBoard, t: float) -> None:
+        time.sleep(0.003)  # the scenario: a machine busy with something else
+        built(board, t)
+
+    monkeypatch.setattr(VirtualBoard, "power_on", slowly)
+    fleet = Fleet.load("armar3", realtime=True)
+    server = FleetServer(fleet, LOCAL, 0)
+    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
+    thread.start()
+    try:
+        _answers_stamped_with_the_wall_time(LOCAL, server.address[1], idle_s=0.0)
+    finally:
+        server.shutdown()
+        thread.join(timeout=10)
+        fleet.close()
+
+
+def _answers_stamped_with_the_wall_time(host: str, port: int, *, idle_s: float) -> None:
+    """Twice, after ``idle_s``: python-can's client sends an Init Request, and the first
+    answer's stamp lies between the request's sending and the answer's arrival."""
     bus = can.Bus(interface="socketcand", host=host, port=port, channel="CAN0")
     try:
         for round_ in range(2):
-            time.sleep(IDLE_S)  # the scenario: a bus nobody used for a while
+            time.sleep(idle_s)  # the scenario: a bus nobody used for a while
             ident, data = messages.encode(rq.InitRequest(InitOp.BEGIN), ALL)
             request = can.Message(arbitration_id=ident, data=data, is_extended_id=False)
             sent = time.time()

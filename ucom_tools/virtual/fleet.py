@@ -25,18 +25,12 @@ from ucom_tools.errors import InputError, TopologyError, UcomError
 from ucom_tools.plugons import PLUG_ON_BOARDS
 from ucom_tools.virtual import mutants
 from ucom_tools.virtual.board import Identity, VirtualBoard
-from ucom_tools.virtual.clock import SLIP_US, FleetClock, RealtimeDriver
+from ucom_tools.virtual.clock import FleetClock, RealtimeDriver
 from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
 from ucom_tools.wire.transfer import TransferPlan
 
-HOST_AHEAD_US = SLIP_US
-"""How far ahead of a lagging paced fleet's present a host's frame may be ready: as far
-as the fleet runs in its next step anyway (a driver that woke late, by less than
-:data:`~ucom_tools.virtual.clock.SLIP_US`, runs its fleet up to the wall clock's time in
-one step), so the frame and its answers keep the wall clock's time stamps (on a busy
-machine 2 ms stamped answers up to 4 ms before their requests were sent).  A fleet
-further behind takes the frame in its own present, at most this far ahead, so that a
-slow machine does not look to the boards like a host that went quiet."""
+HOST_AHEAD_US = 2000.0
+"""How far ahead of a lagging paced fleet's present a host's frame may be ready."""
 ROOM_POLL_S = 0.0002
 """How often a host waiting for room in its transmit queue looks again."""
 
@@ -96,6 +90,10 @@ class Fleet:
             self._driver = RealtimeDriver(
                 self.clock, f"{topology.name} ({', '.join(b.name for b in topology.buses)})")
             self._driver.on_slip = self._slipped
+            # the virtual time's zero is the driver's start, not the start of building the
+            # boards (a busy machine took milliseconds for them: frames were stamped that
+            # much before they were on the bus)
+            self.epoch = time.time() - self._driver.now_us() / 1e6
             self._driver.start()
 
     @classmethod
