@@ -5,15 +5,13 @@ the answer's time stamp lies between the request's sending and the answer's arri
 
 from __future__ import annotations
 
-import threading
 import time
 
 import can
 import pytest
 
+from tests.helpers import served_in_process
 from ucom_tools.virtual.board import VirtualBoard
-from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.socketcand import FleetServer
 from ucom_tools.wire import messages
 from ucom_tools.wire import requests as rq
 from ucom_tools.wire.codes import InitOp
@@ -43,16 +41,8 @@ def test_a_fleet_slow_to_build_still_stamps_with_the_wall_time(
         built(board, t)
 
     monkeypatch.setattr(VirtualBoard, "power_on", slowly)
-    fleet = Fleet.load("armar3", realtime=True)
-    server = FleetServer(fleet, LOCAL, 0)
-    thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)
-    thread.start()
-    try:
-        _answers_stamped_with_the_wall_time(LOCAL, server.address[1], idle_s=0.0)
-    finally:
-        server.shutdown()
-        thread.join(timeout=10)
-        fleet.close()
+    with served_in_process("armar3") as (_, port):
+        _answers_stamped_with_the_wall_time(LOCAL, port, idle_s=0.0)
 
 
 def _answers_stamped_with_the_wall_time(host: str, port: int, *, idle_s: float) -> None:
