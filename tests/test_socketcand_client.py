@@ -87,16 +87,19 @@ class Peer:
         assert got == want
 
     def greet(self, channel: str = "CAN0", after_rawmode: str = "< ok >",
-              tail: str = "") -> None:
+              tail: str = "", *, echoes: bool = True, first_echo_after: float = 0.0) -> None:
         """The server's side of a handshake that succeeds, with the client's round trips
-        (its ``< echo >`` pings) answered; ``tail`` comes with the last answer."""
+        (its ``< echo >`` pings) answered, unless not ``echoes``, the first one after
+        ``first_echo_after`` seconds; ``tail`` comes with the last answer."""
         self.say("< hi >")
         self.hear(f"< open {channel} >")
         self.say("< ok >")
         self.hear("< rawmode >")
         self.say(after_rawmode)
-        for i in range(PINGS):
+        for i in range(PINGS if echoes else 0):
             self.hear("< echo >")
+            if i == 0 and first_echo_after:
+                time.sleep(first_echo_after)  # the scenario: a server slow to switch
             self.say("< echo >" + (tail if i == PINGS - 1 else ""))
 
     def wait_closed(self) -> None:
@@ -196,24 +199,11 @@ def test_the_round_trip_leaves_out_the_first_echo_and_is_unknown_without_echoes(
     late = 0.06  # within the wait for an echo (PING_WAIT_S)
 
     def slow_first(peer: Peer) -> None:
-        peer.say("< hi >")
-        peer.hear("< open CAN0 >")
-        peer.say("< ok >")
-        peer.hear("< rawmode >")
-        peer.say("< ok >")
-        for i in range(PINGS):
-            peer.hear("< echo >")
-            if i == 0:
-                time.sleep(late)  # the server's switch, not a wait for the client
-            peer.say("< echo >")
+        peer.greet(first_echo_after=late)
         peer.wait_closed()
 
     def no_echo(peer: Peer) -> None:
-        peer.say("< hi >")
-        peer.hear("< open CAN0 >")
-        peer.say("< ok >")
-        peer.hear("< rawmode >")
-        peer.say("< ok >")
+        peer.greet(echoes=False)
         peer.wait_closed()
 
     with FakeServer(slow_first) as server:
