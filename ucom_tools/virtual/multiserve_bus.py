@@ -254,8 +254,6 @@ class BusServer:
             self._send(("crash", traceback.format_exc(), f"{type(err).__name__}: {err}"))
             return
         try:
-            # frame timestamps: the wall clock's, like every other bus process's
-            fleet.epoch = time.time() - fleet.now_us() / 1e6
             self._send(("ready", os.getpid()))
             self._serve(fleet)
         except _Terminated:
