@@ -20,7 +20,10 @@ import os
 import shutil
 import sys
 import tempfile
+import types
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "ucom_tools"
@@ -70,6 +73,43 @@ def compiler() -> str | None:
     return shutil.which(cc)
 
 
+def _compile_side_by_side(compiler: Any, sources: list[str], output_dir: str | None = None,
+                          macros: Any = None, include_dirs: Any = None, debug: bool = False,
+                          extra_preargs: Any = None, extra_postargs: Any = None,
+                          depends: Any = None) -> list[str]:
+    """``CCompiler.compile`` with the source files compiled side by side, one per core,
+    the largest first.  distutils compiles an extension's sources one after the other
+    (``build_ext --parallel`` runs whole extensions side by side), so the one group
+    library, most of the C code, would keep one core busy and the other idle."""
+    macros, objects, extra_postargs, pp_opts, todo = compiler._setup_compile(
+        output_dir, macros, include_dirs, sources, depends, extra_postargs)
+    cc_args = compiler._get_cc_args(pp_opts, debug, extra_preargs)
+    jobs = sorted(((obj, *todo[obj]) for obj in objects if obj in todo),
+                  key=lambda job: -os.path.getsize(job[1]))
+    with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+        for done in [pool.submit(compiler._compile, obj, src, ext, cc_args, extra_postargs,
+                                 pp_opts) for obj, src, ext in jobs]:
+            done.result()  # the first failure, once every compiler has ended
+    return objects
+
+
+def _build_ext() -> type:
+    """setuptools' build_ext, compiling each extension's sources side by side where the
+    compiler is distutils' usual one (a compiler with its own ``compile``, MSVC's, is left
+    as it is)."""
+    from setuptools.command.build_ext import build_ext
+
+    class SideBySide(build_ext):  # type: ignore[misc]
+        def build_extensions(self) -> None:
+            # (by name: setuptools' distutils may be loaded under two module names)
+            if type(self.compiler).compile.__qualname__ == "CCompiler.compile":
+                self.compiler.compile = types.MethodType(_compile_side_by_side,
+                                                         self.compiler)
+            super().build_extensions()
+
+    return SideBySide
+
+
 def build(modules: tuple[str, ...], group: str) -> None:
     import warnings
 
@@ -83,9 +123,10 @@ def build(modules: tuple[str, ...], group: str) -> None:
     clean()  # never a mixture of an old build and a new one
     os.chdir(ROOT)  # mypycify takes paths relative to the project (and its mypy config)
     BUILD.mkdir(parents=True, exist_ok=True)
-    # one C file per module (multi_file), compiled side by side on every core, into one
-    # shared library: the modules still call each other natively (as one C file did, at
-    # the same speed: benchmarks/runtime_fleet.py, callgrind), the build takes half as long
+    # one C file per module (multi_file), compiled side by side on every core
+    # (_compile_side_by_side), into one shared library: the modules still call each other
+    # natively (as one C file did, at the same speed: benchmarks/runtime_fleet.py,
+    # callgrind); the build takes a third of the time one C file took
     extensions = mypycify([str(source(m).relative_to(ROOT)) for m in modules],
                           opt_level="3", group_name=group, multi_file=True,
                           target_dir=str(BUILD / "c"))
@@ -94,7 +135,8 @@ def build(modules: tuple[str, ...], group: str) -> None:
     headers = str(BUILD.joinpath("c", *group.split(".")[:-1]))
     for extension in extensions:
         extension.include_dirs.append(headers)
-    setup(name="ucom-tools-native", ext_modules=extensions, script_args=[
+    setup(name="ucom-tools-native", ext_modules=extensions,
+          cmdclass={"build_ext": _build_ext()}, script_args=[
         "--quiet", "build_ext", "--inplace", "--build-temp", str(BUILD / "temp"),
         "--parallel", str(os.cpu_count() or 1)])
     # the manifest last, atomically: a build that failed left none, so nothing runs it
