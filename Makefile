@@ -50,12 +50,13 @@ PURE_TESTS := tests/test_fidelity.py tests/test_compiled.py tests/test_simbus.py
     tests/test_mutants.py tests/test_canbits.py tests/test_frame_path.py \
     tests/test_pc_fast_paths.py tests/test_plain_data.py
 
-# lint beside the build (mypyc type-checks on its own, without mypy's cache), then the
-# pure-Python path beside the compiled suite, in a process of its own (the suite waits for
-# its fleets' real time more than it computes); each one's output together, when it ends
+# lint, then the pure-Python path (it needs no build), beside the build (mypyc type-checks
+# on its own, without mypy's cache); then the compiled suite alone: its fleets run on the
+# wall clock and a CPU-bound job beside them slows it by more than that job's own length;
+# each one's output together, when it ends
 test: $(STAMP)
-	@$(MAKE) --no-print-directory -j2 --output-sync=target lint compiled
-	@$(MAKE) --no-print-directory -j2 --output-sync=target test-compiled test-pure
+	@$(MAKE) --no-print-directory -j2 --output-sync=target lint compiled test-pure
+	@$(MAKE) --no-print-directory test-compiled
 
 test-compiled: $(COMPILED)
 	$(BIN)/python -m pytest

@@ -174,7 +174,8 @@ def test_a_second_remote_run_is_refused_and_the_first_keeps_its_boards_running(
         head_flashed: tuple[Path, Path]) -> None:
     topo, state = head_flashed
     with served(topo, state) as port:
-        first = ucom("remote", "run", str(topo), *socketcand(port, topo), "--for", "8",
+        # the first runs until it is stopped (Ctrl-C), once the second was refused
+        first = ucom("remote", "run", str(topo), *socketcand(port, topo), "--for", "60",
                      "--watchdog", "500", "--json")
         observer = Observer(port)
         try:
@@ -188,15 +189,17 @@ def test_a_second_remote_run_is_refused_and_the_first_keeps_its_boards_running(
             assert "CI map" in second.stderr or "MCA Alive" in second.stderr
             assert "--force" in second.stderr
             assert observer.states() == {mca.RunState.RUNNING}  # untouched
+            assert first.poll() is None, "the first stopped when the second was refused"
+            first.send_signal(signal.SIGINT)
             out, err = ended(first)
         finally:
             observer.close()
             if first.poll() is None:
                 first.kill()
                 first.communicate()
-        assert first.returncode == 0, err
+        assert first.returncode == 130, err
         run = json.loads(out)
-        assert run["started"] and run["run"]["cycles"] > 0
+        assert run["started"] and run["interrupted"] and run["run"]["cycles"] > 0
         assert not any(e["stopped_motors"] for e in run["events"])
 
 
