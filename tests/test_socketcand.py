@@ -124,8 +124,10 @@ def test_a_host_far_ahead_of_the_bus_does_not_overrun_slow_boards(tmp_path: Path
     Unless the served fleet stalls (a busy machine: its driver goes on from where the
     stall began, and its boards did not work meanwhile): then the frames handed over
     during the stall may find a ring full, on each board at most one frame per 1.6 ms
-    stalled, sent again in a second round (measured with two busy loops beside it: slips
-    of 40-90 ms, 19-49 frames again; in the suite on three workers 91 ms, 61)."""
+    stalled (and one more), sent again in the next round; a stall in that round may cost
+    one more (measured with two busy loops beside it: slips of 40-90 ms, 19-49 frames
+    again; in the suite on three workers 91 ms, 61; in CI two slips of 12 ms in all, two
+    frames again, in two more rounds)."""
     from tests.helpers import served_in_process
     from tests.test_shared_bus import head_topology
 
@@ -135,16 +137,17 @@ def test_a_host_far_ahead_of_the_bus_does_not_overrun_slow_boards(tmp_path: Path
                   "127.0.0.1", "--port", str(port), "--topology", str(topo), "--json")
         driver = fleet.driver
         assert driver is not None
-        stalled_us = driver.slipped_us
+        stalled_us, stalls = driver.slipped_us, driver.slips
     assert r.returncode == 0, r.stderr
     import json
     data = json.loads(r.stdout)
     assert [b["outcome"] for b in data["boards"]] == ["verified"] * 3
     (bus,) = data["buses"]
-    if stalled_us == 0:
+    if stalls == 0:
         assert (bus["rounds"], bus["resent_frames"]) == (1, 0), bus
     else:
         frame_us = 4 * 400.0 + 10.0  # four words and the frame's overhead
-        assert bus["rounds"] <= 2, (bus, stalled_us)
+        assert bus["rounds"] <= 1 + stalls, (bus, stalls, stalled_us)
         boards = len(data["boards"])  # each may lose other frames than the others
-        assert bus["resent_frames"] <= boards * (1 + stalled_us / frame_us), (bus, stalled_us)
+        assert bus["resent_frames"] <= boards * (stalls + stalled_us / frame_us), (
+            bus, stalls, stalled_us)
