@@ -172,10 +172,13 @@ def one_board(topology: Topology) -> Topology:
 
 def pure_figures(seconds: float, runs: int) -> dict[str, object]:
     """The same figures of the pure-Python run time (UCOM_PURE_PYTHON=1, another process:
-    a process runs either the compiled modules or the sources)."""
+    a process runs either the compiled modules or the sources).  It exits 1 when its
+    figures miss the targets, as pure Python does: a baseline, not a failure."""
     r = subprocess.run([sys.executable, __file__, "--json", "--no-pure", "--seconds",
                         str(seconds), "--repeat", str(runs)], capture_output=True, text=True,
-                       env={**os.environ, compiled.PURE_ENV: "1"}, check=True)
+                       env={**os.environ, compiled.PURE_ENV: "1"})
+    if r.returncode not in (0, 1) or not r.stdout:
+        raise RuntimeError(f"the pure-Python run ended with exit {r.returncode}: {r.stderr}")
     out: dict[str, object] = json.loads(r.stdout)
     return out
 
