@@ -41,7 +41,10 @@ def _set_status() -> st.SearchStrategy[m.SetStatus]:
 def _init_request() -> st.SearchStrategy[m.InitRequest]:
     return st.one_of(
         st.builds(m.InitRequest, st.just(InitOp.NEXT), st.integers(2, 31)),
-        st.builds(m.InitRequest, st.sampled_from([o for o in InitOp if o is not InitOp.NEXT])))
+        st.builds(m.InitRequest, st.just(InitOp.REJOIN), st.integers(1, 31),
+                  st.integers(0, 0xFFFFFFFF)),
+        st.builds(m.InitRequest, st.sampled_from([o for o in InitOp
+                                                  if o not in (InitOp.NEXT, InitOp.REJOIN)])))
 
 
 MESSAGES = st.one_of(
@@ -96,6 +99,7 @@ def test_direction_check_rejects_the_other_side(msg: m.BootMessage) -> None:
 @pytest.mark.parametrize("msg, address, ident, payload", [
     (m.Reset(), ALL, 0x000, ""),
     (m.InitRequest(InitOp.NEXT, 2), ALL, 0x280, "0202"),
+    (m.InitRequest(InitOp.REJOIN, 3, 0x12345678), ALL, 0x280, "060312345678"),
     (m.SetStatus(StatusOp.PROG_ENABLE, 1), seq(3), 0x1C3, "0101"),
     (m.Start(Target.FLASH), seq(2), 0x302, "00"),
     (m.ProgramBlock(Space.P, 0x0100, 64, 1, 0x1234), ALL, 0x2C0, "05 40 0100 01 1234"),
@@ -120,6 +124,8 @@ def test_byte_layouts(msg: m.BootMessage, address: Address, ident: int, payload:
     (Function.SET_STATUS, b"\x09\x01", "SetStatus op"),
     (Function.SET_STATUS, b"\x01\x05", "SetStatus value"),
     (Function.INIT_REQUEST, b"\x02\x01", "Init Request number"),
+    (Function.INIT_REQUEST, b"\x06\x03", "Init Request REJOIN payload length"),
+    (Function.INIT_REQUEST, b"\x06\x00\x00\x00\x00\x01", "Init Request number"),
     (Function.START, b"\x07", "Start target"),
     (Function.PROGRAM, b"", "Program payload length"),
     (Function.PROGRAM, b"\x08", "Program op"),

@@ -87,7 +87,11 @@ class BootDecoding(BusState):
 
     def _init_request(self, msg: m.InitRequest) -> None:
         text = msg.op.name + (f" {msg.number}" if msg.op is InitOp.NEXT else "")
+        if msg.op is InitOp.REJOIN:
+            text += f" {msg.number} to serial 0x{msg.serial:08X}"
         fields_: dict[str, Any] = {"op": msg.op, "number": msg.number}
+        if msg.op is InitOp.REJOIN:
+            fields_["serial"] = msg.serial
         if msg.op is InitOp.BEGIN:
             self.chain = []
         elif msg.op is InitOp.END:
@@ -102,6 +106,12 @@ class BootDecoding(BusState):
                         t.init_step, lambda _b, a: isinstance(a, m.InitAck) and
                         a.kind is InitAckKind.ASSIGNED and a.seq_id == n, optional=False,
                         key=(n,), init_number=n)
+        elif msg.op is InitOp.REJOIN:  # answered only once the board is back: optional
+            n, serial = msg.number, msg.serial
+            self.expect(f"Init Request {text}", Function.INIT_REQUEST, None, t.init_step,
+                        lambda _b, a: isinstance(a, m.InitAck) and
+                        a.kind is InitAckKind.ASSIGNED and a.seq_id == n and
+                        a.serial == serial, needed=None, key=("rejoin", n))
         elif msg.op is InitOp.END:
             # the questions nobody answered were the chain's end, not lost answers
             for e in self.expects:

@@ -174,8 +174,11 @@ LAYOUTS: tuple[Layout, ...] = (
     ), "Report Request (9, PC -> board, DLC 6)."),
     Layout(Function.INIT_REQUEST, "InitRequest", 2, (
         Field("Op", 0, choices=_choices(InitOp)),
-        Field("Number", 1, comment="NEXT: the seq ID searched (2-31)"),
-    ), "Init Request (10, PC -> every board, DLC 2): one step of the init chain."),
+        Field("Number", 1, comment="NEXT: the seq ID searched (2-31); REJOIN: the seq ID "
+                                   "given back (1-31)"),
+    ), "Init Request (10, PC -> every board, DLC 2): one step of the init chain.  REJOIN "
+       "(DLC 6) carries the serial number of the board it numbers in bytes 2-5, beyond this "
+       "message: its Op and Number decode, the serial is not described."),
     Layout(Function.PROGRAM, "Program", 8, (
         Field("Words", 0, 64, little=True,
               comment="four program words, low byte first: word n is bits 16n+15..16n "

@@ -91,6 +91,9 @@ class InitOp(IntEnum):
     END = 0x03
     PROBE_FIRST = 0x04
     PROBE_LAST = 0x05
+    REJOIN = 0x06
+    """Give seq ID ``number`` back to the board with ``serial`` (DLC 6), a board that lost
+    its number (power loss, reset) while the others keep theirs: no init line is used."""
 
 
 class InitAckKind(IntEnum):

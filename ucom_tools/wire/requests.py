@@ -121,27 +121,45 @@ class ReportRequest:
 
 @dataclass(frozen=True, slots=True)
 class InitRequest:
-    """Function 10: one step of the init chain (always broadcast)."""
+    """Function 10: one step of the init chain (always broadcast); REJOIN gives seq ID
+    ``number`` back to the board whose serial number is ``serial`` (DLC 6, the only op
+    with a serial)."""
 
     FUNCTION: ClassVar[Function] = Function.INIT_REQUEST
     op: InitOp
     number: int = 0
+    serial: int = 0
 
     def __post_init__(self) -> None:
         if self.op is InitOp.NEXT:
             check_range("Init Request number", self.number, 2, 31)
+        elif self.op is InitOp.REJOIN:
+            check_range("Init Request number", self.number, 1, 31)
         elif self.number != 0:
             raise FrameError("Init Request number", f"must be 0 for {self.op.name}")
+        if self.op is InitOp.REJOIN:
+            check_range("Init Request serial", self.serial, 0, 0xFFFFFFFF)
+        elif self.serial != 0:
+            raise FrameError("Init Request serial", f"only REJOIN carries one, not "
+                                                    f"{self.op.name}")
 
     def encode(self) -> bytes:
+        if self.op is InitOp.REJOIN:
+            return _REJOIN.pack(self.op, self.number, self.serial)
         return bytes((self.op, self.number))
 
     @classmethod
     def decode(cls, data: bytes) -> InitRequest:
+        if data and data[0] == InitOp.REJOIN:
+            check_length("Init Request REJOIN", data, _REJOIN.size)
+            _, number, serial = _REJOIN.unpack(data)
+            return cls(InitOp.REJOIN, number, serial)
         check_length("Init Request", data, 2)
         return cls(check_enum(InitOp, "Init Request op", data[0]), data[1])
 
 
+_REJOIN = struct.Struct(">BBI")
+"""Init Request REJOIN: op, the seq ID to take, the board's serial number."""
 _BEGIN = struct.Struct(">BBHH")
 _META = struct.Struct(">BB4s")
 _ERASE = struct.Struct(">BBHH")
