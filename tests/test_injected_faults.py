@@ -18,15 +18,17 @@ import pytest
 
 from tests.conftest import chain_topology
 from tests.runtime_rig import RunHost, programmed
-from ucom_tools.config.scenario import FaultKind, InjectedFault
+from ucom_tools.config.scenario import FaultKind, InjectedFault, Scenario
 from ucom_tools.edgelists import armar3
 from ucom_tools.edgelists.armar3 import Command
 from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.errors import InputError
+from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.virtual.board import VirtualBoard
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.virtual.canbus import VirtualUcomBus
+from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.virtual.fpga import QuadratureDecoder
 from ucom_tools.virtual.programs.armar3 import Armar3Model
 from ucom_tools.wire import mca
@@ -459,3 +461,80 @@ def test_an_absolute_channel_reads_its_sensor_prescaled_and_keeps_a_written_offs
     incremental = QuadratureDecoder(prescale=4)
     incremental.feed(4005)
     assert incremental.count == 1001 and QuadratureDecoder().absolute is None
+
+
+# ---------------------------------------------------------------------- scenarios
+SCENARIO = """\
+[[fault]]
+at = 0.1
+kind = "power-off"
+bus = "CAN0"
+board = 3
+for = 0.1
+
+[[fault]]
+at = 0.3
+kind = "estop"
+for = 0.05
+"""
+
+
+def test_a_scenario_counts_from_each_buses_own_first_mca_alive() -> None:
+    base = programmed("armar3", autostart=True)
+    fleet = Fleet(base.topology, scenario=Scenario.parse(SCENARIO, "s.toml"))
+    can0, can1 = RunHost(fleet, "CAN0"), RunHost(fleet, "CAN1")
+    try:
+        assert set(fleet.injector.watchers) == set(fleet.buses)  # estop: on every bus
+        can0.bring_up()
+        t0 = fleet.injector.started["CAN0"]
+        assert "CAN1" not in fleet.injector.started  # no MCA Alive there yet
+        clock = fleet.clock
+        board = fleet.boards["CAN0"][2]
+        for t, powered in [(t0 + 100_000 - 1, True), (t0 + 100_000, False),
+                           (t0 + 200_000 - 1, False), (t0 + 200_000, True)]:
+            clock.run_until(t)
+            assert board.powered is powered, t - t0
+        clock.run_until(t0 + 250_000)
+        can1.link.send_raw(encode_id(Function.MCA_ALIVE, ALL), b"")  # CAN1's exchange begins
+        t1 = fleet.injector.started["CAN1"]
+        assert t1 == pytest.approx(t0 + 250_000, abs=500)
+        # once its first Alive came, a bus carries nothing of the scenario: no frame pays
+        assert not any(type(n).__name__ == "_FirstAlive" for name in ("CAN0", "CAN1")
+                       for n in fleet.bus(name).nodes)
+        assert set(fleet.injector.watchers) == {"CAN2", "CAN3"}  # no exchange there yet
+        clock.run_until(t0 + 300_000)  # the estop on CAN0, CAN1's still to come
+        assert not any(b.powered for b in fleet.boards["CAN0"])
+        assert all(b.powered for b in fleet.boards["CAN1"])
+        clock.run_until(t1 + 300_000)
+        assert not any(b.powered for b in fleet.boards["CAN1"])
+        assert [a.fault.kind for a in fleet.injector.active] == [FaultKind.ESTOP]  # CAN1's
+        assert all(b.powered for b in fleet.boards["CAN0"])
+        clock.run_until(t1 + 350_000)
+        assert all(b.powered for bs in fleet.boards.values() for b in bs)
+        assert fleet.injector.active == []
+    finally:
+        can0.close()
+        can1.close()
+
+
+def test_the_in_process_fleet_takes_a_scenario_through_python_can(tmp_path) -> None:
+    path = tmp_path / "cable.toml"
+    path.write_text('[[fault]]\nat = 0.01\nkind = "cable"\nbus = "CAN1"\nfor = 0.02\n')
+    with can.Bus(interface="ucom_virtual", channel="armar3/CAN1", scenario=str(path)) as bus, \
+            can.Bus(interface="ucom_virtual", channel="armar3/CAN1") as plain:
+        assert bus.fleet is not plain.fleet  # the scenario is part of the shared fleet's key
+        assert bus.fleet.scenario is not None and plain.fleet.scenario is None
+        bus.send(can.Message(arbitration_id=encode_id(Function.MCA_ALIVE, ALL), data=b"",
+                             is_extended_id=False))  # the exchange begins
+        start = bus.fleet.injector.started["CAN1"]
+        assert bus.recv(0.015) is None
+        assert bus.state is can.BusState.PASSIVE and bus.fleet.bus("CAN1").cable_cut
+        assert bus.fleet.clock.now - start == pytest.approx(15_000, abs=200)
+        assert bus.recv(0.02) is None
+        assert bus.state is can.BusState.ACTIVE
+    robot = open_robot(ConnectSpec(virtual="armar3", scenario=path))
+    try:
+        fleets = {h.bus.fleet for h in robot.buses.values()}  # type: ignore[attr-defined]
+        assert len(fleets) == 1 and next(iter(fleets)).scenario is not None
+    finally:
+        robot.close()

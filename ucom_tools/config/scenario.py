@@ -340,6 +340,7 @@ def _fault(raw: dict[str, Any], i: int, source: str,
 
 _HEADER: Final = re.compile(r"^\s*\[\[\s*fault\s*\]\]")
 _OTHER_HEADER: Final = re.compile(r"^\s*\[")
+_TABLE: Final = re.compile(r"^\s*\[\s*fault\s*\]")
 _KEY: Final = re.compile(r"^\s*([A-Za-z0-9_\-]+|\"[^\"]*\")\s*=")
 
 
@@ -357,6 +358,8 @@ def _lines(text: str) -> dict[tuple[tuple[int, ...], str], int]:
             found.setdefault(((), "fault"), no)
         elif _OTHER_HEADER.match(line):
             where = (-1,)
+            if _TABLE.match(line):  # [fault]: one table where [[fault]] tables belong
+                found.setdefault(((), "fault"), no)
         elif k := _KEY.match(line):
             found.setdefault((where, k.group(1).strip('"')), no)
     return found
