@@ -498,6 +498,7 @@ def test_a_scenario_counts_from_each_buses_own_first_mca_alive() -> None:
         can1.link.send_raw(encode_id(Function.MCA_ALIVE, ALL), b"")  # CAN1's exchange begins
         t1 = fleet.injector.started["CAN1"]
         assert t1 == pytest.approx(t0 + 250_000, abs=500)
+        clock.run_until(t1 + 1)
         # once its first Alive came, a bus carries nothing of the scenario: no frame pays
         assert not any(type(n).__name__ == "_FirstAlive" for name in ("CAN0", "CAN1")
                        for n in fleet.bus(name).nodes)
