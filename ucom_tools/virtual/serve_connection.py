@@ -438,7 +438,7 @@ class Connection:
         only: a bus's client does not steer the fleet)."""
         if self.port is not None:
             raise ElementError(socketcand_fault.refusal(
-                "send it on a connection of its own, before any < open >"))
+                "send it on a connection of its own, before any open"))
         answer = inject_element(args, self.fleet.inject)
         self.reply(answer)
         log.warning("client %s injected a fault: %s", self.peer, answer[len("< ok "):-2])
