@@ -24,9 +24,9 @@ from ucom_tools.edgelists.armar3 import Command
 from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.errors import InputError
 from ucom_tools.ops.robot import ConnectSpec, open_robot
-from ucom_tools.virtual.board import VirtualBoard
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
+from ucom_tools.virtual.board import VirtualBoard
 from ucom_tools.virtual.canbus import VirtualUcomBus
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.virtual.fpga import QuadratureDecoder

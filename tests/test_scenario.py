@@ -120,10 +120,10 @@ def test_every_mistake_names_the_file_the_line_and_the_key(text: str, message: s
 
 
 def test_a_file_that_cannot_be_read_is_named(tmp_path: Path) -> None:
-    with pytest.raises(InputError, match="missing.toml: no such scenario file"):
+    with pytest.raises(InputError, match=r"missing\.toml: no such scenario file"):
         Scenario.load(tmp_path / "missing.toml")
     (tmp_path / "latin1.toml").write_bytes(b'description = "\xe9"\n')
-    with pytest.raises(InputError, match="latin1.toml: cannot read"):
+    with pytest.raises(InputError, match=r"latin1\.toml: cannot read"):
         Scenario.load(tmp_path / "latin1.toml")
 
 

@@ -297,9 +297,10 @@ def _open_virtual(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
     with _closed_on_failure(buses):
         for b in topology.buses:
             try:
+                extra: dict[str, Any] = {} if spec.scenario is None else {
+                    "scenario": str(spec.scenario)}
                 bus = can.Bus(interface="ucom_virtual", channel=f"{spec.virtual}/{b.name}",
-                              state_dir=spec.state_dir, realtime=spec.pace,
-                              **({"scenario": str(spec.scenario)} if spec.scenario else {}))
+                              state_dir=spec.state_dir, realtime=spec.pace, **extra)
             except can.CanError as err:
                 if isinstance(err.__cause__, UcomError):
                     raise err.__cause__ from None
