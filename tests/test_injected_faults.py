@@ -539,3 +539,31 @@ def test_the_in_process_fleet_takes_a_scenario_through_python_can(tmp_path) -> N
         assert len(fleets) == 1 and next(iter(fleets)).scenario is not None
     finally:
         robot.close()
+
+
+def test_a_lauron4_leg_reads_its_joint_absolute_after_a_power_loss() -> None:
+    """LAURON-IV's leg program counts its joint sensors through prescaler 10 (0.01 deg);
+    after a power loss they read where the joint is, the motor encoders from 0."""
+    h = RunHost(programmed("lauron4", autostart=True), "CAN0")
+    wire = Wire()
+    h.fleet.bus("CAN0").attach(wire)
+    try:
+        h.bring_up()
+        h.set_ci(1, "Leg Mode", 1)  # POSITION
+        h.set_ci(1, "Axis1 Position Setpoint", 1000)  # 10 degrees forwards
+        h.run(500)
+        before = h.so(1, "Axis1 Position")
+        assert before is not None and before > 500
+        h.fleet.inject(InjectedFault(FaultKind.POWER_OFF, "CAN0", 1, 0.1))
+        h.run(150)
+        (ack,) = rejoin(h, wire, 1)
+        assert ack.seq_id == 1 and h.boot.start(seq(1))[0].started
+        assert h.mca.query(seq(1)).state is mca.RunState.STOPPED
+        board = h.boards[0]
+        leg = board.plant.joints  # type: ignore[union-attr]
+        (after,) = h.mca.dump(seq(1), mca.Kind.SO, 0, 1, h.configured[1].edges.so)
+        assert after == int((leg[0].joint_edges - leg[0].joint_origin) / 10)
+        assert abs(after - before) <= 10  # where it was, but for its coasting
+        assert board.fpga.quad[1].count == 0  # the motor encoder, incremental, from 0
+    finally:
+        h.close()
