@@ -8,6 +8,7 @@ option table of :mod:`ucom_tools.cli.menu`, which the console shares.
 
 from __future__ import annotations
 
+import threading
 from typing import Any
 
 import click
@@ -16,7 +17,7 @@ from rich.markup import escape
 from ucom_tools.cli import params as params_cli
 from ucom_tools.cli import render
 from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
-from ucom_tools.cli.flashrun import run_flash
+from ucom_tools.cli.flashrun import run_cancellable, run_flash
 from ucom_tools.cli.menu import help_text, label, parse_level
 from ucom_tools.cli.options import (
     connection_json,
@@ -27,14 +28,23 @@ from ucom_tools.cli.options import (
 )
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.errors import InputError, UcomError
-from ucom_tools.image import load_image
+from ucom_tools.image import Image, load_image
 from ucom_tools.ops import options as ops
 from ucom_tools.ops import params_keep
 from ucom_tools.ops.enumerate import enumerate_bus
-from ucom_tools.ops.flash import FlashResult, Selection, listen_first
+from ucom_tools.ops.flash import (
+    KEEP,
+    LISTENING,
+    RESET,
+    FlashInterrupted,
+    FlashResult,
+    Selection,
+    interrupted_before,
+    listen_first,
+)
 from ucom_tools.ops.robot import ConnectSpec, Robot
 from ucom_tools.protocol.programmer import Cancelled
-from ucom_tools.signals import Terminated, interrupt_exit_code
+from ucom_tools.signals import interrupt_exit_code, stop_signal, stopped_how
 from ucom_tools.wire.codes import StatusOp, Target
 from ucom_tools.wire.ids import IdType
 
@@ -340,11 +350,33 @@ def _flash_out(ctx: click.Context, spec: ConnectSpec, result: FlashResult,
         ctx.exit(EXIT_FAILED)
 
 
-def _cancelled(ctx: click.Context, e: BaseException) -> None:
-    how = f"terminated ({e.name})" if isinstance(e, Terminated) else "cancelled"
-    stderr().print(f"[yellow]flash {how}: the boards dropped the transfer and keep no "
-                   "startable program[/]")
+def _cancelled(ctx: click.Context, spec: ConnectSpec, e: BaseException, as_json: bool) -> None:
+    """An interrupted flash: per board what it was left with (the table, or ``--json``
+    with ``interrupted``), one line on stderr, the signal's exit code."""
+    how = stopped_how(e)
+    if isinstance(e, FlashInterrupted):
+        result = e.result
+        if as_json:
+            stop = stop_signal(e)
+            _json(spec, {**render.flash_json(result), "interrupted": {
+                "how": how, "signal": stop.name if stop is not None else "SIGINT",
+                "buses": {b.bus: b.interrupted for b in result.buses}}})
+        else:
+            render.print_flash(stdout(), result)
+        stderr().print(f"[yellow]{escape(render.interrupted_line(result, how))}[/]",
+                       soft_wrap=True)
+    else:  # a second signal cut the undo short
+        stderr().print(f"[red]flash {how} again while putting the boards back: they are "
+                       "left as they are (check them with 'ucom info all --init')[/]",
+                       soft_wrap=True)
     ctx.exit(interrupt_exit_code(e) if isinstance(e, KeyboardInterrupt) else EXIT_INTERRUPTED)
+
+
+def _stage(r: Robot, img: Image, bus_name: str | None, phase: str,
+           cancel: threading.Event) -> None:
+    """Before the job: stop (nothing sent that changes a board) if cancelled."""
+    if cancel.is_set():
+        raise FlashInterrupted(interrupted_before(r, img, phase, bus=bus_name))
 
 
 @click.command("flash")
@@ -392,22 +424,39 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
     selection = Selection.parse(boards)
     with robot(spec) as r:
         r.select(bus_name)  # an unknown --bus is exit code 3 before anything is sent
-        listen_first(r, bus_name)  # another host programming: exit 4, nothing sent
-        kept = params_keep.keep_before(r, bus=bus_name) if keep_params else None
-        if kept is not None and not kept.readout.ok and not force:
-            _keep_refused(ctx, spec, kept, as_json)
-            return
-        for h in r.select(bus_name):
-            h.client.reset()
+
+        def first(cancel: threading.Event) -> params_keep.Kept | None:
+            """Listening (another host programming: exit 4, nothing sent), then the values
+            to keep: nothing that changes a board."""
+            _stage(r, img, bus_name, LISTENING, cancel)
+            listen_first(r, bus_name)
+            _stage(r, img, bus_name, LISTENING, cancel)
+            kept = params_keep.keep_before(r, bus=bus_name) if keep_params else None
+            _stage(r, img, bus_name, KEEP, cancel)
+            return kept
+
+        def reset(cancel: threading.Event) -> None:
+            for h in r.select(bus_name):
+                h.client.reset()
+            _stage(r, img, bus_name, RESET, cancel)
+
+        kept: params_keep.Kept | None = None
         try:
+            kept = run_cancellable(first, name="ucom-flash", finished=lambda _kept, _stop:
+                                   FlashInterrupted(interrupted_before(
+                                       r, img, KEEP if keep_params else LISTENING,
+                                       bus=bus_name)))
+            if kept is not None and not kept.readout.ok and not force:
+                _keep_refused(ctx, spec, kept, as_json)
+                return
             result = run_flash(r, img, selection=selection, bus=bus_name, autostart=autostart,
                                start=start_after or keep_params, verify=not no_verify,
-                               force=force, verbose=_verbose(ctx))
+                               force=force, verbose=_verbose(ctx), before=reset)
         except (KeyboardInterrupt, Cancelled) as e:
             if kept is not None and kept.directory is not None:
                 stderr().print(f"[yellow]the values read before programming are in "
                                f"{escape(str(kept.directory))}[/]", soft_wrap=True)
-            _cancelled(ctx, e)
+            _cancelled(ctx, spec, e, as_json)
             return
         restored = _keep_after(r, kept, result) if kept is not None else None
     _flash_out(ctx, spec, result, as_json, restored)
@@ -467,7 +516,7 @@ def _program_command(name: str, option: int, target: Target, detail: str) -> cli
                                    target=target, init=False, force=force,
                                    verbose=_verbose(ctx), what=label(option))
             except (KeyboardInterrupt, Cancelled) as e:
-                _cancelled(ctx, e)
+                _cancelled(ctx, spec, e, as_json)
                 return
         _flash_out(ctx, spec, result, as_json)
     return cmd

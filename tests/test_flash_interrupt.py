@@ -1,0 +1,373 @@
+"""A flash or deploy interrupted at any moment leaves every board either with its old
+program intact or in its bootloader with ProgEnable cleared and no transfer open, and
+says which, per board.
+
+In process, in virtual time: the interrupt comes at an exact frame of each phase, seen
+on the simulated bus, in the two ways a job meets one:
+
+- ``cancel``: a node on the bus sets the job's cancel event when the frame ends on the
+  wire (how Ctrl-C, SIGTERM and SIGHUP reach ``ucom flash`` and ``ucom deploy``, whose
+  job runs in a worker thread);
+- ``raise``: once the host has sent (or received) the frame, its next send or wait
+  raises :class:`KeyboardInterrupt` or :class:`~ucom_tools.signals.Terminated` in the
+  job's own thread (how a signal reaches a Python caller that runs the job itself).
+
+Then every board of the fleet is looked at directly (ProgEnable, a transfer, the
+program's validity and ProgID, AutoStart) and compared with what the job said of it.
+"""
+
+from __future__ import annotations
+
+import shutil
+import signal
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+from tests.helpers import ROOT, head_topology
+from ucom_tools.config import topology as topo_mod
+from ucom_tools.image import load_image
+from ucom_tools.ops import deploy as deploy_ops
+from ucom_tools.ops import leave
+from ucom_tools.ops.flash import FlashInterrupted, FlashResult, flash
+from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot, open_robot
+from ucom_tools.signals import Terminated, interrupt_exit_code, stop_signal
+from ucom_tools.virtual.board import VirtualBoard
+from ucom_tools.wire import messages as m
+from ucom_tools.wire.codes import BoardState
+
+OLD = load_image(ROOT / "firmware_images" / "armar3.fl.S")
+NEW = load_image(ROOT / "firmware_images" / "armar3_fpga1.1.fl.S")
+HEAD = str(ROOT / "tests" / "data" / "armar3_can0.toml")
+
+Match = Callable[[int, bytes], bool]
+
+
+def frame(ident: int, *head: int) -> Match:
+    """The frame with identifier ``ident`` whose data begin with ``head`` (at 0x2C0 a
+    Program control frame: DLC < 8, not the data frame of slot 0)."""
+    return lambda i, d: i == ident and d[:len(head)] == bytes(head) and (
+        i != 0x2C0 or len(d) < 8)
+
+
+def block(index: int) -> Match:
+    """The BLOCK frame of block ``index`` (Program op 5, the index in byte 4)."""
+    return lambda i, d: i == 0x2C0 and len(d) == 7 and d[0] == 5 and d[4] == index
+
+
+def then(*steps: Match) -> Match:
+    """The frame ``steps[-1]`` once the frames before it were seen, in that order (it
+    keeps what it saw: one per job, so the phases below make one when asked)."""
+    at = [0]
+
+    def match(i: int, d: bytes) -> bool:
+        if at[0] < len(steps) and steps[at[0]](i, d):
+            at[0] += 1
+        return at[0] == len(steps)
+    return match
+
+
+class Interrupter:
+    """Interrupts the job on bus ``h`` at the first frame ``when`` matches (see the module
+    docstring for the modes); ``stop`` is what ``raise`` raises."""
+
+    def __init__(self, h: BusHandle, mode: str, when: Match | Callable[[], Match],
+                 stop: Callable[[], KeyboardInterrupt] = KeyboardInterrupt) -> None:
+        if when.__code__.co_argcount == 0:  # type: ignore[union-attr]
+            when = when()  # type: ignore[call-arg]
+        self.cancel = threading.Event()
+        self.when, self.stop, self.fired = when, stop, False
+        self.armed = False
+        self.sim = h.bus.sim  # type: ignore[attr-defined]
+        self.link = h.link
+        if mode == "cancel":
+            self.sim.attach(self)
+        else:
+            send_raw, recv_until = h.link.send_raw, h.link.recv_until
+
+            def sending(ident: int, data: bytes) -> None:
+                self._due()
+                send_raw(ident, data)
+                self._seen(ident, data)
+
+            def receiving(deadline: float) -> object:
+                self._due()
+                got = recv_until(deadline)
+                if got is not None:
+                    self._seen(*m.encode(got.message, got.address))
+                return got
+
+            h.link.send_raw = sending  # type: ignore[method-assign]
+            h.link.recv_until = receiving  # type: ignore[method-assign]
+
+    def on_frame(self, arbitration_id: int, data: bytes, t_end: float, *extra: object) -> None:
+        if not self.fired and self.when(arbitration_id, bytes(data)):
+            self.fired = True
+            self.cancel.set()
+
+    def _seen(self, ident: int, data: bytes) -> None:
+        if not self.fired and self.when(ident, data):
+            self.fired = self.armed = True
+
+    def _due(self) -> None:
+        if self.armed:
+            self.armed = False
+            raise self.stop()
+
+    def close(self) -> None:
+        self.sim.detach(self)
+        for name in ("send_raw", "recv_until"):
+            self.link.__dict__.pop(name, None)
+
+
+def boards(r: Robot, bus: str = "CAN0") -> dict[int, VirtualBoard]:
+    """The fleet's boards on ``bus`` by seq ID (or position, where they have none)."""
+    return {b.seq_id or i: b for i, b in
+            enumerate(r.buses[bus].bus.fleet.boards[bus], 1)}  # type: ignore[attr-defined]
+
+
+def assert_left(board: VirtualBoard, outcome: str, *, old: int, new: int) -> None:
+    """What the board is left with, looked at directly, is ``outcome``; in every case no
+    transfer is open and ProgEnable is cleared."""
+    rec = board.nv.record
+    where = f"{board.placement}: {outcome}"
+    assert not board.prog_enable, where
+    assert board.programming.reception is None, where
+    assert board.state not in (BoardState.ERASING, BoardState.RECEIVING), where
+    if outcome == leave.KEPT:
+        assert rec.flash_valid and rec.progid == old, where
+        assert rec.autostart, where + ": AutoStart as found"
+    elif outcome == leave.ERASED:
+        assert not rec.flash_valid and board.state is BoardState.BOOTLOADER, where
+    else:
+        assert outcome == leave.VERIFIED and rec.flash_valid and rec.progid == new, where
+
+
+def assert_told(result: FlashResult, r: Robot, expected: dict[int, str]) -> None:
+    """The result says per board what the fleet shows, in its outcome, its words and
+    the Info it read back."""
+    rows = {b.seq_id: b for b in result.boards if b.bus == "CAN0"}
+    fleet = boards(r)
+    words = {leave.KEPT: "old program intact", leave.ERASED: "was erased",
+             leave.VERIFIED: "new program verified"}
+    for n, outcome in expected.items():
+        row = rows[n]
+        assert row.outcome == outcome, (n, row)
+        assert words[outcome] in row.detail, (n, row.detail)
+        assert "not ProgEnabled, no transfer open" in row.detail or outcome == leave.VERIFIED, \
+            row.detail
+        assert row.left is not None and not row.left.prog_enable, row
+        assert row.left.state is fleet[n].state, row
+        assert_left(fleet[n], outcome, old=OLD.progid, new=NEW.progid)
+
+
+@pytest.fixture
+def head() -> Iterator[Robot]:
+    """ARMAR-III's head bus in process, its boards running armar3.fl.S with AutoStart."""
+    r = open_robot(ConnectSpec(virtual=HEAD))
+    try:
+        assert flash(r, OLD, autostart=True, start=True).all_verified
+        yield r
+    finally:
+        r.close()
+
+
+K, E, V = leave.KEPT, leave.ERASED, leave.VERIFIED
+PHASES = [  # (phase, where the interrupt comes, per board: cancel, raise)
+    ("init chain", frame(0x280, 2, 2), [K, K, K], [K, K, K]),
+    ("XReset", frame(0x042), [K, K, K], [K, K, K]),
+    ("ProgEnable", frame(0x1C0, 1, 1), [K, K, K], [K, K, K]),
+    # raise: META never goes out after BEGIN, nothing erased, the flags come back;
+    # cancel: the job sees it at its first look in the erase wait, after PREPARE
+    ("preamble", frame(0x2C0, 1), [E, E, E], [K, K, K]),
+    ("erase", frame(0x2C0, 4), [E, E, E], [E, E, E]),
+    ("erased", frame(0x183, 1), [E, E, E], [E, E, E]),
+    ("transfer", block(10), [E, E, E], [E, E, E]),
+    # cancel: the boards' Program Finished came within the job's first look; raise: its
+    # ABORT overtakes their verification (ucom-protocol(7), Abort: receiving)
+    ("verification", frame(0x2C0, 6), [E, E, E], [E, E, E]),
+    ("read-back", lambda: then(frame(0x2C0, 6), frame(0x202)), [V, V, V], [V, V, V]),
+    ("AutoStart", frame(0x1C2, 2, 1), [V, V, V], [V, V, V]),
+    ("start", frame(0x302), [V, V, V], [V, V, V]),
+]
+
+
+@pytest.mark.parametrize("mode", ["cancel", "raise"])
+@pytest.mark.parametrize(("phase", "when", "by_cancel", "by_raise"), PHASES,
+                         ids=[p[0] for p in PHASES])
+def test_a_flash_interrupted_in_any_phase_leaves_each_board_as_it_says(
+        head: Robot, mode: str, phase: str, when: Match, by_cancel: list[str],
+        by_raise: list[str]) -> None:
+    stop = (lambda: Terminated(signal.SIGTERM)) if phase in ("erase", "start") \
+        else KeyboardInterrupt
+    trap = Interrupter(head.buses["CAN0"], mode, when, stop)
+    try:
+        with pytest.raises(FlashInterrupted) as caught:
+            flash(head, NEW, autostart=True, start=True, cancel=trap.cancel)
+    finally:
+        trap.close()
+    assert trap.fired, f"the {phase} never came"
+    result = caught.value.result
+    expected = dict(enumerate(by_cancel if mode == "cancel" else by_raise, 1))
+    bus = result.buses[0]
+    assert bus.interrupted, bus
+    if phase == "init chain" and mode == "raise":  # the chain was cut: numbered by place
+        assert bus.interrupted == "init chain"
+        assert [b.placement for b in result.boards] == ["neck", "head left", "head right"]
+        assert all(b.outcome == K and "nothing that changes its program" in b.detail
+                   for b in result.boards)
+        for b in boards(head).values():
+            assert_left(b, K, old=OLD.progid, new=NEW.progid)
+            assert b.application is not None  # still running its program
+    else:
+        assert_told(result, head, expected)
+    if mode == "raise" and stop is not KeyboardInterrupt:
+        assert stop_signal(caught.value) is not None
+        assert interrupt_exit_code(caught.value) == 143
+    else:
+        assert interrupt_exit_code(caught.value) == 130
+    # the bus is usable right away: the same flash verifies every board
+    assert flash(head, NEW).all_verified
+
+
+def test_a_resend_round_interrupted_leaves_the_verified_boards_verified(head: Robot) -> None:
+    """Board 3 misses a data frame; interrupted when it reports it, before the resend:
+    boards 1 and 2 verified, board 3 erased, and each says so."""
+    h = head.buses["CAN0"]
+    third = boards(head)[3]
+    lost = [False]
+
+    def drop(node: object, ident: int, data: bytes) -> bool:
+        if node is third and ident == 0x2C5 and not lost[0]:
+            lost[0] = True
+            return True
+        return False
+
+    h.bus.sim.drop = drop  # type: ignore[attr-defined]
+    trap = Interrupter(h, "raise", frame(0x103, 0, 1))  # its RESULT: MISSING
+    try:
+        with pytest.raises(FlashInterrupted) as caught:
+            flash(head, NEW, cancel=trap.cancel)
+    finally:
+        trap.close()
+        h.bus.sim.drop = None  # type: ignore[attr-defined]
+    assert lost[0] and trap.fired
+    result = caught.value.result
+    assert result.buses[0].interrupted == "verification"
+    assert_told(result, head, {1: V, 2: V, 3: E})
+
+
+def test_an_interrupted_bus_is_put_back_and_the_others_are_not_begun() -> None:
+    """The whole robot, interrupted on CAN0 while its boards erase: CAN0's boards are
+    put back (erased, ProgEnable cleared), the other buses' job never begins (in virtual
+    time the buses are worked one after the other) and their boards keep their program."""
+    r = open_robot(ConnectSpec(virtual="armar3"))
+    try:
+        assert flash(r, OLD).all_verified
+        trap = Interrupter(r.buses["CAN0"], "raise", frame(0x2C0, 4))
+        with pytest.raises(FlashInterrupted) as caught:
+            flash(r, NEW, cancel=trap.cancel)
+        trap.close()
+        result = caught.value.result
+        assert {b.bus: b.interrupted for b in result.buses} == {
+            "CAN0": "erase", "CAN1": "not begun", "CAN2": "not begun", "CAN3": "not begun"}
+        for b in result.boards:
+            assert b.outcome == (E if b.bus == "CAN0" else K), b
+        for name in ("CAN1", "CAN2", "CAN3"):
+            for board in boards(r, name).values():
+                assert not board.prog_enable and board.nv.record.progid == OLD.progid
+                assert board.nv.record.flash_valid
+        for board in boards(r).values():
+            assert not board.prog_enable and board.programming.reception is None
+            assert not board.nv.record.flash_valid
+    finally:
+        r.close()
+
+
+# ----------------------------------------------------------------------------- deploy
+@pytest.fixture(scope="module")
+def deployed_head(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """ARMAR-III's head deployed (armar3.fl.S, AutoStart, running): its state directory
+    and topology; a second topology wants armar3_fpga1.1.fl.S on every board."""
+    where = tmp_path_factory.mktemp("head")
+    topo = head_topology(where)
+    text = topo.read_text()
+    (where / "head_v2.toml").write_text(text.replace("firmware_images/armar3.fl.S",
+                                                     "firmware_images/armar3_fpga1.1.fl.S"))
+    r = open_robot(ConnectSpec(virtual=str(topo), state_dir=where / "state"))
+    try:
+        t = topo_mod.load(str(topo))
+        journal = deploy_ops.Journal.open(where / "journal", t.name)
+        assert deploy_ops.execute(r, deploy_ops.plan(r, deploy_ops.load_manifest(t), journal),
+                                  journal).ok
+    finally:
+        r.close()
+    return where
+
+
+@contextmanager
+def head_copy(deployed: Path, tmp_path: Path) -> Iterator[tuple[Robot, topo_mod.Topology]]:
+    shutil.copytree(deployed / "state", tmp_path / "state")
+    r = open_robot(ConnectSpec(virtual=str(deployed / "head.toml"),
+                               state_dir=tmp_path / "state"))
+    try:
+        yield r, topo_mod.load(str(deployed / "head_v2.toml"))
+    finally:
+        r.close()
+
+
+STEPS = [  # (step, where the interrupt comes, per board)
+    ("reading the parameters", frame(0x601), K),
+    ("programming", frame(0x2C0, 4), E),
+    ("programming", block(10), E),
+    ("loading the parameters back", frame(0x3C1), V),
+    ("AutoStart and start", frame(0x1C1, 2, 1), V),
+]
+
+
+@pytest.mark.parametrize("mode", ["cancel", "raise"])
+@pytest.mark.parametrize(("step", "when", "outcome"), STEPS,
+                         ids=["dump", "erase", "transfer", "restore", "autostart"])
+def test_a_deploy_interrupted_in_any_step_leaves_no_board_prog_enabled_and_says_so(
+        deployed_head: Path, tmp_path: Path, mode: str, step: str, when: Match,
+        outcome: str) -> None:
+    with head_copy(deployed_head, tmp_path) as (r, topo):
+        journal = deploy_ops.Journal.open(tmp_path / "journal", topo.name)
+        the_plan = deploy_ops.plan(r, deploy_ops.load_manifest(topo), journal)
+        assert [x.action for x in the_plan.rows] == ["program"] * 3
+        trap = Interrupter(r.buses["CAN0"], mode, when)
+        try:
+            with pytest.raises(deploy_ops.DeployInterrupted) as caught:
+                deploy_ops.execute(r, the_plan, journal, cancel=trap.cancel)
+        finally:
+            trap.close()
+        assert trap.fired
+        result = caught.value.result
+        assert result.interrupted == step
+        assert result.journal == (journal.directory if journal.boards else None)
+        for row in result.boards:
+            assert row.outcome == outcome, row
+            board = boards(r)[row.row.seq_id]
+            assert not board.prog_enable and board.programming.reception is None
+            assert row.after is not None
+            if outcome == V:
+                assert board.nv.record.progid == NEW.progid and board.nv.record.flash_valid
+            elif outcome == K:
+                assert board.nv.record.progid == OLD.progid and board.nv.record.flash_valid
+                assert board.application is not None  # never stopped
+            else:
+                assert not board.nv.record.flash_valid
+            entry = journal.boards.get(row.row.key, {})
+            saved = bool(entry.get("params")) and entry.get("stage") != "restored"
+            assert ("saved parameters are in the journal" in row.detail) == saved, row.detail
+            if step == "programming":
+                assert saved
+        if step == "programming" and mode == "cancel":  # the next deploy finishes it
+            journal = deploy_ops.Journal.open(tmp_path / "journal", topo.name)
+            again = deploy_ops.execute(r, deploy_ops.plan(r, deploy_ops.load_manifest(topo),
+                                                          journal), journal)
+            assert again.ok, again.failed
+            assert all(b.params.outcome == "kept" for b in again.boards)
