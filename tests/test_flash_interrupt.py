@@ -18,8 +18,12 @@ program's validity and ProgID, AutoStart) and compared with what the job said of
 
 from __future__ import annotations
 
+import json
+import os
 import shutil
 import signal
+import subprocess
+import sys
 import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -27,7 +31,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.helpers import ROOT, head_topology
+from tests.helpers import ROOT, head_topology, served_in_process
 from ucom_tools.config import topology as topo_mod
 from ucom_tools.image import load_image
 from ucom_tools.ops import deploy as deploy_ops
@@ -40,7 +44,8 @@ from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import BoardState
 
 OLD = load_image(ROOT / "firmware_images" / "armar3.fl.S")
-NEW = load_image(ROOT / "firmware_images" / "armar3_fpga1.1.fl.S")
+NEW_PATH = ROOT / "firmware_images" / "armar3_fpga1.1.fl.S"
+NEW = load_image(NEW_PATH)
 HEAD = str(ROOT / "tests" / "data" / "armar3_can0.toml")
 
 Match = Callable[[int, bytes], bool]
@@ -146,6 +151,17 @@ def assert_left(board: VirtualBoard, outcome: str, *, old: int, new: int) -> Non
         assert outcome == leave.VERIFIED and rec.flash_valid and rec.progid == new, where
 
 
+def erase_cut(board: VirtualBoard) -> bool:
+    """The board's erase was stopped part-way: the first page of the old image is erased
+    (or being written), its last page still holds the old words."""
+    blocks = OLD.plan().blocks
+    first, last = blocks[0], blocks[-1]
+    memory = board.nv.space(first.space)
+    return (list(memory.read(first.address, len(first.words))) != list(first.words)
+            and list(board.nv.space(last.space).read(last.address, len(last.words)))
+            == list(last.words))
+
+
 def assert_told(result: FlashResult, r: Robot, expected: dict[int, str]) -> None:
     """The result says per board what the fleet shows, in its outcome, its words and
     the Info it read back."""
@@ -224,13 +240,15 @@ def test_a_flash_interrupted_in_any_phase_leaves_each_board_as_it_says(
             assert b.application is not None  # still running its program
     else:
         assert_told(result, head, expected)
+    if phase == "erase":  # the job stopped the erase at once, it did not wait it out
+        assert all(erase_cut(b) for b in boards(head).values())
     if mode == "raise" and stop is not KeyboardInterrupt:
         assert stop_signal(caught.value) is not None
         assert interrupt_exit_code(caught.value) == 143
     else:
         assert interrupt_exit_code(caught.value) == 130
-    # the bus is usable right away: the same flash verifies every board
-    assert flash(head, NEW).all_verified
+    if phase in ("erase", "transfer"):  # the bus is usable at once: a flash verifies
+        assert flash(head, NEW).all_verified
 
 
 def test_a_resend_round_interrupted_leaves_the_verified_boards_verified(head: Robot) -> None:
@@ -371,3 +389,84 @@ def test_a_deploy_interrupted_in_any_step_leaves_no_board_prog_enabled_and_says_
                                                           journal), journal)
             assert again.ok, again.failed
             assert all(b.params.outcome == "kept" for b in again.boards)
+
+
+# ----------------------------------------------------------------------------- served
+class Signaller:
+    """A node on a served bus that sends ``signum`` to ``proc`` when ``when`` first
+    matches a frame there (the served fleet runs in this process: the bus is seen as it
+    happens, never guessed by a sleep)."""
+
+    def __init__(self, when: Match, signum: int) -> None:
+        self.when, self.signum = when, signum
+        self.proc: subprocess.Popen[str] | None = None
+        self.fired = False
+
+    def on_frame(self, arbitration_id: int, data: bytes, t_end: float, *extra: object) -> None:
+        if not self.fired and self.proc is not None and self.when(arbitration_id, bytes(data)):
+            self.fired = True
+            self.proc.send_signal(self.signum)
+
+
+SERVED = [  # (phase on CAN0, where, signal, exit code, CAN0's boards)
+    ("erase", frame(0x2C0, 4), signal.SIGINT, 130, E),
+    ("ProgEnable", frame(0x1C0, 1, 1), signal.SIGTERM, 143, K),
+    ("start", frame(0x301, 0), signal.SIGHUP, 129, V),
+]
+
+
+@pytest.mark.parametrize(("phase", "when", "signum", "code", "outcome"), SERVED,
+                         ids=[s[0] for s in SERVED])
+def test_a_whole_robot_flash_over_fleet_serve_signalled_in_a_phase_puts_every_board_back(
+        phase: str, when: Match, signum: int, code: int, outcome: str) -> None:
+    """``ucom flash`` of ARMAR-III over ``fleet serve`` (its four buses at once, boards
+    running armar3.fl.S with AutoStart), signalled when CAN0 reaches the phase: the exit
+    code is the signal's, and every one of the 11 boards is as the JSON says (CAN0's in
+    the phase's outcome; the other buses', at whatever step they were, kept, erased or
+    verified), none ProgEnabled, none in a transfer."""
+    with served_in_process("armar3") as (fleet, port):
+        with fleet.bus("CAN0").lock:
+            for name, spec in fleet.boards.items():
+                for board in spec:
+                    board.nv.install(OLD.plan())
+                    board.nv.record.autostart = True
+                    board.power_off()
+                    board.power_on(fleet.bus(name).now)
+        tap = Signaller(when, signum)
+        fleet.bus("CAN0").attach(tap)
+        conn = ["-i", "socketcand", "--host", "127.0.0.1", "--port", str(port)]
+        for name in fleet.buses:
+            conn += ["-c", name]
+        tap.proc = subprocess.Popen(
+            [sys.executable, "-m", "ucom_tools", "flash", str(NEW_PATH), *conn,
+             "--topology", "armar3", "--autostart", "--start", "--json"],
+            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            text=True, env={**os.environ, "COLUMNS": "200"})
+        try:
+            out, err = tap.proc.communicate(timeout=120)
+        finally:
+            tap.proc.kill()
+        assert tap.fired, err
+        assert tap.proc.returncode == code, err
+        doc = json.loads(out)
+        assert doc["interrupted"]["signal"] == signal.Signals(signum).name
+        assert doc["interrupted"]["buses"]["CAN0"] == phase, doc["interrupted"]
+        assert "Traceback" not in err and ("flash cancelled" if signum == signal.SIGINT
+                                           else "flash terminated") in err, err
+        rows = {(b["bus"], b["seq_id"]): b for b in doc["boards"]}
+        assert len(rows) == 11
+        with fleet.bus("CAN0").lock:
+            for name, spec in fleet.boards.items():
+                for board in spec:
+                    row = rows[(name, board.seq_id)]
+                    if name == "CAN0":
+                        assert row["outcome"] == outcome, row
+                    if doc["interrupted"]["buses"][name] == "finished":  # done before
+                        assert row["outcome"] == V and row["started"], row
+                        assert_left(board, V, old=OLD.progid, new=NEW.progid)
+                        continue
+                    assert row["left"]["prog_enable"] is False, row
+                    assert row["left"]["state"] == board.state.text, row
+                    if row["outcome"] == K:
+                        assert row["left"]["autostart"] is True, row  # as found
+                    assert_left(board, row["outcome"], old=OLD.progid, new=NEW.progid)

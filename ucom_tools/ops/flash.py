@@ -213,6 +213,8 @@ def flash(robot: Robot, image: Image, *, selection: Selection = Selection("all")
                 wait(futures)
         results = [f.result() for f in futures]
         stop = stop or next((job.stops[h.name] for h in handles if h.name in job.stops), None)
+    if stop is not None:  # a bus whose job was done when the others were interrupted
+        results = [r if r.interrupted else replace(r, interrupted=FINISHED) for r in results]
     result = FlashResult(image.name, plan.progid, plan.size_words, target, tuple(results))
     if stop is not None:
         raise FlashInterrupted(result) from stop
