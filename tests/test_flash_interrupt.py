@@ -167,7 +167,7 @@ def assert_told(result: FlashResult, r: Robot, expected: dict[int, str]) -> None
     the Info it read back."""
     rows = {b.seq_id: b for b in result.boards if b.bus == "CAN0"}
     fleet = boards(r)
-    words = {leave.KEPT: "old program intact", leave.ERASED: "was erased",
+    words = {leave.KEPT: "old program intact", leave.ERASED: "erased or made invalid",
              leave.VERIFIED: "new program verified"}
     for n, outcome in expected.items():
         row = rows[n]
@@ -196,9 +196,9 @@ PHASES = [  # (phase, where the interrupt comes, per board: cancel, raise)
     ("init chain", frame(0x280, 2, 2), [K, K, K], [K, K, K]),
     ("XReset", frame(0x042), [K, K, K], [K, K, K]),
     ("ProgEnable", frame(0x1C0, 1, 1), [K, K, K], [K, K, K]),
-    # raise: META never goes out after BEGIN, nothing erased, the flags come back;
-    # cancel: the job sees it at its first look in the erase wait, after PREPARE
-    ("preamble", frame(0x2C0, 1), [E, E, E], [K, K, K]),
+    # raise: META never goes out after BEGIN: nothing erased, but BEGIN cleared the
+    # program-valid flag; cancel: the job sees it at its first look in the erase wait
+    ("preamble", frame(0x2C0, 1), [E, E, E], [E, E, E]),
     ("erase", frame(0x2C0, 4), [E, E, E], [E, E, E]),
     ("erased", frame(0x183, 1), [E, E, E], [E, E, E]),
     ("transfer", block(10), [E, E, E], [E, E, E]),

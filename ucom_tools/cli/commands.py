@@ -413,7 +413,10 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
     Option 20 (ProgAll) is 'flash --boards all'.  Boards the image does not fit (plug-on
     board, FPGA Board-ID, App-ID, FPGA major version) are refused unless --force.  Exit
     code 0 only when every selected board verified; with a topology, an expected board
-    that never answered fails the job too.
+    that never answered fails the job too.  Ctrl-C, SIGTERM or SIGHUP at any moment
+    leaves every board with its old program intact, or in its bootloader with ProgEnable
+    cleared and no transfer open (ABORT, then each board's Info read), and says which
+    per board (exit code 130, 143, 129).
 
     With --keep-params the PAR and CI values of the boards that run a program are read
     first (into a temporary directory, as 'ucom params dump' writes them) and loaded back

@@ -161,8 +161,11 @@ def deploy_cmd(ctx: click.Context, robot_name: str, dry_run: bool, boards_text: 
     need it, verified, the parameters loaded back, AutoStart set as the manifest says and
     the programs started.  Boards that are up to date are not reset, stopped or
     reprogrammed.  A deploy that was killed is resumed by the next one from its journal
-    (it says so); the journal is removed when the robot matches its manifest.  Exit code
-    0 when it does, 1 naming the boards that failed, are refused or missing."""
+    (it says so); the journal is removed when the robot matches its manifest.  Ctrl-C,
+    SIGTERM or SIGHUP at any step leaves no board ProgEnabled or in a transfer and says
+    per board what it was left with (exit code 130, 143, 129; the journal stays).  Exit
+    code 0 when the robot matches its manifest, 1 naming the boards that failed, are
+    refused or missing."""
     topo = topology_mod.load(robot_name)
     manifest = ops.load_manifest(topo)  # exit 3 before anything is opened
     if bus_name is not None:

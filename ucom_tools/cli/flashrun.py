@@ -15,6 +15,7 @@ Shared by ``ucom flash``/``program``/``extram-load``, the console's options 5, 6
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from collections.abc import Callable
 from typing import Any, TypeVar
@@ -62,10 +63,8 @@ def run_cancellable(work: Callable[[threading.Event], T], *,
     except KeyboardInterrupt as e:
         stop = e
         cancel.set()
-        try:
+        with contextlib.suppress(OSError):
             stderr().print(f"[yellow]{STOPPING}[/]", soft_wrap=True)
-        except OSError:
-            pass
         while not done.wait(0.1):  # a second signal raises out of here
             pass
     error = box.get("error")

@@ -361,7 +361,7 @@ def print_flash(c: Console, r: FlashResult) -> None:
                 + ", ".join(f"{b.bus}:{b.seq_id}" for b in not_started) + "[/]")
 
 
-LEFT_WORDS = {"kept": "kept their old program (not erased, not ProgEnabled)",
+LEFT_WORDS = {"kept": "kept their program as found (not erased, not ProgEnabled)",
               "erased": "in their bootloader with ProgEnable cleared and no transfer open, "
                         "their program erased",
               "verified": "new program verified",

@@ -316,6 +316,10 @@ class DeployResult:
     def ok(self) -> bool:
         return bool(self.boards) and all(b.ok for b in self.boards)
 
+    @property
+    def failed(self) -> list[BoardDeploy]:
+        return [b for b in self.boards if not b.ok]
+
 
 class DeployInterrupted(KeyboardInterrupt):
     """A deploy ended by an interrupt after it put its boards back; :attr:`result` says
@@ -325,10 +329,6 @@ class DeployInterrupted(KeyboardInterrupt):
     def __init__(self, result: DeployResult) -> None:
         super().__init__("deploy interrupted")
         self.result = result
-
-    @property
-    def failed(self) -> list[BoardDeploy]:
-        return [b for b in self.boards if not b.ok]
 
 
 def _trees_of(manifest: Manifest, keys: set[str]) -> RobotTrees | None:
@@ -658,5 +658,6 @@ def _interrupted(part: Robot, the_plan: Plan, journal: Journal, rows: list[PlanR
 
 
 __all__ = ["PROGRAM", "REFUSED", "RESTORE", "SKIPPED", "START", "STEPS", "UP_TO_DATE", "WORK",
-           "BoardDeploy", "DeployInterrupted", "DeployResult", "Journal", "Manifest", "Plan", "PlanRow", "Seen",
-           "Wanted", "default_journal", "execute", "image_problems", "load_manifest", "plan"]
+           "BoardDeploy", "DeployInterrupted", "DeployResult", "Journal", "Manifest", "Plan",
+           "PlanRow", "Seen", "Wanted", "default_journal", "execute", "image_problems",
+           "load_manifest", "plan"]

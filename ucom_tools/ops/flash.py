@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, replace
 
 from ucom_tools.errors import InputError, UcomError, UcomTimeoutError
 from ucom_tools.image import Image
+from ucom_tools.ops import leave
 from ucom_tools.ops.compat import compare
 from ucom_tools.ops.enumerate import (
     BusEnumeration,
@@ -36,7 +37,6 @@ from ucom_tools.ops.enumerate import (
     expected_positions,
     missing_expected,
 )
-from ucom_tools.ops import leave
 from ucom_tools.ops.options import NotInitialised
 from ucom_tools.ops.robot import BusHandle, Robot
 from ucom_tools.protocol.programmer import Cancelled, Programmer
@@ -71,8 +71,8 @@ AUTOSTART = "AutoStart"
 START = "start"
 FINISHED = "finished"
 NOT_BEGUN = "not begun"
-PHASES = (NOT_BEGUN, LISTENING, KEEP, RESET, INIT, XRESET, ENABLE, ERASE, TRANSFER, VERIFICATION, AUTOSTART,
-          START, FINISHED)
+PHASES = (NOT_BEGUN, LISTENING, KEEP, RESET, INIT, XRESET, ENABLE, ERASE, TRANSFER,
+          VERIFICATION, AUTOSTART, START, FINISHED)
 """Where an interrupt can find a flash on a bus, in order (``not begun``: another bus's
 job was interrupted first; ``finished``: the job was done when it saw the interrupt);
 listening, reading the values to keep (``--keep-params``) and the reset are ``ucom

@@ -25,7 +25,8 @@ from ucom_tools.wire.info import BoardInfo
 KEPT = "kept"
 """Its old program is intact (nothing of it was erased), or it had none and has none."""
 ERASED = "erased"
-"""In its bootloader, no transfer open, ProgEnable cleared; its program was erased."""
+"""In its bootloader, no transfer open, ProgEnable cleared; its program erased, or made
+invalid by BEGIN before the erase began: no startable program."""
 VERIFIED = "verified"
 """The new program verified before the interrupt."""
 UNREACHABLE = "unreachable"
@@ -128,4 +129,5 @@ def judge(info: BoardInfo | None, *, old_progid: int | None, new_progid: int,
     if old_progid is None:
         return Left(KEPT, f"{where}, {cleared}; no program, as found", info)
     return Left(ERASED, f"{where}, {cleared}; its program (ProgID 0x{old_progid:08X}) was "
-                "erased: no startable program until it is flashed again", info)
+                "erased or made invalid by the transfer (BEGIN clears its valid flag, then "
+                "the erase begins): no startable program until it is flashed again", info)

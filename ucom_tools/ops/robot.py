@@ -10,8 +10,8 @@ before any bus is opened.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable, Iterator
 import threading
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path

@@ -6,9 +6,9 @@ the other and answers Ready(ERASED) (a repeated PREPARE asks again); data frames
 through the flow-controlled receive ring of :class:`~ucom_tools.virtual.receiver.Reception`
 (Ready PAUSE/RESUME) into the block their slot names; END verifies the stored words
 against the ProgID and answers Program Finished with what is missing, committing the
-program only when it verified.  ABORT, or ProgEnable cleared, ends a transfer at any step:
-before the erase the flags BEGIN cleared come back, during it the erase stops after its
-page (``man/ucom-protocol.7``, PROGRAMMING, Abort).
+program only when it verified.  ABORT, or ProgEnable cleared, ends a transfer at any step;
+during the erase the erase stops after its page (``man/ucom-protocol.7``, PROGRAMMING,
+Abort).
 """
 
 from __future__ import annotations
@@ -145,41 +145,28 @@ class BoardProgramming:
 
     def abort(self, t: float) -> None:
         """ABORT, or ProgEnable cleared, at board time ``t``: the transfer ends, whatever
-        its step.  Before PREPARE began the erase nothing was erased, so the flags BEGIN
-        cleared are written back (the old program is startable as before); an erase under
-        way stops after the page it is erasing (a page erase cannot be cut), and the
-        program stays invalid, as it does once the erase is done."""
+        its step.  An erase under way stops after the page it is erasing (a page erase
+        cannot be cut); the program-valid flag BEGIN cleared stays cleared."""
         rx = self.reception
         if rx is None:
             return
         self.reception = None
-        if not rx.prepared:
-            if rx.kept_flags is not None:
-                rec = self.nv.record
-                rec.flash_valid, rec.autostart = rx.kept_flags
-                self.port.persist(record_only=True)
-        elif not rx.erased:
+        if rx.prepared and not rx.erased:
             self._erase_pages(rx, t)
 
     # ------------------------------------------------------------------ steps
     def _begin(self, msg: m.ProgramBegin, t: float) -> None:
         old = self.reception
-        kept = None
-        if old is not None:
-            if old.prepared and not old.erased:
-                self._erase_pages(old, t)  # the erase under way ends after its page
-            elif not old.prepared:
-                kept = old.kept_flags  # BEGIN again before any erase: still nothing erased
-        rx = self.reception = Reception(msg.target, msg.blocks, msg.entry, self.port.timing)
+        if old is not None and old.prepared and not old.erased:
+            self._erase_pages(old, t)  # the erase under way ends after its page
+        self.reception = Reception(msg.target, msg.blocks, msg.entry, self.port.timing)
         self.finished = None
         rec = self.nv.record
         if msg.target is Target.FLASH and (rec.flash_valid or rec.autostart):
             # From here on a power loss must leave no startable program behind.
-            kept = (rec.flash_valid, rec.autostart)
             rec.flash_valid = False
             rec.autostart = False
             self.port.persist(record_only=True)
-        rx.kept_flags = kept if msg.target is Target.FLASH else None
 
     def _prepare(self, rx: Reception, msg: m.ProgramPrepare, t: float, via_fixed: bool) -> None:
         port = self.port

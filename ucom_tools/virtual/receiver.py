@@ -104,9 +104,6 @@ class Reception:
     pages_erased: int = 0
     """The pages of :attr:`erase_pages`, in order, erased so far (the erase goes page by
     page: :meth:`pages_begun`)."""
-    kept_flags: tuple[bool, bool] | None = None
-    """The program-valid and AutoStart flags BEGIN cleared (None: it cleared none): an
-    ABORT before the erase writes them back."""
     blocks: dict[int, BlockState] = field(default_factory=dict)
     current: BlockState | None = None
     last_slot: int = -1
