@@ -89,7 +89,7 @@ class Interrupter:
         self.sim = h.bus.sim  # type: ignore[attr-defined]
         self.link = h.link
         if mode == "cancel":
-            self.sim.attach(self)
+            self.sim.attach(self)  # its on_frame, looked up per frame
         else:
             send_raw, recv_until = h.link.send_raw, h.link.recv_until
 
@@ -278,29 +278,63 @@ def test_a_resend_round_interrupted_leaves_the_verified_boards_verified(head: Ro
     assert_told(result, head, {1: V, 2: V, 3: E})
 
 
-def test_an_interrupted_bus_is_put_back_and_the_others_are_not_begun() -> None:
-    """The whole robot, interrupted on CAN0 while its boards erase: CAN0's boards are
-    put back (erased, ProgEnable cleared), the other buses' job never begins (in virtual
-    time the buses are worked one after the other) and their boards keep their program."""
+def test_a_board_that_does_not_answer_the_undo_is_named_unreachable(head: Robot) -> None:
+    """Board 2 loses its power while the boards erase (a node on the bus does both: the
+    power and the interrupt): the others are put back, board 2 is named, its state
+    unknown, in its row and in the line that counts them."""
+    from ucom_tools.cli.render import interrupted_line
+
+    second = boards(head)[2]
+    trap = Interrupter(head.buses["CAN0"], "cancel", frame(0x2C0, 4))
+    interrupt = trap.on_frame
+
+    def power_off_then_interrupt(arbitration_id: int, data: bytes, t_end: float,
+                                 *extra: object) -> None:
+        if not trap.fired and trap.when(arbitration_id, bytes(data)):
+            second.power_off()
+        interrupt(arbitration_id, data, t_end)
+
+    trap.on_frame = power_off_then_interrupt  # type: ignore[method-assign]
+    try:
+        with pytest.raises(FlashInterrupted) as caught:
+            flash(head, NEW, cancel=trap.cancel)
+    finally:
+        trap.close()
+    result = caught.value.result
+    rows = {b.seq_id: b for b in result.boards}
+    assert rows[2].outcome == leave.UNREACHABLE and rows[2].left is None
+    assert "did not answer" in rows[2].detail
+    assert rows[1].outcome == rows[3].outcome == E
+    assert "1 did not answer (state unknown) (CAN0:2)" in interrupted_line(result, "cancelled")
+    for n in (1, 3):
+        assert_left(boards(head)[n], E, old=OLD.progid, new=NEW.progid)
+
+
+def test_an_interrupted_bus_is_put_back_the_one_done_says_so_the_others_not_begun() -> None:
+    """The whole robot, interrupted on its second bus while its boards erase (in virtual
+    time the buses are worked one after the other): the first bus's boards verified
+    ("finished"), the second's put back (erased, ProgEnable cleared), the job on the two
+    others never begun, their boards keeping their program."""
     r = open_robot(ConnectSpec(virtual="armar3"))
     try:
         assert flash(r, OLD).all_verified
-        trap = Interrupter(r.buses["CAN0"], "raise", frame(0x2C0, 4))
+        first, second, *others = r.buses
+        trap = Interrupter(r.buses[second], "raise", frame(0x2C0, 4))
         with pytest.raises(FlashInterrupted) as caught:
             flash(r, NEW, cancel=trap.cancel)
         trap.close()
         result = caught.value.result
         assert {b.bus: b.interrupted for b in result.buses} == {
-            "CAN0": "erase", "CAN1": "not begun", "CAN2": "not begun", "CAN3": "not begun"}
+            first: "finished", second: "erase", **{o: "not begun" for o in others}}
+        left = {first: V, second: E, **{o: K for o in others}}
         for b in result.boards:
-            assert b.outcome == (E if b.bus == "CAN0" else K), b
-        for name in ("CAN1", "CAN2", "CAN3"):
+            assert b.outcome == left[b.bus], b
+        for name, outcome in left.items():
             for board in boards(r, name).values():
-                assert not board.prog_enable and board.nv.record.progid == OLD.progid
-                assert board.nv.record.flash_valid
-        for board in boards(r).values():
-            assert not board.prog_enable and board.programming.reception is None
-            assert not board.nv.record.flash_valid
+                assert not board.prog_enable and board.programming.reception is None
+                assert board.nv.record.flash_valid is (outcome != E)
+                assert board.nv.record.progid == (NEW if outcome == V else OLD).progid \
+                    or outcome == E
     finally:
         r.close()
 
@@ -409,9 +443,8 @@ class Signaller:
 
 
 SERVED = [  # (phase on CAN0, where, signal, exit code, CAN0's boards)
-    ("erase", frame(0x2C0, 4), signal.SIGINT, 130, E),
-    ("ProgEnable", frame(0x1C0, 1, 1), signal.SIGTERM, 143, K),
-    ("start", frame(0x301, 0), signal.SIGHUP, 129, V),
+    ("erase", frame(0x2C0, 4), signal.SIGINT, 130, E),  # the finding this file answers
+    ("ProgEnable", frame(0x1C0, 1, 1), signal.SIGHUP, 129, K),
 ]
 
 
@@ -470,3 +503,56 @@ def test_a_whole_robot_flash_over_fleet_serve_signalled_in_a_phase_puts_every_bo
                     if row["outcome"] == K:
                         assert row["left"]["autostart"] is True, row  # as found
                     assert_left(board, row["outcome"], old=OLD.progid, new=NEW.progid)
+
+
+@contextmanager
+def served_running(topology: str) -> Iterator[tuple[object, int]]:
+    """``topology`` served from this process, every board running armar3.fl.S with
+    AutoStart (stored as a verified transfer would, then powered on again)."""
+    with served_in_process(topology) as (fleet, port):
+        with fleet.bus("CAN0").lock:
+            for name, spec in fleet.boards.items():
+                for board in spec:
+                    board.nv.install(OLD.plan())
+                    board.nv.record.autostart = True
+                    board.power_off()
+                    board.power_on(fleet.bus(name).now)
+        yield fleet, port
+
+
+def test_a_deploy_over_fleet_serve_signalled_while_its_boards_erase_puts_them_back(
+        tmp_path: Path) -> None:
+    """``ucom deploy`` of the head's new image over ``fleet serve`` (without its trees:
+    the parameters, in process above, would take the most time here), SIGINT when its
+    boards begin to erase: exit 130, the JSON and the line on stderr say per board that
+    it was erased; no board is left ProgEnabled or in the transfer; the journal stays."""
+    head = tmp_path / "head.toml"
+    head.write_text("\n".join(line for line in head_topology(tmp_path).read_text().splitlines()
+                              if not line.startswith("tree = ")))
+    v2 = tmp_path / "head_v2.toml"
+    v2.write_text(head.read_text().replace("firmware_images/armar3.fl.S",
+                                           "firmware_images/armar3_fpga1.1.fl.S"))
+    with served_running(str(head)) as (fleet, port):
+        tap = Signaller(frame(0x2C0, 4), signal.SIGINT)
+        fleet.bus("CAN0").attach(tap)  # type: ignore[attr-defined]
+        tap.proc = subprocess.Popen(
+            [sys.executable, "-m", "ucom_tools", "deploy", str(v2), "-i", "socketcand",
+             "--host", "127.0.0.1", "--port", str(port), "-c", "CAN0", "--journal",
+             str(tmp_path / "journal"), "--json"],
+            stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+            text=True, env={**os.environ, "COLUMNS": "200"})
+        try:
+            out, err = tap.proc.communicate(timeout=120)
+        finally:
+            tap.proc.kill()
+        assert tap.fired and tap.proc.returncode == 130, err
+        doc = json.loads(out)
+        assert doc["interrupted"] == {"how": "cancelled", "signal": "SIGINT",
+                                      "step": "programming"}
+        assert doc["journal"] == str(tmp_path / "journal")
+        assert "deploy cancelled while programming: 3 in their bootloader" in err, err
+        with fleet.bus("CAN0").lock:  # type: ignore[attr-defined]
+            for row, board in zip(doc["boards"], fleet.boards["CAN0"],  # type: ignore[attr-defined]
+                                  strict=True):
+                assert row["outcome"] == E and row["after"]["state"] == "bootloader", row
+                assert_left(board, E, old=OLD.progid, new=NEW.progid)

@@ -425,7 +425,28 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
     did not get its values back.  Boards in their bootloader have nothing to keep."""
     img = load_image(image)
     selection = Selection.parse(boards)
+    stage = ["connecting"]
+    try:
+        _flash(ctx, spec, img, selection, bus_name, as_json, stage, autostart=autostart,
+               start=start_after, verify=not no_verify, force=force,
+               keep_params=keep_params)
+    except KeyboardInterrupt as e:  # outside the job: connecting, or the values kept
+        what = ("nothing was sent to any board" if stage[0] == "connecting" else
+                "the boards verified and were started as the job said; the values not "
+                "loaded back are in the directory named above")
+        stderr().print(f"[yellow]flash {stopped_how(e)} while {stage[0]}: {what}[/]",
+                       soft_wrap=True)
+        ctx.exit(interrupt_exit_code(e))
+
+
+def _flash(ctx: click.Context, spec: ConnectSpec, img: Image, selection: Selection,
+           bus_name: str | None, as_json: bool, stage: list[str], *, autostart: bool,
+           start: bool, verify: bool, force: bool, keep_params: bool) -> None:
+    """``ucom flash`` once its arguments are read: listening, the values to keep, the
+    reset and the job, each stopped at once by a signal (``stage``: where it is outside
+    them, for a signal there)."""
     with robot(spec) as r:
+        stage[0] = "running"
         r.select(bus_name)  # an unknown --bus is exit code 3 before anything is sent
 
         def first(cancel: threading.Event) -> params_keep.Kept | None:
@@ -453,7 +474,7 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
                 _keep_refused(ctx, spec, kept, as_json)
                 return
             result = run_flash(r, img, selection=selection, bus=bus_name, autostart=autostart,
-                               start=start_after or keep_params, verify=not no_verify,
+                               start=start or keep_params, verify=verify,
                                force=force, verbose=_verbose(ctx), before=reset)
         except (KeyboardInterrupt, Cancelled) as e:
             if kept is not None and kept.directory is not None:
@@ -461,6 +482,7 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
                                f"{escape(str(kept.directory))}[/]", soft_wrap=True)
             _cancelled(ctx, spec, e, as_json)
             return
+        stage[0] = "loading the kept values back"
         restored = _keep_after(r, kept, result) if kept is not None else None
     _flash_out(ctx, spec, result, as_json, restored)
 

@@ -16,7 +16,7 @@ from rich.table import Table
 from ucom_tools.image import Image
 from ucom_tools.ops.compat import CheckRow
 from ucom_tools.ops.enumerate import BusEnumeration
-from ucom_tools.ops.flash import FlashResult
+from ucom_tools.ops.flash import FlashResult, at_phase
 from ucom_tools.ops.options import ProbeResult, Row
 from ucom_tools.plugons import app_name, board_name
 from ucom_tools.wire import messages as m
@@ -334,7 +334,8 @@ def print_flash(c: Console, r: FlashResult) -> None:
         t.add_row(b.bus, str(b.seq_id or "-"), escape(b.placement or "-"), hex32(b.serial),
                   "[green]verified[/]" if b.verified else
                   f"[{'yellow' if b.outcome == 'kept' else 'red'}]{b.outcome}[/]",
-                  hex32(b.progid) if b.verified else "-", str(b.resent_frames or ""),
+                  hex32(b.progid) if b.verified or (b.outcome == "kept" and b.progid)
+                  else "-", str(b.resent_frames or ""),
                   "yes" if b.autostart else "", {None: "", True: "[green]yes[/]",
                                                  False: "[red]no[/]"}[b.started])
     c.print(t)
@@ -376,9 +377,7 @@ def interrupted_line(r: FlashResult, how: str, what: str = "flash") -> str:
     phases: dict[str, list[str]] = {}
     for bus in r.buses:
         phases.setdefault(bus.interrupted or "finished", []).append(bus.bus)
-    where = "; ".join(f"{', '.join(names)} at the {phase}" if phase not in ("not begun",
-                                                                            "finished")
-                      else f"{', '.join(names)} {phase}" for phase, names in phases.items())
+    where = "; ".join(f"{', '.join(names)} {at_phase(phase)}" for phase, names in phases.items())
     counts: dict[str, list[str]] = {}
     for b in r.boards:
         counts.setdefault(b.outcome, []).append(

@@ -221,13 +221,24 @@ def flash(robot: Robot, image: Image, *, selection: Selection = Selection("all")
     return result
 
 
+def at_phase(phase: str) -> str:
+    """Where an interrupt came, in words: "while listening", "at the erase", "before the
+    job began", "after the job was done"."""
+    if phase in (LISTENING, KEEP):
+        return f"while {phase}"
+    if phase == NOT_BEGUN:
+        return "before the job began"
+    if phase == FINISHED:
+        return "after the job was done"
+    return f"at the {phase}"
+
+
 def not_begun(h: BusHandle, phase: str) -> BusFlash:
     """Bus ``h`` when an interrupt came before the job sent it anything that changes a
     board's program or ProgEnable (``phase``: listening, the reset, the init chain, or
     :data:`NOT_BEGUN`): the boards its topology expects, each kept as found, unread."""
     boards = h.expected.boards if h.expected is not None else ()
-    when = (f"interrupted before the job on {h.name} began" if phase == NOT_BEGUN
-            else f"interrupted at the {phase} on {h.name}")
+    when = f"interrupted {at_phase(phase)} on {h.name}"
     what = ("its program as found, not erased, not ProgEnabled (the reset restarted it "
             "where AutoStart is set, else it waits in its bootloader)" if phase == RESET
             else "as found: nothing that changes its program or ProgEnable was sent")
@@ -503,7 +514,7 @@ class _Job:
                            else "; AutoStart (cleared by its XReset) could not be set again")
                 info = replace(info, autostart=bool(ok and ok[0].ok))
             if n not in st.enabling and left.outcome == leave.KEPT:
-                detail += f" (interrupted at the {phase}, before its ProgEnable)"
+                detail += f" (interrupted {at_phase(phase)}, before its ProgEnable)"
             serial, placement = st.placements.get(n, (None, None))
             was = rows.get(n)
             rows[n] = BoardResult(h.name, n, serial, placement, left.outcome,
@@ -518,7 +529,7 @@ class _Job:
                                   left=info)
         prog_frames = prog.frames_sent if prog is not None else 0
         return BusFlash(h.name, (*(rows[n] for n in sorted(rows)), *st.absent), st.enum,
-                        prog_frames, 0, f"interrupted at the {phase}", interrupted=phase)
+                        prog_frames, 0, f"interrupted {at_phase(phase)}", interrupted=phase)
 
     def _unaccounted(self, h: BusHandle, enum: BusEnumeration | None,
                      present: dict[int, BoardInfo], results: dict[int, BoardResult]
