@@ -380,12 +380,20 @@ STEPS = [  # (step, where the interrupt comes, per board)
 ]
 
 
-@pytest.mark.parametrize("mode", ["cancel", "raise"])
-@pytest.mark.parametrize(("step", "when", "outcome"), STEPS,
-                         ids=["dump", "erase", "transfer", "restore", "autostart"])
+@pytest.mark.parametrize(("mode", "step", "when", "outcome"),
+                         [("cancel", *s) for s in STEPS]  # the ucom deploy way, every step
+                         + [("raise", *s) for s in STEPS if s[0] != "programming"],
+                         ids=[f"{m}-{i}" for m, i in [
+                             *(("cancel", i) for i in ("dump", "erase", "transfer", "restore",
+                                                       "autostart")),
+                             *(("raise", i) for i in ("dump", "restore", "autostart"))]])
 def test_a_deploy_interrupted_in_any_step_leaves_no_board_prog_enabled_and_says_so(
         deployed_head: Path, tmp_path: Path, mode: str, step: str, when: Match,
         outcome: str) -> None:
+    """ARMAR-III's head, deployed, deploys a new image to its three boards, interrupted
+    in each step (a KeyboardInterrupt inside the flash is the flash's own, tested above):
+    no board ProgEnabled or in a transfer, each as the result says, the journal kept
+    for the next deploy, which finishes the work."""
     with head_copy(deployed_head, tmp_path) as (r, topo):
         journal = deploy_ops.Journal.open(tmp_path / "journal", topo.name)
         the_plan = deploy_ops.plan(r, deploy_ops.load_manifest(topo), journal)
@@ -443,8 +451,11 @@ class Signaller:
 
 
 SERVED = [  # (phase on CAN0, where, signal, exit code, CAN0's boards)
-    ("erase", frame(0x2C0, 4), signal.SIGINT, 130, E),  # the finding this file answers
-    ("ProgEnable", frame(0x1C0, 1, 1), signal.SIGHUP, 129, K),
+    # the finding this file answers; the erase takes 1.25 s
+    ("erase", frame(0x2C0, 4), signal.SIGINT, 130, E),
+    # the first XReset: the job waits the board's reset time (100 ms) before the next
+    # step, far longer than the signal takes to reach it
+    ("XReset", frame(0x041), signal.SIGHUP, 129, K),
 ]
 
 

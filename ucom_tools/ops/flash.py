@@ -487,7 +487,9 @@ class _Job:
         began, ProgEnable cleared, AutoStart set again where the job's XReset cleared it
         and the program is intact) and say per board what it was left with."""
         prog = st.programmer
-        phase = prog.step if prog is not None and st.phase == ERASE else st.phase
+        phase = st.phase
+        if phase == ERASE:  # where the transfer was; before its BEGIN: still ProgEnable
+            phase = prog.step if prog is not None and prog.began else ENABLE
         if not st.present:  # the init chain did not finish: nothing else was sent
             return replace(not_begun(h, phase), enumeration=st.enum)
         verified = {n for n, r in st.results.items() if r.verified}
