@@ -9,6 +9,7 @@ option table of :mod:`ucom_tools.cli.menu`, which the console shares.
 from __future__ import annotations
 
 import threading
+from dataclasses import dataclass
 from typing import Any
 
 import click
@@ -17,7 +18,13 @@ from rich.markup import escape
 from ucom_tools.cli import params as params_cli
 from ucom_tools.cli import render
 from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
-from ucom_tools.cli.flashrun import run_cancellable, run_flash
+from ucom_tools.cli.flashrun import (
+    NotBegun,
+    as_finished,
+    flash_progress,
+    run_cancellable,
+    run_flash,
+)
 from ucom_tools.cli.menu import help_text, label, parse_level
 from ucom_tools.cli.options import (
     connection_json,
@@ -39,6 +46,7 @@ from ucom_tools.ops.flash import (
     FlashInterrupted,
     FlashResult,
     Selection,
+    flash,
     interrupted_before,
     listen_first,
 )
@@ -365,6 +373,9 @@ def _cancelled(ctx: click.Context, spec: ConnectSpec, e: BaseException, as_json:
             render.print_flash(stdout(), result)
         stderr().print(f"[yellow]{escape(render.interrupted_line(result, how))}[/]",
                        soft_wrap=True)
+    elif isinstance(e, NotBegun):
+        stderr().print(f"[yellow]flash {how} before it began: nothing was sent to any "
+                       "board[/]", soft_wrap=True)
     else:  # a second signal cut the undo short
         stderr().print(f"[red]flash {how} again while putting the boards back: they are "
                        "left as they are (check them with 'ucom info all --init')[/]",
@@ -377,6 +388,16 @@ def _stage(r: Robot, img: Image, bus_name: str | None, phase: str,
     """Before the job: stop (nothing sent that changes a board) if cancelled."""
     if cancel.is_set():
         raise FlashInterrupted(interrupted_before(r, img, phase, bus=bus_name))
+
+
+@dataclass
+class _Flashed:
+    """What ``ucom flash``'s worker did: refused before programming (the values to keep
+    could not be read), or the result and the values kept."""
+
+    kept: params_keep.Kept | None = None
+    result: FlashResult | None = None
+    restored: params_keep.KeepResult | None = None
 
 
 @click.command("flash")
@@ -425,66 +446,48 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
     did not get its values back.  Boards in their bootloader have nothing to keep."""
     img = load_image(image)
     selection = Selection.parse(boards)
-    stage = ["connecting"]
-    try:
-        _flash(ctx, spec, img, selection, bus_name, as_json, stage, autostart=autostart,
-               start=start_after, verify=not no_verify, force=force,
-               keep_params=keep_params)
-    except KeyboardInterrupt as e:  # outside the job: connecting, or the values kept
-        what = ("nothing was sent to any board" if stage[0] == "connecting" else
-                "the boards verified and were started as the job said; the values not "
-                "loaded back are in the directory named above")
-        stderr().print(f"[yellow]flash {stopped_how(e)} while {stage[0]}: {what}[/]",
-                       soft_wrap=True)
-        ctx.exit(interrupt_exit_code(e))
-
-
-def _flash(ctx: click.Context, spec: ConnectSpec, img: Image, selection: Selection,
-           bus_name: str | None, as_json: bool, stage: list[str], *, autostart: bool,
-           start: bool, verify: bool, force: bool, keep_params: bool) -> None:
-    """``ucom flash`` once its arguments are read: listening, the values to keep, the
-    reset and the job, each stopped at once by a signal (``stage``: where it is outside
-    them, for a signal there)."""
     with robot(spec) as r:
-        stage[0] = "running"
         r.select(bus_name)  # an unknown --bus is exit code 3 before anything is sent
 
-        def first(cancel: threading.Event) -> params_keep.Kept | None:
-            """Listening (another host programming: exit 4, nothing sent), then the values
-            to keep: nothing that changes a board."""
+        out = _Flashed()
+
+        def job(cancel: threading.Event) -> _Flashed:
+            """All of it in the worker (run_cancellable): a signal only sets ``cancel``,
+            looked at between the steps and throughout the flash."""
             _stage(r, img, bus_name, LISTENING, cancel)
-            listen_first(r, bus_name)
+            listen_first(r, bus_name)  # another host programming: exit 4, nothing sent
             _stage(r, img, bus_name, LISTENING, cancel)
-            kept = params_keep.keep_before(r, bus=bus_name) if keep_params else None
+            out.kept = params_keep.keep_before(r, bus=bus_name) if keep_params else None
             _stage(r, img, bus_name, KEEP, cancel)
-            return kept
+            if out.kept is not None and not out.kept.readout.ok and not force:
+                return out
+            with flash_progress(r, img, verbose=_verbose(ctx), bus=bus_name) as report:
+                for h in r.select(bus_name):
+                    h.client.reset()
+                _stage(r, img, bus_name, RESET, cancel)
+                out.result = flash(r, img, selection=selection, bus=bus_name,
+                                   autostart=autostart, start=start_after or keep_params,
+                                   verify=not no_verify, force=force, progress=report,
+                                   cancel=cancel)
+            if out.kept is not None:
+                out.restored = _keep_after(r, out.kept, out.result)
+            return out
 
-        def reset(cancel: threading.Event) -> None:
-            for h in r.select(bus_name):
-                h.client.reset()
-            _stage(r, img, bus_name, RESET, cancel)
-
-        kept: params_keep.Kept | None = None
         try:
-            kept = run_cancellable(first, name="ucom-flash", finished=lambda _kept, _stop:
-                                   FlashInterrupted(interrupted_before(
-                                       r, img, KEEP if keep_params else LISTENING,
-                                       bus=bus_name)))
-            if kept is not None and not kept.readout.ok and not force:
-                _keep_refused(ctx, spec, kept, as_json)
-                return
-            result = run_flash(r, img, selection=selection, bus=bus_name, autostart=autostart,
-                               start=start or keep_params, verify=verify,
-                               force=force, verbose=_verbose(ctx), before=reset)
+            done = run_cancellable(job, name="ucom-flash", finished=lambda out, stop: (
+                as_finished(out.result, stop) if out.result is not None else FlashInterrupted(
+                    interrupted_before(r, img, KEEP, bus=bus_name))))
         except (KeyboardInterrupt, Cancelled) as e:
-            if kept is not None and kept.directory is not None:
+            if out.kept is not None and out.kept.directory is not None:
                 stderr().print(f"[yellow]the values read before programming are in "
-                               f"{escape(str(kept.directory))}[/]", soft_wrap=True)
+                               f"{escape(str(out.kept.directory))}[/]", soft_wrap=True)
             _cancelled(ctx, spec, e, as_json)
             return
-        stage[0] = "loading the kept values back"
-        restored = _keep_after(r, kept, result) if kept is not None else None
-    _flash_out(ctx, spec, result, as_json, restored)
+        if done.result is None:
+            assert done.kept is not None
+            _keep_refused(ctx, spec, done.kept, as_json)
+            return
+    _flash_out(ctx, spec, done.result, as_json, done.restored)
 
 
 def _keep_after(r: Robot, kept: params_keep.Kept, result: FlashResult) -> params_keep.KeepResult:

@@ -19,7 +19,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
-from ucom_tools.cli.flashrun import run_cancellable
+from ucom_tools.cli.flashrun import NotBegun, run_cancellable
 from ucom_tools.cli.options import connection_json, connection_options, json_option, robot
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.cli.params import _of_robot
@@ -255,6 +255,9 @@ def _interrupted(ctx: click.Context, spec: ConnectSpec, the_plan: ops.Plan,
             tail = "nothing was recorded yet: run the deploy again"
         err.print(f"[yellow]deploy {how} {escape(when)}: "
                   f"{escape(told or 'no board was touched')}; {escape(tail)}[/]",
+                  soft_wrap=True)
+    elif isinstance(e, NotBegun):
+        err.print(f"[yellow]deploy {how} before it began: nothing was sent to any board[/]",
                   soft_wrap=True)
     else:  # a second signal cut the undo short
         err.print(f"[red]deploy {how} again while putting the boards back: they are left "
