@@ -437,16 +437,23 @@ def test_a_deploy_interrupted_in_any_step_leaves_no_board_prog_enabled_and_says_
 class Signaller:
     """A node on a served bus that sends ``signum`` to ``proc`` when ``when`` first
     matches a frame there (the served fleet runs in this process: the bus is seen as it
-    happens, never guessed by a sleep)."""
+    happens, never guessed by a sleep), and ``signum`` again at the frame ``again``
+    matches after it (a second Ctrl-C while the job puts its boards back)."""
 
-    def __init__(self, when: Match, signum: int) -> None:
-        self.when, self.signum = when, signum
+    def __init__(self, when: Match, signum: int, again: Match | None = None) -> None:
+        self.steps = [when] + ([again] if again is not None else [])
+        self.signum = signum
         self.proc: subprocess.Popen[str] | None = None
-        self.fired = False
+        self.sent = 0
+
+    @property
+    def fired(self) -> bool:
+        return self.sent == len(self.steps)
 
     def on_frame(self, arbitration_id: int, data: bytes, t_end: float, *extra: object) -> None:
-        if not self.fired and self.proc is not None and self.when(arbitration_id, bytes(data)):
-            self.fired = True
+        if self.proc is not None and not self.fired and \
+                self.steps[self.sent](arbitration_id, bytes(data)):
+            self.sent += 1
             self.proc.send_signal(self.signum)
 
 
@@ -464,10 +471,11 @@ SERVED = [  # (phase on CAN0, where, signal, exit code, CAN0's boards)
 def test_a_whole_robot_flash_over_fleet_serve_signalled_in_a_phase_puts_every_board_back(
         phase: str, when: Match, signum: int, code: int, outcome: str) -> None:
     """``ucom flash`` of ARMAR-III over ``fleet serve`` (its four buses at once, boards
-    running armar3.fl.S with AutoStart), signalled when CAN0 reaches the phase: the exit
-    code is the signal's, and every one of the 11 boards is as the JSON says (CAN0's in
-    the phase's outcome; the other buses', at whatever step they were, kept, erased or
-    verified), none ProgEnabled, none in a transfer."""
+    running armar3.fl.S with AutoStart), signalled when CAN0 reaches the phase (during
+    the erase twice, as a hurried user presses Ctrl-C): the exit code is the signal's,
+    and every one of the 11 boards is as the JSON says (CAN0's in the phase's outcome;
+    the other buses', at whatever step they were, kept, erased or verified), none
+    ProgEnabled, none in a transfer."""
     with served_in_process("armar3") as (fleet, port):
         with fleet.bus("CAN0").lock:
             for name, spec in fleet.boards.items():
@@ -476,7 +484,8 @@ def test_a_whole_robot_flash_over_fleet_serve_signalled_in_a_phase_puts_every_bo
                     board.nv.record.autostart = True
                     board.power_off()
                     board.power_on(fleet.bus(name).now)
-        tap = Signaller(when, signum)
+        # during the erase, Ctrl-C twice: the second when the undo's ABORT is on the bus
+        tap = Signaller(when, signum, frame(0x2C0, 7) if phase == "erase" else None)
         fleet.bus("CAN0").attach(tap)
         conn = ["-i", "socketcand", "--host", "127.0.0.1", "--port", str(port)]
         for name in fleet.buses:
@@ -497,6 +506,7 @@ def test_a_whole_robot_flash_over_fleet_serve_signalled_in_a_phase_puts_every_bo
         assert doc["interrupted"]["buses"]["CAN0"] == phase, doc["interrupted"]
         assert "Traceback" not in err and ("flash cancelled" if signum == signal.SIGINT
                                            else "flash terminated") in err, err
+        assert ("still putting the boards back" in err) is (phase == "erase"), err
         rows = {(b["bus"], b["seq_id"]): b for b in doc["boards"]}
         assert len(rows) == 11
         with fleet.bus("CAN0").lock:

@@ -376,7 +376,7 @@ def _cancelled(ctx: click.Context, spec: ConnectSpec, e: BaseException, as_json:
     elif isinstance(e, NotBegun):
         stderr().print(f"[yellow]flash {how} before it began: nothing was sent to any "
                        "board[/]", soft_wrap=True)
-    else:  # a second signal cut the undo short
+    else:  # a third signal cut the undo short
         stderr().print(f"[red]flash {how} again while putting the boards back: they are "
                        "left as they are (check them with 'ucom info all --init')[/]",
                        soft_wrap=True)

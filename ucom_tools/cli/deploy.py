@@ -259,7 +259,7 @@ def _interrupted(ctx: click.Context, spec: ConnectSpec, the_plan: ops.Plan,
     elif isinstance(e, NotBegun):
         err.print(f"[yellow]deploy {how} before it began: nothing was sent to any board[/]",
                   soft_wrap=True)
-    else:  # a second signal cut the undo short
+    else:  # a third signal cut the undo short
         err.print(f"[red]deploy {how} again while putting the boards back: they are left "
                   "as they are (check them with 'ucom deploy --dry-run'); the journal in "
                   f"{escape(str(journal.directory))} says how far it got[/]", soft_wrap=True)

@@ -7,8 +7,9 @@ wait: there a signal sets the job's cancel event and waits for the job to put it
 back and say what it left (:class:`~ucom_tools.ops.flash.FlashInterrupted`, raised here
 from the signal, so that the exit code is the signal's).  The worker never sees the
 signal's exception itself: it could come in the middle of a frame written to a network
-bus.  A second signal ends the wait at once (:class:`Abandoned`; the worker is a daemon:
-a job stuck in its undo can still be ended).
+bus.  A second signal while the job puts its boards back is noted (pressing Ctrl-C twice
+is a habit) and a third ends the wait at once (:class:`Abandoned`; the worker is a
+daemon: a job stuck in its undo can still be ended).
 
 Shared by ``ucom flash``/``program``/``extram-load``, the console's options 5, 6, 20 and
 ``ucom deploy``.
@@ -32,12 +33,14 @@ from ucom_tools.signals import STOP_SIGNALS
 T = TypeVar("T")
 
 STOPPING = ("stopping: putting the boards back (ABORT, ProgEnable cleared, each board's "
-            "Info read); a second Ctrl-C quits at once, leaving them as they are")
+            "Info read)")
+STILL = ("still putting the boards back (a fraction of a second); Ctrl-C once more quits at "
+         "once, leaving them as they are")
 _BLOCKED = {signal.SIGINT, *STOP_SIGNALS}
 
 
 class Abandoned(KeyboardInterrupt):
-    """A second stop signal ended the wait for a job that was putting its boards back:
+    """A third stop signal ended the wait for a job that was putting its boards back:
     they are left as they are.  Raised from that signal."""
 
 
@@ -60,6 +63,11 @@ def _signals_blocked() -> Iterator[None]:
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
+def _wait(done: threading.Event) -> None:
+    while not done.wait(0.1):
+        pass
+
+
 def run_cancellable(work: Callable[[threading.Event], T], *,
                     finished: Callable[[T, KeyboardInterrupt], BaseException] | None = None,
                     name: str = "ucom-job") -> T:
@@ -68,7 +76,7 @@ def run_cancellable(work: Callable[[threading.Event], T], *,
     that is a :class:`KeyboardInterrupt` (the work undid itself and says what it left)
     is raised from the signal.  A work that ended normally although the signal came
     gives ``finished(result, signal)`` to raise (None: the signal).  A signal before the
-    worker began: :class:`NotBegun`; a second one while waiting: :class:`Abandoned`."""
+    worker began: :class:`NotBegun`; a third one while waiting: :class:`Abandoned`."""
     cancel = threading.Event()
     done = threading.Event()
     box: dict[str, Any] = {}
@@ -89,8 +97,7 @@ def run_cancellable(work: Callable[[threading.Event], T], *,
         # Event.wait, not Thread.join: on Python 3.11 a join cut by KeyboardInterrupt
         # marks a thread that still runs as ended (bpo-45274), and a later join returns
         # at once: the process then exits under the worker's feet.
-        while not done.wait(0.1):
-            pass
+        _wait(done)
     except KeyboardInterrupt as e:
         stop = e
         cancel.set()
@@ -99,10 +106,14 @@ def run_cancellable(work: Callable[[threading.Event], T], *,
         with contextlib.suppress(OSError):
             stderr().print(f"[yellow]{STOPPING}[/]", soft_wrap=True)
         try:
-            while not done.wait(0.1):
-                pass
-        except KeyboardInterrupt as again:
-            raise Abandoned() from again
+            _wait(done)
+        except KeyboardInterrupt:  # a double Ctrl-C is a habit: noted, not obeyed
+            with contextlib.suppress(OSError):
+                stderr().print(f"[yellow]{STILL}[/]", soft_wrap=True)
+            try:
+                _wait(done)
+            except KeyboardInterrupt as again:
+                raise Abandoned() from again
     error = box.get("error")
     if error is not None:
         if stop is not None and isinstance(error, KeyboardInterrupt):
