@@ -78,8 +78,9 @@ def test_remote_run_stops_every_board_on_a_signal(state: Path, signum: int, code
 
 
 def test_flash_aborts_the_transfer_on_sigterm(tmp_path: Path) -> None:
-    """Paced (the fleet in real time), so the transfer is under way when the signal
-    comes; the boards drop it and keep no startable program."""
+    """Paced (the fleet in real time), so the job is under way when the signal comes;
+    the boards are put back (no ProgEnable, no transfer) and the message says per board
+    what they were left with (every phase: ``tests/test_flash_interrupt.py``)."""
     proc = start("-v", "flash", str(IMAGE), "--virtual", "armar3", "--pace", "--state",
                  str(tmp_path))
     try:
@@ -88,13 +89,15 @@ def test_flash_aborts_the_transfer_on_sigterm(tmp_path: Path) -> None:
     finally:
         proc.kill()
     assert proc.returncode == 143, "".join(seen) + err
-    assert "flash terminated (SIGTERM): the boards dropped the transfer" in err
+    assert "flash terminated (SIGTERM) (" in err and "kept their program as found" in err, err
     assert "Traceback" not in err
     check = subprocess.run([sys.executable, "-m", "ucom_tools", "info", "all", "--virtual",
                             "armar3", "--state", str(tmp_path), "--init", "--json"],
                            capture_output=True, text=True, timeout=DEADLINE)
     boards = json.loads(check.stdout)["boards"]
     assert boards and not any(b.get("flash_valid") for b in boards), check.stdout
+    assert not any(b.get("prog_enable") or b.get("state") in ("erasing", "receiving")
+                   for b in boards), check.stdout
 
 
 def test_params_load_stops_on_sigterm_seen_on_its_bus_traffic(state: Path,

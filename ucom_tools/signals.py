@@ -43,9 +43,31 @@ class Terminated(KeyboardInterrupt):  # but a built-in exception's subclass
         return 128 + self.signum
 
 
-def interrupt_exit_code(exc: KeyboardInterrupt) -> int:
-    """130 for Ctrl-C, 128 + the signal's number for :class:`Terminated`."""
-    return exc.exit_code if isinstance(exc, Terminated) else 130
+def stop_signal(exc: BaseException) -> Terminated | None:
+    """The :class:`Terminated` that ended a job: ``exc`` itself, or the cause it was raised
+    from (a job that undid its work raises what it left from the interrupt); None for
+    Ctrl-C (or a cancel without a signal)."""
+    seen: BaseException | None = exc
+    for _ in range(8):  # a chain of causes is short; never a loop
+        if seen is None:
+            return None
+        if isinstance(seen, Terminated):
+            return seen
+        seen = seen.__cause__
+    return None
+
+
+def interrupt_exit_code(exc: BaseException) -> int:
+    """130 for Ctrl-C, 128 + the signal's number for :class:`Terminated` (also as the
+    cause an interrupted job's exception was raised from)."""
+    stop = stop_signal(exc)
+    return stop.exit_code if stop is not None else 130
+
+
+def stopped_how(exc: BaseException) -> str:
+    """"terminated (SIGTERM)", "terminated (SIGHUP)", or "cancelled" for Ctrl-C."""
+    stop = stop_signal(exc)
+    return f"terminated ({stop.name})" if stop is not None else "cancelled"
 
 
 class _Deferred:

@@ -8,6 +8,8 @@ option table of :mod:`ucom_tools.cli.menu`, which the console shares.
 
 from __future__ import annotations
 
+import threading
+from dataclasses import dataclass
 from typing import Any
 
 import click
@@ -16,7 +18,13 @@ from rich.markup import escape
 from ucom_tools.cli import params as params_cli
 from ucom_tools.cli import render
 from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
-from ucom_tools.cli.flashrun import run_flash
+from ucom_tools.cli.flashrun import (
+    NotBegun,
+    as_finished,
+    flash_progress,
+    run_cancellable,
+    run_flash,
+)
 from ucom_tools.cli.menu import help_text, label, parse_level
 from ucom_tools.cli.options import (
     connection_json,
@@ -27,14 +35,24 @@ from ucom_tools.cli.options import (
 )
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.errors import InputError, UcomError
-from ucom_tools.image import load_image
+from ucom_tools.image import Image, load_image
 from ucom_tools.ops import options as ops
 from ucom_tools.ops import params_keep
 from ucom_tools.ops.enumerate import enumerate_bus
-from ucom_tools.ops.flash import FlashResult, Selection, listen_first
+from ucom_tools.ops.flash import (
+    KEEP,
+    LISTENING,
+    RESET,
+    FlashInterrupted,
+    FlashResult,
+    Selection,
+    flash,
+    interrupted_before,
+    listen_first,
+)
 from ucom_tools.ops.robot import ConnectSpec, Robot
 from ucom_tools.protocol.programmer import Cancelled
-from ucom_tools.signals import Terminated, interrupt_exit_code
+from ucom_tools.signals import interrupt_exit_code, stop_signal, stopped_how
 from ucom_tools.wire.codes import StatusOp, Target
 from ucom_tools.wire.ids import IdType
 
@@ -340,11 +358,46 @@ def _flash_out(ctx: click.Context, spec: ConnectSpec, result: FlashResult,
         ctx.exit(EXIT_FAILED)
 
 
-def _cancelled(ctx: click.Context, e: BaseException) -> None:
-    how = f"terminated ({e.name})" if isinstance(e, Terminated) else "cancelled"
-    stderr().print(f"[yellow]flash {how}: the boards dropped the transfer and keep no "
-                   "startable program[/]")
+def _cancelled(ctx: click.Context, spec: ConnectSpec, e: BaseException, as_json: bool) -> None:
+    """An interrupted flash: per board what it was left with (the table, or ``--json``
+    with ``interrupted``), one line on stderr, the signal's exit code."""
+    how = stopped_how(e)
+    if isinstance(e, FlashInterrupted):
+        result = e.result
+        if as_json:
+            stop = stop_signal(e)
+            _json(spec, {**render.flash_json(result), "interrupted": {
+                "how": how, "signal": stop.name if stop is not None else "SIGINT",
+                "buses": {b.bus: b.interrupted for b in result.buses}}})
+        else:
+            render.print_flash(stdout(), result)
+        stderr().print(f"[yellow]{escape(render.interrupted_line(result, how))}[/]",
+                       soft_wrap=True)
+    elif isinstance(e, NotBegun):
+        stderr().print(f"[yellow]flash {how} before it began: nothing was sent to any "
+                       "board[/]", soft_wrap=True)
+    else:  # a third signal cut the undo short
+        stderr().print(f"[red]flash {how} again while putting the boards back: they are "
+                       "left as they are (check them with 'ucom info all --init')[/]",
+                       soft_wrap=True)
     ctx.exit(interrupt_exit_code(e) if isinstance(e, KeyboardInterrupt) else EXIT_INTERRUPTED)
+
+
+def _stage(r: Robot, img: Image, bus_name: str | None, phase: str,
+           cancel: threading.Event) -> None:
+    """Before the job: stop (nothing sent that changes a board) if cancelled."""
+    if cancel.is_set():
+        raise FlashInterrupted(interrupted_before(r, img, phase, bus=bus_name))
+
+
+@dataclass
+class _Flashed:
+    """What ``ucom flash``'s worker did: refused before programming (the values to keep
+    could not be read), or the result and the values kept."""
+
+    kept: params_keep.Kept | None = None
+    result: FlashResult | None = None
+    restored: params_keep.KeepResult | None = None
 
 
 @click.command("flash")
@@ -381,7 +434,10 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
     Option 20 (ProgAll) is 'flash --boards all'.  Boards the image does not fit (plug-on
     board, FPGA Board-ID, App-ID, FPGA major version) are refused unless --force.  Exit
     code 0 only when every selected board verified; with a topology, an expected board
-    that never answered fails the job too.
+    that never answered fails the job too.  Ctrl-C, SIGTERM or SIGHUP at any moment
+    leaves every board with its old program intact, or in its bootloader with ProgEnable
+    cleared and no transfer open (ABORT, then each board's Info read), and says which
+    per board (exit code 130, 143, 129).
 
     With --keep-params the PAR and CI values of the boards that run a program are read
     first (into a temporary directory, as 'ucom params dump' writes them) and loaded back
@@ -392,25 +448,46 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
     selection = Selection.parse(boards)
     with robot(spec) as r:
         r.select(bus_name)  # an unknown --bus is exit code 3 before anything is sent
-        listen_first(r, bus_name)  # another host programming: exit 4, nothing sent
-        kept = params_keep.keep_before(r, bus=bus_name) if keep_params else None
-        if kept is not None and not kept.readout.ok and not force:
-            _keep_refused(ctx, spec, kept, as_json)
-            return
-        for h in r.select(bus_name):
-            h.client.reset()
+
+        out = _Flashed()
+
+        def job(cancel: threading.Event) -> _Flashed:
+            """All of it in the worker (run_cancellable): a signal only sets ``cancel``,
+            looked at between the steps and throughout the flash."""
+            _stage(r, img, bus_name, LISTENING, cancel)
+            listen_first(r, bus_name)  # another host programming: exit 4, nothing sent
+            _stage(r, img, bus_name, LISTENING, cancel)
+            out.kept = params_keep.keep_before(r, bus=bus_name) if keep_params else None
+            _stage(r, img, bus_name, KEEP, cancel)
+            if out.kept is not None and not out.kept.readout.ok and not force:
+                return out
+            with flash_progress(r, img, verbose=_verbose(ctx), bus=bus_name) as report:
+                for h in r.select(bus_name):
+                    h.client.reset()
+                _stage(r, img, bus_name, RESET, cancel)
+                out.result = flash(r, img, selection=selection, bus=bus_name,
+                                   autostart=autostart, start=start_after or keep_params,
+                                   verify=not no_verify, force=force, progress=report,
+                                   cancel=cancel)
+            if out.kept is not None:
+                out.restored = _keep_after(r, out.kept, out.result)
+            return out
+
         try:
-            result = run_flash(r, img, selection=selection, bus=bus_name, autostart=autostart,
-                               start=start_after or keep_params, verify=not no_verify,
-                               force=force, verbose=_verbose(ctx))
+            done = run_cancellable(job, name="ucom-flash", finished=lambda out, stop: (
+                as_finished(out.result, stop) if out.result is not None else FlashInterrupted(
+                    interrupted_before(r, img, KEEP, bus=bus_name))))
         except (KeyboardInterrupt, Cancelled) as e:
-            if kept is not None and kept.directory is not None:
+            if out.kept is not None and out.kept.directory is not None:
                 stderr().print(f"[yellow]the values read before programming are in "
-                               f"{escape(str(kept.directory))}[/]", soft_wrap=True)
-            _cancelled(ctx, e)
+                               f"{escape(str(out.kept.directory))}[/]", soft_wrap=True)
+            _cancelled(ctx, spec, e, as_json)
             return
-        restored = _keep_after(r, kept, result) if kept is not None else None
-    _flash_out(ctx, spec, result, as_json, restored)
+        if done.result is None:
+            assert done.kept is not None
+            _keep_refused(ctx, spec, done.kept, as_json)
+            return
+    _flash_out(ctx, spec, done.result, as_json, done.restored)
 
 
 def _keep_after(r: Robot, kept: params_keep.Kept, result: FlashResult) -> params_keep.KeepResult:
@@ -467,7 +544,7 @@ def _program_command(name: str, option: int, target: Target, detail: str) -> cli
                                    target=target, init=False, force=force,
                                    verbose=_verbose(ctx), what=label(option))
             except (KeyboardInterrupt, Cancelled) as e:
-                _cancelled(ctx, e)
+                _cancelled(ctx, spec, e, as_json)
                 return
         _flash_out(ctx, spec, result, as_json)
     return cmd

@@ -29,7 +29,7 @@ from ucom_tools.errors import InputError, UcomError
 from ucom_tools.image import Image, load_image
 from ucom_tools.ops import options as ops
 from ucom_tools.ops.enumerate import enumerate_bus
-from ucom_tools.ops.flash import Selection
+from ucom_tools.ops.flash import FlashInterrupted, Selection
 from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot
 from ucom_tools.protocol.programmer import Cancelled
 from ucom_tools.wire.codes import StatusOp, Target
@@ -175,6 +175,10 @@ class Session:
             return True
         try:
             option.run(*values)
+        except FlashInterrupted as e:  # per board what the programming left
+            render.print_flash(self.out, e.result)
+            self.out.print(f"[yellow]{escape(render.interrupted_line(e.result, 'cancelled'))}[/]",
+                           soft_wrap=True)
         except KeyboardInterrupt:
             self.out.print("[yellow]cancelled[/]")
         except Cancelled as e:

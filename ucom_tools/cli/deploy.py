@@ -9,6 +9,7 @@ board ended.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -18,19 +19,21 @@ from rich.markup import escape
 from rich.table import Table
 
 from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
+from ucom_tools.cli.flashrun import NotBegun, run_cancellable
 from ucom_tools.cli.options import connection_json, connection_options, json_option, robot
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.cli.params import _of_robot
+from ucom_tools.cli.render import LEFT_WORDS
 from ucom_tools.config import topology as topology_mod
 from ucom_tools.errors import InputError
 from ucom_tools.ops import deploy as ops
 from ucom_tools.ops.robot import ConnectSpec
 from ucom_tools.protocol.programmer import Cancelled
-from ucom_tools.signals import Terminated, interrupt_exit_code
+from ucom_tools.signals import interrupt_exit_code, stop_signal, stopped_how
 
 STYLE = {ops.UP_TO_DATE: "green", ops.PROGRAM: "yellow", ops.RESTORE: "yellow",
          ops.START: "yellow", ops.REFUSED: "red", ops.SKIPPED: "dim", "done": "green",
-         "failed": "red"}
+         "failed": "red", "kept": "yellow", "verified": "green"}
 
 
 def parse_boards(text: str | None, manifest: ops.Manifest) -> set[str] | None:
@@ -158,8 +161,11 @@ def deploy_cmd(ctx: click.Context, robot_name: str, dry_run: bool, boards_text: 
     need it, verified, the parameters loaded back, AutoStart set as the manifest says and
     the programs started.  Boards that are up to date are not reset, stopped or
     reprogrammed.  A deploy that was killed is resumed by the next one from its journal
-    (it says so); the journal is removed when the robot matches its manifest.  Exit code
-    0 when it does, 1 naming the boards that failed, are refused or missing."""
+    (it says so); the journal is removed when the robot matches its manifest.  Ctrl-C,
+    SIGTERM or SIGHUP at any step leaves no board ProgEnabled or in a transfer and says
+    per board what it was left with (exit code 130, 143, 129; the journal stays).  Exit
+    code 0 when the robot matches its manifest, 1 naming the boards that failed, are
+    refused or missing."""
     topo = topology_mod.load(robot_name)
     manifest = ops.load_manifest(topo)  # exit 3 before anything is opened
     if bus_name is not None:
@@ -178,7 +184,15 @@ def deploy_cmd(ctx: click.Context, robot_name: str, dry_run: bool, boards_text: 
     if journal.resumed:
         event(f"resuming the deploy that did not finish (journal {journal.directory})")
     with robot(_of_robot(spec, robot_name, bus_name)) as r:
-        the_plan = ops.plan(r, manifest, journal, only=only)
+        try:
+            the_plan = run_cancellable(lambda _cancel: ops.plan(r, manifest, journal,
+                                                                only=only), name="ucom-deploy")
+        except KeyboardInterrupt as e:
+            err.print(f"[yellow]deploy {stopped_how(e)} while planning (the init chains and "
+                      "each board's Info): nothing that changes a board was sent[/]",
+                      soft_wrap=True)
+            ctx.exit(interrupt_exit_code(e))
+            return
         if not as_json:
             print_plan(stdout(), the_plan)
         if dry_run:
@@ -186,14 +200,12 @@ def deploy_cmd(ctx: click.Context, robot_name: str, dry_run: bool, boards_text: 
                 emit_json(_doc(the_plan, None, spec, journal, dry_run=True))
             ctx.exit(0 if the_plan.matches else EXIT_FAILED)
         try:
-            result = ops.execute(r, the_plan, journal, events=event)
+            result = run_cancellable(lambda cancel: ops.execute(
+                r, the_plan, journal, events=event, cancel=cancel), name="ucom-deploy",
+                finished=lambda done, _stop: ops.DeployInterrupted(
+                    replace(done, interrupted="finished")))
         except (KeyboardInterrupt, Cancelled) as e:
-            how = f"terminated ({e.name})" if isinstance(e, Terminated) else "cancelled"
-            err.print(f"[yellow]deploy {how}: the journal in {escape(str(journal.directory))} "
-                      "says how far it got; run the deploy again to finish it[/]",
-                      soft_wrap=True)
-            ctx.exit(interrupt_exit_code(e) if isinstance(e, KeyboardInterrupt)
-                     else EXIT_INTERRUPTED)
+            _interrupted(ctx, spec, the_plan, journal, e, as_json)
             return
     if as_json:
         emit_json(_doc(the_plan, result, spec, journal, dry_run=False))
@@ -210,6 +222,48 @@ def deploy_cmd(ctx: click.Context, robot_name: str, dry_run: bool, boards_text: 
             err.print(f"[yellow]the journal is in {escape(str(result.journal))}; run the "
                       "deploy again to finish[/]", soft_wrap=True)
         ctx.exit(EXIT_FAILED)
+
+
+def _interrupted(ctx: click.Context, spec: ConnectSpec, the_plan: ops.Plan,
+                 journal: ops.Journal, e: BaseException, as_json: bool) -> None:
+    """An interrupted deploy: per board what it was left with (the table, or ``--json``
+    with ``interrupted``), a line on stderr, the signal's exit code."""
+    how = stopped_how(e)
+    err = stderr()
+    if isinstance(e, ops.DeployInterrupted):
+        result = e.result
+        if as_json:
+            stop = stop_signal(e)
+            emit_json({**_doc(the_plan, result, spec, journal, dry_run=False),
+                       "interrupted": {"how": how, "signal": stop.name if stop is not None
+                                       else "SIGINT", "step": result.interrupted}})
+        else:
+            print_result(stdout(), result)
+        counts: dict[str, int] = {}
+        for b in result.boards:
+            if b.row.action in ops.WORK:
+                counts[b.outcome] = counts.get(b.outcome, 0) + 1
+        told = "; ".join(f"{n} {LEFT_WORDS.get(o, o)}" for o, n in counts.items())
+        when = ("after it had finished" if result.interrupted == "finished"
+                 else f"while {result.interrupted}")
+        if result.journal is not None:
+            tail = (f"the journal in {result.journal} says how far it got: run the deploy "
+                    "again to finish it")
+        elif result.ok:
+            tail = "the robot matches its manifest"
+        else:
+            tail = "nothing was recorded yet: run the deploy again"
+        err.print(f"[yellow]deploy {how} {escape(when)}: "
+                  f"{escape(told or 'no board was touched')}; {escape(tail)}[/]",
+                  soft_wrap=True)
+    elif isinstance(e, NotBegun):
+        err.print(f"[yellow]deploy {how} before it began: nothing was sent to any board[/]",
+                  soft_wrap=True)
+    else:  # a third signal cut the undo short
+        err.print(f"[red]deploy {how} again while putting the boards back: they are left "
+                  "as they are (check them with 'ucom deploy --dry-run'); the journal in "
+                  f"{escape(str(journal.directory))} says how far it got[/]", soft_wrap=True)
+    ctx.exit(interrupt_exit_code(e) if isinstance(e, KeyboardInterrupt) else EXIT_INTERRUPTED)
 
 
 def _doc(p: ops.Plan, result: ops.DeployResult | None, spec: ConnectSpec,

@@ -16,7 +16,7 @@ from rich.table import Table
 from ucom_tools.image import Image
 from ucom_tools.ops.compat import CheckRow
 from ucom_tools.ops.enumerate import BusEnumeration
-from ucom_tools.ops.flash import FlashResult
+from ucom_tools.ops.flash import FlashResult, at_phase
 from ucom_tools.ops.options import ProbeResult, Row
 from ucom_tools.plugons import app_name, board_name
 from ucom_tools.wire import messages as m
@@ -296,6 +296,15 @@ def print_image(c: Console, img: Image, plan: TransferPlan) -> None:
 
 
 # ----------------------------------------------------------------------------- flash
+def left_json(info: BoardInfo | None) -> dict[str, Any] | None:
+    """A board's state as an interrupted job left it (its Info), for ``left``."""
+    if info is None:
+        return None
+    return {"state": info.state.text, "prog_enable": info.prog_enable,
+            "flash_valid": info.flash_valid, "autostart": info.autostart,
+            "progid": hex32(info.progid) if info.flash_valid else None}
+
+
 def flash_json(r: FlashResult) -> dict[str, Any]:
     return {
         "image": r.image, "progid": hex32(r.progid), "size_words": r.size_words,
@@ -306,10 +315,10 @@ def flash_json(r: FlashResult) -> dict[str, Any]:
             "outcome": b.outcome, "verified_progid": hex32(b.progid) if b.verified else None,
             "detail": b.detail, "resent_frames": b.resent_frames, "autostart": b.autostart,
             "started": b.started, "messages": list(b.messages),
-            "warnings": list(b.warnings)} for b in r.boards],
+            "warnings": list(b.warnings), "left": left_json(b.left)} for b in r.boards],
         "buses": [{"name": bus.bus, "frames": bus.frames, "rounds": bus.rounds,
                    "resent_frames": bus.resent_frames,
-                   "note": bus.note or None,
+                   "note": bus.note or None, "interrupted": bus.interrupted or None,
                    "diagnosis": [d.message for d in bus.enumeration.diagnosis]
                    if bus.enumeration else []} for bus in r.buses],
     }
@@ -323,8 +332,10 @@ def print_flash(c: Console, r: FlashResult) -> None:
         t.add_column(col, overflow="fold")
     for b in r.boards:
         t.add_row(b.bus, str(b.seq_id or "-"), escape(b.placement or "-"), hex32(b.serial),
-                  "[green]verified[/]" if b.verified else f"[red]{b.outcome}[/]",
-                  hex32(b.progid) if b.verified else "-", str(b.resent_frames or ""),
+                  "[green]verified[/]" if b.verified else
+                  f"[{'yellow' if b.outcome == 'kept' else 'red'}]{b.outcome}[/]",
+                  hex32(b.progid) if b.verified or (b.outcome == "kept" and b.progid)
+                  else "-", str(b.resent_frames or ""),
                   "yes" if b.autostart else "", {None: "", True: "[green]yes[/]",
                                                  False: "[red]no[/]"}[b.started])
     c.print(t)
@@ -338,9 +349,10 @@ def print_flash(c: Console, r: FlashResult) -> None:
             for d in bus.enumeration.diagnosis:
                 c.print(f"  [bold yellow]! {bus.bus}:[/] {escape(d.message)}")
     for b in r.boards:
-        if not b.verified:
+        if not b.verified or r.interrupted:
             who = f"board {b.seq_id}" if b.seq_id else escape(b.placement or "a board")
-            c.print(f"  [red]{b.bus} {who}:[/] {escape(b.detail)}")
+            colour = "yellow" if b.outcome == "kept" or b.verified else "red"
+            c.print(f"  [{colour}]{b.bus} {who}:[/] {escape(b.detail)}", soft_wrap=True)
     ok = sum(1 for b in r.boards if b.verified)
     colour = "green" if r.all_verified else "red"
     c.print(f"[{colour}]{ok} of {len(r.boards)} board(s) verified[/]")
@@ -348,6 +360,34 @@ def print_flash(c: Console, r: FlashResult) -> None:
     if not_started:
         c.print(f"[red]{len(not_started)} verified board(s) did not start: "
                 + ", ".join(f"{b.bus}:{b.seq_id}" for b in not_started) + "[/]")
+
+
+LEFT_WORDS = {"kept": "kept their program as found (not erased, not ProgEnabled)",
+              "erased": "in their bootloader with ProgEnable cleared and no transfer open, "
+                        "their program erased",
+              "verified": "new program verified",
+              "unreachable": "did not answer (state unknown)",
+              "not undone": "still ProgEnabled or in the transfer"}
+"""How :func:`interrupted_line` counts the boards of each outcome."""
+
+
+def interrupted_line(r: FlashResult, how: str, what: str = "flash") -> str:
+    """One line for an interrupted flash: where each bus was, how many boards were left
+    with what (every board is named in the table and its detail lines)."""
+    phases: dict[str, list[str]] = {}
+    for bus in r.buses:
+        phases.setdefault(bus.interrupted or "finished", []).append(bus.bus)
+    where = "; ".join(f"{', '.join(names)} {at_phase(phase)}" for phase, names in phases.items())
+    counts: dict[str, list[str]] = {}
+    for b in r.boards:
+        counts.setdefault(b.outcome, []).append(
+            f"{b.bus}:{b.seq_id}" if b.seq_id else f"{b.bus}:{b.placement}")
+    parts = []
+    for outcome, names in counts.items():
+        words = LEFT_WORDS.get(outcome, outcome)
+        named = f" ({', '.join(names)})" if outcome in ("unreachable", "not undone") else ""
+        parts.append(f"{len(names)} {words}{named}")
+    return f"{what} {how} ({where}): " + ("; ".join(parts) or "no board was touched")
 
 
 # ----------------------------------------------------------------------------- check

@@ -28,6 +28,14 @@ the next one resumes from it (boards left in their bootloader or unverified are
 programmed again, their saved parameters loaded back although no program ran to dump
 them from) and removes it when the robot matches its manifest.
 
+Interrupted at any step (its ``cancel`` event set by Ctrl-C, SIGTERM or SIGHUP, or a
+:class:`KeyboardInterrupt` in the thread that runs it), a deploy stops where it is (a
+flash under way puts its boards back itself: :mod:`ucom_tools.ops.flash`), then makes
+sure on every bus that no board it works on is left ProgEnabled or in a transfer (ABORT,
+ProgEnable cleared, every such board's Info read: :func:`~ucom_tools.ops.leave.put_back`)
+and raises :class:`DeployInterrupted`, whose result says per board what it was left
+with; the journal stays, and the next deploy finishes the work.
+
 Exit codes follow ``ucom(1)``: a manifest whose image is missing, unreadable or does not
 fit its board is :class:`~ucom_tools.errors.TopologyError` before anything is sent.
 """
@@ -43,6 +51,7 @@ from typing import Any
 from ucom_tools.config import attrtree
 from ucom_tools.config.attrtree import RobotTrees
 from ucom_tools.errors import InputError, UcomError
+from ucom_tools.ops import leave
 from ucom_tools.ops import params as params_ops
 from ucom_tools.ops.compat import compare
 from ucom_tools.ops.enumerate import (
@@ -61,6 +70,7 @@ from ucom_tools.ops.journal import (
 from ucom_tools.ops.manifest import Manifest, Wanted, image_problems, load_manifest
 from ucom_tools.ops.params_dump import live_tree
 from ucom_tools.ops.robot import BusHandle, Robot
+from ucom_tools.protocol.programmer import Cancelled
 from ucom_tools.wire.codes import BoardState, StatusOp
 from ucom_tools.wire.ids import ALL, seq
 from ucom_tools.wire.info import BoardInfo
@@ -78,6 +88,15 @@ WORK = (PROGRAM, RESTORE, START)
 
 EventFn = Callable[[str], None]
 """Told one line at each step (``CAN0: programming kairo2_alpha.fl.S into 1, 3, 5``)."""
+
+DUMPING = "reading the parameters"
+LISTENING = "listening"
+PROGRAMMING = "programming"
+RESTORING = "loading the parameters back"
+FINISHING = "AutoStart and start"
+CHECKING = "reading the result"
+STEPS = (DUMPING, LISTENING, PROGRAMMING, RESTORING, FINISHING, CHECKING)
+"""The steps of :func:`execute`, in order: where an interrupt can find a deploy."""
 
 
 # ----------------------------------------------------------------------------- plan
@@ -290,6 +309,8 @@ class DeployResult:
     journal: Path | None
     """Where the journal is left (None: removed, the robot matches its manifest)."""
     frames: int = 0
+    interrupted: str = ""
+    """The step (:data:`STEPS`) an interrupt found the deploy in ("": none)."""
 
     @property
     def ok(self) -> bool:
@@ -298,6 +319,16 @@ class DeployResult:
     @property
     def failed(self) -> list[BoardDeploy]:
         return [b for b in self.boards if not b.ok]
+
+
+class DeployInterrupted(KeyboardInterrupt):
+    """A deploy ended by an interrupt after it put its boards back; :attr:`result` says
+    per board what it was left with (outcomes of :mod:`ucom_tools.ops.leave`, or up to
+    date, refused, skipped).  Raised from the interrupt (``__cause__``: its signal)."""
+
+    def __init__(self, result: DeployResult) -> None:
+        super().__init__("deploy interrupted")
+        self.result = result
 
 
 def _trees_of(manifest: Manifest, keys: set[str]) -> RobotTrees | None:
@@ -428,14 +459,17 @@ def _restore(part: Robot, manifest: Manifest, journal: Journal, keys: list[str],
     return out
 
 
-def _finish_bus(h: BusHandle, manifest: Manifest, rows: list[PlanRow]) -> dict[str, str]:
+def _finish_bus(h: BusHandle, manifest: Manifest, rows: list[PlanRow],
+                cancel: threading.Event | None = None) -> dict[str, str]:
     """AutoStart as the manifest says, and a start, for the boards of ``rows``; returns
-    why a board could not be (by key)."""
+    why a board could not be (by key).  Cancelled: :class:`Cancelled` between boards."""
     out: dict[str, str] = {}
     if not rows:
         return out
     infos = h.client.info_many(ALL, expect=[seq(r.seq_id) for r in rows])
     for r in rows:
+        if cancel is not None and cancel.is_set():
+            raise Cancelled("cancelled")
         w = manifest.board(r.bus, r.position)
         assert w is not None
         n = r.seq_id
@@ -484,12 +518,32 @@ def execute(robot: Robot, the_plan: Plan, journal: Journal, *,
             progress: ProgressFn | None = None, cancel: threading.Event | None = None,
             events: EventFn | None = None) -> DeployResult:
     """Carry ``the_plan`` out (see the module docstring); the journal records every step
-    and is removed when every board of the manifest matches it."""
+    and is removed when every board of the manifest matches it.  Interrupted:
+    :class:`DeployInterrupted` once the boards are put back."""
     say = events or (lambda _text: None)
     manifest = the_plan.manifest
     part = robot_for(robot, manifest)
     rows = list(the_plan.rows)
     work = [r for r in rows if r.action in WORK]
+    cancel = cancel or threading.Event()
+    step = [DUMPING]
+
+    def check(next_step: str) -> None:
+        if cancel.is_set():
+            raise Cancelled("cancelled")
+        step[0] = next_step
+
+    try:
+        return _execute(part, the_plan, journal, rows, work, progress, cancel, say, check)
+    except (KeyboardInterrupt, Cancelled) as stop:
+        result = _interrupted(part, the_plan, journal, rows, work, step[0])
+        raise DeployInterrupted(result) from stop
+
+
+def _execute(part: Robot, the_plan: Plan, journal: Journal, rows: list[PlanRow],
+             work: list[PlanRow], progress: ProgressFn | None, cancel: threading.Event,
+             say: EventFn, check: Callable[[str], None]) -> DeployResult:
+    manifest = the_plan.manifest
     failed: dict[str, str] = {}
     params: dict[str, Params] = {}
     if work:
@@ -501,24 +555,29 @@ def execute(robot: Robot, the_plan: Plan, journal: Journal, *,
             buses = sorted({r.bus for r in to_program},
                            key=lambda b: list(part.buses).index(b))
             # another host programming: BusError, nothing programmed
+            check(LISTENING)
             listen_first(replace(part, buses={n: part.buses[n] for n in buses}))
+            check(PROGRAMMING)
             for outcome in part.each(lambda h: _program_bus(
                     h, part, manifest, journal, [r for r in to_program if r.bus == h.name],
-                    progress, cancel, say) if h.name in buses else {}):
+                    progress, cancel, say) if h.name in buses else {}, cancel=cancel):
                 programmed.update(outcome)
         for k, v in programmed.items():
             if v != "verified":
                 failed[k] = f"not verified: {v}"
         ready = [r for r in work if r.key not in failed]
+        check(RESTORING)
         params = _restore(part, manifest, journal, [r.key for r in ready], say)
         for k, p in params.items():
             if p.outcome == "failed":
                 failed[k] = f"parameters {p.detail}"
         ready = [r for r in ready if r.key not in failed]
+        check(FINISHING)
         say("setting AutoStart and starting the programs")
         for outcome in part.each(lambda h: _finish_bus(
-                h, manifest, [r for r in ready if r.bus == h.name])):
+                h, manifest, [r for r in ready if r.bus == h.name], cancel), cancel=cancel):
             failed.update(outcome)
+        check(CHECKING)
     after = _after(part, manifest, work) if work else {}
     boards = []
     for r in rows:
@@ -553,6 +612,52 @@ def execute(robot: Robot, the_plan: Plan, journal: Journal, *,
     return DeployResult(the_plan, tuple(boards), left)
 
 
-__all__ = ["PROGRAM", "REFUSED", "RESTORE", "SKIPPED", "START", "UP_TO_DATE", "WORK",
-           "BoardDeploy", "DeployResult", "Journal", "Manifest", "Plan", "PlanRow", "Seen",
-           "Wanted", "default_journal", "execute", "image_problems", "load_manifest", "plan"]
+def _interrupted(part: Robot, the_plan: Plan, journal: Journal, rows: list[PlanRow],
+                 work: list[PlanRow], step: str) -> DeployResult:
+    """After an interrupt in ``step``: on every bus, no board the deploy works on left
+    ProgEnabled or in a transfer (:func:`~ucom_tools.ops.leave.put_back`), and per board
+    what it was left with; the journal is kept (the next deploy finishes the work)."""
+    def one(h: BusHandle) -> tuple[dict[int, BoardInfo], list[str]]:
+        mine = [r.seq_id for r in work if r.bus == h.name and r.seq_id]
+        if not mine:
+            return {}, []
+        # a board still ProgEnabled or in a transfer (its flash put back what it began;
+        # one whose transfer failed before the interrupt) is cleared by what its Info says
+        return leave.put_back(h, abort=step == PROGRAMMING, enabled=[], ask=mine)
+
+    done = part.each(one)
+    handles = part.select(None)
+    infos = {h.name: got for h, (got, _) in zip(handles, done, strict=True)}
+    notes = {h.name: bus_notes for h, (_, bus_notes) in zip(handles, done, strict=True)}
+    boards = []
+    for r in rows:
+        if r.action not in WORK:
+            boards.append(BoardDeploy(r, r.action, r.reason if r.action != UP_TO_DATE
+                                      else "", r.before))
+            continue
+        entry = journal.entry(r.key, r.serial) or {}
+        stage = entry.get("stage")
+        info = infos.get(r.bus, {}).get(r.seq_id)
+        left = leave.judge(info, old_progid=r.before.progid if r.before else None,
+                           new_progid=r.progid,
+                           verified=stage in ("verified", "restored", "done"))
+        detail = left.detail
+        if left.outcome == leave.KEPT and r.action == PROGRAM and step in (LISTENING,
+                                                                           DUMPING):
+            detail += f" (interrupted while {step}, before its programming)"
+        if entry.get("params") and stage != "restored" and left.outcome != leave.UNREACHABLE:
+            detail += ("; its saved parameters are in the journal, to be loaded back by the "
+                       "next deploy")
+        detail = "; ".join([detail, *notes.get(r.bus, [])])
+        boards.append(BoardDeploy(r, left.outcome, detail,
+                                  Seen.of(left.info) if left.info is not None else None))
+    if journal.boards:
+        journal.save()
+    return DeployResult(the_plan, tuple(boards), journal.directory if journal.boards else None,
+                        interrupted=step)
+
+
+__all__ = ["PROGRAM", "REFUSED", "RESTORE", "SKIPPED", "START", "STEPS", "UP_TO_DATE", "WORK",
+           "BoardDeploy", "DeployInterrupted", "DeployResult", "Journal", "Manifest", "Plan",
+           "PlanRow", "Seen", "Wanted", "default_journal", "execute", "image_problems",
+           "load_manifest", "plan"]

@@ -10,17 +10,25 @@ Another host programming the same bus is noticed (:class:`~ucom_tools.protocol.
 programmer.ProgrammingWatch`): :func:`listen_first` before anything is sent (``ucom
 flash`` calls it before its reset), and the job itself before it sends to the boards
 and before its data; either raises :class:`~ucom_tools.errors.BusError` (exit code 4).
+
+Interrupted at any step (its ``cancel`` event set by Ctrl-C, SIGTERM or SIGHUP, or a
+:class:`KeyboardInterrupt` in the thread that runs it), the job stops where it is, puts
+each bus's boards back (:func:`~ucom_tools.ops.leave.put_back`: ABORT if the transfer
+began, ProgEnable cleared, AutoStart set again on a board its XReset cleared it on and
+whose program is intact, every board's Info read) and raises :class:`FlashInterrupted`,
+whose result says per board what it was left with (:mod:`ucom_tools.ops.leave`).
 """
 
 from __future__ import annotations
 
 import threading
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 
-from ucom_tools.errors import InputError, UcomTimeoutError
+from ucom_tools.errors import InputError, UcomError, UcomTimeoutError
 from ucom_tools.image import Image
+from ucom_tools.ops import leave
 from ucom_tools.ops.compat import compare
 from ucom_tools.ops.enumerate import (
     BusEnumeration,
@@ -31,7 +39,7 @@ from ucom_tools.ops.enumerate import (
 )
 from ucom_tools.ops.options import NotInitialised
 from ucom_tools.ops.robot import BusHandle, Robot
-from ucom_tools.protocol.programmer import Programmer
+from ucom_tools.protocol.programmer import Cancelled, Programmer
 from ucom_tools.protocol.watch import ProgrammingWatch, quiet_time
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import BoardState, StatusOp, Target
@@ -49,6 +57,26 @@ them is missing from all three answers of a series about once in a hundred recor
 ProgressFn = Callable[[str, int, int, int], None]
 Notes = dict[int, tuple[str, ...]]
 """progress(bus, bytes sent, bytes total, boards)"""
+
+LISTENING = "listening"
+KEEP = "reading the values to keep"
+RESET = "reset"
+INIT = "init chain"
+XRESET = "XReset"
+ENABLE = "ProgEnable"
+ERASE = "erase"
+TRANSFER = "transfer"
+VERIFICATION = "verification"
+AUTOSTART = "AutoStart"
+START = "start"
+FINISHED = "finished"
+NOT_BEGUN = "not begun"
+PHASES = (NOT_BEGUN, LISTENING, KEEP, RESET, INIT, XRESET, ENABLE, ERASE, TRANSFER,
+          VERIFICATION, AUTOSTART, START, FINISHED)
+"""Where an interrupt can find a flash on a bus, in order (``not begun``: another bus's
+job was interrupted first; ``finished``: the job was done when it saw the interrupt);
+listening, reading the values to keep (``--keep-params``) and the reset are ``ucom
+flash``'s, before the job."""
 
 
 @dataclass(frozen=True)
@@ -88,6 +116,8 @@ class BoardResult:
     started: bool | None = None
     messages: tuple[str, ...] = ()
     warnings: tuple[str, ...] = ()
+    left: BoardInfo | None = None
+    """After an interrupt: the board's Info as the job left it (None: not read)."""
 
     @property
     def verified(self) -> bool:
@@ -103,6 +133,8 @@ class BusFlash:
     rounds: int
     note: str = ""
     resent_frames: int = 0
+    interrupted: str = ""
+    """The phase (:data:`PHASES`) an interrupt found the job in on this bus ("": none)."""
 
 
 @dataclass(frozen=True)
@@ -126,6 +158,21 @@ class FlashResult:
         """Boards not verified, or verified but not started although a start was asked."""
         return [b for b in self.boards if not b.verified or b.started is False]
 
+    @property
+    def interrupted(self) -> bool:
+        return any(bus.interrupted for bus in self.buses)
+
+
+class FlashInterrupted(KeyboardInterrupt):
+    """A flash ended by an interrupt (Ctrl-C, SIGTERM, SIGHUP, its cancel event) after it
+    put every bus's boards back; :attr:`result` says per board what it was left with
+    (outcomes of :mod:`ucom_tools.ops.leave`, the Info in ``left``) and per bus in which
+    phase the interrupt came.  Raised from the interrupt (``__cause__``: its signal)."""
+
+    def __init__(self, result: FlashResult) -> None:
+        super().__init__("flash interrupted")
+        self.result = result
+
 
 def flash(robot: Robot, image: Image, *, selection: Selection = Selection("all"),
           bus: str | None = None, target: Target = Target.FLASH, init: bool = True,
@@ -140,17 +187,74 @@ def flash(robot: Robot, image: Image, *, selection: Selection = Selection("all")
     missing descriptor is a warning."""
     plan = plan or image.plan(target=target)
     handles = robot.select(bus)
+    cancel = cancel or threading.Event()
     job = _Job(plan, selection, init, autostart, start, verify, progress, cancel,
                image.descriptor, force, what)
+    stop: BaseException | None = None
     if len(handles) == 1 or robot.virtual_time:
         # In virtual time the fleet clock is driven by whoever waits: threads would only
         # take turns on the fleet's lock, one frame at a time; one after the other is as
         # correct and much faster.
-        results = [job.run(h) for h in handles]
+        results = []
+        for h in handles:
+            if stop is not None:  # an interrupted job begins no other bus
+                results.append(not_begun(h, NOT_BEGUN))
+                continue
+            results.append(job.run(h))
+            stop = job.stops.get(h.name)
     else:
         with ThreadPoolExecutor(max_workers=len(handles)) as pool:
-            results = list(pool.map(job.run, handles))
-    return FlashResult(image.name, plan.progid, plan.size_words, target, tuple(results))
+            futures = [pool.submit(job.run, h) for h in handles]
+            try:
+                wait(futures)
+            except KeyboardInterrupt as e:  # in this thread: every bus stops and undoes
+                stop = e
+                cancel.set()
+                wait(futures)
+        results = [f.result() for f in futures]
+        stop = stop or next((job.stops[h.name] for h in handles if h.name in job.stops), None)
+    if stop is not None:  # a bus whose job was done when the others were interrupted
+        results = [r if r.interrupted else replace(r, interrupted=FINISHED) for r in results]
+    result = FlashResult(image.name, plan.progid, plan.size_words, target, tuple(results))
+    if stop is not None:
+        raise FlashInterrupted(result) from stop
+    return result
+
+
+def at_phase(phase: str) -> str:
+    """Where an interrupt came, in words: "while listening", "at the erase", "before the
+    job began", "after the job was done"."""
+    if phase in (LISTENING, KEEP):
+        return f"while {phase}"
+    if phase == NOT_BEGUN:
+        return "before the job began"
+    if phase == FINISHED:
+        return "after the job was done"
+    return f"at the {phase}"
+
+
+def not_begun(h: BusHandle, phase: str) -> BusFlash:
+    """Bus ``h`` when an interrupt came before the job sent it anything that changes a
+    board's program or ProgEnable (``phase``: listening, the reset, the init chain, or
+    :data:`NOT_BEGUN`): the boards its topology expects, each kept as found, unread."""
+    boards = h.expected.boards if h.expected is not None else ()
+    when = f"interrupted {at_phase(phase)} on {h.name}"
+    what = ("its program as found, not erased, not ProgEnabled (the reset restarted it "
+            "where AutoStart is set, else it waits in its bootloader)" if phase == RESET
+            else "as found: nothing that changes its program or ProgEnable was sent")
+    rows = tuple(BoardResult(h.name, 0, spec.serial if spec.serial_explicit or h.virtual
+                             else None, spec.placement, leave.KEPT, None, f"{what} ({when})")
+                 for spec in boards)
+    return BusFlash(h.name, rows, None, 0, 0, "nothing programmed", interrupted=phase)
+
+
+def interrupted_before(robot: Robot, image: Image, phase: str, *, bus: str | None = None,
+                       target: Target = Target.FLASH) -> FlashResult:
+    """What a flash interrupted before its job began left (``phase``: listening, reading
+    the values to keep, the reset): every selected bus :func:`not_begun`."""
+    plan = image.plan(target=target)
+    return FlashResult(image.name, plan.progid, plan.size_words, target,
+                       tuple(not_begun(h, phase) for h in robot.select(bus)))
 
 
 def listen_first(robot: Robot, bus: str | None = None) -> None:
@@ -174,6 +278,25 @@ def listen_first(robot: Robot, bus: str | None = None) -> None:
 
 
 @dataclass
+class _Bus:
+    """What the job has done on one bus so far: what an undo needs to know."""
+
+    phase: str = INIT
+    enum: BusEnumeration | None = None
+    present: dict[int, BoardInfo] = field(default_factory=dict)
+    """The boards found, by seq ID, with their Info as found."""
+    placements: dict[int, tuple[int, str | None]] = field(default_factory=dict)
+    targets: list[int] = field(default_factory=list)
+    xreset: dict[int, bool] = field(default_factory=dict)
+    """Boards sent XReset (which clears AutoStart), with their AutoStart as found."""
+    enabling: set[int] = field(default_factory=set)
+    """Boards that were (or were being) asked for ProgEnable."""
+    programmer: Programmer | None = None
+    results: dict[int, BoardResult] = field(default_factory=dict)
+    absent: list[BoardResult] = field(default_factory=list)
+
+
+@dataclass
 class _Job:
     plan: TransferPlan
     selection: Selection
@@ -186,6 +309,8 @@ class _Job:
     descriptor: ImageDescriptor | None = None
     force: bool = False
     what: str = "programming"
+    stops: dict[str, BaseException] = field(default_factory=dict)
+    """The interrupt that ended the job, by bus."""
 
     def _preflight(self, h: BusHandle, targets: list[int], present: dict[int, BoardInfo],
                    results: dict[int, BoardResult],
@@ -258,21 +383,35 @@ class _Job:
                              for a, inf in infos.items() if a.id_type is IdType.SEQUENTIAL}
 
     def run(self, h: BusHandle) -> BusFlash:
-        with ProgrammingWatch(h.link) as watch:
-            return self._run(h, watch)
+        """The job on bus ``h``; interrupted, the bus's boards put back and said per board
+        (:meth:`_undo`), the interrupt kept in :attr:`stops`."""
+        st = _Bus()
+        try:
+            with ProgrammingWatch(h.link) as watch:
+                return self._run(h, watch, st)
+        except (KeyboardInterrupt, Cancelled) as stop:
+            self.stops[h.name] = stop
+            return self._undo(h, st)
 
-    def _run(self, h: BusHandle, watch: ProgrammingWatch) -> BusFlash:
+    def _check(self) -> None:
+        """Between two steps: stop here if the job was cancelled."""
+        if self.cancel is not None and self.cancel.is_set():
+            raise Cancelled("cancelled")
+
+    def _run(self, h: BusHandle, watch: ProgrammingWatch, st: _Bus) -> BusFlash:
+        st.phase = INIT
         survey = self._survey(h)
         if isinstance(survey, BusFlash):
             return survey
         enum, infos, placements = survey
         present = {a.number: inf for a, inf in infos.items()
                    if a.id_type is IdType.SEQUENTIAL}
-        results: dict[int, BoardResult] = {}
-        absent: list[BoardResult] = []
+        st.enum, st.present, st.placements = enum, present, placements
+        results = st.results
+        self._check()
         if self.selection.kind == "all":
             wanted = sorted(present)
-            absent = self._unaccounted(h, enum, present, results)
+            st.absent = self._unaccounted(h, enum, present, results)
         elif self.selection.kind == "enabled":
             wanted = sorted(n for n, inf in present.items() if inf.prog_enable)
         else:
@@ -282,22 +421,29 @@ class _Job:
                 results[n] = _fail(h.name, n, None, None, f"no board with seq ID {n} on {h.name}")
         targets = [n for n in wanted if n in present]
         targets, warnings = self._preflight(h, targets, present, results, placements)
+        st.targets = targets
         if not targets:
-            return BusFlash(h.name, (*(results[n] for n in sorted(results)), *absent), enum,
+            return BusFlash(h.name, (*(results[n] for n in sorted(results)), *st.absent), enum,
                             0, 0, "no board to program")
         watch.check(h.name, "nothing was programmed")
-        self._to_bootloader(h, targets, present)
-        enabled = self._enable(h, targets, present, results, placements)
+        st.phase = XRESET
+        self._to_bootloader(h, targets, present, st)
+        st.phase = ENABLE
+        self._check()
+        enabled = self._enable(h, targets, present, results, placements, st)
         frames = rounds = resent = 0
         if enabled:
+            self._check()
+            st.phase = ERASE
             total = self.plan.size_words * 2
 
             def report(sent: int, _total: int) -> None:
                 if self.progress is not None:
                     self.progress(h.name, sent, total, len(enabled))
 
-            programmer = Programmer(h.link, h.client.timeouts, progress=report,
-                                    cancel=self.cancel, others=watch)
+            programmer = st.programmer = Programmer(h.link, h.client.timeouts,
+                                                    progress=report, cancel=self.cancel,
+                                                    others=watch)
             transfer = programmer.transfer(self.plan, [seq(n) for n in enabled])
             frames, rounds = transfer.frames_sent, transfer.rounds
             resent = transfer.resent_frames
@@ -310,25 +456,82 @@ class _Job:
                                          "verified" if o.verified else "failed", o.progid,
                                          detail, o.resent_frames,
                                          warnings=warnings.get(n, ()))
+            st.phase = VERIFICATION
         verified = [n for n in enabled if results[n].verified]
         if self.verify and verified:
             self._read_back(h, verified, results)
             verified = [n for n in verified if results[n].verified]
         if self.autostart and verified and self.plan.target is Target.FLASH:
+            st.phase = AUTOSTART
             for n in verified:
+                self._check()
                 ok = h.client.set_status(seq(n), StatusOp.AUTOSTART, 1)
                 r = results[n]
                 results[n] = replace(r, autostart=bool(ok and ok[0].ok))
         if self.start and verified:
+            st.phase = START
             for n in verified:
+                self._check()
                 answers = h.client.start(seq(n), self.plan.target)
                 r = results[n]
                 started = bool(answers) and answers[0].ok
                 texts = tuple(e.describe() for a in answers for e in a.errors) + tuple(
                     t for a in answers for t in a.reports)
                 results[n] = replace(r, started=started, messages=r.messages + texts)
-        return BusFlash(h.name, (*(results[n] for n in sorted(results)), *absent), enum,
+        st.phase = FINISHED
+        return BusFlash(h.name, (*(results[n] for n in sorted(results)), *st.absent), enum,
                         frames, rounds, resent_frames=resent)
+
+    def _undo(self, h: BusHandle, st: _Bus) -> BusFlash:
+        """After an interrupt on bus ``h``: put its boards back (ABORT if the transfer
+        began, ProgEnable cleared, AutoStart set again where the job's XReset cleared it
+        and the program is intact) and say per board what it was left with."""
+        prog = st.programmer
+        phase = st.phase
+        if phase == ERASE:  # where the transfer was; before its BEGIN: still ProgEnable
+            phase = prog.step if prog is not None and prog.began else ENABLE
+        if not st.present:  # the init chain did not finish: nothing else was sent
+            return replace(not_begun(h, phase), enumeration=st.enum)
+        verified = {n for n, r in st.results.items() if r.verified}
+        touched = set(st.targets) | st.enabling | set(st.xreset)
+        if not st.targets:  # interrupted before it chose them: every board it found
+            touched |= set(st.present)
+        infos, notes = leave.put_back(h, abort=prog is not None and prog.began,
+                                      enabled=st.enabling - verified, ask=touched)
+        rows = dict(st.results)
+        for n in sorted(touched):
+            old = st.present.get(n)
+            left = leave.judge(infos.get(n), old_progid=old.progid if old is not None
+                               and old.flash_valid else None, new_progid=self.plan.progid,
+                               verified=n in verified, target=self.plan.target)
+            detail = left.detail
+            info = left.info
+            if (left.outcome == leave.KEPT and st.xreset.get(n) and info is not None
+                    and info.flash_valid and not info.autostart):
+                try:  # the XReset cleared it; the program is intact: as found
+                    ok = h.client.set_status(seq(n), StatusOp.AUTOSTART, 1)
+                except UcomError:
+                    ok = []
+                detail += ("; AutoStart set again" if ok and ok[0].ok
+                           else "; AutoStart (cleared by its XReset) could not be set again")
+                info = replace(info, autostart=bool(ok and ok[0].ok))
+            if n not in st.enabling and left.outcome == leave.KEPT:
+                detail += f" (interrupted {at_phase(phase)}, before its ProgEnable)"
+            serial, placement = st.placements.get(n, (None, None))
+            was = rows.get(n)
+            rows[n] = BoardResult(h.name, n, serial, placement, left.outcome,
+                                  info.progid if info is not None and info.flash_valid
+                                  else None, detail,
+                                  was.resent_frames if was is not None else 0,
+                                  autostart=was.autostart if was is not None else False,
+                                  started=was.started if was is not None else None,
+                                  messages=(was.messages if was is not None else ()) +
+                                  tuple(notes),
+                                  warnings=was.warnings if was is not None else (),
+                                  left=info)
+        prog_frames = prog.frames_sent if prog is not None else 0
+        return BusFlash(h.name, (*(rows[n] for n in sorted(rows)), *st.absent), st.enum,
+                        prog_frames, 0, f"interrupted {at_phase(phase)}", interrupted=phase)
 
     def _unaccounted(self, h: BusHandle, enum: BusEnumeration | None,
                      present: dict[int, BoardInfo], results: dict[int, BoardResult]
@@ -352,17 +555,20 @@ class _Job:
                 for spec in missing_expected(h, serials, answered)]
 
     def _to_bootloader(self, h: BusHandle, targets: list[int],
-                       present: dict[int, BoardInfo]) -> None:
+                       present: dict[int, BoardInfo], st: _Bus) -> None:
         for n in targets:
             if present[n].state in (BoardState.RUNNING_FLASH, BoardState.RUNNING_EXTRAM):
+                self._check()
+                st.xreset[n] = present[n].autostart  # before: the XReset may go out
                 h.client.reset(seq(n), clear_autostart=True)
 
     def _enable(self, h: BusHandle, targets: list[int], present: dict[int, BoardInfo],
                 results: dict[int, BoardResult],
-                placements: dict[int, tuple[int, str | None]]) -> list[int]:
+                placements: dict[int, tuple[int, str | None]], st: _Bus) -> list[int]:
         others = [n for n, inf in present.items() if inf.prog_enable and n not in targets]
         for n in others:  # never program a board that was not asked for
             h.client.set_status(seq(n), StatusOp.PROG_ENABLE, 0)
+        st.enabling.update(targets)  # before the request: an interrupt may cut it after
         if set(targets) == set(present):
             replies = h.client.set_status(ALL, StatusOp.PROG_ENABLE, 1,
                                           expect=[seq(n) for n in targets])
@@ -388,6 +594,7 @@ class _Job:
     def _read_back(self, h: BusHandle, verified: list[int],
                    results: dict[int, BoardResult]) -> None:
         for n in verified:
+            self._check()
             r = results[n]
             inf = _info(h, n, ASK_SERIES)
             if inf is None:

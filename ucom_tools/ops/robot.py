@@ -10,8 +10,9 @@ before any bus is opened.
 from __future__ import annotations
 
 import contextlib
+import threading
 from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -136,18 +137,28 @@ class Robot:
             raise InputError(f"no bus {name!r}; buses: {', '.join(self.buses)}", key="--bus")
         return [self.buses[name]]
 
-    def each(self, work: Callable[[BusHandle], T], name: str | None = None) -> list[T]:
+    def each(self, work: Callable[[BusHandle], T], name: str | None = None, *,
+             cancel: threading.Event | None = None) -> list[T]:
         """``work`` on every selected bus (``name``: one), in bus order: all buses at once,
         one thread each (a robot's buses are independent: init, Info, flash take the time
         of the slowest bus, not the sum), or one after the other in virtual time, where
         the fleet clock is driven by whoever waits and threads would only take turns.
-        The first exception, after every bus has finished its work."""
+        The first exception, after every bus has finished its work.  A
+        :class:`KeyboardInterrupt` in this thread while the buses work sets ``cancel``
+        (their work's own stop) and is raised once they ended."""
         handles = self.select(name)
         if len(handles) == 1 or self.virtual_time:
             return [work(h) for h in handles]
         with ThreadPoolExecutor(max_workers=len(handles),
                                 thread_name_prefix="ucom-bus") as pool:
             futures = [pool.submit(work, h) for h in handles]
+            try:
+                wait(futures)
+            except KeyboardInterrupt:
+                if cancel is not None:
+                    cancel.set()
+                wait(futures)
+                raise
         return [f.result() for f in futures]
 
     def close(self, *, keep_log: bool = True) -> None:

@@ -19,6 +19,12 @@ One broadcast transfer per bus, for any number of ProgEnabled boards:
 
 A board counts as programmed only when it reported VERIFIED with the host's ProgID.
 
+A ``cancel`` event (Ctrl-C) is looked at between blocks, between rounds and at least
+every :data:`CANCEL_POLL` of a wait for answers (the erase may take seconds): the
+transfer then stops with :class:`Cancelled` and sends nothing more.  Undoing it is the
+caller's (:mod:`ucom_tools.ops.flash`: ABORT if :attr:`Programmer.began`, ProgEnable
+cleared, every board's Info read).
+
 Another host programming the same bus wrecks both transfers (its BEGIN restarts every
 board's).  :class:`ProgrammingWatch` notices its frames, and the answers to requests this
 host never made; the programmer then stops before it sends data (:class:`BusError`).
@@ -28,7 +34,7 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 from ucom_tools.errors import UcomError
@@ -50,7 +56,8 @@ from ucom_tools.wire.transfer import TransferPlan
 
 
 class Cancelled(UcomError):
-    """The user cancelled a transfer (Ctrl-C); ABORT was sent."""
+    """The user cancelled a job (Ctrl-C, SIGTERM, SIGHUP: its cancel event was set); the
+    job stopped where it was, without undoing anything itself."""
 
 
 PREAMBLE_ASKS = 2
@@ -71,6 +78,9 @@ frames each way a round that resends one frame (and its BLOCK frame) brings noth
 time in ten, four in a row one time in 10,000."""
 MAX_ROUNDS = 64
 """A safety bound: rounds stop earlier, by the progress window or the repair deadline."""
+CANCEL_POLL = 0.05
+"""Seconds (bus clock) a wait for answers goes on at most without a look at the cancel
+event: a Ctrl-C during the erase is taken within this, not after it."""
 
 
 DATA_ID = data_frame_id(0)
@@ -163,6 +173,11 @@ class Programmer:
         self.progress = progress
         self.others = others
         self.frames_sent = 0
+        self.began = False
+        """BEGIN was (or was being) handed to the bus: the boards may be in the transfer."""
+        self.step = "erase"
+        """Where the transfer is: erase (the preamble and Ready ERASED), transfer (the
+        data), verification (END, Program Finished and the rounds that resend)."""
         self._state: dict[Address, _Board] = {}
         self._paused: dict[Address, float] = {}
 
@@ -179,9 +194,23 @@ class Programmer:
 
     def _check_cancel(self) -> None:
         if self.cancel is not None and self.cancel.is_set():
-            self._send(m.ProgramAbort())
-            raise Cancelled("programming cancelled; the boards dropped the transfer and keep "
-                            "no startable program")
+            raise Cancelled(f"{self.link.name}: programming cancelled during the {self.step}")
+
+    def _until(self, deadline: float) -> Iterator[Received]:
+        """:meth:`Link.until <ucom_tools.protocol.link.Link.until>`, with a look at the
+        cancel event at least every :data:`CANCEL_POLL` seconds and at every answer."""
+        link = self.link
+        if self.cancel is None:
+            yield from link.until(deadline)
+            return
+        while True:
+            self._check_cancel()
+            now = link.clock()
+            if now >= deadline:
+                return
+            got = link.recv_until(min(deadline, now + CANCEL_POLL))
+            if got is not None:
+                yield got
 
     def _check_others(self, done: str) -> None:
         if self.others is not None:
@@ -192,6 +221,7 @@ class Programmer:
         state = self._state = {a: _Board(a) for a in boards}
         self._paused = {}
         self._check_others("this host sent nothing of its transfer")
+        self._check_cancel()
         self._preamble(plan)
         self._check_others("this host stopped before sending data")
         needed: dict[int, set[int]] = {i: set(range(b.frames))
@@ -215,11 +245,14 @@ class Programmer:
                 break
             if rounds:
                 self._check_others("both transfers are lost")
+            self._check_cancel()
             rounds += 1
+            self.step = "transfer" if rounds == 1 else "verification"
             sent = self._stream(plan, needed, total if rounds == 1 else None)
             data_frames += sent
             if rounds > 1:
                 resent += sent
+            self.step = "verification"
             self._end(plan)
             if deadline is None:
                 allowed = self.repair_time(plan, len(boards))
@@ -261,6 +294,8 @@ class Programmer:
         answer is asked again alone: PREPARE (its answer or PREPARE may have been lost),
         exactly what its Error SEQUENCE says it lacks, or the whole preamble."""
         state = self._state
+        self.step = "erase"
+        self.began = True  # before the send: an interrupt inside it may have let BEGIN out
         for frame in self._preamble_frames(plan):
             self._send(frame)
         pages = plan.prepare().pages
@@ -269,7 +304,7 @@ class Programmer:
         for attempt in range(attempts):
             pending = [b for b in state.values() if b.alive and not b.erased]
             deadline = self.link.deadline(board_time, answers=len(pending))
-            for got in self.link.until(deadline):
+            for got in self._until(deadline):
                 self._handle(got)
                 if all(b.erased or b.fault or b.lacks is not None for b in pending):
                     break
@@ -413,7 +448,7 @@ class Programmer:
             lacking = [b for b in waiting if not b.answered]
             deadline = self.link.deadline(board_time,
                                           answers=len(lacking) * (1 + MAX_REPORTS))
-            for got in self.link.until(deadline):
+            for got in self._until(deadline):
                 self._handle(got)
                 if all(b.answered or not b.alive for b in lacking):
                     break

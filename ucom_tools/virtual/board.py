@@ -190,7 +190,7 @@ class VirtualBoard:
 
     def _drop_volatile(self) -> None:
         """What a reset or a power loss takes away (the seq ID survives a reset)."""
-        self.programming.drop()
+        self.programming.drop(self.bus.now)
         self._end_application()
         self.chain_active = False
 
@@ -535,12 +535,15 @@ class VirtualBoard:
     # ================================================================= status & reports
     def _set_status(self, msg: m.SetStatus, t: float, via_fixed: bool) -> None:
         op, value = msg.op, msg.value
+        now = t
         if self.fault == mutants.LATE_ANSWER:
             t += mutants.LATE_US  # done at once, answered late (t only times the answers)
         if op is StatusOp.PROG_ENABLE:
             if self.application is not None:
                 self.error(t, ErrorCode.RUNNING, Function.SET_STATUS, op, via_fixed)
                 return
+            if not value:
+                self.programming.abort(now)  # cleared: a transfer under way ends as by ABORT
             self.programming.enabled = bool(value)
         elif op is StatusOp.AUTOSTART:
             if value and not self.nv.record.flash_valid:

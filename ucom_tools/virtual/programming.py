@@ -1,12 +1,14 @@
 """Board side of the programming transfer: the Program frames a virtual UCoM takes.
 
 BEGIN clears the program-valid and AutoStart flags (non-volatile) before anything is
-erased; PREPARE checks that the preamble is complete, erases the listed pages and answers
-Ready(ERASED) (a repeated PREPARE asks again); data frames go through the flow-controlled
-receive ring of :class:`~ucom_tools.virtual.receiver.Reception` (Ready PAUSE/RESUME) into
-the block their slot names; END verifies the stored words against the ProgID and answers
-Program Finished with what is missing, committing the program only when it verified
-(``man/ucom-protocol.7``, PROGRAMMING).
+erased; PREPARE checks that the preamble is complete, erases the listed pages one after
+the other and answers Ready(ERASED) (a repeated PREPARE asks again); data frames go
+through the flow-controlled receive ring of :class:`~ucom_tools.virtual.receiver.Reception`
+(Ready PAUSE/RESUME) into the block their slot names; END verifies the stored words
+against the ProgID and answers Program Finished with what is missing, committing the
+program only when it verified.  ABORT, or ProgEnable cleared, ends a transfer at any step;
+during the erase the erase stops after its page (``man/ucom-protocol.7``, PROGRAMMING,
+Abort).
 """
 
 from __future__ import annotations
@@ -54,8 +56,12 @@ class BoardProgramming:
         self.overruns = 0
 
     # ------------------------------------------------------------------ state
-    def drop(self) -> None:
-        """Reset or power loss: the transfer, ProgEnable and ExtRAM are gone."""
+    def drop(self, t: float | None = None) -> None:
+        """Reset or power loss at board time ``t``: the transfer, ProgEnable and ExtRAM are
+        gone; an erase under way ends after the page it was erasing."""
+        rx = self.reception
+        if rx is not None and rx.prepared and not rx.erased and t is not None:
+            self._erase_pages(rx, t)
         self.enabled = False
         self.reception = None
         self.finished = None
@@ -84,10 +90,10 @@ class BoardProgramming:
             return
         rx = self.reception
         if isinstance(msg, m.ProgramBegin):
-            self._begin(msg)
+            self._begin(msg, t)
             return
         if isinstance(msg, m.ProgramAbort):
-            self.reception = None
+            self.abort(t)
             return
         if rx is None:
             if isinstance(msg, m.ProgramPrepare | m.ProgramEnd):
@@ -114,7 +120,7 @@ class BoardProgramming:
                 port.error(t, err.code, _PROGRAM, err.detail, via_fixed)
         elif isinstance(msg, m.ProgramEnd):
             port.at(max(t, rx.free_at) + rx.stored_words() * port.timing.verify_word_us,
-                    self._finish(via_fixed))
+                    self._finish(rx, via_fixed))
 
     def other_block(self) -> None:
         """A BLOCK frame addressed to another board: its data frames are not ours."""
@@ -137,8 +143,22 @@ class BoardProgramming:
         if not rx.paused and rx.free_at - t >= rx.pause_time:
             self._pace(rx, t)
 
+    def abort(self, t: float) -> None:
+        """ABORT, or ProgEnable cleared, at board time ``t``: the transfer ends, whatever
+        its step.  An erase under way stops after the page it is erasing (a page erase
+        cannot be cut); the program-valid flag BEGIN cleared stays cleared."""
+        rx = self.reception
+        if rx is None:
+            return
+        self.reception = None
+        if rx.prepared and not rx.erased:
+            self._erase_pages(rx, t)
+
     # ------------------------------------------------------------------ steps
-    def _begin(self, msg: m.ProgramBegin) -> None:
+    def _begin(self, msg: m.ProgramBegin, t: float) -> None:
+        old = self.reception
+        if old is not None and old.prepared and not old.erased:
+            self._erase_pages(old, t)  # the erase under way ends after its page
         self.reception = Reception(msg.target, msg.blocks, msg.entry, self.port.timing)
         self.finished = None
         rec = self.nv.record
@@ -167,17 +187,32 @@ class BoardProgramming:
         if rx.target is Target.EXTRAM:
             rx.extram = external_ram()
         else:
-            for space, page in rx.erase_pages:
-                self.nv.erase_page(space, page)
-        port.at(t + rx.erase_time(), self._erased)
+            rx.erase_start = t  # the pages are erased one after the other from now
+        port.at(t + rx.erase_time(), self._erased(rx))
 
-    def _erased(self, t: float) -> None:
-        rx = self.reception
-        if rx is None or not self.port.powered or not rx.prepared:
+    def _erase_pages(self, rx: Reception, t: float | None) -> None:
+        """Erase the pages of ``rx``'s list the erase has begun by board time ``t`` (None:
+        all of them, the erase is done) and not erased yet."""
+        if rx.target is not Target.FLASH:
             return
-        rx.erased = True
-        rx.free_at = t
-        self._send_erased(rx, t)
+        upto = len(rx.erase_pages) if t is None else rx.pages_begun(t)
+        if upto <= rx.pages_erased:
+            return
+        for space, page in rx.erase_pages[rx.pages_erased:upto]:
+            self.nv.erase_page(space, page)
+        rx.pages_erased = upto
+        if t is not None:  # cut short: what was erased stays so
+            self.port.persist()
+
+    def _erased(self, rx: Reception) -> Callable[[float], None]:
+        def erased(t: float) -> None:
+            if self.reception is not rx or not self.port.powered:
+                return  # aborted, begun again or reset meanwhile
+            self._erase_pages(rx, None)
+            rx.erased = True
+            rx.free_at = t
+            self._send_erased(rx, t)
+        return erased
 
     def _send_erased(self, rx: Reception, t: float) -> None:
         self.port.send(t, m.Ready(ReadyReason.ERASED, BoardState.RECEIVING,
@@ -215,11 +250,10 @@ class BoardProgramming:
         rx.paused = False
         self.port.send(t, m.Ready(ReadyReason.RESUME, BoardState.RECEIVING, int(rx.backlog(t))))
 
-    def _finish(self, via_fixed: bool) -> Callable[[float], None]:
+    def _finish(self, rx: Reception, via_fixed: bool) -> Callable[[float], None]:
         def finish(t: float) -> None:
-            rx = self.reception
-            if rx is None or not self.port.powered:
-                return
+            if self.reception is not rx or not self.port.powered:
+                return  # aborted, begun again or reset meanwhile
             memory = rx.extram if rx.target is Target.EXTRAM else {
                 s: self.nv.space(s) for s in Space}
             result, reports = rx.result(memory)

@@ -99,6 +99,11 @@ class Reception:
     erase_pages: list[tuple[Space, int]] = field(default_factory=list)
     prepared: bool = False
     erased: bool = False
+    erase_start: float = 0.0
+    """When PREPARE began the erase (board time, microseconds)."""
+    pages_erased: int = 0
+    """The pages of :attr:`erase_pages`, in order, erased so far (the erase goes page by
+    page: :meth:`pages_begun`)."""
     blocks: dict[int, BlockState] = field(default_factory=dict)
     current: BlockState | None = None
     last_slot: int = -1
@@ -144,6 +149,16 @@ class Reception:
         if self.target is Target.EXTRAM:
             return 0.0
         return len(self.erase_pages) * self.timing.page_erase_us
+
+    def pages_begun(self, t: float) -> int:
+        """How many pages of :attr:`erase_pages` the erase has begun by board time ``t``
+        (each takes ``page_erase_us``; a page begun is erased whole: a flash page erase
+        cannot be cut)."""
+        per_page = self.timing.page_erase_us
+        total = len(self.erase_pages)
+        if per_page <= 0:
+            return total
+        return min(total, int((t - self.erase_start) // per_page) + 1)
 
     # ---------------------------------------------------------------- blocks
     def open_block(self, header: ProgramBlock) -> None:
