@@ -17,6 +17,7 @@ from typing import Final
 import can
 
 from ucom_tools.errors import BoardError, FrameError, UcomTimeoutError
+from ucom_tools.protocol.dispatch import Subscription
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.wire import mca
@@ -89,19 +90,24 @@ start), which says nothing about when it came, and is taken as before."""
 class McaClient:
     """Run-time services on one bus."""
 
-    def __init__(self, link: Link, timeouts: Timeouts = DEFAULT) -> None:
+    def __init__(self, link: Link, timeouts: Timeouts = DEFAULT, *,
+                 process_data: bool = True) -> None:
         self.link = link
         self.timeouts = timeouts
         self.image = ProcessImage()
         self.errors: list[tuple[Address, m.Error]] = []
         dispatcher = link.dispatcher
         self._sub = dispatcher.subscribe(_answer, f"{link.name} run time")
-        self._maps = dispatcher.subscribe(_so_map, f"{link.name} process data",
-                                          on_data=self.image.take_data)
+        self._maps: Subscription | None = dispatcher.subscribe(
+            _so_map, f"{link.name} process data", on_data=self.image.take_data) \
+            if process_data else None
+        """The SO maps into :attr:`image` (not with ``process_data`` false: a second
+        client beside the run time's, for requests only)."""
 
     def close(self) -> None:
         self.link.dispatcher.unsubscribe(self._sub)
-        self.link.dispatcher.unsubscribe(self._maps)
+        if self._maps is not None:
+            self.link.dispatcher.unsubscribe(self._maps)
 
     # ------------------------------------------------------------------ plumbing
     def _send(self, msg: mca.McaMessage, address: Address | None = None) -> None:
