@@ -8,8 +8,10 @@ the serial number the start's init chain gave) every
 1. MCA Start QUERY.  Error NOT_RUNNING: it is in its bootloader; Start (12) its program
    and take its MCA Ready.  A program that runs (RUNNING, LATCHED, or STOPPED after an
    AutoStart): MCA Start STOP first unless it is STOPPED.
-2. Its descriptions (MCA DumpIO Descr) must be those it gave at the start, which matched
-   its tree; otherwise it stays lost and the PC says why.
+2. Its descriptions (MCA DumpIO Descr, each edge asked for on its own, the next once it
+   came: the whole description at once would hold a running bus, and MCA Alive with it)
+   must be those it gave at the start, which matched its tree; otherwise it stays lost
+   and the PC says why.
 3. Its present values (MCA Dump CI of its SO and CI edges) seed the CI values the PC
    holds for it (:meth:`~ucom_tools.edgelists.model.ProgramSpec.seed_of`: a position
    target takes its joint sensor's reading, a velocity target 0, a homing command is
@@ -160,7 +162,7 @@ class Rejoin:
         if (ready.ci, ready.so, ready.par) != counts:
             raise Refused(f"{where} now runs a program with {ready.ci}/{ready.so}/"
                           f"{ready.par} edges, at the start {'/'.join(map(str, counts))}")
-        edges = client.describe(address, counts)
+        edges = client.describe(address, counts, one_by_one=True)
         if edges != described:
             raise Refused(f"{where}'s edges are not those it described at the start "
                           "(another program?)")
@@ -198,12 +200,13 @@ class Rejoin:
             if not refusal or refusal[-1].code is not ErrorCode.NOT_RUNNING:
                 raise
         start = next((r for r in boot.start(address) if r.address == address), None)
-        if start is None or not start.started:
-            why = "; ".join(e.describe() for e in start.errors) if start else "no answer"
-            raise UcomTimeoutError(f"{where}: its program did not start: {why}")
-        if start.errors:
+        refused = [] if start is None else [e for e in start.errors
+                                            if e.function == Function.START]
+        if refused:  # its program does not fit (COMPATIBILITY): it will not, asked again
             raise Refused(f"{where}: its program did not start: "
-                          + "; ".join(e.describe() for e in start.errors))
+                          + "; ".join(e.describe() for e in refused))
+        if start is None or not start.started:
+            raise UcomTimeoutError(f"{where}: its program did not start: no answer")
         ready = client.wait_ready(address, client.timeouts.reply)
         if ready is None:
             raise UcomTimeoutError(f"{where}: its program does not answer MCA requests")

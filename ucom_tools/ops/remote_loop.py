@@ -499,7 +499,11 @@ class RemoteLoop(RemoteValues):
 
     def _watch_states(self, now: float) -> None:
         for name, bus in self._states:
-            state = bus.state
+            try:
+                state = bus.state
+            except Exception:  # an interface whose state cannot be read: it reports none
+                self._states = [(n, b) for n, b in self._states if n != name]
+                continue
             if state is can.BusState.ACTIVE:
                 self._bad_state.pop(name, None)
             elif name not in self._bad_state:  # the moment it turns: every board's fault

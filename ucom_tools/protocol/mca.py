@@ -200,11 +200,14 @@ class McaClient:
                                f"({1 + self.timeouts.retries} times asked)")
 
     # ------------------------------------------------------------------ descriptions
-    def describe(self, address: Address, counts: tuple[int, int, int] | None = None
-                 ) -> BoardEdges:
+    def describe(self, address: Address, counts: tuple[int, int, int] | None = None,
+                 *, one_by_one: bool = False) -> BoardEdges:
         """Every edge's description.  ``counts`` (CI, SO, PAR; from MCA Ready, asked for
         when not given) tells when the description is complete; edges that did not arrive
-        whole are asked for again, each on its own."""
+        whole are asked for again, each on its own.  ``one_by_one``: each edge asked for
+        on its own, the next once it came (a board joining a running exchange: its whole
+        description at once would hold the bus for tens of milliseconds, and MCA Alive,
+        whose identifier loses to it, with it)."""
         if counts is None:
             ready = self.query(address)
             counts = (ready.ci, ready.so, ready.par)
@@ -212,11 +215,27 @@ class McaClient:
         done: dict[tuple[int, int], mca.EdgeRecord] = {}
         lasts: dict[tuple[int, int], int] = {}
         wanted = {(k, i) for k in mca.Kind for i in range(counts[k])}
-        ask: list[mca.DescrRequest] = [mca.DescrRequest()]
+        if one_by_one:
+            for k, i in sorted(wanted):
+                self._gather(address, {(k, i)}, [mca.DescrRequest(mca.Kind(k), i)], parts,
+                             lasts, done)
+        else:
+            self._gather(address, wanted, [mca.DescrRequest()], parts, lasts, done)
+        if wanted - done.keys():
+            raise UcomTimeoutError(f"board {address}: {len(wanted - done.keys())} edge "
+                                   "descriptions did not arrive")
+        return BoardEdges(*(tuple(done[(k, i)] for i in range(counts[k])) for k in mca.Kind))
+
+    def _gather(self, address: Address, wanted: set[tuple[int, int]],
+                ask: list[mca.DescrRequest], parts: dict[tuple[int, int], dict[int, bytes]],
+                lasts: dict[tuple[int, int], int],
+                done: dict[tuple[int, int], mca.EdgeRecord]) -> None:
+        """Ask with ``ask`` and collect the records of ``wanted`` into ``done``; what did
+        not arrive whole is asked for again, edge by edge, twice at most."""
         for _ in range(1 + self.timeouts.retries):
             for request in ask:
                 self._send(request, address)
-            frames = sum(counts) * 10 if len(ask) == 1 and ask[0].kind is None \
+            frames = len(wanted) * 10 if len(ask) == 1 and ask[0].kind is None \
                 else 10 * len(ask)
             deadline = self.link.deadline(self.timeouts.reply, answers=frames)
             while wanted - done.keys() and (got := self._next(deadline)) is not None:
@@ -240,12 +259,8 @@ class McaClient:
                         lasts.pop(key)
             missing = sorted(wanted - done.keys())
             if not missing:
-                break
+                return
             ask = [mca.DescrRequest(mca.Kind(k), i) for k, i in missing]
-        if wanted - done.keys():
-            raise UcomTimeoutError(f"board {address}: {len(wanted - done.keys())} edge "
-                                   "descriptions did not arrive")
-        return BoardEdges(*(tuple(done[(k, i)] for i in range(counts[k])) for k in mca.Kind))
 
     # ------------------------------------------------------------------ values
     def write(self, address: Address, kind: mca.Kind, index: int, raws: Sequence[int],
