@@ -31,6 +31,7 @@ what is reported (:mod:`~ucom_tools.ops.remote_report`, faults:
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -302,16 +303,14 @@ class RemotePart(RemoteLoop):
                 x.start_alive()  # watchdog fires
 
         def stop_bus(h: BusHandle, x: BusExchange) -> list[str]:
-            out = []
+            out: list[str] = []
             if h.name in failed:
                 return out  # its boards are lost; their watchdogs stop them
             for n in list(x.configured):
                 if (h.name, n) in self._lost:  # told to stop when it was lost, and again
-                    try:  # here, unacknowledged: it is not there to answer (or its
-                        x.link.send_raw(*mca.encode(mca.McaStart(mca.StartOp.STOP),
-                                                    seq(n)))  # rejoin was cut short)
-                    except UcomError:
-                        pass
+                    with contextlib.suppress(UcomError):  # here, unacknowledged: it is not
+                        x.link.send_raw(*mca.encode(  # there to answer (or its rejoin was
+                            mca.McaStart(mca.StartOp.STOP), seq(n)))  # cut short)
                     continue
                 try:
                     x.mca.start(seq(n), mca.StartOp.STOP)

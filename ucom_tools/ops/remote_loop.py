@@ -17,9 +17,10 @@ the drain after it takes what came meanwhile.  A bus that fails (the connection 
 adapter: a BusError, an interface that reports error-passive or bus-off) is a fault of
 every board on it.  The policy (``on_fault``): ``stop`` broadcasts MCA Start STOP on
 every bus in the cycle of the detection and raises
-:class:`~ucom_tools.ops.remote_faults.BoardLost`; ``hold`` runs the others on, tells the
-lost board to stop (in case it still hears) and, with ``rejoin``, steps a conversation
-that brings it back (:mod:`~ucom_tools.ops.rejoin`) after each cycle's drain.
+:class:`~ucom_tools.ops.remote_faults.BoardLost`; ``hold`` runs the others on and, with
+``rejoin``, steps a conversation that brings the lost board back
+(:mod:`~ucom_tools.ops.rejoin`) after each cycle's drain; a lost board whose maps come
+again before that ran on all along and is back as it was.
 :class:`~ucom_tools.ops.remote.RemotePart` is a :class:`RemoteLoop`; its
 :meth:`~RemoteLoop.cycle` is the performance-critical path (``benchmarks/runtime.py``).
 """
@@ -58,7 +59,7 @@ from ucom_tools.protocol.dispatch import share_clock
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as wire_messages
 from ucom_tools.wire.codes import ErrorCode, ReadyReason
-from ucom_tools.wire.ids import ALL, Function, seq
+from ucom_tools.wire.ids import ALL, Function
 
 SPIN_S: Final = 0.0001
 """The most the loop spins before a deadline.  A sleep wakes a little late (the thread's
@@ -81,6 +82,9 @@ _sleep: Final = time.sleep
 """Bound once: the loop's wait calls them every cycle."""
 RECENT_SAMPLES: Final = 2_000
 """The cycles a running view's lateness figures are taken over (the last 2 s at 1 kHz)."""
+PRESENT_CAP: Final = 2.0
+"""A cycle counts at most this many periods of the loop's running time (the time a board's
+silence is measured on): a loop that was away longer was stalled."""
 _EPSILON: Final = 1e-9
 """Sums of periods on the clock: a silence of exactly the limit counts as the limit."""
 
@@ -92,7 +96,7 @@ class BoardWatch:
     clock), the silence after which it is lost (:attr:`limit`)."""
 
     def __init__(self, bus: str, board: int, where: str, counts: dict[int, int],
-                 maps: list[int], limit: float, now: float) -> None:
+                 maps: list[int], limit: float, present: float) -> None:
         self.bus = bus
         self.board = board
         self.where = where
@@ -100,7 +104,7 @@ class BoardWatch:
         self.maps = maps
         self.limit = limit
         self.seen = self.total()
-        self.last = now
+        self.last = present
         self.lost = False
 
     def total(self) -> int:
@@ -111,10 +115,10 @@ class BoardWatch:
             out += counts.get(n, 0)
         return out
 
-    def back(self, now: float) -> None:
-        """Watched again from ``now`` (it rejoined)."""
+    def back(self, present: float) -> None:
+        """Watched again from ``present`` (it rejoined)."""
         self.seen = self.total()
-        self.last = now
+        self.last = present
         self.lost = False
 
 
@@ -147,11 +151,19 @@ class RemoteLoop(RemoteValues):
         """Starts the conversation that brings board (bus, n) back (set by
         :class:`~ucom_tools.ops.remote.RemotePart` with ``rejoin``): an object with
         ``step()``, ``done``, ``ok``, ``answered`` and ``how``."""
+        self._present = 0.0
+        """The loop's own running time since its start (seconds): the clock, but a cycle
+        that came late counts at most :data:`PRESENT_CAP` periods.  Silence is measured on
+        it, so that a stall of this process (or of the machine, a served fleet on it
+        with it) is no silence of the boards: after it they get the time to deliver."""
+        self._watch_at = 0.0
+        """The clock when :attr:`_present` last moved on."""
         self._watches: list[BoardWatch] = []
         self._watched: dict[tuple[str, int], BoardWatch] = {}
         self._notes: dict[tuple[str, int], tuple[float, str]] = {}
         """What each board said last besides its maps (an Error, its bootloader's Ready,
-        its program's unsolicited MCA Ready), with when: what a lost event names."""
+        its program's unsolicited MCA Ready), with when (:attr:`_present`): what a lost
+        event names."""
         self._failed: dict[str, str] = {}
         """Buses that failed (their connection or adapter) -> why; nothing is sent there."""
         self._sending: list[BusExchange] = list(exchanges.values())
@@ -356,7 +368,7 @@ class RemoteLoop(RemoteValues):
                 text = (f"its watchdog stopped every motor: no MCA Alive for {err.detail} "
                         "ms (stopped until MCA Start)" if err.code is ErrorCode.WATCHDOG
                         else err.describe())
-                self._notes[(h.name, n)] = (now, text)
+                self._notes[(h.name, n)] = (self._present, text)
                 if (h.name, n) in self._lost:
                     return  # answers to the rejoin's questions (NOT_RUNNING ...): not events
                 self.events.append(BoardEvent(round(now - started, 4), h.name, n,
@@ -373,7 +385,7 @@ class RemoteLoop(RemoteValues):
                             "started again)")
                 else:
                     return
-                self._notes[(h.name, msg.arbitration_id & 0x1F)] = (h.link.clock(), text)
+                self._notes[(h.name, msg.arbitration_id & 0x1F)] = (self._present, text)
             d = h.link.dispatcher
             self._event_subs.append((d, d.subscribe(
                 lambda msg: msg.arbitration_id >> 6 == Function.ERROR,
@@ -466,6 +478,8 @@ class RemoteLoop(RemoteValues):
         """Watch every configured board's fastest SO maps from ``now`` (the loop's start)."""
         self._watches = []
         self._watched = {}
+        self._present = 0.0
+        self._watch_at = now
         for name, x in self.exchanges.items():
             counts = x.mca.image.counts
             for n in x.configured:
@@ -475,24 +489,30 @@ class RemoteLoop(RemoteValues):
                 fastest = min(m.interval_us for m in maps)
                 w = BoardWatch(name, n, x.where(n), counts,
                                [m.number for m in maps if m.interval_us == fastest],
-                               lost_after(fastest / 1e6) - _EPSILON, now)
+                               lost_after(fastest / 1e6) - _EPSILON, 0.0)
                 self._watches.append(w)
                 self._watched[(name, n)] = w
 
     def _watch_boards(self, now: float) -> None:
         """After the cycle's drain: a board whose watched maps brought nothing new for its
-        limit is lost; a bus whose interface reports error-passive or bus-off fails."""
+        limit is lost (on the loop's running time, :attr:`_present`); a bus whose
+        interface reports error-passive or bus-off fails."""
+        step = now - self._watch_at
+        self._watch_at = now
+        cap = PRESENT_CAP * self.period_s
+        present = self._present + (step if step < cap else cap)
+        self._present = present
         for w in self._watches:
-            if w.lost:
-                continue
             counts = w.counts
             total = 0
             for n in w.maps:
                 total += counts.get(n, 0)
             if total != w.seen:
                 w.seen = total
-                w.last = now
-            elif now - w.last >= w.limit:
+                w.last = present
+                if w.lost:  # (hold) its maps came again: it ran on, its configuration and
+                    self._maps_again(w, now)  # targets as they were
+            elif not w.lost and present - w.last >= w.limit:
                 self._lose(w, now, "")
         if self._states:
             self._watch_states(now)
@@ -538,7 +558,8 @@ class RemoteLoop(RemoteValues):
             if note is not None and note[0] >= w.last - self.period_s:
                 seen = note[1]  # said something since its last map
             else:
-                seen = f"silence: none of its SO maps for {(now - w.last) * 1e3:.1f} ms"
+                seen = (f"silence: none of its SO maps for "
+                        f"{(self._present - w.last) * 1e3:.1f} ms")
         t = round(now - self.stats.started_clock, 4)
         fault = BoardFault(t, w.bus, w.board, w.where, "lost", seen)
         self.faults.append(fault)
@@ -556,29 +577,53 @@ class RemoteLoop(RemoteValues):
     def _react(self) -> None:
         """The policy, at the end of the cycle that found boards lost: ``stop`` sends MCA
         Start STOP to every board of every bus at once (broadcast) and raises BoardLost;
-        ``hold`` tells each lost board to stop (if it still hears, it must not drive
-        blind) and, with ``rejoin``, starts asking it back."""
+        ``hold`` leaves the lost board as it is (if it still hears, it holds its targets,
+        which no write changes while it is lost) and, with ``rejoin``, starts asking it
+        back."""
         newly, self._newly = self._newly, []
-        stop = mca.encode(mca.McaStart(mca.StartOp.STOP), ALL)
         if self.on_fault == STOP:
-            for x in self._sending:
+            stop = mca.encode(mca.McaStart(mca.StartOp.STOP), ALL)
+            for x in list(self._sending):
                 try:
                     x.link.send_raw(*stop)
-                except BusError as err:
-                    self._failed[x.bus.name] = str(err)
-            self._halt = BoardLost(newly)
+                except BusError as err:  # that bus's boards are lost too: their watchdog
+                    self._bus_failed(x.bus.name, str(err), self._clock())
+            self._halt = BoardLost(newly + self._newly)
+            self._newly = []
             raise self._halt
-        for f in newly:
-            if f.bus in self._failed:
-                continue
-            x = self.exchanges[f.bus]
-            try:
-                x.link.send_raw(*mca.encode(mca.McaStart(mca.StartOp.STOP), seq(f.board)))
-            except BusError as err:
-                self._bus_failed(f.bus, str(err), self._clock())
-                continue
-            if self.rejoin and self.rejoiner is not None:
-                self._rejoins.append(self.rejoiner(f.bus, f.board))
+        if self.rejoin and self.rejoiner is not None:
+            for f in newly:
+                if f.bus not in self._failed:
+                    self._rejoins.append(self.rejoiner(f.bus, f.board))
+
+    def _maps_again(self, w: BoardWatch, now: float) -> None:
+        """(hold) A lost board's maps came again before the PC brought it back: it ran on
+        all along (a silence shorter than its watchdog: its bus-off, a cable, a stall of
+        the source), configured as before and holding the targets it had, which did not
+        change meanwhile (writes to it were refused): it is back as it was.  A rejoin
+        under way that has not reached it yet is called off."""
+        key = (w.bus, w.board)
+        for r in self._rejoins:
+            if (r.bus, r.board) == key:
+                if r.answered is not None:
+                    return  # the rejoin reached it: it finishes the job
+                self._rejoins.remove(r)
+                r.cancel()
+                break
+        lost = self._lost.get(key)
+        if lost is None:
+            return
+        w.lost = False
+        replaced = dict(self._lost)
+        del replaced[key]
+        self._lost = replaced
+        t = round(now - self.stats.started_clock, 4)
+        fault = BoardFault(t, w.bus, w.board, w.where, "rejoined",
+                           f"its SO maps came again {t - lost.since:.3f} s after the loss: "
+                           "it ran on, as configured, with the targets it had")
+        self.faults.append(fault)
+        for hook in self.fault_hooks:
+            hook(fault)
 
     def _step_rejoins(self) -> None:
         """Hand each rejoin conversation control if what it waits for came (after the
@@ -603,7 +648,7 @@ class RemoteLoop(RemoteValues):
             return
         now = self._clock()
         w = self._watched[key]
-        w.back(now)
+        w.back(self._present)
         replaced = dict(self._lost)
         del replaced[key]
         self._lost = replaced

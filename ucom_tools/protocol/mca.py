@@ -214,7 +214,7 @@ class McaClient:
         parts: dict[tuple[int, int], dict[int, bytes]] = {}
         done: dict[tuple[int, int], mca.EdgeRecord] = {}
         lasts: dict[tuple[int, int], int] = {}
-        wanted = {(k, i) for k in mca.Kind for i in range(counts[k])}
+        wanted = {(int(k), i) for k in mca.Kind for i in range(counts[k])}
         if one_by_one:
             for k, i in sorted(wanted):
                 self._gather(address, {(k, i)}, [mca.DescrRequest(mca.Kind(k), i)], parts,

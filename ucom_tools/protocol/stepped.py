@@ -133,27 +133,24 @@ class Stepped:
              ) -> can.Message | None:
         """:meth:`Dispatcher.wait` in the worker: the next frame the loop delivered for
         ``sub``, or None at ``deadline``; the bus's failure raised."""
+        clock = dispatcher.clock
+        queue = sub.queue
+
+        def ready() -> bool:
+            return bool(queue) or dispatcher.failure is not None or clock() >= deadline
+
         while True:
             got = dispatcher.take(sub)
             if got is not None:
                 return got
             if dispatcher.failure is not None:
                 raise dispatcher.failure
-            clock = dispatcher.clock
             if clock() >= deadline:
                 return None
-            queue = sub.queue
-            self._park(lambda: bool(queue) or dispatcher.failure is not None
-                       or clock() >= deadline)
+            self._park(ready)
 
     def sleep(self, clock: Callable[[], float], until: float) -> None:
         """Wait in the worker until ``until`` on ``clock`` (a pace between questions)."""
         while clock() < until:
             self._park(lambda: clock() >= until)
 
-
-def current() -> Stepped | None:
-    """The conversation whose worker this thread is, if any."""
-    from ucom_tools.protocol.dispatch import _stepping
-    stepper = getattr(_stepping, "stepper", None)
-    return stepper if isinstance(stepper, Stepped) else None
