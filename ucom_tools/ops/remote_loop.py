@@ -368,7 +368,10 @@ class RemoteLoop(RemoteValues):
                 text = (f"its watchdog stopped every motor: no MCA Alive for {err.detail} "
                         "ms (stopped until MCA Start)" if err.code is ErrorCode.WATCHDOG
                         else err.describe())
-                self._notes[(h.name, n)] = (self._present, text)
+                note = self._notes.get((h.name, n))
+                if err.code is not ErrorCode.LATCHED or note is None or \
+                        not note[1].startswith("its watchdog"):  # (its CI refused since:
+                    self._notes[(h.name, n)] = (self._present, text)  # the same news)
                 if (h.name, n) in self._lost:
                     return  # answers to the rejoin's questions (NOT_RUNNING ...): not events
                 self.events.append(BoardEvent(round(now - started, 4), h.name, n,
