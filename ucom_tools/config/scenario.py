@@ -205,6 +205,8 @@ class Scenario:
 
     faults: tuple[InjectedFault, ...]
     source: str = ""
+    lines: dict[tuple[int, str], int] = field(default_factory=dict, compare=False)
+    """The line of each fault's keys: (its index from 0, key)."""
 
     @classmethod
     def load(cls, path: str | Path) -> Scenario:
@@ -245,7 +247,9 @@ class Scenario:
         if not isinstance(raw, list) or not raw or not all(isinstance(f, dict) for f in raw):
             raise InputError("expected one or more [[fault]] tables", file=source,
                              line=lines.get(((), "fault")), key="fault")
-        return cls(tuple(_fault(f, i, source, lines) for i, f in enumerate(raw)), source)
+        return cls(tuple(_fault(f, i, source, lines) for i, f in enumerate(raw)), source,
+                   {(where[0], key): no for (where, key), no in lines.items()
+                    if where and where[0] >= 0 and key})
 
     def check(self, topology: Topology) -> None:
         """Every bus and board named is in ``topology``; :class:`InputError` naming the
@@ -254,7 +258,8 @@ class Scenario:
             try:
                 f.check(topology)
             except InputError as err:
-                raise InputError(err.reason, file=self.source, line=f.line,
+                raise InputError(err.reason, file=self.source,
+                                 line=self.lines.get((i, err.key or ""), f.line),
                                  key=f"fault[{i + 1}].{err.key}") from None
 
     def only(self, buses: tuple[str, ...] | list[str]) -> Scenario:
@@ -335,6 +340,7 @@ def _fault(raw: dict[str, Any], i: int, source: str,
 
 _HEADER: Final = re.compile(r"^\s*\[\[\s*fault\s*\]\]")
 _OTHER_HEADER: Final = re.compile(r"^\s*\[")
+_TABLE: Final = re.compile(r"^\s*\[\s*fault\s*\]")
 _KEY: Final = re.compile(r"^\s*([A-Za-z0-9_\-]+|\"[^\"]*\")\s*=")
 
 
@@ -352,6 +358,8 @@ def _lines(text: str) -> dict[tuple[tuple[int, ...], str], int]:
             found.setdefault(((), "fault"), no)
         elif _OTHER_HEADER.match(line):
             where = (-1,)
+            if _TABLE.match(line):  # [fault]: one table where [[fault]] tables belong
+                found.setdefault(((), "fault"), no)
         elif k := _KEY.match(line):
             found.setdefault((where, k.group(1).strip('"')), no)
     return found

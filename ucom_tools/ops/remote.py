@@ -132,7 +132,7 @@ class RemotePart(RemoteLoop):
              interface: str | None = None, channels: Sequence[str] = (),
              host: str | None = None, port: int | None = None, bitrate: int | None = None,
              trees: Sequence[str | Path] = (), start: bool = True, force: bool = False,
-             **kwargs: Any) -> RemotePart:
+             scenario: str | Path | None = None, **kwargs: Any) -> RemotePart:
         """The run-time part of ``robot`` (a bundled topology or a topology file) on its
         buses: the in-process virtual fleet (``virtual``, flash kept in ``state_dir``),
         or a python-can ``interface`` with ``channels`` (or a socketcand ``host`` and
@@ -140,13 +140,16 @@ class RemotePart(RemoteLoop):
         (:meth:`start`, with ``force``) unless ``start`` is false; as a context manager
         it always stops the boards and closes the buses at the end.  Shared on the
         robot's network: :func:`ucom_tools.net.share.open_shared` (the same arguments
-        and the Zenoh ones)."""
+        and the Zenoh ones).  ``scenario``: with ``virtual``, a scenario file of injected
+        faults for the fleet (``ucom(1)``, SCENARIOS)."""
         if virtual:
             spec = ConnectSpec(virtual=robot,
-                               state_dir=Path(state_dir) if state_dir is not None else None)
+                               state_dir=Path(state_dir) if state_dir is not None else None,
+                               scenario=Path(scenario) if scenario is not None else None)
         else:
             spec = ConnectSpec(interface, tuple(channels), bitrate, host, port,
-                               topology=robot)
+                               topology=robot,
+                               scenario=Path(scenario) if scenario is not None else None)
         r = open_robot(spec)
         try:
             part = cls(r, robot_trees(r, trees), **kwargs)

@@ -480,14 +480,14 @@ class VirtualBoard:
             self.in_drive, self.out_drive = not first, first
             self.bus.at(settle, self._probe(InitAckKind.FIRST if first else InitAckKind.LAST))
             self.bus.at(settle + 1.0, self._restore_pins(saved))
-        elif msg.op is InitOp.REJOIN:
-            if msg.serial == self.identity.serial:  # only the board it names; no pin moves
-                self.seq_id = msg.number
-                self._claimed = False
-                ack = m.InitAck(InitAckKind.ASSIGNED, msg.number, self.identity.fixed_id,
-                                BOOTLOADER_VERSION[0] << 4 | BOOTLOADER_VERSION[1],
-                                self.identity.serial)
-                self.send(t + self.timing.reply_us, ack)
+        elif msg.op is InitOp.REJOIN and msg.serial == self.identity.serial:
+            # only the board it names takes it, in any state; no pin moves
+            self.seq_id = msg.number
+            self._claimed = False
+            ack = m.InitAck(InitAckKind.ASSIGNED, msg.number, self.identity.fixed_id,
+                            BOOTLOADER_VERSION[0] << 4 | BOOTLOADER_VERSION[1],
+                            self.identity.serial)
+            self.send(t + self.timing.reply_us, ack)
 
     def _claim_if_first(self, number: int) -> Callable[[float], None]:
         def sample(t: float) -> None:

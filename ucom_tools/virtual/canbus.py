@@ -127,13 +127,13 @@ class VirtualUcomBus(can.BusABC):
 
     @property
     def state(self) -> can.BusState:
-        """python-can's controller state: ``ERROR_PASSIVE`` while no other node of the bus
+        """python-can's controller state: ``PASSIVE`` (error-passive) while no other node of the bus
         would acknowledge a frame of this host (:meth:`SimBus.acknowledged`: the cable to
         the boards cut, every board powered off or bus-off, and no other host), else
         ``ACTIVE``."""
         if self.sim.acknowledged(self.port):
             return can.BusState.ACTIVE
-        return can.BusState.ERROR_PASSIVE
+        return can.BusState.PASSIVE
 
     @state.setter
     def state(self, new_state: can.BusState) -> None:

@@ -18,6 +18,7 @@ the fleet's lock: in virtual time deterministically, paced on the wall clock.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, Final
@@ -29,6 +30,7 @@ from ucom_tools.virtual.clock import FleetClock
 from ucom_tools.virtual.simbus import SimBus
 from ucom_tools.wire.ids import Function
 
+log = logging.getLogger("ucom.fleet")
 _ALIVE: Final = int(Function.MCA_ALIVE)
 
 
@@ -90,7 +92,9 @@ class Injector:
 
     def _due(self, fault: InjectedFault, bus: str) -> Callable[[float], None]:
         def apply(t: float) -> None:
-            self.apply(fault, t, only=bus if fault.bus is None else None)
+            text = self.apply(fault, t, only=bus if fault.bus is None else None)
+            log.info("scenario, %g s after the first MCA Alive on %s: %s", fault.at_s, bus,
+                     text)
         return apply
 
     # ------------------------------------------------------------------ applying

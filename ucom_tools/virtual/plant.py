@@ -205,8 +205,7 @@ class ThreeAxisPlant:
 
     @staticmethod
     def key_of(axes: int, params: AxisParams | Sequence[AxisParams],
-               analog_inputs_v: tuple[float, float] = ANALOG_INPUTS_V,
-               ) -> tuple[object, ...]:
+               analog_inputs_v: tuple[float, float]) -> tuple[object, ...]:
         """The :attr:`key` of a plant made with these arguments."""
         if isinstance(params, AxisParams):
             params = [params] * axes

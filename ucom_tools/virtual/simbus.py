@@ -445,16 +445,14 @@ class SimBus:
 
     def acknowledged(self, sender: object) -> bool:
         """Would a frame that ``sender`` sends now be acknowledged: does another node take
-        it - a board that listens (powered, not bus-off: its ``listening``), any other
-        host -, on ``sender``'s side of a cut cable?  (python-can's ``bus.state`` of a
-        host: error-passive while nobody does.)"""
+        it - one that listens (a board powered and not bus-off; not a listen-only node:
+        ``listening`` false), on ``sender``'s side of a cut cable?  (python-can's
+        ``bus.state`` of a host: error-passive while nobody does.)"""
         cut = self._cuts > 0
         board = _board_side(sender)
         for node in list(self.nodes):
-            if node is sender:
-                continue
-            other = _board_side(node)
-            if (cut and other != board) or (other and not getattr(node, "listening", True)):
+            if node is sender or (cut and _board_side(node) != board) or \
+                    not getattr(node, "listening", True):
                 continue
             return True
         return False

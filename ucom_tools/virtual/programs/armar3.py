@@ -79,7 +79,13 @@ from typing import Final
 
 from ucom_tools.edgelists.armar3 import AXES, SPEC
 from ucom_tools.edgelists.model import EdgeKind, ProgramSpec
-from ucom_tools.virtual.plant import ARMAR3_BOARD, MAX_AXES, AxisParams, ThreeAxisPlant
+from ucom_tools.virtual.plant import (
+    ANALOG_INPUTS_V,
+    ARMAR3_BOARD,
+    MAX_AXES,
+    AxisParams,
+    ThreeAxisPlant,
+)
 from ucom_tools.virtual.programs.armar3_axis import (  # the constants re-exported
     _AD_CHANNEL6,
     _AD_CHANNEL7,
@@ -313,6 +319,6 @@ def make(hardware: Hardware, placement: str = "", plant: Plant | None = None, *,
     before, kept when it is made of the same (the caller resumes it)."""
     model = Armar3Model(hardware)
     if isinstance(plant, ThreeAxisPlant) and \
-            plant.key == ThreeAxisPlant.key_of(MAX_AXES, params):
+            plant.key == ThreeAxisPlant.key_of(MAX_AXES, params, ANALOG_INPUTS_V):
         return model, plant
     return model, ThreeAxisPlant(hardware.fpga, hardware.adc, params=params)

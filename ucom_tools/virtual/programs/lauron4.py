@@ -75,6 +75,7 @@ from typing import Final
 
 from ucom_tools.edgelists.lauron4 import AXES, PWM_FULL, SPEC, LegMode, Status
 from ucom_tools.edgelists.model import EdgeKind, ProgramSpec
+from ucom_tools.virtual.motor import SUPPLY_V
 from ucom_tools.virtual.numeric import round_half_even
 from ucom_tools.virtual.programs.base import Hardware, Plant
 from ucom_tools.virtual.programs.lauron4_leg import (  # the board's constants re-exported
@@ -489,13 +490,14 @@ def make(hardware: Hardware, placement: str = "", plant: Plant | None = None,
     model = Lauron4Model(hardware)
     if "head" in text:
         if isinstance(plant, LegPlant) and plant.key == LegPlant.key_of(
-                HEAD_JOINTS, ground_z=None, foot_sensor=False, marks=(0.0, 0.0, None)):
+                HEAD_JOINTS, None, False, (0.0, 0.0, None), SUPPLY_V):
             return model, plant
         return model, LegPlant(hardware.fpga, hardware.adc, HEAD_JOINTS, ground_z=None,
                                foot_sensor=False, marks=(0.0, 0.0, None))
     params = LEG_JOINTS
     if "right" in text:
         params = (replace(LEG_JOINTS[0], motor_polarity=-1), *LEG_JOINTS[1:])
-    if isinstance(plant, LegPlant) and plant.key == LegPlant.key_of(params):
+    if isinstance(plant, LegPlant) and plant.key == LegPlant.key_of(
+            params, GROUND_Z, True, (0.0, 0.0, 0.0), SUPPLY_V):
         return model, plant
     return model, LegPlant(hardware.fpga, hardware.adc, params)

@@ -161,18 +161,16 @@ class LegPlant:
         """Integrate the joints apart while the foot is off the ground (False: always
         together with the ground's forces, the slower way that gives the same result:
         for the test that says so)."""
-        self.key = self.key_of(params, ground_z=ground_z, foot_sensor=foot_sensor,
-                               marks=marks, supply_v=supply_v)
+        self.key = self.key_of(params, ground_z, foot_sensor, marks, supply_v)
         """What the leg was made of (:meth:`key_of`): a program model reuses a board's
         plant made of the same."""
         self._write_sensors()
 
     @staticmethod
-    def key_of(params: Sequence[AxisParams] = LEG_JOINTS, *,
-               ground_z: float | None = GROUND_Z, foot_sensor: bool = True,
-               marks: Sequence[float | None] = (0.0, 0.0, 0.0),
-               supply_v: float = SUPPLY_V) -> tuple[object, ...]:
-        """The :attr:`key` of a leg made with these arguments."""
+    def key_of(params: Sequence[AxisParams], ground_z: float | None, foot_sensor: bool,
+               marks: Sequence[float | None], supply_v: float) -> tuple[object, ...]:
+        """The :attr:`key` of a leg made with these arguments (all given: a compiled
+        caller in another module does not see this module's constants as defaults)."""
         return (tuple(params), ground_z, foot_sensor, tuple(marks), supply_v)
 
     def resume(self, fpga: VirtualFpga, adc: list[int], dead_us: float) -> None:
