@@ -7,6 +7,7 @@ on the wall clock."""
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import time
 from collections.abc import Callable, Iterator
@@ -101,11 +102,11 @@ def stall(part: RemotePart, seconds: float) -> None:
 
 
 def sensors(part: RemotePart, bus: str, board: int) -> dict[str, int]:
-    """The joint sensors of a board (raw), by name."""
+    """The joint sensors of a board's joints (raw), by name."""
     out = {}
     for ref in part.names:
         if (ref.bus, ref.board) == (bus, board) and ref.generic in (
-                "Encoder 0", "Encoder 2", "Encoder 4"):
+                "Encoder 0", "Encoder 2", "Encoder 4") and part.cyclic(ref):
             raw = part.raw(ref)
             assert raw is not None
             out[part.names.name_of(ref)] = raw
@@ -119,9 +120,10 @@ KINDS = ["power-off", "reset", "bus-off", "cable", "estop"]
 @pytest.mark.parametrize("kind", KINDS)
 def test_each_kind_of_fault_is_noticed_by_the_rule(kind: str) -> None:
     """A board none of whose maps came for 5 ms (3 periods of its 1 ms maps, at least
-    5 ms) is lost, and no sooner: measured from its last frame, within one cycle of the
-    rule; a bus whose interface reports error-passive (a cut cable, every board off) is
-    every board's fault at once."""
+    5 ms) is lost, and no sooner: measured from its last frame, as soon as a frame of
+    another board of its bus stamped 5 ms after it has come (their maps come every
+    millisecond) and the loop's next drain took it; a bus whose interface reports
+    error-passive (a cut cable, every board off) is every board's fault at once."""
     with running("hold") as (fleet, part):
         lost = noticed(part)
         part.run(0.3)
@@ -138,8 +140,8 @@ def test_each_kind_of_fault_is_noticed_by_the_rule(kind: str) -> None:
                 assert at - t0 <= PERIOD + 1e-9, f
                 assert "error-passive" in f.seen
             else:
-                assert LIMIT - 1e-9 <= at - last < LIMIT + PERIOD + 1e-9, (f, at - last)
-                assert f.seen == f"silence: none of its SO maps for {LIMIT * 1e3:.1f} ms"
+                assert LIMIT - 1e-9 <= at - last < LIMIT + 2 * PERIOD, (f, at - last)
+                assert re.fullmatch(r"silence: none of its SO maps for 5\.[0-9] ms", f.seen)
             assert f.where.startswith(f"{bus} board {n} (") and f.event == "lost"
             assert part.lost[(bus, n)].since == f.time
         others = set(states(fleet)) - expected
@@ -181,7 +183,8 @@ def test_a_stall_of_the_loop_is_no_silence_of_the_boards() -> None:
     """The PC's loop held 30 ms (less than the boards' watchdog, 50 ms, less the 10 ms
     between two MCA Alive; the clock runs on: the boards send meanwhile, the next drain
     takes it all): nobody is lost; a board that stops in the middle of such a stall is
-    lost 5 ms of the loop's own running time later."""
+    lost at the first cycle after it, its bus-mates' frames stamped 20 ms after its
+    last."""
     with running() as (fleet, part):
         part.run(0.1)
         for _ in range(3):
@@ -194,9 +197,9 @@ def test_a_stall_of_the_loop_is_no_silence_of_the_boards() -> None:
         cycles = part.stats.cycles
         with pytest.raises(BoardLost, match="CAN0 board 3"):
             part.run(0.05)
-        # the first cycle after the stall takes its frames from before it died; 5 ms of
-        # the loop's own running time later it is lost
-        assert part.stats.cycles - cycles == 1 + 5
+        assert part.stats.cycles - cycles == 1
+        assert re.fullmatch(r"silence: none of its SO maps for (19|20)\.[0-9] ms",
+                            part.faults[0].seen), part.faults
 
 
 # ---------------------------------------------------------------------- stop
@@ -210,8 +213,9 @@ def test_stop_stops_every_other_board_within_a_cycle_and_ends_the_run() -> None:
         f, _ = lost[("CAN1", 1)]
         assert caught.value.faults == [f]
         assert str(caught.value) == (
-            f"CAN1 board 1 (right shoulder front) lost at {f.time:.3f} s: silence: none of "
-            "its SO maps for 5.0 ms; every other board was stopped")
+            f"CAN1 board 1 (right shoulder front) lost at {f.time:.3f} s: {f.seen}; every "
+            "other board was stopped")
+        assert f.seen.startswith("silence: none of its SO maps for 5.")
         detected = part._clock()
         assert detected == pytest.approx(f.time + part.stats.started_clock)
         h = part.robot.buses["CAN0"]
@@ -338,8 +342,12 @@ def test_each_kind_rejoins_with_every_joint_where_it_stood(kind: str) -> None:
             now = sensors(part, *b)
             for name, raw in now.items():
                 assert abs(raw - at_loss.get(b, before[b])[name]) <= 10, (b, name)
-        # the loop ran on undisturbed: every cycle on time, nobody else stopped
-        assert part.stats.missed == 0 and max(late) < 1e-9
+        # the loop ran on undisturbed: every cycle on time (in virtual time a frame sent
+        # on an idle bus takes its wire time: late by that, while every board is off),
+        # nobody else stopped
+        assert part.stats.missed == 0 and max(late) < 0.5 * PERIOD
+        if kind not in ("cable", "estop"):
+            assert max(late) < 1e-9
         assert [e for e in part.events if e.stopped_motors and
                 (e.bus, e.board) not in lost] == []
         assert set(states(fleet).values()) == {mca.RunState.RUNNING}
@@ -451,7 +459,8 @@ def test_run_stops_every_board_and_exits_1_naming_the_lost_one(flashed, inject_a
     data = json.loads(out)
     (f,) = data["faults"]
     assert f["event"] == "lost" and f["where"] == "CAN0 board 3 (head right)"
-    assert f["seen"] == "silence: none of its SO maps for 5.0 ms" and f["answered"] is None
+    assert f["seen"].startswith("silence: none of its SO maps for 5.") and \
+        f["answered"] is None
     assert data["lost"][0]["where"] == "CAN0 board 3 (head right)"
     assert data["run"]["cycles"] < 300  # the run ended there
     inject_at(200, fault("power-off"))

@@ -76,10 +76,12 @@ class Rejoin:
     (what was done, or why not), :attr:`answered` (when it first answered REJOIN, on the
     bus clock)."""
 
-    def __init__(self, part: RemotePart, bus: str, board: int) -> None:
+    def __init__(self, part: RemotePart, bus: str, board: int, delay: float = 0.0) -> None:
         self.part = part
         self.bus = bus
         self.board = board
+        self.delay = delay
+        """Seconds before the first question (boards lost together are asked apart)."""
         self.answered: float | None = None
         self.ok = False
         self.how = ""
@@ -116,6 +118,7 @@ class Rejoin:
         clock = link.clock
         stepped = self._stepped
         try:
+            stepped.sleep(clock, clock() + self.delay)
             while True:
                 asked = clock()
                 ack = boot.rejoin(n, serial, REJOIN_EVERY_S)
@@ -256,4 +259,4 @@ class Rejoin:
         return Seed.KEEP if program is None else program.seed_of(generic).seed
 
 
-Rejoiner = Callable[[str, int], Rejoin]
+Rejoiner = Callable[[str, int, float], Rejoin]

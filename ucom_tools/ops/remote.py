@@ -117,7 +117,7 @@ class RemotePart(RemoteLoop):
         if rejoin:
             from ucom_tools.ops.rejoin import Rejoin
 
-            self.rejoiner = lambda bus, n: Rejoin(self, bus, n)
+            self.rejoiner = lambda bus, n, delay: Rejoin(self, bus, n, delay)
         self._claimed = False
         self._owns_robot = False
         self.writes: list[WriteEvent] = []

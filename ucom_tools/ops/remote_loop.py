@@ -11,11 +11,16 @@ The in-process fleet in virtual time: the loop drives the fleet clock, nothing w
 
 After its drain the loop watches every board (``man/ucom-protocol.7``, RUN TIME, Faults):
 a board none of whose fastest SO maps came for :func:`~ucom_tools.ops.remote_faults.
-lost_after` is lost, measured by arrival at this loop (a map's frame count changed
-since the last drain), so that the loop's own stall never makes a live board look lost:
-the drain after it takes what came meanwhile.  A bus that fails (the connection or
-adapter: a BusError, an interface that reports error-passive or bus-off) is a fault of
-every board on it.  The policy (``on_fault``): ``stop`` broadcasts MCA Start STOP on
+lost_after` is lost.  The silence is measured on the time stamps of the frames its bus
+delivers (another board's frame stamped that long after its last one proves it; stamps
+are only compared with stamps of the same bus, so another host's clock does not
+matter), so that neither the loop's own stall nor a transport or served fleet that
+falls behind for a moment (its frames come late, together) makes a live board look
+lost.  A board from which nothing came at all for :data:`QUIET_MIN_S` of the loop's own
+running time (a cycle counts at most :data:`PRESENT_CAP` periods: a stall of the loop is
+no silence; the drain after it takes what came meanwhile) is lost too: that is a whole
+bus gone silent.  A bus that fails (the connection or adapter: a BusError, an interface
+that reports error-passive or bus-off) is a fault of every board on it, at once.  The policy (``on_fault``): ``stop`` broadcasts MCA Start STOP on
 every bus in the cycle of the detection and raises
 :class:`~ucom_tools.ops.remote_faults.BoardLost`; ``hold`` runs the others on and, with
 ``rejoin``, steps a conversation that brings the lost board back
@@ -82,6 +87,12 @@ _sleep: Final = time.sleep
 """Bound once: the loop's wait calls them every cycle."""
 RECENT_SAMPLES: Final = 2_000
 """The cycles a running view's lateness figures are taken over (the last 2 s at 1 kHz)."""
+QUIET_MIN_S: Final = 0.02
+"""A board from which nothing at all came for this long of the loop's running time is lost
+(when its bus's other boards are silent too, or their frames carry no usable time stamps,
+the time stamps cannot tell: a whole bus silent, a cable, every board off - where the
+interface does not say so at once by its state - or a transport or served fleet that
+fell behind for a moment, which must not stop the robot)."""
 PRESENT_CAP: Final = 2.0
 """A cycle counts at most this many periods of the loop's running time (the time a board's
 silence is measured on): a loop that was away longer was stalled."""
@@ -90,35 +101,42 @@ _EPSILON: Final = 1e-9
 
 
 class BoardWatch:
-    """One board's fastest SO maps as the loop watches them: the frame counts of the
-    process image (:attr:`~ucom_tools.protocol.mca.ProcessImage.counts`), their sum when
-    it last changed (:attr:`seen`) and when that was noticed (:attr:`last`, the loop's
-    clock), the silence after which it is lost (:attr:`limit`)."""
+    """One board's fastest SO maps as the loop watches them: the time stamps of their
+    latest frames in the process image (:attr:`~ucom_tools.protocol.mca.ProcessImage.
+    stamps`), the latest of them (:attr:`stamp`), when a new one was noticed on the
+    loop's running time (:attr:`last`), whether one came since the watch began
+    (:attr:`armed`), and the silences after which it is lost: :attr:`limit` measured on
+    its bus's time stamps, :attr:`quiet` on the loop's running time."""
 
-    def __init__(self, bus: str, board: int, where: str, counts: dict[int, int],
-                 maps: list[int], limit: float, present: float) -> None:
+    def __init__(self, bus: str, board: int, where: str, stamps: dict[int, float],
+                 maps: list[int], limit: float, quiet: float, present: float) -> None:
         self.bus = bus
         self.board = board
         self.where = where
-        self.counts = counts
+        self.stamps = stamps
         self.maps = maps
         self.limit = limit
-        self.seen = self.total()
+        self.quiet = quiet
+        self.stamp = self.latest()
         self.last = present
+        self.armed = False
         self.lost = False
 
-    def total(self) -> int:
-        """The frames of its watched maps received so far."""
-        counts = self.counts
-        out = 0
+    def latest(self) -> float:
+        """The time stamp of the latest frame of its watched maps (0: none yet)."""
+        stamps = self.stamps
+        out = 0.0
         for n in self.maps:
-            out += counts.get(n, 0)
+            t = stamps.get(n, 0.0)
+            if t > out:
+                out = t
         return out
 
     def back(self, present: float) -> None:
         """Watched again from ``present`` (it rejoined)."""
-        self.seen = self.total()
+        self.stamp = self.latest()
         self.last = present
+        self.armed = False
         self.lost = False
 
 
@@ -147,10 +165,11 @@ class RemoteLoop(RemoteValues):
         self.fault_hooks: list[Callable[[BoardFault], None]] = []
         """Called on the loop's thread with every fault event as it happens (a board lost,
         rejoined); what is called here must not wait for anything."""
-        self.rejoiner: Callable[[str, int], Any] | None = None
-        """Starts the conversation that brings board (bus, n) back (set by
-        :class:`~ucom_tools.ops.remote.RemotePart` with ``rejoin``): an object with
-        ``step()``, ``done``, ``ok``, ``answered`` and ``how``."""
+        self.rejoiner: Callable[[str, int, float], Any] | None = None
+        """Starts the conversation that brings board (bus, n) back, its first question
+        after a delay in seconds (set by :class:`~ucom_tools.ops.remote.RemotePart` with
+        ``rejoin``): an object with ``step()``, ``cancel()``, ``done``, ``ok``,
+        ``answered`` and ``how``."""
         self._present = 0.0
         """The loop's own running time since its start (seconds): the clock, but a cycle
         that came late counts at most :data:`PRESENT_CAP` periods.  Silence is measured on
@@ -159,6 +178,8 @@ class RemoteLoop(RemoteValues):
         self._watch_at = 0.0
         """The clock when :attr:`_present` last moved on."""
         self._watches: list[BoardWatch] = []
+        self._groups: list[list[BoardWatch]] = []
+        """The watched boards by bus."""
         self._watched: dict[tuple[str, int], BoardWatch] = {}
         self._notes: dict[tuple[str, int], tuple[float, str]] = {}
         """What each board said last besides its maps (an Error, its bootloader's Ready,
@@ -481,44 +502,67 @@ class RemoteLoop(RemoteValues):
         """Watch every configured board's fastest SO maps from ``now`` (the loop's start)."""
         self._watches = []
         self._watched = {}
+        self._groups = []
         self._present = 0.0
         self._watch_at = now
         for name, x in self.exchanges.items():
-            counts = x.mca.image.counts
+            stamps = x.mca.image.stamps
+            group: list[BoardWatch] = []
             for n in x.configured:
                 maps = x.plan.maps_of(n)
                 if not maps:
                     continue  # no SO map: nothing tells whether it lives
                 fastest = min(m.interval_us for m in maps)
-                w = BoardWatch(name, n, x.where(n), counts,
+                limit = lost_after(fastest / 1e6)
+                w = BoardWatch(name, n, x.where(n), stamps,
                                [m.number for m in maps if m.interval_us == fastest],
-                               lost_after(fastest / 1e6) - _EPSILON, 0.0)
-                self._watches.append(w)
+                               limit - _EPSILON, max(limit, QUIET_MIN_S) - _EPSILON, 0.0)
+                group.append(w)
                 self._watched[(name, n)] = w
+            if group:
+                self._groups.append(group)
+                self._watches += group
 
     def _watch_boards(self, now: float) -> None:
-        """After the cycle's drain: a board whose watched maps brought nothing new for its
-        limit is lost (on the loop's running time, :attr:`_present`); a bus whose
-        interface reports error-passive or bus-off fails."""
+        """After the cycle's drain, per bus: a board none of whose watched maps came for
+        its limit while the bus delivered frames meant after that (by their time
+        stamps) is lost; so is one from which nothing came for its quiet time of the
+        loop's running time (:attr:`_present`: the whole bus silent, or no usable time
+        stamps); and every board of a bus whose interface reports error-passive or
+        bus-off."""
         step = now - self._watch_at
         self._watch_at = now
         cap = PRESENT_CAP * self.period_s
         present = self._present + (step if step < cap else cap)
         self._present = present
-        for w in self._watches:
-            counts = w.counts
-            total = 0
-            for n in w.maps:
-                total += counts.get(n, 0)
-            if total != w.seen:
-                w.seen = total
-                w.last = present
-                if w.lost:  # (hold) its maps came again: it ran on, its configuration and
-                    self._maps_again(w, now)  # targets as they were
-            elif not w.lost and present - w.last >= w.limit:
-                self._lose(w, now, "")
+        for group in self._groups:
+            top = 0.0
+            for w in group:
+                latest = w.latest()
+                if latest != w.stamp:
+                    w.stamp = latest
+                    w.last = present
+                    w.armed = True
+                    if w.lost:  # (hold) its maps came again: it ran on, its configuration
+                        self._maps_again(w, now)  # and targets as they were
+                if latest > top:
+                    top = latest
+            for w in group:
+                if w.lost:
+                    continue
+                if w.armed and top - w.stamp >= w.limit:
+                    self._lose(w, now, f"silence: none of its SO maps for "
+                                       f"{(top - w.stamp) * 1e3:.1f} ms")
+                elif present - w.last >= w.quiet:
+                    self._lose(w, now, self._quiet_text(group, w, present))
         if self._states:
             self._watch_states(now)
+
+    def _quiet_text(self, group: list[BoardWatch], w: BoardWatch, present: float) -> str:
+        silent = present - w.last
+        if all(present - other.last >= other.quiet or other.lost for other in group):
+            return f"silence: nothing from any board of {w.bus} for {silent * 1e3:.1f} ms"
+        return f"silence: none of its SO maps for {silent * 1e3:.1f} ms"
 
     def _watch_states(self, now: float) -> None:
         for name, bus in self._states:
@@ -556,13 +600,10 @@ class RemoteLoop(RemoteValues):
         lost set; the policy acts at the end of the cycle (:meth:`_react`)."""
         w.lost = True
         key = (w.bus, w.board)
-        if not seen:
+        if seen.startswith("silence"):
             note = self._notes.get(key)
             if note is not None and note[0] >= w.last - self.period_s:
-                seen = note[1]  # said something since its last map
-            else:
-                seen = (f"silence: none of its SO maps for "
-                        f"{(self._present - w.last) * 1e3:.1f} ms")
+                seen = note[1]  # it said something after its last map
         t = round(now - self.stats.started_clock, 4)
         fault = BoardFault(t, w.bus, w.board, w.where, "lost", seen)
         self.faults.append(fault)
@@ -595,9 +636,11 @@ class RemoteLoop(RemoteValues):
             self._newly = []
             raise self._halt
         if self.rejoin and self.rejoiner is not None:
+            k = 0
             for f in newly:
-                if f.bus not in self._failed:
-                    self._rejoins.append(self.rejoiner(f.bus, f.board))
+                if f.bus not in self._failed:  # boards lost together asked a cycle apart
+                    self._rejoins.append(self.rejoiner(f.bus, f.board, k * self.period_s))
+                    k += 1
 
     def _maps_again(self, w: BoardWatch, now: float) -> None:
         """(hold) A lost board's maps came again before the PC brought it back: it ran on
