@@ -157,7 +157,7 @@ def test_a_watchdog_that_stopped_a_board_is_what_its_loss_names() -> None:
         name = bus.channel_info
         return LossyBus(bus, drop=lambda d, msg: armed["on"] and d == "tx" and "CAN3" in name
                         and msg.arbitration_id >> 6 == Function.MCA_ALIVE)
-    with running("hold", wrap=wrap) as (fleet, part):
+    with running("hold", wrap=wrap) as (_, part):
         part.run(0.1)
         armed["on"] = True
         part.run(0.1)
@@ -255,7 +255,7 @@ def test_a_failed_bus_is_a_fault_of_every_board_on_it() -> None:
     with running("stop", wrap=wrap) as (fleet, part):
         part.run(0.1)
         armed["on"] = True
-        with pytest.raises(BoardLost, match="CAN2 board 1 .* the bus failing"):
+        with pytest.raises(BoardLost, match=r"CAN2 board 1 .* the bus failing"):
             part.run(0.1)
 
 
@@ -332,7 +332,7 @@ def test_each_kind_rejoins_with_every_joint_where_it_stood(kind: str) -> None:
         assert part.lost == {}, part.lost
         rejoined = {(f.bus, f.board): f for f in part.faults if f.event == "rejoined"}
         assert set(rejoined) == set(lost) and lost
-        for key, f in rejoined.items():
+        for f in rejoined.values():
             assert f.time + part.stats.started_clock - back < 1.0, f  # back within 1 s
             assert f.answered is not None and f.answered < f.time
             assert "held where it stands" in f.seen
@@ -505,23 +505,54 @@ def test_served_a_stall_of_the_loop_loses_nobody_and_a_power_loss_is_noticed(
     ms so the boards run on): the drain after it takes what came meanwhile, nobody is
     lost; then a board that loses power is, within the rule, and rejoins."""
     state = Path(shutil.copytree(flashed, tmp_path / "state"))
-    with served_in_process("armar3", state) as (fleet, port):
-        with RemotePart.open("armar3", interface="socketcand", channels=["CAN0"],
-                             host="127.0.0.1", port=port, alive_ms=200, on_fault="hold",
-                             rejoin=True) as part:
-            lost = noticed(part, frames=False)
-            part.run(0.2)
-            time.sleep(0.06)  # the fault itself: the loop is kept away 60 ms
-            part.run(0.2)
-            assert part.stats.longest_gap_s >= 0.06
-            assert part.faults == []
-            fleet.inject(fault("power-off", seconds=0.2))
-            deadline = time.monotonic() + 5
-            while part.lost or not part.faults:
-                assert time.monotonic() < deadline, part.faults
-                part.cycle()
-            part.run(0.1)
-            (f, _), = lost.values()
-            assert [x.event for x in part.faults] == ["lost", "rejoined"]
-            assert f.where == "CAN0 board 3 (head right)"
-            assert f.seen.startswith("silence: none of its SO maps for ")
+    with served_in_process("armar3", state) as (fleet, port), RemotePart.open(
+            "armar3", interface="socketcand", channels=["CAN0"], host="127.0.0.1",
+            port=port, alive_ms=200, on_fault="hold", rejoin=True) as part:
+        lost = noticed(part, frames=False)
+        part.run(0.2)
+        time.sleep(0.06)  # the fault itself: the loop is kept away 60 ms
+        part.run(0.2)
+        assert part.stats.longest_gap_s >= 0.06
+        assert part.faults == []
+        fleet.inject(fault("power-off", seconds=0.2))
+        deadline = time.monotonic() + 5
+        while part.lost or not part.faults:
+            assert time.monotonic() < deadline, part.faults
+            part.cycle()
+        part.run(0.1)
+        (f, _), = lost.values()
+        assert [x.event for x in part.faults] == ["lost", "rejoined"]
+        assert f.where == "CAN0 board 3 (head right)"
+        assert f.seen.startswith("silence: none of its SO maps for ")
+
+
+# ---------------------------------------------------------------------- the pages
+def test_the_protocol_page_says_the_rule_and_how_each_program_is_seeded() -> None:
+    from ucom_tools.edgelists import armar3, lauron4
+    from ucom_tools.edgelists.model import Seed
+    from ucom_tools.ops.remote_faults import LOST_AFTER_MIN_S, LOST_PERIODS, REJOIN_EVERY_S
+    from ucom_tools.ops.remote_loop import QUIET_MIN_S
+    page = (ROOT / "man/ucom-protocol.7").read_text()
+    section = page[page.index("\n.SS Faults\n"):page.index("\n.SS Bad input\n")]
+    text = " ".join(re.sub(r"\\f[BIRP]|\\&", "", section).replace("\\-", "-").split())
+    assert (f"max({LOST_PERIODS} periods of its fastest map, "
+            f"{LOST_AFTER_MIN_S * 1e3:g} ms)") in text
+    assert f"for {QUIET_MIN_S * 1e3:g} ms of the host loop's own running time" in text
+    assert f"Every {REJOIN_EVERY_S * 1e3:g} ms Init Request REJOIN" in text
+    for spec, program in ((armar3.SPEC, "armar3"), (lauron4.SPEC, "lauron4")):
+        table = text[text.index(f" {program} "):]
+        for seed in spec.seeds:  # named as the page does: MotorX, AxisN
+            generic = re.sub(r"^Motor[ABC]", "MotorX", re.sub(r"^Axis\d", "AxisN", seed.ci))
+            assert generic in table, seed
+            if seed.seed is Seed.SENSOR:
+                sensor = re.sub(r"^Axis\d", "AxisN", seed.sensor)
+                assert sensor in table or "Encoder 0, 2, 4" in table, seed
+            if seed.seed is Seed.ZERO:
+                assert f"{generic} 0" in table, seed
+
+
+def test_help_names_the_policies() -> None:
+    code, out, _ = ucom("remote", "run", "--help")
+    assert code == 0
+    text = " ".join(out.split())
+    assert "--on-fault [stop|hold]" in text and "--rejoin" in text

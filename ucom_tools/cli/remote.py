@@ -16,7 +16,7 @@ import click
 from rich.markup import escape
 from rich.table import Table
 
-from ucom_tools.cli.exitcodes import EXIT_FAILED
+from ucom_tools.cli.exitcodes import EXIT_BUS, EXIT_FAILED
 from ucom_tools.cli.options import (
     Finite,
     connection_json,
@@ -444,6 +444,7 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                                + (f"{len(problems)} board(s) could not be stopped"
                                   if problems else "every board stopped") + "[/]")
             still_lost = sorted(part.lost.values(), key=lambda b: (b.bus, b.board))
+            failed = part.failed_buses
             if part.scheduling is not None and part.scheduling.refused:
                 stderr().print(f"[yellow]ucom: --realtime: {escape(part.scheduling.refused)}; "
                                "the loop ran at normal priority[/]", soft_wrap=True)
@@ -469,10 +470,12 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                 if stopped:
                     _print_loop_away(part)
                 _print_writes(part.writes)
-    if (stopped or still_lost) and not interrupted:
-        ctx.exit(EXIT_FAILED)
     if interrupted:
         ctx.exit(interrupted)
+    if failed:
+        ctx.exit(EXIT_BUS)
+    if stopped or still_lost:
+        ctx.exit(EXIT_FAILED)
 
 
 def _print_loop_away(part: RemotePart) -> None:

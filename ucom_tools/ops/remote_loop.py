@@ -20,8 +20,9 @@ lost.  A board from which nothing came at all for :data:`QUIET_MIN_S` of the loo
 running time (a cycle counts at most :data:`PRESENT_CAP` periods: a stall of the loop is
 no silence; the drain after it takes what came meanwhile) is lost too: that is a whole
 bus gone silent.  A bus that fails (the connection or adapter: a BusError, an interface
-that reports error-passive or bus-off) is a fault of every board on it, at once.  The policy (``on_fault``): ``stop`` broadcasts MCA Start STOP on
-every bus in the cycle of the detection and raises
+that reports error-passive or bus-off) is a fault of every board on it, at once.
+The policy (``on_fault``): ``stop`` broadcasts MCA Start STOP on every bus in the cycle
+of the detection and raises
 :class:`~ucom_tools.ops.remote_faults.BoardLost`; ``hold`` runs the others on and, with
 ``rejoin``, steps a conversation that brings the lost board back
 (:mod:`~ucom_tools.ops.rejoin`) after each cycle's drain; a lost board whose maps come
@@ -241,6 +242,12 @@ class RemoteLoop(RemoteValues):
         text = "normal" if self.scheduling is None else self.scheduling.describe()
         granted = self.time_slice.granted
         return text if granted is None else f"{text}, time slice {granted / 1e6:g} ms"
+
+    @property
+    def failed_buses(self) -> dict[str, str]:
+        """The buses whose connection or adapter failed while the loop ran, and why (their
+        boards are lost; nothing more is sent there)."""
+        return dict(self._failed)
 
     @property
     def running(self) -> bool:
