@@ -511,7 +511,10 @@ def _fault_json(f: BoardFault) -> dict[str, Any]:
 
 def _print_faults(part: RemotePart, still_lost: list[Any]) -> None:
     """Every board lost and rejoined, in order; under --on-fault stop what was done;
-    the boards still lost at the end."""
+    the boards still lost at the end; each bus that failed (exit 4), as a bus error is
+    shown elsewhere."""
+    for why in part.failed_buses.values():
+        stderr().print(f"[bold red]ucom: bus error:[/] {escape(why)}", soft_wrap=True)
     for f in part.faults:
         if f.event == "lost":
             stderr().print(f"[red]ucom: {escape(f.where)} lost at {f.time:.3f} s: "

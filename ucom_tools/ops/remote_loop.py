@@ -11,16 +11,16 @@ The in-process fleet in virtual time: the loop drives the fleet clock, nothing w
 
 After its drain the loop watches every board (``man/ucom-protocol.7``, RUN TIME, Faults):
 a board none of whose fastest SO maps came for :func:`~ucom_tools.ops.remote_faults.
-lost_after` is lost.  The silence is measured on the time stamps of the frames its bus
-delivers (another board's frame stamped that long after its last one proves it; stamps
-are only compared with stamps of the same bus, so another host's clock does not
-matter), so that neither the loop's own stall nor a transport or served fleet that
-falls behind for a moment (its frames come late, together) makes a live board look
-lost.  A board from which nothing came at all for :data:`QUIET_MIN_S` of the loop's own
-running time (a cycle counts at most :data:`PRESENT_CAP` periods: a stall of the loop is
-no silence; the drain after it takes what came meanwhile) is lost too: that is a whole
-bus gone silent.  A bus that fails (the connection or adapter: a BusError, an interface
-that reports error-passive or bus-off) is a fault of every board on it, at once.
+lost_after` is lost.  The silence is counted in the frames its bus's other boards sent
+meanwhile (their maps' periods say how long that took), not in time: frames come in the
+order they were sent, so neither the loop's own stall (the drain after it takes what
+came meanwhile) nor a transport or served fleet that delivers late and then all at
+once, nor time stamps on another clock, make a board that sends look lost.  A board
+from which nothing came at all for the boards' watchdog time of the loop's own running
+time (a cycle counts at most :data:`PRESENT_CAP` periods: a stall of the loop is no
+silence) is lost too: that is a whole bus gone silent, which the other boards cannot
+tell.  A bus that fails (the connection or adapter: a BusError, an interface that
+reports error-passive or bus-off) is a fault of every board on it, at once.
 The policy (``on_fault``): ``stop`` broadcasts MCA Start STOP on every bus in the cycle
 of the detection and raises
 :class:`~ucom_tools.ops.remote_faults.BoardLost`; ``hold`` runs the others on and, with
@@ -62,6 +62,7 @@ from ucom_tools.ops.remote_report import BoardEvent, LoopStats, Value
 from ucom_tools.ops.remote_values import RemoteValues
 from ucom_tools.ops.robot import BusHandle, Robot
 from ucom_tools.protocol.dispatch import share_clock
+from ucom_tools.protocol.mca import ProcessImage
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as wire_messages
 from ucom_tools.wire.codes import ErrorCode, ReadyReason
@@ -88,12 +89,6 @@ _sleep: Final = time.sleep
 """Bound once: the loop's wait calls them every cycle."""
 RECENT_SAMPLES: Final = 2_000
 """The cycles a running view's lateness figures are taken over (the last 2 s at 1 kHz)."""
-QUIET_MIN_S: Final = 0.02
-"""A board from which nothing at all came for this long of the loop's running time is lost
-(when its bus's other boards are silent too, or their frames carry no usable time stamps,
-the time stamps cannot tell: a whole bus silent, a cable, every board off - where the
-interface does not say so at once by its state - or a transport or served fleet that
-fell behind for a moment, which must not stop the robot)."""
 PRESENT_CAP: Final = 2.0
 """A cycle counts at most this many periods of the loop's running time (the time a board's
 silence is measured on): a loop that was away longer was stalled."""
@@ -102,40 +97,47 @@ _EPSILON: Final = 1e-9
 
 
 class BoardWatch:
-    """One board's fastest SO maps as the loop watches them: the time stamps of their
-    latest frames in the process image (:attr:`~ucom_tools.protocol.mca.ProcessImage.
-    stamps`), the latest of them (:attr:`stamp`), when a new one was noticed on the
-    loop's running time (:attr:`last`), whether one came since the watch began
-    (:attr:`armed`), and the silences after which it is lost: :attr:`limit` measured on
-    its bus's time stamps, :attr:`quiet` on the loop's running time."""
+    """One board's fastest SO maps as the loop watches them: which frame of its bus's
+    process image (:class:`~ucom_tools.protocol.mca.ProcessImage`: ``order``,
+    ``received``) the latest of them was (:attr:`index`), when that changed on the loop's
+    running time (:attr:`last`), and the silences after which it is lost: :attr:`limit`
+    seconds, proved by :attr:`frames` frames of the other boards after its last (they
+    send :attr:`rate` frames a second of their own), or nothing at all for :attr:`quiet`
+    of the loop's running time."""
 
-    def __init__(self, bus: str, board: int, where: str, stamps: dict[int, float],
-                 maps: list[int], limit: float, quiet: float, present: float) -> None:
+    def __init__(self, bus: str, board: int, where: str, image: ProcessImage,
+                 maps: list[int], rate: float, limit: float, quiet: float,
+                 present: float) -> None:
         self.bus = bus
         self.board = board
         self.where = where
-        self.stamps = stamps
+        self.image = image
+        self.order = image.order
         self.maps = maps
+        self.rate = rate
         self.limit = limit
         self.quiet = quiet
-        self.stamp = self.latest()
+        self.frames = 0.0
+        """The other boards' frames that prove :attr:`limit` of silence (0: no other
+        board on its bus that is not lost: only :attr:`quiet` tells)."""
+        self.index = self.latest()
         self.last = present
         self.armed = False
         self.lost = False
 
-    def latest(self) -> float:
-        """The time stamp of the latest frame of its watched maps (0: none yet)."""
-        stamps = self.stamps
-        out = 0.0
+    def latest(self) -> int:
+        """Which frame of the bus the latest of its watched maps was (0: none yet)."""
+        order = self.order
+        out = 0
         for n in self.maps:
-            t = stamps.get(n, 0.0)
-            if t > out:
-                out = t
+            k = order.get(n, 0)
+            if k > out:
+                out = k
         return out
 
     def back(self, present: float) -> None:
         """Watched again from ``present`` (it rejoined)."""
-        self.stamp = self.latest()
+        self.index = self.latest()
         self.last = present
         self.armed = False
         self.lost = False
@@ -513,57 +515,78 @@ class RemoteLoop(RemoteValues):
         self._present = 0.0
         self._watch_at = now
         for name, x in self.exchanges.items():
-            stamps = x.mca.image.stamps
+            image = x.mca.image
             group: list[BoardWatch] = []
+            quiet = x.plan.alive_ms / 1000
             for n in x.configured:
                 maps = x.plan.maps_of(n)
                 if not maps:
                     continue  # no SO map: nothing tells whether it lives
                 fastest = min(m.interval_us for m in maps)
                 limit = lost_after(fastest / 1e6)
-                w = BoardWatch(name, n, x.where(n), stamps,
+                w = BoardWatch(name, n, x.where(n), image,
                                [m.number for m in maps if m.interval_us == fastest],
-                               limit - _EPSILON, max(limit, QUIET_MIN_S) - _EPSILON, 0.0)
+                               sum(1e6 / m.interval_us for m in maps), limit,
+                               max(limit, quiet) - _EPSILON, 0.0)
                 group.append(w)
                 self._watched[(name, n)] = w
             if group:
                 self._groups.append(group)
                 self._watches += group
+                self._proofs(group)
+
+    @staticmethod
+    def _proofs(group: list[BoardWatch]) -> None:
+        """How many frames of the other boards of a bus (those not lost) prove each one's
+        limit of silence."""
+        live = 0.0
+        for w in group:
+            if not w.lost:
+                live += w.rate
+        for w in group:
+            others = live - (0.0 if w.lost else w.rate)
+            w.frames = w.limit * others - _EPSILON if others > 0 else 0.0
 
     def _watch_boards(self, now: float) -> None:
-        """After the cycle's drain, per bus: a board none of whose watched maps came for
-        its limit while the bus delivered frames meant after that (by their time
-        stamps) is lost; so is one from which nothing came for its quiet time of the
-        loop's running time (:attr:`_present`: the whole bus silent, or no usable time
-        stamps); and every board of a bus whose interface reports error-passive or
-        bus-off."""
+        """After the cycle's drain, per bus: a board after whose last watched map the
+        bus's other boards sent as many frames as fill its limit at their periods is lost
+        (counted in frames, in the order they were sent, not in time: neither a stall of
+        this loop nor a transport or served fleet that delivers late and then all at once
+        makes a board that sends look lost); so is one from which nothing came for its
+        quiet time of the loop's running time (:attr:`_present`: the whole bus silent);
+        and every board of a bus whose interface reports error-passive or bus-off."""
         step = now - self._watch_at
         self._watch_at = now
         cap = PRESENT_CAP * self.period_s
         present = self._present + (step if step < cap else cap)
         self._present = present
         for group in self._groups:
-            top = 0.0
+            received = group[0].image.received
             for w in group:
-                latest = w.latest()
-                if latest != w.stamp:
-                    w.stamp = latest
+                index = w.latest()
+                if index != w.index:
+                    w.index = index
                     w.last = present
                     w.armed = True
                     if w.lost:  # (hold) its maps came again: it ran on, its configuration
                         self._maps_again(w, now)  # and targets as they were
-                if latest > top:
-                    top = latest
-            for w in group:
-                if w.lost:
+                        continue
+                elif w.lost:
                     continue
-                if w.armed and top - w.stamp >= w.limit:
+                after = received - index  # (a drain that brought its last frame and
+                if w.armed and w.frames > 0.0 and after >= w.frames:  # enough after it)
                     self._lose(w, now, f"silence: none of its SO maps for "
-                                       f"{(top - w.stamp) * 1e3:.1f} ms")
+                                       f"{w.limit * after / w.frames * 1e3:.1f} ms")
                 elif present - w.last >= w.quiet:
                     self._lose(w, now, self._quiet_text(group, w, present))
         if self._states:
             self._watch_states(now)
+
+    def _group_of(self, w: BoardWatch) -> list[BoardWatch]:
+        for group in self._groups:
+            if w in group:
+                return group
+        return [w]
 
     def _quiet_text(self, group: list[BoardWatch], w: BoardWatch, present: float) -> str:
         silent = present - w.last
@@ -621,6 +644,7 @@ class RemoteLoop(RemoteValues):
         lost = dict(self._lost)
         lost[key] = LostBoard(w.bus, w.board, w.where, t, seen, status)
         self._lost = lost
+        self._proofs(self._group_of(w))
         self._newly.append(fault)
         for hook in self.fault_hooks:
             hook(fault)
@@ -667,6 +691,7 @@ class RemoteLoop(RemoteValues):
         if lost is None:
             return
         w.lost = False
+        self._proofs(self._group_of(w))
         replaced = dict(self._lost)
         del replaced[key]
         self._lost = replaced
@@ -702,6 +727,7 @@ class RemoteLoop(RemoteValues):
         now = self._clock()
         w = self._watched[key]
         w.back(self._present)
+        self._proofs(self._group_of(w))
         replaced = dict(self._lost)
         del replaced[key]
         self._lost = replaced

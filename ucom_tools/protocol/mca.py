@@ -61,11 +61,15 @@ MASK_TABLE: Final = bytes(b ^ mca.MAP_MASK for b in range(256))
 @dataclass
 class ProcessImage:
     """The latest SO process data of a bus: each map's values (unmasked bytes) and when
-    they came."""
+    they came; how many frames of each came, and of all (:attr:`received`), and which of
+    them each map's latest was (:attr:`order`: what came after a board's last map, in the
+    order the frames were sent, tells how long it was silent)."""
 
     frames: dict[int, bytes] = field(default_factory=dict)
     stamps: dict[int, float] = field(default_factory=dict)
     counts: dict[int, int] = field(default_factory=dict)
+    order: dict[int, int] = field(default_factory=dict)
+    received: int = 0
 
     def take(self, msg: can.Message) -> None:
         """A received SO map, as a message (:meth:`take_data`)."""
@@ -79,6 +83,9 @@ class ProcessImage:
         self.stamps[number] = stamp
         counts = self.counts
         counts[number] = counts.get(number, 0) + 1
+        received = self.received + 1
+        self.received = received
+        self.order[number] = received
 
 
 SAME_BASE_S: Final = 600.0
