@@ -97,13 +97,13 @@ _EPSILON: Final = 1e-9
 
 
 class BoardWatch:
-    """One board's fastest SO maps as the loop watches them: which frame of its bus's
-    process image (:class:`~ucom_tools.protocol.mca.ProcessImage`: ``order``,
-    ``received``) the latest of them was (:attr:`index`), when that changed on the loop's
-    running time (:attr:`last`), and the silences after which it is lost: :attr:`limit`
-    seconds, proved by :attr:`frames` frames of the other boards after its last (they
-    send :attr:`rate` frames a second of their own), or nothing at all for :attr:`quiet`
-    of the loop's running time."""
+    """One board's fastest SO maps as the loop watches them: which of the watched frames
+    of its bus's process image (:class:`~ucom_tools.protocol.mca.ProcessImage`:
+    ``watched``, ``order``, ``received``) the latest of them was (:attr:`index`), when
+    that changed on the loop's running time (:attr:`last`), and the silences after which
+    it is lost: :attr:`limit` seconds, proved by :attr:`frames` frames of the other
+    boards' fastest maps after its last (its own: :attr:`rate` frames a second), or
+    nothing at all for :attr:`quiet` of the loop's running time."""
 
     def __init__(self, bus: str, board: int, where: str, image: ProcessImage,
                  maps: list[int], rate: float, limit: float, quiet: float,
@@ -524,9 +524,10 @@ class RemoteLoop(RemoteValues):
                     continue  # no SO map: nothing tells whether it lives
                 fastest = min(m.interval_us for m in maps)
                 limit = lost_after(fastest / 1e6)
-                w = BoardWatch(name, n, x.where(n), image,
-                               [m.number for m in maps if m.interval_us == fastest],
-                               sum(1e6 / m.interval_us for m in maps), limit,
+                numbers = [m.number for m in maps if m.interval_us == fastest]
+                image.watched.update(numbers)
+                w = BoardWatch(name, n, x.where(n), image, numbers,
+                               len(numbers) * 1e6 / fastest, limit,
                                max(limit, quiet) - _EPSILON, 0.0)
                 group.append(w)
                 self._watched[(name, n)] = w
