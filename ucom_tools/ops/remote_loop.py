@@ -97,16 +97,17 @@ _EPSILON: Final = 1e-9
 
 
 class BoardWatch:
-    """One board's fastest SO maps as the loop watches them: which of the watched frames
-    of its bus's process image (:class:`~ucom_tools.protocol.mca.ProcessImage`:
-    ``watched``, ``order``, ``received``) the latest of them was (:attr:`index`), when
-    that changed on the loop's running time (:attr:`last`), and the silences after which
-    it is lost: :attr:`limit` seconds, proved by :attr:`frames` frames of the other
-    boards' fastest maps after its last (its own: :attr:`rate` frames a second), or
-    nothing at all for :attr:`quiet` of the loop's running time."""
+    """One board's SO maps as the loop watches them: how many frames of the boards'
+    fastest maps of its bus's process image (:class:`~ucom_tools.protocol.mca.
+    ProcessImage`: ``watched``, ``order``, ``received``) had come when its latest frame
+    came (:attr:`index`), when that changed on the loop's running time (:attr:`last`),
+    and the silences after which it is lost: :attr:`limit` seconds, proved by
+    :attr:`frames` frames of the other boards' fastest maps after its last (its own
+    fastest: :attr:`rate` frames a second), or nothing at all for :attr:`quiet` of the
+    loop's running time."""
 
     def __init__(self, bus: str, board: int, where: str, image: ProcessImage,
-                 maps: list[int], rate: float, limit: float, quiet: float,
+                 maps: list[int], fast: int, rate: float, limit: float, quiet: float,
                  present: float) -> None:
         self.bus = bus
         self.board = board
@@ -115,18 +116,25 @@ class BoardWatch:
         self.order = image.order
         self.maps = maps
         self.rate = rate
+        self.fast = fast
+        """Its fastest maps."""
         self.limit = limit
         self.quiet = quiet
         self.frames = 0.0
         """The other boards' frames that prove :attr:`limit` of silence (0: no other
         board on its bus that is not lost: only :attr:`quiet` tells)."""
+        self.others = 0.0
+        """The frames a second of the fastest maps of the other boards not lost ..."""
+        self.extra = 0
+        """... and their number."""
         self.index = self.latest()
         self.last = present
         self.armed = False
         self.lost = False
 
     def latest(self) -> int:
-        """Which frame of the bus the latest of its watched maps was (0: none yet)."""
+        """How many of the bus's watched frames had come by its latest frame (0: none of
+        it yet)."""
         order = self.order
         out = 0
         for n in self.maps:
@@ -526,8 +534,8 @@ class RemoteLoop(RemoteValues):
                 limit = lost_after(fastest / 1e6)
                 numbers = [m.number for m in maps if m.interval_us == fastest]
                 image.watched.update(numbers)
-                w = BoardWatch(name, n, x.where(n), image, numbers,
-                               len(numbers) * 1e6 / fastest, limit,
+                w = BoardWatch(name, n, x.where(n), image, [m.number for m in maps],
+                               len(numbers), len(numbers) * 1e6 / fastest, limit,
                                max(limit, quiet) - _EPSILON, 0.0)
                 group.append(w)
                 self._watched[(name, n)] = w
@@ -539,14 +547,20 @@ class RemoteLoop(RemoteValues):
     @staticmethod
     def _proofs(group: list[BoardWatch]) -> None:
         """How many frames of the other boards of a bus (those not lost) prove each one's
-        limit of silence."""
+        limit of silence: as many as they send in it, and one more of each map (the
+        first may come just after its last frame, at any phase)."""
         live = 0.0
+        maps = 0
         for w in group:
             if not w.lost:
                 live += w.rate
+                maps += w.fast
         for w in group:
             others = live - (0.0 if w.lost else w.rate)
-            w.frames = w.limit * others - _EPSILON if others > 0 else 0.0
+            extra = maps - (0 if w.lost else w.fast)
+            w.others = others
+            w.extra = extra
+            w.frames = w.limit * others + extra - _EPSILON if others > 0 else 0.0
 
     def _watch_boards(self, now: float) -> None:
         """After the cycle's drain, per bus: a board after whose last watched map the
@@ -576,8 +590,9 @@ class RemoteLoop(RemoteValues):
                     continue
                 after = received - index  # (a drain that brought its last frame and
                 if w.armed and w.frames > 0.0 and after >= w.frames:  # enough after it)
+                    silent = max(w.limit, (after - w.extra) / w.others)
                     self._lose(w, now, f"silence: none of its SO maps for "
-                                       f"{w.limit * after / w.frames * 1e3:.1f} ms")
+                                       f"{silent * 1e3:.1f} ms")
                 elif present - w.last >= w.quiet:
                     self._lose(w, now, self._quiet_text(group, w, present))
         if self._states:

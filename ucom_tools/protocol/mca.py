@@ -61,11 +61,11 @@ MASK_TABLE: Final = bytes(b ^ mca.MAP_MASK for b in range(256))
 @dataclass
 class ProcessImage:
     """The latest SO process data of a bus: each map's values (unmasked bytes) and when
-    they came, how many frames of each came; and of the maps in :attr:`watched` (the
-    boards' fastest, which the run time watches), how many came in all
-    (:attr:`received`) and which of them each one's latest was (:attr:`order`): the
-    frames of the others that came after a board's last, in the order they were sent,
-    tell how long it was silent."""
+    they came, how many frames of each came; how many frames of the maps in
+    :attr:`watched` (the boards' fastest, which the run time watches) came in all
+    (:attr:`received`), and for each map how many of those had come when its latest
+    frame came (:attr:`order`): the frames of the others that came after a board's last,
+    in the order they were sent, tell how long it was silent."""
 
     frames: dict[int, bytes] = field(default_factory=dict)
     stamps: dict[int, float] = field(default_factory=dict)
@@ -86,10 +86,11 @@ class ProcessImage:
         self.stamps[number] = stamp
         counts = self.counts
         counts[number] = counts.get(number, 0) + 1
+        received = self.received
         if number in self.watched:
-            received = self.received + 1
+            received += 1
             self.received = received
-            self.order[number] = received
+        self.order[number] = received
 
 
 SAME_BASE_S: Final = 600.0
