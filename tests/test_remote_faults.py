@@ -531,13 +531,14 @@ def test_the_protocol_page_says_the_rule_and_how_each_program_is_seeded() -> Non
     from ucom_tools.edgelists import armar3, lauron4
     from ucom_tools.edgelists.model import Seed
     from ucom_tools.ops.remote_faults import LOST_AFTER_MIN_S, LOST_PERIODS, REJOIN_EVERY_S
+    from ucom_tools.ops.remote_loop import QUIET_MIN_S
     page = (ROOT / "man/ucom-protocol.7").read_text()
     section = page[page.index("\n.SS Faults\n"):page.index("\n.SS Bad input\n")]
     text = " ".join(re.sub(r"\\f[BIRP]|\\&", "", section).replace("\\-", "-").split())
     assert (f"max({LOST_PERIODS} periods of its fastest map, "
             f"{LOST_AFTER_MIN_S * 1e3:g} ms)") in text
-    assert ("nothing came at all for the boards' watchdog time (Admin Data ALIVE: "
-            f"{mca.ALIVE_DEFAULT_MS} ms by default) of the host loop's own running time"
+    assert (f"nothing came at all for {QUIET_MIN_S:g} s, or the boards' watchdog time "
+            "(Admin Data ALIVE) if that is longer, of the host loop's own running time"
             in text)
     assert f"Every {REJOIN_EVERY_S * 1e3:g} ms Init Request REJOIN" in text
     for spec, program in ((armar3.SPEC, "armar3"), (lauron4.SPEC, "lauron4")):

@@ -16,10 +16,10 @@ meanwhile (their maps' periods say how long that took), not in time: frames come
 order they were sent, so neither the loop's own stall (the drain after it takes what
 came meanwhile) nor a transport or served fleet that delivers late and then all at
 once, nor time stamps on another clock, make a board that sends look lost.  A board
-from which nothing came at all for the boards' watchdog time of the loop's own running
-time (a cycle counts at most :data:`PRESENT_CAP` periods: a stall of the loop is no
-silence) is lost too: that is a whole bus gone silent, which the other boards cannot
-tell.  A bus that fails (the connection or adapter: a BusError, an interface that
+from which nothing came at all for :data:`QUIET_MIN_S` (or the boards' watchdog time)
+of the loop's own running time (a cycle counts at most :data:`PRESENT_CAP` periods: a
+stall of the loop is no silence) is lost too: that is a whole bus gone silent, which
+the other boards cannot tell.  A bus that fails (the connection or adapter: a BusError, an interface that
 reports error-passive or bus-off) is a fault of every board on it, at once.
 The policy (``on_fault``): ``stop`` broadcasts MCA Start STOP on every bus in the cycle
 of the detection and raises
@@ -89,6 +89,15 @@ _sleep: Final = time.sleep
 """Bound once: the loop's wait calls them every cycle."""
 RECENT_SAMPLES: Final = 2_000
 """The cycles a running view's lateness figures are taken over (the last 2 s at 1 kHz)."""
+QUIET_MIN_S: Final = 0.5
+"""A board from which nothing at all came for this long of the loop's running time (or
+the boards' watchdog time, if longer) is lost: a whole bus gone silent, which the other
+boards cannot tell.  Where the interface reports its state (error-passive: nobody
+acknowledges, a cut cable, every board off) that is noticed at once; where it does not
+(socketcand), a shorter time would make a transport or a served fleet that a busy
+machine held for a moment (hundreds of milliseconds; the boards do not see it: their
+time stood still too) end the run.  A board cut off from the PC has stopped by its own
+watchdog long before."""
 PRESENT_CAP: Final = 2.0
 """A cycle counts at most this many periods of the loop's running time (the time a board's
 silence is measured on): a loop that was away longer was stalled."""
@@ -525,7 +534,7 @@ class RemoteLoop(RemoteValues):
         for name, x in self.exchanges.items():
             image = x.mca.image
             group: list[BoardWatch] = []
-            quiet = x.plan.alive_ms / 1000
+            quiet = max(x.plan.alive_ms / 1000, QUIET_MIN_S)
             for n in x.configured:
                 maps = x.plan.maps_of(n)
                 if not maps:
