@@ -26,6 +26,7 @@ from ucom_tools.config.scenario import FaultKind, InjectedFault
 from ucom_tools.errors import InputError
 from ucom_tools.ops.remote import BoardFault, BoardLost, LostBoardWrite, RemotePart
 from ucom_tools.ops.remote_faults import lost_after
+from ucom_tools.ops.remote_loop import QUIET_MIN_S
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.virtual.loss import LossyBus
 from ucom_tools.wire import mca
@@ -150,7 +151,8 @@ def test_each_kind_of_fault_is_noticed_by_the_rule(kind: str) -> None:
 
 def test_a_watchdog_that_stopped_a_board_is_what_its_loss_names() -> None:
     """A board whose watchdog stopped it (no MCA Alive reached it) sends Error WATCHDOG,
-    then no maps: its lost event names the Error, the last thing it said."""
+    then no maps: its lost event names the Error, the last thing it said (both boards of
+    CAN3 at once: nothing from that bus at all, so after the quiet time)."""
     armed = {"on": False}
 
     def wrap(bus: can.BusABC) -> can.BusABC:
@@ -161,6 +163,8 @@ def test_a_watchdog_that_stopped_a_board_is_what_its_loss_names() -> None:
         part.run(0.1)
         armed["on"] = True
         part.run(0.1)
+        assert part.lost == {}  # both silent: no other board of CAN3 tells how long
+        part.run(QUIET_MIN_S)
         assert set(part.lost) == {("CAN3", 1), ("CAN3", 2)}
         for f in part.faults:
             assert f.seen.startswith("its watchdog stopped every motor: no MCA Alive for "), f
@@ -531,7 +535,6 @@ def test_the_protocol_page_says_the_rule_and_how_each_program_is_seeded() -> Non
     from ucom_tools.edgelists import armar3, lauron4
     from ucom_tools.edgelists.model import Seed
     from ucom_tools.ops.remote_faults import LOST_AFTER_MIN_S, LOST_PERIODS, REJOIN_EVERY_S
-    from ucom_tools.ops.remote_loop import QUIET_MIN_S
     page = (ROOT / "man/ucom-protocol.7").read_text()
     section = page[page.index("\n.SS Faults\n"):page.index("\n.SS Bad input\n")]
     text = " ".join(re.sub(r"\\f[BIRP]|\\&", "", section).replace("\\-", "-").split())

@@ -19,8 +19,9 @@ once, nor time stamps on another clock, make a board that sends look lost.  A bo
 from which nothing came at all for :data:`QUIET_MIN_S` (or the boards' watchdog time)
 of the loop's own running time (a cycle counts at most :data:`PRESENT_CAP` periods: a
 stall of the loop is no silence) is lost too: that is a whole bus gone silent, which
-the other boards cannot tell.  A bus that fails (the connection or adapter: a BusError, an interface that
-reports error-passive or bus-off) is a fault of every board on it, at once.
+the other boards cannot tell.  A bus that fails (the connection or adapter: a
+BusError, an interface that reports error-passive or bus-off) is a fault of every
+board on it, at once.
 The policy (``on_fault``): ``stop`` broadcasts MCA Start STOP on every bus in the cycle
 of the detection and raises
 :class:`~ucom_tools.ops.remote_faults.BoardLost`; ``hold`` runs the others on and, with
