@@ -95,8 +95,8 @@ class Rejoin:
     def done(self) -> bool:
         return self._stepped.done
 
-    def step(self) -> None:
-        self._stepped.step()
+    def step(self, budget: float | None = None) -> None:
+        self._stepped.step(budget)
         if self._stepped.done and not self.how:
             err = self._stepped.error
             self.how = (f"cannot rejoin: {err}" if err is not None

@@ -102,6 +102,9 @@ watchdog long before."""
 PRESENT_CAP: Final = 2.0
 """A cycle counts at most this many periods of the loop's running time (the time a board's
 silence is measured on): a loop that was away longer was stalled."""
+REJOIN_MARGIN_S: Final = 0.0003
+"""On the wall clock a rejoin's step ends this long before the loop's next deadline at the
+latest (its worker runs on beside the loop if it needs longer)."""
 _EPSILON: Final = 1e-9
 """Sums of periods on the clock: a silence of exactly the limit counts as the limit."""
 
@@ -731,10 +734,12 @@ class RemoteLoop(RemoteValues):
 
     def _step_rejoins(self) -> None:
         """Hand each rejoin conversation control if what it waits for came (after the
-        cycle's drain); a conversation that ended brings its board back, or says why
-        not."""
+        cycle's drain; on the wall clock until shortly before the next cycle at most); a
+        conversation that ended brings its board back, or says why not."""
+        virtual = self.virtual
+        ends = self._deadline + self.period_s - REJOIN_MARGIN_S
         for r in list(self._rejoins):
-            r.step()
+            r.step(None if virtual else ends - _monotonic())
             if r.done:
                 self._rejoins.remove(r)
                 self._rejoin_ended(r)

@@ -11,7 +11,11 @@ waits are *stepped by the loop*: a coroutine made of two threads, never both run
   drain of its buses.  If the worker waits for something that is now there (a frame in
   its subscription's queue, its deadline passed, its bus failed) the loop hands it
   control and blocks until the worker blocks on its next wait, or ends; otherwise the
-  step costs a look at one queue and one clock.
+  step costs a look at one queue and one clock.  On the wall clock the loop waits at
+  most until shortly before its next deadline (``budget``): a worker that computes
+  longer runs on beside the loop, which hands it nothing more until it has come to its
+  next wait.  (It never reads a bus; its frames go out as any other thread's; what it
+  changes - the values the loop sends a board - it changes whole, one value at a time.)
 - The worker's waits (:meth:`Stepped.wait`, installed by
   :func:`~ucom_tools.protocol.dispatch.stepped_by`) never read the bus: they take what
   the loop's drain delivered into the subscription's queue, or hand control back.
@@ -63,18 +67,25 @@ class Stepped:
         self._back.acquire()
         self._ready: Callable[[], bool] | None = None
         """What the worker waits for (None: it runs at the next step)."""
+        self._free = False
+        """The worker runs beside the loop: its last step outlasted the loop's budget."""
         self._thread: threading.Thread | None = None
 
     # ------------------------------------------------------------------ the loop's side
-    def step(self) -> bool:
+    def step(self, budget: float | None = None) -> bool:
         """Hand the worker control if what it waits for is there; until it waits again or
-        ends.  False when it was not run."""
+        ends, or for ``budget`` seconds at most (then it runs on beside the caller, see
+        the module docstring).  False when it was not run."""
+        if self._free:
+            if not self._back.acquire(blocking=False):
+                return False  # still computing
+            self._free = False
         if self.done:
             return False
         ready = self._ready
         if ready is not None and not ready():
             return False
-        self._hand_over()
+        self._hand_over(budget)
         return True
 
     def cancel(self) -> None:
@@ -84,25 +95,39 @@ class Stepped:
         if self._thread is None:
             self.done = True
             return
+        if self._free:  # let it come to its wait first
+            self._free = False
+            self._acquire_back(None)
         if not self.done:
-            self._hand_over()
+            self._hand_over(None)
 
-    def _hand_over(self) -> None:
+    def _hand_over(self, budget: float | None) -> None:
         self.steps += 1
         self._ready = None
         if self._thread is None:
             self._thread = threading.Thread(target=self._run, name=self.name, daemon=True)
             self._thread.start()
         self._go.release()
+        if not self._acquire_back(budget):
+            self._free = True
+
+    def _acquire_back(self, budget: float | None) -> bool:
+        """Wait for the worker to come to its wait (or end), ``budget`` seconds at most
+        (None: however long); a Ctrl-C meanwhile waits for it too: never two running
+        where the caller's exception would run the stop beside the worker."""
         pending: BaseException | None = None
-        while True:  # a Ctrl-C meanwhile waits for the worker to stop: never two running
+        got = False
+        while True:
             try:
-                self._back.acquire()
+                got = self._back.acquire() if budget is None else \
+                    self._back.acquire(timeout=max(0.0, budget))
                 break
             except KeyboardInterrupt as err:
                 pending = err
+                budget = None
         if pending is not None:
             raise pending
+        return got
 
     # ------------------------------------------------------------------ the worker's side
     def _run(self) -> None:
