@@ -567,3 +567,19 @@ def test_a_lauron4_leg_reads_its_joint_absolute_after_a_power_loss() -> None:
         assert board.fpga.quad[1].count == 0  # the motor encoder, incremental, from 0
     finally:
         h.close()
+
+
+def test_remote_part_opens_the_virtual_fleet_with_a_scenario(tmp_path) -> None:
+    from ucom_tools.ops.remote import RemotePart
+
+    path = tmp_path / "s.toml"
+    path.write_text(SCENARIO)
+    part = RemotePart.open("armar3", virtual=True, scenario=path, start=False)
+    try:
+        fleets = {h.bus.fleet for h in part.robot.buses.values()}  # type: ignore[attr-defined]
+        (fleet,) = fleets
+        assert fleet.scenario.faults == Scenario.parse(SCENARIO).faults
+    finally:
+        part.close()
+    with pytest.raises(can.CanInitializationError, match="scenario= is for the shared fleet"):
+        VirtualUcomBus("CAN0", fleet=programmed("armar3"), scenario=path)

@@ -66,6 +66,13 @@ def test_a_scenario_reads_as_written_with_the_defaults() -> None:
     assert s.only(["CAN1", "CAN3"]).faults == (s.faults[1], s.faults[3], s.faults[4])
 
 
+def test_the_readme_s_example_scenario_fits_armar3() -> None:
+    s = Scenario.load(Path(__file__).parent / "data" / "armar3_faults.toml")
+    s.check(ARMAR3)
+    assert [f.kind for f in s.faults] == [FaultKind.POWER_OFF, FaultKind.CABLE,
+                                          FaultKind.ESTOP]
+
+
 def bad(text: str) -> str:
     with pytest.raises(InputError) as err:
         Scenario.parse(text, "s.toml").check(ARMAR3)

@@ -107,6 +107,10 @@ class VirtualUcomBus(can.BusABC):
                                      realtime, scenario)
             except UcomError as err:
                 raise _init_error(err) from err
+        elif scenario is not None:
+            raise can.CanInitializationError(
+                "virtual UCoM bus: scenario= is for the shared fleet of a topology; a Fleet "
+                "given takes its scenario when it is built (Fleet(..., scenario=...))")
         elif "/" in name:
             name = name.rsplit("/", 1)[1]
         if not name:
