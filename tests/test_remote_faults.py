@@ -433,20 +433,27 @@ def flashed(tmp_path_factory) -> Path:
     return state
 
 
-@pytest.fixture
-def inject_at(monkeypatch) -> Callable[[int, InjectedFault], None]:
-    """The fleet of the command's run gets ``fault`` at its ``k``-th cycle."""
-    def arm(k: int, injected: InjectedFault) -> None:
-        real = RemotePart.cycle
-        calls = {"n": 0}
+def scenario(where: Path, text: str) -> str:
+    """A scenario file of injected faults (``ucom(1)``, SCENARIOS) for ``--scenario``."""
+    path = where / "faults.toml"
+    path.write_text(text)
+    return str(path)
 
-        def cycle(self: RemotePart):  # type: ignore[no-untyped-def]
-            calls["n"] += 1
-            if calls["n"] == k:
-                self.robot.buses["CAN0"].bus.fleet.inject(injected)  # type: ignore[attr-defined]
-            return real(self)
-        monkeypatch.setattr(RemotePart, "cycle", cycle)
-    return arm
+
+POWER_OFF = """
+[[fault]]
+at = 0.2
+kind = "power-off"
+bus = "CAN0"
+board = 3
+for = {seconds}
+"""
+ESTOP = """
+[[fault]]
+at = 0.2
+kind = "estop"
+for = 0.3
+"""
 
 
 def ucom(*args: str) -> tuple[int, str, str]:
@@ -454,10 +461,9 @@ def ucom(*args: str) -> tuple[int, str, str]:
     return r.exit_code, r.stdout, r.stderr
 
 
-def test_run_stops_every_board_and_exits_1_naming_the_lost_one(flashed, inject_at) -> None:
-    inject_at(200, fault("power-off"))
+def test_run_stops_every_board_and_exits_1_naming_the_lost_one(flashed, tmp_path) -> None:
     args = ("remote", "run", "armar3", "--virtual", "armar3", "--state", str(flashed),
-            "--for", "1")
+            "--for", "1", "--scenario", scenario(tmp_path, POWER_OFF.format(seconds=1)))
     code, out, err = ucom(*args, "--json")
     assert code == 1, err
     data = json.loads(out)
@@ -467,7 +473,6 @@ def test_run_stops_every_board_and_exits_1_naming_the_lost_one(flashed, inject_a
         f["answered"] is None
     assert data["lost"][0]["where"] == "CAN0 board 3 (head right)"
     assert data["run"]["cycles"] < 300  # the run ended there
-    inject_at(200, fault("power-off"))
     code, out, err = ucom(*args)
     assert code == 1
     text = " ".join(err.split())
@@ -475,19 +480,23 @@ def test_run_stops_every_board_and_exits_1_naming_the_lost_one(flashed, inject_a
     assert "ucom: --on-fault stop: every other board was stopped at 0.20" in text
 
 
-def test_run_with_rejoin_exits_0_listing_the_faults(flashed, inject_at) -> None:
-    inject_at(200, fault("power-off", seconds=0.2))
+def test_run_with_rejoin_exits_0_listing_the_faults(flashed, tmp_path) -> None:
+    """The emergency stop: every board lost (its bus says nobody acknowledges), then
+    every board back as power returns; the run exits 0 and lists them."""
     code, out, err = ucom("remote", "run", "armar3", "--virtual", "armar3", "--state",
                           str(flashed), "--for", "1.2", "--on-fault", "hold", "--rejoin",
-                          "--json")
+                          "--scenario", scenario(tmp_path, ESTOP), "--json")
     assert code == 0, err
     data = json.loads(out)
-    assert [f["event"] for f in data["faults"]] == ["lost", "rejoined"]
-    assert data["lost"] == [] and data["faults"][1]["answered"] < data["faults"][1]["time"]
+    lost = [f for f in data["faults"] if f["event"] == "lost"]
+    back = [f for f in data["faults"] if f["event"] == "rejoined"]
+    assert len(lost) == len(back) == 11 and data["lost"] == []
+    assert all(f["seen"].startswith("the bus failing: the interface reports CAN") for f in lost)
+    assert all(f["answered"] < f["time"] < 0.5 + 1.0 for f in back)  # within 1 s of power
     # without --rejoin the board stays lost: exit 1, named
-    inject_at(200, fault("power-off", seconds=0.2))
     code, out, err = ucom("remote", "run", "armar3", "--virtual", "armar3", "--state",
-                          str(flashed), "--for", "0.6", "--on-fault", "hold")
+                          str(flashed), "--for", "0.6", "--on-fault", "hold", "--scenario",
+                          scenario(tmp_path, POWER_OFF.format(seconds=0.2)))
     assert code == 1
     assert "ucom: CAN0 board 3 (head right) still lost at the end (since 0.20" in \
         " ".join(err.split())
