@@ -8,10 +8,10 @@ the serial number the start's init chain gave) every
 1. MCA Start QUERY.  Error NOT_RUNNING: it is in its bootloader; Start (12) its program
    and take its MCA Ready.  A program that runs (RUNNING, LATCHED, or STOPPED after an
    AutoStart): MCA Start STOP first unless it is STOPPED.
-2. Its descriptions (MCA DumpIO Descr, each edge asked for on its own, the next once it
-   came: the whole description at once would hold a running bus, and MCA Alive with it)
-   must be those it gave at the start, which matched its tree; otherwise it stays lost
-   and the PC says why.
+2. Its descriptions (MCA DumpIO Descr, a few edges at a time, each asked for on its own:
+   the whole description at once would hold a running bus, and MCA Alive with it) must
+   be those it gave at the start, which matched its tree; otherwise it stays lost and
+   the PC says why.
 3. Its present values (MCA Dump CI of its SO and CI edges) seed the CI values the PC
    holds for it (:meth:`~ucom_tools.edgelists.model.ProgramSpec.seed_of`: a position
    target takes its joint sensor's reading, a velocity target 0, a homing command is
@@ -36,7 +36,7 @@ import contextlib
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from ucom_tools.config.attrtree.match import program_of
 from ucom_tools.edgelists.model import ProgramSpec, Seed
@@ -55,6 +55,12 @@ from ucom_tools.wire.ids import Address, Function, seq
 
 if TYPE_CHECKING:
     from ucom_tools.ops.remote import RemotePart
+
+
+DESCRIBE_AT_A_TIME: Final = 4
+"""Edge descriptions asked for at once while the other boards run: some 30 frames, a
+few milliseconds of the bus (MCA Alive, which loses arbitration to them, goes out
+every 10 ms); the whole description would hold the bus for tens of milliseconds."""
 
 
 class Refused(UcomError):
@@ -180,7 +186,7 @@ class Rejoin:
         if (ready.ci, ready.so, ready.par) != counts:
             raise Refused(f"{where} now runs a program with {ready.ci}/{ready.so}/"
                           f"{ready.par} edges, at the start {'/'.join(map(str, counts))}")
-        edges = client.describe(address, counts, one_by_one=True)
+        edges = client.describe(address, counts, at_a_time=DESCRIBE_AT_A_TIME)
         if edges != described:
             raise Refused(f"{where}'s edges are not those it described at the start "
                           "(another program?)")

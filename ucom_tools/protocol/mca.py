@@ -213,13 +213,14 @@ class McaClient:
 
     # ------------------------------------------------------------------ descriptions
     def describe(self, address: Address, counts: tuple[int, int, int] | None = None,
-                 *, one_by_one: bool = False) -> BoardEdges:
+                 *, at_a_time: int = 0) -> BoardEdges:
         """Every edge's description.  ``counts`` (CI, SO, PAR; from MCA Ready, asked for
         when not given) tells when the description is complete; edges that did not arrive
-        whole are asked for again, each on its own.  ``one_by_one``: each edge asked for
-        on its own, the next once it came (a board joining a running exchange: its whole
-        description at once would hold the bus for tens of milliseconds, and MCA Alive,
-        whose identifier loses to it, with it)."""
+        whole are asked for again, each on its own.  ``at_a_time``: so many edges asked
+        for, each on its own, the next ones once they came (a board joining a running
+        exchange: its whole description at once would hold the bus for tens of
+        milliseconds, and MCA Alive, whose identifier loses to it, with it); 0: all at
+        once."""
         if counts is None:
             ready = self.query(address)
             counts = (ready.ci, ready.so, ready.par)
@@ -227,10 +228,12 @@ class McaClient:
         done: dict[tuple[int, int], mca.EdgeRecord] = {}
         lasts: dict[tuple[int, int], int] = {}
         wanted = {(int(k), i) for k in mca.Kind for i in range(counts[k])}
-        if one_by_one:
-            for k, i in sorted(wanted):
-                self._gather(address, {(k, i)}, [mca.DescrRequest(mca.Kind(k), i)], parts,
-                             lasts, done)
+        if at_a_time > 0:
+            order = sorted(wanted)
+            for first in range(0, len(order), at_a_time):
+                some = order[first:first + at_a_time]
+                self._gather(address, set(some), [mca.DescrRequest(mca.Kind(k), i)
+                                                  for k, i in some], parts, lasts, done)
         else:
             self._gather(address, wanted, [mca.DescrRequest()], parts, lasts, done)
         if wanted - done.keys():
