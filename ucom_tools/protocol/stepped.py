@@ -27,6 +27,12 @@ waits are *stepped by the loop*: a coroutine made of two threads, never both run
 The other way, a generator for each conversation, would have meant a second copy of
 every client request (the acknowledged writes, descriptions, read-backs, the bootloader's
 Start with its retries); this one reuses them as they are.
+
+Measured (ARMAR-III over ``fleet serve``, the PC at 1 kHz, compiled, a board's rejoin:
+some 170 steps in 0.42 s): a step takes 0.2-0.3 ms of the loop's wall time (two thread
+switches and the worker's part), p99 0.7-0.8 ms, and fewer than one step in twenty
+outlasts the budget; the other boards' cycles were late by 0.075 ms at p99 while it
+ran, 0.088 ms without (nine runs pooled).
 """
 
 from __future__ import annotations
