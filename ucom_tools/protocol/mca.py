@@ -17,6 +17,7 @@ from typing import Final
 import can
 
 from ucom_tools.errors import BoardError, FrameError, UcomTimeoutError
+from ucom_tools.protocol.dispatch import Subscription
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.wire import mca
@@ -60,11 +61,18 @@ MASK_TABLE: Final = bytes(b ^ mca.MAP_MASK for b in range(256))
 @dataclass
 class ProcessImage:
     """The latest SO process data of a bus: each map's values (unmasked bytes) and when
-    they came."""
+    they came, how many frames of each came; how many frames of the maps in
+    :attr:`watched` (the boards' fastest, which the run time watches) came in all
+    (:attr:`received`), and for each map how many of those had come when its latest
+    frame came (:attr:`order`): the frames of the others that came after a board's last,
+    in the order they were sent, tell how long it was silent."""
 
     frames: dict[int, bytes] = field(default_factory=dict)
     stamps: dict[int, float] = field(default_factory=dict)
     counts: dict[int, int] = field(default_factory=dict)
+    watched: set[int] = field(default_factory=set)
+    order: dict[int, int] = field(default_factory=dict)
+    received: int = 0
 
     def take(self, msg: can.Message) -> None:
         """A received SO map, as a message (:meth:`take_data`)."""
@@ -78,6 +86,11 @@ class ProcessImage:
         self.stamps[number] = stamp
         counts = self.counts
         counts[number] = counts.get(number, 0) + 1
+        received = self.received
+        if number in self.watched:
+            received += 1
+            self.received = received
+        self.order[number] = received
 
 
 SAME_BASE_S: Final = 600.0
@@ -89,19 +102,24 @@ start), which says nothing about when it came, and is taken as before."""
 class McaClient:
     """Run-time services on one bus."""
 
-    def __init__(self, link: Link, timeouts: Timeouts = DEFAULT) -> None:
+    def __init__(self, link: Link, timeouts: Timeouts = DEFAULT, *,
+                 process_data: bool = True) -> None:
         self.link = link
         self.timeouts = timeouts
         self.image = ProcessImage()
         self.errors: list[tuple[Address, m.Error]] = []
         dispatcher = link.dispatcher
         self._sub = dispatcher.subscribe(_answer, f"{link.name} run time")
-        self._maps = dispatcher.subscribe(_so_map, f"{link.name} process data",
-                                          on_data=self.image.take_data)
+        self._maps: Subscription | None = dispatcher.subscribe(
+            _so_map, f"{link.name} process data", on_data=self.image.take_data) \
+            if process_data else None
+        """The SO maps into :attr:`image` (not with ``process_data`` false: a second
+        client beside the run time's, for requests only)."""
 
     def close(self) -> None:
         self.link.dispatcher.unsubscribe(self._sub)
-        self.link.dispatcher.unsubscribe(self._maps)
+        if self._maps is not None:
+            self.link.dispatcher.unsubscribe(self._maps)
 
     # ------------------------------------------------------------------ plumbing
     def _send(self, msg: mca.McaMessage, address: Address | None = None) -> None:
@@ -194,23 +212,45 @@ class McaClient:
                                f"({1 + self.timeouts.retries} times asked)")
 
     # ------------------------------------------------------------------ descriptions
-    def describe(self, address: Address, counts: tuple[int, int, int] | None = None
-                 ) -> BoardEdges:
+    def describe(self, address: Address, counts: tuple[int, int, int] | None = None,
+                 *, at_a_time: int = 0) -> BoardEdges:
         """Every edge's description.  ``counts`` (CI, SO, PAR; from MCA Ready, asked for
         when not given) tells when the description is complete; edges that did not arrive
-        whole are asked for again, each on its own."""
+        whole are asked for again, each on its own.  ``at_a_time``: so many edges asked
+        for, each on its own, the next ones once they came (a board joining a running
+        exchange: its whole description at once would hold the bus for tens of
+        milliseconds, and MCA Alive, whose identifier loses to it, with it); 0: all at
+        once."""
         if counts is None:
             ready = self.query(address)
             counts = (ready.ci, ready.so, ready.par)
         parts: dict[tuple[int, int], dict[int, bytes]] = {}
         done: dict[tuple[int, int], mca.EdgeRecord] = {}
         lasts: dict[tuple[int, int], int] = {}
-        wanted = {(k, i) for k in mca.Kind for i in range(counts[k])}
-        ask: list[mca.DescrRequest] = [mca.DescrRequest()]
+        wanted = {(int(k), i) for k in mca.Kind for i in range(counts[k])}
+        if at_a_time > 0:
+            order = sorted(wanted)
+            for first in range(0, len(order), at_a_time):
+                some = order[first:first + at_a_time]
+                self._gather(address, set(some), [mca.DescrRequest(mca.Kind(k), i)
+                                                  for k, i in some], parts, lasts, done)
+        else:
+            self._gather(address, wanted, [mca.DescrRequest()], parts, lasts, done)
+        if wanted - done.keys():
+            raise UcomTimeoutError(f"board {address}: {len(wanted - done.keys())} edge "
+                                   "descriptions did not arrive")
+        return BoardEdges(*(tuple(done[(k, i)] for i in range(counts[k])) for k in mca.Kind))
+
+    def _gather(self, address: Address, wanted: set[tuple[int, int]],
+                ask: list[mca.DescrRequest], parts: dict[tuple[int, int], dict[int, bytes]],
+                lasts: dict[tuple[int, int], int],
+                done: dict[tuple[int, int], mca.EdgeRecord]) -> None:
+        """Ask with ``ask`` and collect the records of ``wanted`` into ``done``; what did
+        not arrive whole is asked for again, edge by edge, twice at most."""
         for _ in range(1 + self.timeouts.retries):
             for request in ask:
                 self._send(request, address)
-            frames = sum(counts) * 10 if len(ask) == 1 and ask[0].kind is None \
+            frames = len(wanted) * 10 if len(ask) == 1 and ask[0].kind is None \
                 else 10 * len(ask)
             deadline = self.link.deadline(self.timeouts.reply, answers=frames)
             while wanted - done.keys() and (got := self._next(deadline)) is not None:
@@ -234,12 +274,8 @@ class McaClient:
                         lasts.pop(key)
             missing = sorted(wanted - done.keys())
             if not missing:
-                break
+                return
             ask = [mca.DescrRequest(mca.Kind(k), i) for k, i in missing]
-        if wanted - done.keys():
-            raise UcomTimeoutError(f"board {address}: {len(wanted - done.keys())} edge "
-                                   "descriptions did not arrive")
-        return BoardEdges(*(tuple(done[(k, i)] for i in range(counts[k])) for k in mca.Kind))
 
     # ------------------------------------------------------------------ values
     def write(self, address: Address, kind: mca.Kind, index: int, raws: Sequence[int],
