@@ -262,6 +262,11 @@ def test_write_failure_removes_the_partial_files(tmp_path: Path) -> None:
 
     writer.on_message_received = fail  # type: ignore[method-assign]
     rec.on_message_received(can.Message(arbitration_id=1))  # never raises in a reader
+    deadline = time.monotonic() + 5  # the writer's thread meets the failure
+    while rec._frames.failure is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    with pytest.raises(LogError, match="No space left"):
+        rec.check()  # what the loop asks every cycle
     with pytest.raises(LogError, match="No space left"):
         rec.value(0.0, "CAN0", 1, "Eyes", "X", "SO", 1)
     with pytest.raises(LogError, match="No space left"):

@@ -227,6 +227,7 @@ def test_precompiled_samples_are_what_the_decoded_values_give(flashed: Path,
     RemotePart.decode, for every board and every edge's own key."""
     from ucom_tools.net.encode import encoders
     from ucom_tools.ops.remote import RemotePart
+    from ucom_tools.ops.remote_image import PartImage
     from ucom_tools.wire import mca
 
     state = tmp_path / "state"
@@ -234,7 +235,7 @@ def test_precompiled_samples_are_what_the_decoded_values_give(flashed: Path,
     with RemotePart.open("armar3", virtual=True, state_dir=state) as part:
         part.run(0.02)
         part[TARGET] = 1234
-        enc = encoders(part, "armar3")
+        enc = encoders(PartImage.of(part), "armar3")
         assert len(enc) == 11
         for _ in range(3):
             part.cycle()

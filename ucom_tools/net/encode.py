@@ -1,8 +1,9 @@
 """A board's ``values`` sample and an edge's sample, encoded from precompiled parts
 (``man/ucom-network.7``, PAYLOADS and THE LOOP'S COST).
 
-:meth:`RemotePart.decode` turns a snapshot into (time stamp, value) per :class:`EdgeRef`
-(dict look-ups, a Decimal per value) and :func:`keys.dumps` walks the result again: about
+:meth:`PartImage.decode <ucom_tools.ops.remote_image.PartImage.decode>` turns a
+snapshot into (time stamp, value) per :class:`EdgeRef` (dict look-ups, a Decimal per
+value) and :func:`keys.dumps` walks the result again: about
 4 us per value in Python, on a thread that competes with the 1 kHz loop for the GIL.
 Here everything that does not change while the loop runs is done once, when the share
 declares its publishers: the JSON text around the values (names, keys, separators), one
@@ -24,7 +25,8 @@ from typing import Any
 
 from ucom_tools.net import keys
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote import RawSnapshot, RemotePart
+from ucom_tools.ops.remote_image import PartImage
+from ucom_tools.ops.remote_report import RawSnapshot
 from ucom_tools.wire import mca
 
 Conv = Callable[[int], Any] | None
@@ -160,20 +162,20 @@ class BoardEncoder:
     """One board's ``values`` sample from a :class:`RawSnapshot`, and the samples of its
     edges' own keys."""
 
-    def __init__(self, part: RemotePart, robot: str, bus: str, board: int,
+    def __init__(self, image: PartImage, robot: str, bus: str, board: int,
                  refs: Sequence[EdgeRef]) -> None:
         self.bus, self.board = bus, board
         self.key = keys.board_key(robot, bus, board)
         self._head = (f'{{"v":{keys.VERSION},"robot":{_json(robot)},"bus":{_json(bus)},'
                       f'"board":{board},"t":')
         by_index = {r.index: r for r in refs if r.kind is mca.Kind.SO}
-        x = part.exchanges[bus]
-        records = x.configured[board].edges.so if board in x.configured else ()
+        described = image.described(bus, board)
+        records = described.so if described is not None else ()
         self._maps: list[_SoMap] = []
         self.edge_source: dict[EdgeRef, tuple[str, Any, int]] = {}
         """Where an edge's raw value is: ("so", the map, its position among the picked
         values), ("ci", its key, 0) or ("par", its key, 0)."""
-        for m in x.plan.so_maps:
+        for m in image.so_maps(bus):
             if m.board != board:
                 continue
             specs = [(records[i].width, records[i].signed) for i in m.edges]
@@ -245,9 +247,9 @@ class BoardEncoder:
                 f"{write(conv, raw)}}}").encode()
 
 
-def encoders(part: RemotePart, robot: str) -> dict[tuple[str, int], BoardEncoder]:
+def encoders(image: PartImage, robot: str) -> dict[tuple[str, int], BoardEncoder]:
     """A :class:`BoardEncoder` for every board the part names edges of (checked)."""
     by_board: dict[tuple[str, int], list[EdgeRef]] = {}
-    for ref in part.names:
+    for ref in image.refs:
         by_board.setdefault((ref.bus, ref.board), []).append(ref)
-    return {b: BoardEncoder(part, robot, b[0], b[1], refs) for b, refs in by_board.items()}
+    return {b: BoardEncoder(image, robot, b[0], b[1], refs) for b, refs in by_board.items()}

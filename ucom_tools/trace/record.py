@@ -1,8 +1,12 @@
 """Recording a run (``ucom remote run --record FILE``): every frame of every bus into a
 python-can log, every value change of the exchanged edges into ``FILE.values.csv``.
 
-:class:`RunRecorder` is a :class:`can.Listener`: the bus readers hand it each frame
-(from several threads at once; one lock keeps the files whole).  The log format follows
+:class:`RunRecorder` is a :class:`can.Listener`: the bus readers (the PC's loop) hand it
+each frame, from several threads at once, and it only queues them: a thread of its own
+writes them (:class:`~ucom_tools.trace.logs.FrameWriter`), so that no file keeps the
+loop from its deadline; ``ucom remote run`` hands it the value changes on a thread of
+their own too (:class:`~ucom_tools.ops.remote_publish.ChangeFeed`).  One lock keeps the
+values file whole.  The log format follows
 FILE's extension (:data:`FORMATS`, written by :func:`can.Logger`); the extension and the
 directory are checked before anything is written.  Both files are written by the rules of
 ``ucom(1)``, FILES (:mod:`ucom_tools.fileio`): under temporary names beside their targets,
@@ -194,6 +198,14 @@ class RunRecorder(can.Listener):
             self._last[key] = number
             self._rows += 1
             return True
+
+    def check(self) -> None:
+        """LogError when writing either file failed (cheap: the loop calls it every
+        cycle, so that a recording that failed ends the run as a failed write would)."""
+        if self._failure is not None or (self._frames is not None
+                                         and self._frames.failure is not None):
+            with self._lock:
+                self._raise_failure()
 
     def _raise_failure(self) -> None:
         err = self._failure or (self._frames.failure if self._frames is not None else None)

@@ -1,0 +1,344 @@
+#!/usr/bin/env python3
+"""Nothing beside the loop can stop it: ``ucom remote run`` with its live view, ``--zenoh``
+and ``--record`` at once, over ``ucom fleet serve armar3``, on a machine that two
+CPU-bound processes keep busy, against the same runs without view, share and record.
+
+ARMAR-III (11 boards, 4 buses, armar3.fl.S flashed) is served by ``ucom fleet serve`` in
+another process; ``--hogs`` processes (default 2, ``python -c 'while True: pass'``) keep
+the machine's cores busy for the whole benchmark.  Each of ``--runs`` rounds (default 20)
+runs the user's command twice, one after the other (so that both see the same machine):
+
+- *with*: ``ucom remote run armar3 -i socketcand ... --zenoh tcp/127.0.0.1:PORT --record
+  DIR/run.blf`` on a pseudo-terminal (200 x 60), so that it opens its live view, which
+  renders at its own refresh rate; ``--seconds`` (default 10) after its first screen
+  this process reads the robot's values over Zenoh (``RobotClient.read``, what ``ucom
+  browse --get`` does) and types ``q``;
+- *without*: ``ucom remote run armar3 -i socketcand ... --for SECONDS --json``.
+
+Both set the same targets at the start (four joints move for a second or two).
+Figures: ``runs``; ``watchdog_stops``: runs in which a board's watchdog stopped its motors
+(the loop was away for 50 ms), with view etc. and without; ``exceptions``: runs that
+ended in a traceback, an error or an unexpected exit code; ``p99_ms_with`` and
+``p99_ms_without``: the median over the runs of each run's lateness p99 (how long after
+its deadline a cycle sent its frames, as the run's summary prints it), ``ratio`` of the
+two; ``worst_p99_ms_with``/``_without``; ``missed_with``/``missed_without``: cycles the
+loop skipped, summed over the runs; ``renders_per_s``: how often the live view wrote to
+its terminal (median of the runs: its refresh rate, 10 a second); ``recorded_rows``:
+value rows in the values file (median); ``zenoh_reads``: runs whose Zenoh read answered
+with a value; ``load_average``: the machine's, at the end.
+
+Targets (``targets_met``; MET or NOT MET in the text, exit 1 when one is not): 0 watchdog
+stops and 0 exceptions in the runs with view, share and record; ``ratio`` <= 1.5; every
+run's view rendered (at least 5 screens a second), recorded and answered over Zenoh.
+``--json`` prints the figures as one JSON object.  Not run by ``make test``: ``make bench``
+runs it (20 x 2 runs of 10 s: about 10 minutes).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import csv
+import fcntl
+import json
+import os
+import pty
+import re
+import select
+import signal
+import statistics
+import struct
+import subprocess
+import sys
+import tempfile
+import termios
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.network import free_port  # noqa: E402
+from benchmarks.runtime import served_armar3  # noqa: E402
+from ucom_tools import compiled  # noqa: E402
+from ucom_tools.signals import stop_signals  # noqa: E402
+
+SETS = ("Right Eye Target=1000", "Left Eye Target=-1000", "Neck Yaw Target=-2000",
+        "Right Elbow Target=1500")
+"""Set at the start of every run, with and without: joints that move, values that change."""
+COLUMNS, ROWS = 200, 60
+"""The pseudo-terminal's size: every board's box on the screen."""
+VIEW_UP = b"Hz  missed"
+"""In the live view's first line (``... cycles  1000 Hz  missed 0  lateness ...``)."""
+START_S = 60.0
+"""How long a run may take to start (claim, check, configure the boards)."""
+END_S = 60.0
+"""How long a run may take to stop the boards and print its summary."""
+QUIET_S = 0.03
+"""A pause this long in the view's output ends one screen's writes (renders_per_s)."""
+_ANSI = re.compile(rb"\x1b\[[0-9;?<>=]*[ -/]*[@-~]|\x1b[()][0-9A-Za-z]|\x1b[=>78]|\r")
+_P99 = re.compile(r"lateness p50 ([0-9.]+) ms, p99 ([0-9.]+) ms")
+_MISSED = re.compile(r"([0-9]+) cycles at [0-9]+ Hz \([a-z ]+\), ([0-9]+) missed")
+
+
+def ucom(*args: str) -> list[str]:
+    return [sys.executable, "-m", "ucom_tools", *args]
+
+
+@contextlib.contextmanager
+def hogs(n: int) -> Iterator[list[subprocess.Popen[bytes]]]:
+    """``n`` CPU-bound processes for the block's length."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+    try:
+        yield procs
+    finally:
+        for p in procs:
+            p.kill()
+        for p in procs:
+            p.wait()
+
+
+class Terminal:
+    """A pseudo-terminal of :data:`COLUMNS` x :data:`ROWS` whose output is read (and
+    kept, with the time of each read) by a thread of its own, as a terminal emulator
+    does: the program on it never waits for its reader."""
+
+    def __init__(self) -> None:
+        self.master, self.slave = pty.openpty()
+        fcntl.ioctl(self.slave, termios.TIOCSWINSZ, struct.pack("HHHH", ROWS, COLUMNS, 0, 0))
+        self.data = bytearray()
+        self.reads: list[tuple[float, int]] = []
+        """(time, bytes) of every read."""
+        self.up = threading.Event()
+        self._thread = threading.Thread(target=self._read, daemon=True)
+        self._thread.start()
+
+    def _read(self) -> None:
+        while True:
+            try:
+                ready, _, _ = select.select([self.master], [], [], 1.0)
+                if not ready:
+                    continue
+                chunk = os.read(self.master, 65536)
+            except OSError:  # EIO: the program and every holder of the slave are gone
+                return
+            if not chunk:
+                return
+            self.reads.append((time.monotonic(), len(chunk)))
+            self.data += chunk
+            if not self.up.is_set() and VIEW_UP in self.data:
+                self.up.set()
+
+    def type(self, text: str) -> None:
+        os.write(self.master, text.encode())
+
+    def text(self) -> str:
+        return _ANSI.sub(b"", bytes(self.data)).decode("utf-8", "replace")
+
+    def renders(self, start: float, end: float) -> int:
+        """Bursts of output between ``start`` and ``end`` (screens written)."""
+        n, last = 0, -1.0
+        for t, _ in self.reads:
+            if start <= t <= end:
+                if t - last > QUIET_S:
+                    n += 1
+                last = t
+        return n
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            os.close(self.slave)
+        self._thread.join(5)
+        with contextlib.suppress(OSError):
+            os.close(self.master)
+
+
+def connection(port: int) -> list[str]:
+    return ["armar3", "-i", "socketcand", "--host", "127.0.0.1", "--port", str(port)]
+
+
+def sets() -> list[str]:
+    return [a for s in SETS for a in ("--set", s)]
+
+
+def end_of(proc: subprocess.Popen[Any], timeout: float) -> int:
+    try:
+        return proc.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+        return -9
+
+
+def run_with(port: int, seconds: float, tmp: Path) -> dict[str, Any]:
+    """The command with its live view, --zenoh and --record, on a pseudo-terminal."""
+    from ucom_tools.net.client import RobotClient
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    log = tmp / "run.blf"
+    term = Terminal()
+    proc = subprocess.Popen(ucom("remote", "run", *connection(port), "--zenoh", endpoint,
+                                 "--record", str(log), *sets()),
+                            stdin=term.slave, stdout=term.slave, stderr=term.slave,
+                            start_new_session=True, env={**os.environ, "TERM": "xterm"})
+    zenoh_ok = False
+    code: int
+    try:
+        started = term.up.wait(START_S) and proc.poll() is None
+        t0 = time.monotonic()
+        if started:
+            deadline = t0 + seconds
+            while proc.poll() is None and time.monotonic() < deadline:
+                time.sleep(0.05)  # the benchmark's own pace: nothing here waits on this
+            if proc.poll() is None:
+                with contextlib.suppress(Exception):
+                    with RobotClient.connect(endpoint, timeout=5) as client:
+                        got = client.read(["Right Eye Joint Sensor"], timeout=5)
+                        zenoh_ok = bool(got)
+            t1 = time.monotonic()
+            if proc.poll() is None:
+                term.type("q\r")
+        else:
+            t1 = t0
+        code = end_of(proc, END_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        term.close()
+    text = term.text()
+    rows = 0
+    values = Path(str(log) + ".values.csv")
+    if values.exists():
+        with values.open(newline="") as f:
+            rows = max(0, sum(1 for _ in csv.reader(f)) - 1)
+    out = figures_of_text(text, code)
+    out.update({"started": started, "zenoh": zenoh_ok, "rows": rows,
+                "renders_per_s": round(term.renders(t0, t1) / max(1e-9, t1 - t0), 1)
+                if started else 0.0})
+    with contextlib.suppress(OSError):
+        log.unlink()
+        values.unlink()
+    return out
+
+
+def figures_of_text(text: str, code: int) -> dict[str, Any]:
+    """What a run's summary (text, on its terminal) and exit code say."""
+    p99 = _P99.findall(text)
+    missed = _MISSED.findall(text)
+    stopped = "its watchdog stopped every motor" in text
+    failed = "Traceback" in text or code not in (0, 1) or (code == 1 and not stopped)
+    return {"p99_ms": float(p99[-1][1]) if p99 else None,
+            "missed": int(missed[-1][1]) if missed else None,
+            "stopped": stopped, "exception": bool(failed), "exit": code,
+            "tail": "" if not failed and not stopped else text[-1500:]}
+
+
+def run_without(port: int, seconds: float) -> dict[str, Any]:
+    """The same command for ``seconds`` without view, share or record (--json)."""
+    proc = subprocess.run(ucom("remote", "run", *connection(port), "--for", str(seconds),
+                               "--json", *sets()),
+                          capture_output=True, text=True, timeout=START_S + seconds + END_S)
+    try:
+        doc = json.loads(proc.stdout)
+    except ValueError:
+        return {"p99_ms": None, "missed": None, "stopped": False, "exception": True,
+                "exit": proc.returncode, "tail": (proc.stdout + proc.stderr)[-1500:]}
+    stopped = any(e.get("stopped_motors") for e in doc.get("events", []))
+    run = doc.get("run", {})
+    return {"p99_ms": run.get("jitter_ms", {}).get("p99"), "missed": run.get("missed"),
+            "stopped": stopped, "exception": proc.returncode not in (0, 1)
+            or (proc.returncode == 1 and not stopped), "exit": proc.returncode,
+            "tail": "" if proc.returncode == 0 else proc.stderr[-1500:]}
+
+
+def median(values: list[float]) -> float | None:
+    return round(statistics.median(values), 3) if values else None
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--runs", type=int, default=20)
+    ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--hogs", type=int, default=2,
+                    help="CPU-bound processes beside the runs (default 2)")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args()
+    with_runs: list[dict[str, Any]] = []
+    without_runs: list[dict[str, Any]] = []
+    with tempfile.TemporaryDirectory() as tmp, served_armar3("auto") as (_, port), \
+            hogs(args.hogs):
+        for k in range(args.runs):
+            with_runs.append(run_with(port, args.seconds, Path(tmp)))
+            without_runs.append(run_without(port, args.seconds))
+            if not args.json:
+                w, o = with_runs[-1], without_runs[-1]
+                print(f"  run {k + 1:2}: with p99 {w['p99_ms']} ms"
+                      f"{' WATCHDOG' if w['stopped'] else ''}"
+                      f"{' EXCEPTION' if w['exception'] else ''}, {w['renders_per_s']} "
+                      f"screens/s, {w['rows']} rows, zenoh {'ok' if w['zenoh'] else 'NO'}"
+                      f"; without p99 {o['p99_ms']} ms{' WATCHDOG' if o['stopped'] else ''}"
+                      f"{' EXCEPTION' if o['exception'] else ''}", flush=True)
+        load = os.getloadavg()[0]
+    p_with = [r["p99_ms"] for r in with_runs if r["p99_ms"] is not None]
+    p_without = [r["p99_ms"] for r in without_runs if r["p99_ms"] is not None]
+    m_with, m_without = median(p_with), median(p_without)
+    figures: dict[str, Any] = {
+        "runs": args.runs, "seconds": args.seconds, "hogs": args.hogs,
+        "run_time": compiled.status().reason,
+        "watchdog_stops": sum(r["stopped"] for r in with_runs),
+        "watchdog_stops_without": sum(r["stopped"] for r in without_runs),
+        "exceptions": sum(r["exception"] for r in with_runs),
+        "exceptions_without": sum(r["exception"] for r in without_runs),
+        "p99_ms_with": m_with, "p99_ms_without": m_without,
+        "ratio": round(m_with / m_without, 2) if m_with is not None and m_without else None,
+        "worst_p99_ms_with": max(p_with, default=None),
+        "worst_p99_ms_without": max(p_without, default=None),
+        "missed_with": sum(r["missed"] or 0 for r in with_runs),
+        "missed_without": sum(r["missed"] or 0 for r in without_runs),
+        "renders_per_s": median([r["renders_per_s"] for r in with_runs]),
+        "recorded_rows": median([r["rows"] for r in with_runs]),
+        "zenoh_reads": sum(r["zenoh"] for r in with_runs),
+        "load_average": round(load, 2),
+        "failures": [r["tail"] for r in with_runs + without_runs if r["tail"]][:3],
+    }
+    targets = {
+        "0 watchdog stops with view, share and record": figures["watchdog_stops"] == 0,
+        "0 exceptions": figures["exceptions"] == 0,
+        "lateness p99 <= 1.5x without": figures["ratio"] is not None
+        and figures["ratio"] <= 1.5,
+        "every view rendered (>= 5 screens/s), recorded, shared": all(
+            r["started"] and r["renders_per_s"] >= 5 and r["rows"] > 0 and r["zenoh"]
+            for r in with_runs),
+    }
+    figures["targets_met"] = {k: bool(v) for k, v in targets.items()}
+    code = 0 if all(targets.values()) else 1
+    if args.json:
+        print(json.dumps(figures, indent=2))
+        return code
+    print(f"ARMAR-III over fleet serve, {args.runs} runs of {args.seconds:g} s with live "
+          f"view + --zenoh + --record and without, {args.hogs} CPU-bound processes beside, "
+          f"run time {figures['run_time']}:")
+    print(f"  lateness p99 (median of the runs) {m_with} ms with, {m_without} ms without: "
+          f"{figures['ratio']}x (worst {figures['worst_p99_ms_with']} / "
+          f"{figures['worst_p99_ms_without']} ms); missed {figures['missed_with']} / "
+          f"{figures['missed_without']} cycles")
+    print(f"  watchdog stops {figures['watchdog_stops']} with, "
+          f"{figures['watchdog_stops_without']} without; exceptions {figures['exceptions']}"
+          f" with, {figures['exceptions_without']} without")
+    print(f"  live view {figures['renders_per_s']} screens/s, {figures['recorded_rows']} "
+          f"value rows recorded, Zenoh answered in {figures['zenoh_reads']} of "
+          f"{args.runs} runs; load average {figures['load_average']}")
+    for tail in figures["failures"]:
+        print("  --- a failed run's end:\n" + tail)
+    for name, ok in targets.items():
+        print(f"  target {name}: {'MET' if ok else 'NOT MET'}")
+    return code
+
+
+if __name__ == "__main__":
+    with stop_signals():  # SIGTERM and SIGHUP as Ctrl-C: the fleet and the hogs stopped too
+        sys.exit(main())
