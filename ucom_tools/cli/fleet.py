@@ -1,5 +1,6 @@
-"""``ucom fleet show``, ``ucom fleet serve`` and ``ucom fleet faults``: the bundled virtual
-UCoM fleets and the mutant boards' faults."""
+"""``ucom fleet show``, ``ucom fleet serve``, ``ucom fleet fault`` and ``ucom fleet
+faults``: the bundled virtual UCoM fleets, injecting a fault into a served one, and the
+mutant boards' faults."""
 
 from __future__ import annotations
 
@@ -15,8 +16,9 @@ from rich.table import Table
 from ucom_tools.cli.output import emit_json, leds, stderr, stdout
 from ucom_tools.config import mutants
 from ucom_tools.config import topology as topo
+from ucom_tools.config.scenario import MAX_SECONDS, ROBOT, FaultKind, Scenario, injected
 from ucom_tools.config.topology import BUNDLED, Topology
-from ucom_tools.errors import BusError
+from ucom_tools.errors import BusError, InputError
 from ucom_tools.plugons import board_name
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.virtual.multiserve import (
@@ -36,6 +38,15 @@ from ucom_tools.virtual.socketcand import (
 SWITCH_INTERVAL_S = 0.0005
 """Python's thread switch interval while serving (its default is 5 ms)."""
 TOPOLOGY_HELP = f"a bundled topology ({', '.join(BUNDLED)}) or a topology file (TOML)"
+SHOW_HELP = f"""Show the buses and boards of TOPOLOGY at power-on (or MS later, --run).
+
+    TOPOLOGY is {TOPOLOGY_HELP}.  Shows per board its chain position, plug-on
+    board, seq ID, firmware state, stored program, the running program's exchange (state,
+    cycle time, load) and the three LEDs (red, yellow, green; dissertation B.2.3): in the
+    bootloader they show the init lines, once a program runs its status: green blinks at
+    a rate that shows the cycle time, yellow flashes after an overrun, red after a CAN
+    error and steadily while the watchdog holds the motors stopped.  --json shows also
+    the injected faults in progress (none in a fleet of its own)."""
 
 
 @click.group()
@@ -43,7 +54,7 @@ def fleet() -> None:
     """The virtual UCoM fleets: boards that behave like the hardware, on simulated buses."""
 
 
-@fleet.command("show")
+@fleet.command("show", help=SHOW_HELP)
 @click.argument("topology", metavar="TOPOLOGY")
 @click.option("--state", "state_dir", type=click.Path(path_type=Path),
               help="Directory with the boards' non-volatile memory (see 'fleet serve').")
@@ -53,14 +64,6 @@ def fleet() -> None:
                                  "LEDs.")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of tables.")
 def show(topology: str, state_dir: Path | None, run_ms: int, as_json: bool) -> None:
-    """Show the buses and boards of TOPOLOGY at power-on (or MS later, --run).
-
-    TOPOLOGY is """ + TOPOLOGY_HELP + """.  Shows per board its chain position, plug-on
-    board, seq ID, firmware state, stored program, the running program's exchange (state,
-    cycle time, load) and the three LEDs (red, yellow, green; dissertation B.2.3): in the
-    bootloader they show the init lines, once a program runs its status: green blinks at
-    a rate that shows the cycle time, yellow flashes after an overrun, red after a CAN
-    error and steadily while the watchdog holds the motors stopped."""
     f = Fleet.load(topology, state_dir=state_dir)
     if run_ms:
         f.run_for(run_ms / 1000)
@@ -146,10 +149,14 @@ class _Processes(click.ParamType):
 @click.option("--seed", type=int, default=0, show_default=True,
               help="Seed of --loss (each client's losses are drawn from SEED, its bus and its "
                    "number).")
+@click.option("--scenario", "scenario_file", metavar="FILE", type=click.Path(path_type=Path),
+              help="Injected faults, timed from each bus's first MCA Alive: boards that lose "
+                   "power, reset or go bus-off, a cut cable, the emergency stop (TOML, 'man "
+                   "ucom', SCENARIOS); 'ucom fleet fault' injects one by hand.")
 @click.pass_context
 def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, port: int,
           max_clients: int, processes: int | None, fault: str | None, loss: float,
-          seed: int) -> None:
+          seed: int, scenario_file: Path | None) -> None:
     """Serve TOPOLOGY's buses with the socketcand protocol, in real time.
 
     Other processes reach the boards through a socketcand client: 'ucom ... -i socketcand
@@ -166,7 +173,11 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     naming the bus).
 
     --fault NAME serves mutant boards, e.g. 'ucom fleet serve armar3 --fault
-    seq-from-zero' (see 'ucom fleet faults')."""
+    seq-from-zero' (see 'ucom fleet faults').
+
+    --scenario FILE injects faults as it serves (each at its time after the first MCA
+    Alive on its bus; a whole-robot fault on each bus from that bus's own); 'ucom fleet
+    fault' injects one by hand, on this port."""
     mutants.check(fault, key="--fault")
     verbose = int((ctx.find_root().obj or {}).get("verbose", 0))
     log_level = logging.INFO if verbose else logging.WARNING
@@ -174,16 +185,22 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     # the fleet's driver thread is busy most of the time: switch threads often, so
     # that clients' readers and writers get their turn within a cycle
     sys.setswitchinterval(SWITCH_INTERVAL_S)
+    logging.getLogger("ucom.fleet").setLevel(logging.INFO)  # a scenario's faults as they come
     robot = topo.load(topology)
+    scenario = None
+    if scenario_file is not None:
+        scenario = Scenario.load(scenario_file)
+        scenario.check(robot)  # before anything runs
     count = _process_count(robot, processes)
     if count > 1:
         _serve_per_bus(robot, state_dir, host, port, max_clients, log_level, count,
                        {**({"fault": fault} if fault else {}),
-                        **({"client_loss": loss, "seed": seed} if loss else {})},
+                        **({"client_loss": loss, "seed": seed} if loss else {}),
+                        **({"scenario": scenario} if scenario else {})},
                        auto=processes is None)
         return
     f = Fleet(robot, state_dir=state_dir, realtime=True, fault=fault, client_loss=loss,
-              seed=seed)
+              seed=seed, scenario=scenario)
     try:
         server = FleetServer(f, host, port, max_clients=max_clients)
     except OSError as e:
@@ -194,7 +211,7 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     one_core = ("one process (auto: 1 core); "
                 if processes is None and len(robot.buses) > 1 else "")
     stderr().print(f"serving {f.name} ({', '.join(f.buses)}) with socketcand on {h}:{p}; "
-                   f"{one_core}{_mutants(fault)}{_losing(loss)}"
+                   f"{one_core}{_mutants(fault)}{_losing(loss)}{_scenario(scenario)}"
                    f"state: {state_dir or 'not kept'}; Ctrl-C stops")
     try:
         with sigterm_interrupts():
@@ -242,6 +259,7 @@ def _serve_per_bus(robot: Topology, state_dir: Path | None, host: str, port: int
         stderr().print(f"serving {robot.name} ({', '.join(server.buses)}) with socketcand on "
                        f"{h}:{p}, {shares}; {_mutants(fleet_options.get('fault'))}"
                        f"{_losing(fleet_options.get('client_loss', 0.0))}"
+                       f"{_scenario(fleet_options.get('scenario'))}"
                        f"state: {state_dir or 'not kept'}; "
                        "Ctrl-C stops")
         try:
@@ -254,8 +272,64 @@ def _losing(loss: float) -> str:
     return "" if not loss else f"[bold yellow]losing {loss:.1%} of the frames each way[/]; "
 
 
+def _scenario(scenario: Scenario | None) -> str:
+    if scenario is None:
+        return ""
+    count = len(scenario.faults)
+    return (f"[bold yellow]scenario {escape(scenario.source)} ({count} fault"
+            f"{'' if count == 1 else 's'})[/]; ")
+
+
 def _mutants(fault: str | None) -> str:
     return "" if fault is None else f"[bold yellow]mutant boards ({escape(fault)})[/]; "
+
+
+@fleet.command("fault")
+@click.argument("words", nargs=-1, required=True, metavar="[TARGET] KIND")
+@click.option("--host", default="127.0.0.1", show_default=True,
+              help="Host of the 'ucom fleet serve'.")
+@click.option("--port", default=DEFAULT_PORT, show_default=True,
+              type=click.IntRange(1, 65535), help="Its socketcand port.")
+@click.option("--for", "for_s", type=click.FloatRange(0, MAX_SECONDS), metavar="SECONDS",
+              help="How long until it ends (reset: 0 unless given; the other kinds need "
+                   "it).")
+@click.option("--json", "as_json", is_flag=True, help="Print what was done as JSON.")
+def fault_cmd(words: tuple[str, ...], host: str, port: int, for_s: float | None,
+              as_json: bool) -> None:
+    """Inject a fault into a running 'ucom fleet serve', at once, and print what it did.
+
+    TARGET is a board (CAN0/3: bus and seq ID), a bus (CAN0) or robot; KIND is one of:
+
+    \b
+      power-off  the board loses power for --for seconds (its RAM, seq ID, FPGA
+                 counters gone; it comes back in its bootloader or, with AutoStart,
+                 its program, STOPPED, with no seq ID)
+      reset      its DSP resets: silent for the reset time (+ --for), the same loss
+      bus-off    its CAN controller neither sends nor acknowledges; its program runs
+                 on (the watchdog fires after the watchdog time)
+      cable      the bus's frames are lost between the PC and its boards
+      estop      every board of the robot powered off (TARGET robot, or none)
+
+    e.g. 'ucom fleet fault CAN0/3 power-off --for 1', 'ucom fleet fault estop --for 2'.
+    Exit 2 for a TARGET or KIND that do not fit, 3 when the fleet has no such bus or
+    board (nothing was done), 4 when no fleet that takes faults answers on HOST:PORT."""
+    from ucom_tools.transport.fault_request import request_fault
+
+    if len(words) == 1 and words[0] == FaultKind.ESTOP.value:
+        target, kind = ROBOT, words[0]
+    elif len(words) == 2:
+        target, kind = words
+    else:
+        raise click.UsageError("give TARGET KIND (e.g. CAN0/3 power-off), or estop alone")
+    try:
+        asked = injected(kind, target, for_s)  # refuses what cannot fit, before connecting
+    except InputError as err:
+        raise click.UsageError(str(err)) from None
+    done = request_fault(host, port, asked.target, asked.kind.value, asked.for_s)
+    if as_json:
+        emit_json({"server": f"{host}:{port}", **asked.as_dict(), "done": done})
+        return
+    stdout().print(escape(done))
 
 
 @fleet.command("faults")

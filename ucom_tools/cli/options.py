@@ -67,8 +67,8 @@ def parse_sets(sets: tuple[str, ...]) -> list[tuple[str, str]]:
 
 
 def connection_options(f: Callable[..., Any]) -> Callable[..., Any]:
-    """Add -i/-c/-b/--host/--port/--virtual/--topology/--state/--pace/--bus/--log to a
-    command."""
+    """Add -i/-c/-b/--host/--port/--virtual/--topology/--state/--pace/--scenario/--bus/--log
+    to a command."""
     env = ENVIRONMENT
     options = [
         click.option("-i", "--interface", envvar=env["interface"], metavar="NAME",
@@ -90,6 +90,11 @@ def connection_options(f: Callable[..., Any]) -> Callable[..., Any]:
                      help="With --virtual: keep the boards' flash in DIR across runs."),
         click.option("--pace", is_flag=True, envvar=env["pace"],
                      help="With --virtual: run the buses at their real bitrate."),
+        click.option("--scenario", metavar="FILE", type=click.Path(path_type=Path),
+                     help="With --virtual: injected faults for the fleet (a board that "
+                          "loses power, resets, goes bus-off; a cut cable; the emergency "
+                          "stop), timed from each bus's first MCA Alive (TOML, 'man ucom', "
+                          "SCENARIOS)."),
         click.option("--bus", "bus_name", metavar="NAME", help="Only this bus."),
         click.option("--log", "log_file", metavar="FILE", type=click.Path(path_type=Path),
                      help="Record every frame of every bus opened, received and sent, into "
@@ -104,16 +109,21 @@ def connection_options(f: Callable[..., Any]) -> Callable[..., Any]:
     def wrapper(*args: Any, interface: str | None, channels: tuple[str, ...],
                 bitrate: int | None, host: str | None, port: int | None, virtual: str | None,
                 topology: str | None, state_dir: Path | None, pace: bool,
-                log_file: Path | None, **kwargs: Any) -> Any:
+                scenario: Path | None, log_file: Path | None, **kwargs: Any) -> Any:
         if log_file is not None:
             check_log(log_file)  # before anything is read, opened or sent
         values: dict[str, Any] = {"interface": interface, "channels": channels, "host": host,
                                   "port": port, "virtual": virtual, "topology": topology}
         origin, ignored = _resolve(click.get_current_context(), values)
+        if scenario is not None and not values["virtual"]:
+            raise click.UsageError(
+                "--scenario injects faults into the in-process virtual fleet: give it with "
+                "--virtual (a served fleet takes 'ucom fleet serve --scenario FILE', or "
+                "'ucom fleet fault' by hand)")
         spec = ConnectSpec(values["interface"], tuple(values["channels"]), bitrate,
                            values["host"], values["port"], values["virtual"],
                            values["topology"], state_dir, pace, origin=origin,
-                           ignored=tuple(ignored), log=log_file)
+                           ignored=tuple(ignored), log=log_file, scenario=scenario)
         if ignored:
             stderr().print(f"[yellow]ucom: using {escape(spec.describe())} from the "
                            f"{origin}; ignored from the environment: "

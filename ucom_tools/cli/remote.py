@@ -20,7 +20,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from ucom_tools.cli.consumers import END_S, ConsumerProcess, error_of
-from ucom_tools.cli.exitcodes import EXIT_FAILED
+from ucom_tools.cli.exitcodes import EXIT_BUS, EXIT_FAILED
 from ucom_tools.cli.options import (
     Finite,
     connection_json,
@@ -33,7 +33,12 @@ from ucom_tools.config import topology as topo
 from ucom_tools.errors import InputError, UcomError
 from ucom_tools.net.keys import DEFAULT_ENDPOINT, check_rate, robot_id
 from ucom_tools.ops.remote import (
+    HOLD,
+    POLICIES,
+    STOP,
     BoardEvent,
+    BoardFault,
+    BoardLost,
     CheckReport,
     MappingError,
     RemotePart,
@@ -319,14 +324,26 @@ def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) 
 @click.option("--publish-rate", "publish_hz", type=Finite(0, min_open=True), default=100.0,
               show_default=True, metavar="HZ",
               help="How often the shared values go out (at most the loop's rate).")
+@click.option("--on-fault", "on_fault", type=click.Choice(POLICIES), default=STOP,
+              show_default=True,
+              help="When a board is lost (none of its SO maps for 3 periods of its "
+                   "fastest, at least 5 ms; or its bus failed): 'stop' stops every other "
+                   "board at once (motors off) and ends the run, exit 1; 'hold' runs the "
+                   "others on with their targets and reports the lost board (writes to "
+                   "it are refused).")
+@click.option("--rejoin", is_flag=True,
+              help="With --on-fault hold: bring a lost board back when it returns, without "
+                   "stopping the loop (its program started and configured again, its "
+                   "targets set to where its joints stand: no joint jumps).  A run whose "
+                   "every lost board rejoined exits 0 and lists its faults.")
 @connection_options
 @json_option
 @click.pass_context
 def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ...],
         seconds: float | None, rate: float, alive_ms: int, record: str | None,
         periods: tuple[str, ...], force: bool, realtime: bool, zenoh_endpoint: str | None,
-        zenoh_config: str | None, allow_writes: bool, publish_hz: float, spec: ConnectSpec,
-        bus_name: str | None, as_json: bool) -> None:
+        zenoh_config: str | None, allow_writes: bool, publish_hz: float, on_fault: str,
+        rejoin: bool, spec: ConnectSpec, bus_name: str | None, as_json: bool) -> None:
     """Run the robot's boards in the cyclic exchange.
 
     """ + ROBOT_HELP + """  Starts each board's program if needed, checks its edges
@@ -340,7 +357,15 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
     value; 'set NAME VALUE' changes a CI or PAR while running.  With --for it runs N
     seconds and prints what the joints did (--json: every edge's last value and the
     loop's figures).  Ctrl-C or the end stops every board (motors off); a PC that dies
-    leaves them to their watchdog."""
+    leaves them to their watchdog.  A board that is lost (it went silent: power,
+    reset, bus-off, a cable, the emergency stop; or its bus failed) stops every other
+    board and ends the run with exit 1 naming it (--on-fault stop), or is reported while
+    the others run on (--on-fault hold), and with --rejoin brought back when it returns,
+    its joints held where they stand (ucom-protocol(7), RUN TIME, Faults); --json lists
+    them under 'faults'."""
+    if rejoin and on_fault != HOLD:
+        raise click.UsageError("--rejoin needs --on-fault hold: under --on-fault stop a "
+                               "lost board ends the run", ctx=ctx)
     wanted = parse_sets(sets)
     cycles = _parse_periods(periods)
     sharing = zenoh_endpoint is not None or zenoh_config is not None
@@ -351,14 +376,15 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
     summary = Summary()
     interrupted = 0  # the exit code of an interrupt
     how = ""
-    failed: UcomError | None = None  # what ended the consumers' process
+    consumer_error: UcomError | None = None  # what ended the consumers' process
     consumers: ConsumerProcess | None = None
     with ExitStack() as stack:
         spec = _one_bus(spec, bus_name)
         if record is not None:  # checked up front; the file is written by the consumers
             log_extension(record, key="--record")
         with _part(robot_or_trees, spec, rate_hz=rate, alive_ms=alive_ms,
-                   periods=cycles or None, realtime=realtime) as part:
+                   periods=cycles or None, realtime=realtime, on_fault=on_fault,
+                   rejoin=rejoin) as part:
             if sharing:
                 check_rate(publish_hz, 1.0 / part.period_s)
             if record is not None:  # exit 3 before the exchange starts
@@ -425,11 +451,13 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                 how = f"terminated ({e.name})" if isinstance(e, Terminated) else "interrupted"
             except RemoteStop as e:  # from the network, with --allow-writes
                 how = str(e)
+            except BoardLost:  # --on-fault stop: every other board was stopped at once
+                pass
             except Quit:  # the live view's q
                 pass
             except ConsumersGone as e:  # the view, the recording or the share failed
                 how = str(e)
-                failed = e
+                consumer_error = e
             finally:
                 part.on_values = None
             loads = {} if before is None else part.load_between(before, part.traffic())
@@ -440,28 +468,34 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                 got = feed.wait_for("ended", END_S)  # the recording committed, the
                 if got is not None:  # terminal given back
                     network = feed.stats.get("network")
-                    if got[1] and failed is None:
-                        failed = error_of(got[1], got[2], got[3])
-                elif failed is None:
-                    failed = UcomError(
+                    if got[1] and consumer_error is None:
+                        consumer_error = error_of(got[1], got[2], got[3])
+                elif consumer_error is None:
+                    consumer_error = UcomError(
                         "the consumers' process (live view, --record, --zenoh) "
                         + ("ended without saying how" if feed.gone
                            else f"did not end within {END_S:g} s"))
-                if isinstance(failed, ConsumersGone) and feed.ended is not None:
-                    failed = error_of(*feed.ended)
+                if isinstance(consumer_error, ConsumersGone) and feed.ended is not None:
+                    consumer_error = error_of(*feed.ended)
             if how:
                 stderr().print(f"[yellow]{escape(how)}: "
                                + (f"{len(problems)} board(s) could not be stopped"
                                   if problems else "every board stopped") + "[/]")
+            still_lost = sorted(part.lost.values(), key=lambda b: (b.bus, b.board))
+            failed = part.failed_buses
             if part.scheduling is not None and part.scheduling.refused:
                 stderr().print(f"[yellow]ucom: --realtime: {escape(part.scheduling.refused)}; "
                                "the loop ran at normal priority[/]", soft_wrap=True)
-            stopped = sorted({(e.bus, e.board) for e in part.events if e.stopped_motors})
+            stopped = _watchdog_stops(part.events, part.faults)
             if as_json:
                 emit_json({"connection": connection_json(spec), "started": True,
                            "interrupted": bool(interrupted), "boards": _boards_json(part),
                            "run": _stats_json(part, loads), "not_stopped": problems,
                            "events": [_event_json(e) for e in part.events],
+                           "faults": [_fault_json(f) for f in part.faults],
+                           "lost": [{"bus": b.bus, "board": b.board, "where": b.where,
+                                     "since": b.since, "seen": b.seen, "status": b.status}
+                                    for b in still_lost],
                            "network": network,
                            "writes": [_write_json(w) for w in part.writes]})
             else:
@@ -470,15 +504,18 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                     stderr().print(f"[red]ucom: could not stop {escape(p)}: its watchdog "
                                    "stops it[/]", soft_wrap=True)
                 _print_events(part.events)
+                _print_faults(part, still_lost)
                 if stopped:
                     _print_loop_away(part)
                 _print_writes(part.writes)
-    if failed is not None:
-        raise failed
-    if stopped and not interrupted:
-        ctx.exit(EXIT_FAILED)
+    if consumer_error is not None:
+        raise consumer_error
     if interrupted:
         ctx.exit(interrupted)
+    if failed:
+        ctx.exit(EXIT_BUS)
+    if stopped or still_lost:
+        ctx.exit(EXIT_FAILED)
 
 
 @contextmanager
@@ -520,6 +557,45 @@ def _print_loop_away(part: RemotePart) -> None:
     stderr().print(f"[yellow]ucom: the PC's loop itself did not run for {gap_ms:.0f} ms at "
                    f"a time (the boards' watchdog: {watchdog_ms} ms): this machine kept it "
                    f"from its deadlines{hint}[/]", soft_wrap=True)
+
+
+def _watchdog_stops(events: list[BoardEvent], faults: list[BoardFault],
+                    ) -> list[tuple[str, int]]:
+    """The boards whose watchdog stopped them and that did not rejoin after it."""
+    out = set()
+    for e in events:
+        if e.stopped_motors and not any(
+                f.event == "rejoined" and (f.bus, f.board) == (e.bus, e.board)
+                and f.time >= e.time for f in faults):
+            out.add((e.bus, e.board))
+    return sorted(out)
+
+
+def _fault_json(f: BoardFault) -> dict[str, Any]:
+    return {"time": f.time, "bus": f.bus, "board": f.board, "where": f.where,
+            "event": f.event, "seen": f.seen, "answered": f.answered}
+
+
+def _print_faults(part: RemotePart, still_lost: list[Any]) -> None:
+    """Every board lost and rejoined, in order; under --on-fault stop what was done;
+    the boards still lost at the end."""
+    for f in part.faults:
+        if f.event == "lost":
+            stderr().print(f"[red]ucom: {escape(f.where)} lost at {f.time:.3f} s: "
+                           f"{escape(f.seen)}[/]", soft_wrap=True)
+        else:
+            after = "" if f.answered is None else \
+                f", {f.time - f.answered:.3f} s after it answered"
+            stderr().print(f"[green]ucom: {escape(f.where)} rejoined at {f.time:.3f} s"
+                           f"{after}: {escape(f.seen)}[/]", soft_wrap=True)
+    if part.on_fault == STOP and part.faults:
+        stderr().print(f"[red]ucom: --on-fault stop: every other board was stopped at "
+                       f"{part.faults[0].time:.3f} s (MCA Start STOP on every bus); the run "
+                       "ended[/]", soft_wrap=True)
+    elif still_lost:
+        for b in still_lost:
+            stderr().print(f"[red]ucom: {escape(b.where)} still lost at the end (since "
+                           f"{b.since:.3f} s): {escape(b.status)}[/]", soft_wrap=True)
 
 
 def _write_json(w: WriteEvent) -> dict[str, Any]:

@@ -11,7 +11,7 @@ PWM in 1/16000 of the supply (16000 = 100 %); gains as plain numbers with six de
 
 from __future__ import annotations
 
-from ucom_tools.edgelists.model import EdgeKind, EdgeSpec, ProgramSpec
+from ucom_tools.edgelists.model import CiSeed, EdgeKind, EdgeSpec, ProgramSpec, Seed
 
 NAME = "armar3 cascaded PID"
 AXES = "ABC"
@@ -102,6 +102,19 @@ def _par() -> list[EdgeSpec]:
     return edges
 
 
+def _seeds() -> list[CiSeed]:
+    """A rejoining board holds each joint where it stands: the target is its joint sensor
+    (counter 2k of axis k), the velocity target 0, a homing command becomes position
+    control (not resumed); the other CIs keep the PC's values."""
+    out = []
+    for k, a in enumerate(AXES):
+        out += [CiSeed(f"Motor{a} Target", Seed.SENSOR, sensor=f"Encoder {2 * k}"),
+                CiSeed(f"Motor{a} TargetVel", Seed.ZERO),
+                CiSeed(f"Motor{a} Command", Seed.KEEP,
+                       replace=((Command.HOMING, Command.POSITION),))]
+    return out
+
+
 SPEC = ProgramSpec(NAME, "ARMAR-III cascaded position-velocity control, 3 axes",
                    tuple(_ci() + _so() + _par()),
-                   cycle_edge="LoopTime(ms)")
+                   cycle_edge="LoopTime(ms)", seeds=tuple(_seeds()))

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from enum import IntEnum, IntFlag
 
-from ucom_tools.edgelists.model import EdgeKind, EdgeSpec, ProgramSpec
+from ucom_tools.edgelists.model import CiSeed, EdgeKind, EdgeSpec, ProgramSpec, Seed
 
 NAME = "lauron4 leg"
 """The program name of the ``lauron4.fl.S`` image descriptor."""
@@ -152,6 +152,18 @@ def _par() -> list[EdgeSpec]:
     return edges
 
 
+def _seeds() -> list[CiSeed]:
+    """A rejoining leg holds each joint where it stands: the position set point is the
+    joint's position, the velocity set point 0, and Reference Run the board's own value
+    (after a power cycle 0: the PC's larger one would start a reference run)."""
+    out = []
+    for n in range(1, AXES + 1):
+        out += [CiSeed(f"Axis{n} Position Setpoint", Seed.SENSOR, sensor=f"Axis{n} Position"),
+                CiSeed(f"Axis{n} Velocity Setpoint", Seed.ZERO)]
+    out.append(CiSeed("Reference Run", Seed.BOARD))
+    return out
+
+
 SPEC = ProgramSpec(NAME, "LAURON-IV leg: velocity cascade per joint, 3 axes, foot force",
                    tuple(_ci() + _so() + _par()),
-                   cycle_edge="Cycle Time(us)")
+                   cycle_edge="Cycle Time(us)", seeds=tuple(_seeds()))

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from decimal import Decimal
-from enum import IntEnum
+from enum import IntEnum, StrEnum
 
 _US_PER = {"ms": 1000, "us": 1}
 
@@ -98,6 +98,41 @@ class EdgeSpec:
         return f"{lo}..{hi}" + (f" {self.unit}" if self.unit else "")
 
 
+class Seed(StrEnum):
+    """What a CI edge is given when its board rejoins a running exchange after it was lost
+    (``man/ucom-protocol.7``, RUN TIME, Faults): never a value that would move a joint."""
+
+    KEEP = "keep"
+    """The value the PC holds (a mode, a limit: the board had it before it was lost)."""
+    SENSOR = "sensor"
+    """The present value of an SO edge: a position target takes the joint sensor's reading,
+    so the joint holds where it stands."""
+    ZERO = "zero"
+    """0: a velocity target (the joint stands still)."""
+    BOARD = "board"
+    """The value the board holds now (read back): a counter whose growth starts something,
+    a reference run say, so that nothing is started again."""
+
+
+@dataclass(frozen=True)
+class CiSeed:
+    """How one CI edge is seeded on a rejoin: ``seed``, with ``sensor`` the SO edge whose
+    present value a :attr:`Seed.SENSOR` takes, and ``replace`` values of a
+    :attr:`Seed.KEEP` that are given another one (a homing command: not resumed)."""
+
+    ci: str
+    seed: Seed
+    sensor: str = ""
+    replace: tuple[tuple[int, int], ...] = ()
+
+    def kept(self, raw: int) -> int:
+        """A :attr:`Seed.KEEP` value as it is written again (:attr:`replace` applied)."""
+        for old, new in self.replace:
+            if raw == old:
+                return new
+        return raw
+
+
 @dataclass(frozen=True)
 class ProgramSpec:
     """A DSP program's edges, in the order the board and its attribute trees list them:
@@ -109,6 +144,10 @@ class ProgramSpec:
     edges: tuple[EdgeSpec, ...]
     cycle_edge: str = ""
     """The PAR edge that sets the cycle time (unit ``ms`` or ``us``); "" = fixed 1 ms."""
+    seeds: tuple[CiSeed, ...] = ()
+    """How its CI edges are seeded when a board rejoins (:class:`CiSeed`; a CI not named
+    here keeps the PC's value).  A program without seeds does not rejoin: nothing says
+    which value would hold its joints."""
     by_kind: dict[EdgeKind, tuple[EdgeSpec, ...]] = field(init=False, repr=False,
                                                            compare=False)
 
@@ -126,6 +165,19 @@ class ProgramSpec:
             raise ValueError(f"{self.name}: edge names must be unique")
         object.__setattr__(self, "by_kind", {
             k: tuple(e for e in self.edges if e.kind is k) for k in EdgeKind})
+        kinds = {e.name: e.kind for e in self.edges}
+        for s in self.seeds:
+            if kinds.get(s.ci) is not EdgeKind.CI or (
+                    s.seed is Seed.SENSOR and kinds.get(s.sensor) is not EdgeKind.SO):
+                raise ValueError(f"{self.name}: seed of {s.ci!r} must name a CI edge (and "
+                                 "a SENSOR seed an SO edge)")
+
+    def seed_of(self, ci: str) -> CiSeed:
+        """How CI edge ``ci`` is seeded on a rejoin (:attr:`Seed.KEEP` when not named)."""
+        for s in self.seeds:
+            if s.ci == ci:
+                return s
+        return CiSeed(ci, Seed.KEEP)
 
     def of(self, kind: EdgeKind) -> tuple[EdgeSpec, ...]:
         return self.by_kind[kind]

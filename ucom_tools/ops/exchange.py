@@ -444,6 +444,10 @@ class BusExchange:
                 return i
         raise KeyError(f"{self.where(n)} has no {kind.name} edge {name!r}")
 
+    def forget_indices(self) -> None:
+        """Look the edges' indices up again (:meth:`index`): a board was configured anew."""
+        self._indices.clear()
+
     def set_ci(self, n: int, name: str, raw: int) -> None:
         """The raw value CI edge ``name`` (generic) of board ``n`` gets from now on: in its
         CI map if it has one, else written with acknowledgement now."""

@@ -15,14 +15,23 @@ calling :meth:`cycle` stops sending MCA Alive, and the boards' watchdogs stop th
 One exchange per bus: before anything is sent, :meth:`RemotePart.claim` listens on every
 bus and refuses (BusError) where another host's exchange runs, unless forced.
 
+A board that goes silent, or whose bus fails, is *lost* (``man/ucom-protocol.7``, RUN
+TIME, Faults): ``on_fault="stop"`` (the default) stops every other board at once and
+:meth:`cycle` raises :class:`~ucom_tools.ops.remote_faults.BoardLost`; ``"hold"`` runs
+the others on, and with ``rejoin=True`` brings the board back when it returns
+(:mod:`~ucom_tools.ops.rejoin`), its joints held where they stand.  :attr:`lost`,
+:attr:`faults`, :attr:`fault_hooks`, :meth:`valid` and :meth:`age` say what is current.
+
 This module opens, checks, starts and stops; the jobs between live beside it: the
 start-up check (:mod:`~ucom_tools.ops.remote_check`), the values by name
 (:mod:`~ucom_tools.ops.remote_values`), the loop (:mod:`~ucom_tools.ops.remote_loop`),
-what is reported (:mod:`~ucom_tools.ops.remote_report`).  Their names are here too.
+what is reported (:mod:`~ucom_tools.ops.remote_report`, faults:
+:mod:`~ucom_tools.ops.remote_faults`).  Their names are here too.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
 from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -38,6 +47,15 @@ from ucom_tools.errors import InputError, UcomError
 from ucom_tools.ops.edges import EdgeRef, Names
 from ucom_tools.ops.exchange import BusExchange, ExchangeWatch
 from ucom_tools.ops.remote_check import BusCheck, check_bus, check_periods, tree_file
+from ucom_tools.ops.remote_faults import (
+    HOLD,
+    POLICIES,
+    STOP,
+    BoardFault,
+    BoardLost,
+    LostBoard,
+    LostBoardWrite,
+)
 from ucom_tools.ops.remote_loop import RECENT_SAMPLES, RemoteLoop
 from ucom_tools.ops.remote_report import (
     BoardCheck,
@@ -65,7 +83,8 @@ class RemotePart(RemoteLoop):
 
     def __init__(self, robot: Robot, trees: RobotTrees, *, rate_hz: float = 1000.0,
                  alive_ms: int = mca.ALIVE_DEFAULT_MS,
-                 periods: dict[str, int] | None = None, realtime: bool = False) -> None:
+                 periods: dict[str, int] | None = None, realtime: bool = False,
+                 on_fault: str = STOP, rejoin: bool = False) -> None:
         if robot.topology is None:
             raise InputError("the run time needs the robot's topology (which board runs "
                              "which tree): give --topology FILE or a robot name",
@@ -88,10 +107,17 @@ class RemotePart(RemoteLoop):
             spec = h.expected or robot.topology.bus(name)
             exchanges[name] = BusExchange(h.link, spec, trees, alive_ms=alive_ms,
                                           timeouts=robot.timeouts, periods=periods)
-        super().__init__(robot, exchanges, 1.0 / rate_hz, realtime=realtime)
+        super().__init__(robot, exchanges, 1.0 / rate_hz, realtime=realtime,
+                         on_fault=on_fault, rejoin=rejoin)
         self.trees = trees
         self.report: CheckReport | None = None
         self._described: dict[tuple[str, int], BoardEdges] = {}
+        self._serials: dict[tuple[str, int], int] = {}
+        """(bus, seq ID) -> the board's serial number, from the start's init chain."""
+        if rejoin:
+            from ucom_tools.ops.rejoin import Rejoin
+
+            self.rejoiner = lambda bus, n, delay: Rejoin(self, bus, n, delay)
         self._claimed = False
         self._owns_robot = False
         self.writes: list[WriteEvent] = []
@@ -106,7 +132,7 @@ class RemotePart(RemoteLoop):
              interface: str | None = None, channels: Sequence[str] = (),
              host: str | None = None, port: int | None = None, bitrate: int | None = None,
              trees: Sequence[str | Path] = (), start: bool = True, force: bool = False,
-             **kwargs: Any) -> RemotePart:
+             scenario: str | Path | None = None, **kwargs: Any) -> RemotePart:
         """The run-time part of ``robot`` (a bundled topology or a topology file) on its
         buses: the in-process virtual fleet (``virtual``, flash kept in ``state_dir``),
         or a python-can ``interface`` with ``channels`` (or a socketcand ``host`` and
@@ -114,13 +140,16 @@ class RemotePart(RemoteLoop):
         (:meth:`start`, with ``force``) unless ``start`` is false; as a context manager
         it always stops the boards and closes the buses at the end.  Shared on the
         robot's network: :func:`ucom_tools.net.share.open_shared` (the same arguments
-        and the Zenoh ones)."""
+        and the Zenoh ones).  ``scenario``: with ``virtual``, a scenario file of injected
+        faults for the fleet (``ucom(1)``, SCENARIOS)."""
         if virtual:
             spec = ConnectSpec(virtual=robot,
-                               state_dir=Path(state_dir) if state_dir is not None else None)
+                               state_dir=Path(state_dir) if state_dir is not None else None,
+                               scenario=Path(scenario) if scenario is not None else None)
         else:
             spec = ConnectSpec(interface, tuple(channels), bitrate, host, port,
-                               topology=robot)
+                               topology=robot,
+                               scenario=Path(scenario) if scenario is not None else None)
         r = open_robot(spec)
         try:
             part = cls(r, robot_trees(r, trees), **kwargs)
@@ -194,6 +223,7 @@ class RemotePart(RemoteLoop):
             boards += bus.boards
             refs += bus.refs
             self._described.update({(h.name, n): e for n, e in bus.described.items()})
+            self._serials.update({(h.name, n): s for n, s in bus.serials.items()})
         self.report = CheckReport(tuple(boards))
         order = {(b.bus, b.board): i for i, b in enumerate(boards)}
         self.names = Names(sorted(refs, key=lambda r: order[(r.bus, r.board)]))
@@ -202,6 +232,17 @@ class RemotePart(RemoteLoop):
     def described(self, bus: str, board: int) -> BoardEdges | None:
         """The edges board ``board`` of ``bus`` described in :meth:`check`."""
         return self._described.get((bus, board))
+
+    def serial(self, bus: str, board: int) -> int:
+        """The serial number of board ``board`` of ``bus``, as its Init Ack gave it in
+        :meth:`check` (KeyError before)."""
+        return self._serials[(bus, board)]
+
+    def par_values(self, bus: str, board: int) -> list[tuple[EdgeRef, int]]:
+        """The PAR values the PC wrote to a board (its tree's defaults and what was set
+        since), by edge: what a rejoin writes again."""
+        return [(ref, raw) for ref, raw in self._par.items()
+                if ref.bus == bus and ref.board == board]
 
     # ------------------------------------------------------------------ start
     def start(self, *, force: bool = False) -> CheckReport:
@@ -257,13 +298,23 @@ class RemotePart(RemoteLoop):
             return []
         self._running = False
         self.stats.ended_clock = self._clock()
+        self._end_rejoins()
         problems: list[str] = []
-        for _, x in self._handles():  # as at the start: while the boards are stopped one
-            x.start_alive()  # by one (each asked, maybe again), no other's watchdog fires
+        failed = set(self._failed)
+        for h, x in self._handles():  # as at the start: while the boards are stopped one
+            if h.name not in failed:  # by one (each asked, maybe again), no other's
+                x.start_alive()  # watchdog fires
 
         def stop_bus(h: BusHandle, x: BusExchange) -> list[str]:
-            out = []
+            out: list[str] = []
+            if h.name in failed:
+                return out  # its boards are lost; their watchdogs stop them
             for n in list(x.configured):
+                if (h.name, n) in self._lost:  # told to stop when it was lost, and again
+                    with contextlib.suppress(UcomError):  # here, unacknowledged: it is not
+                        x.link.send_raw(*mca.encode(  # there to answer (or its rejoin was
+                            mca.McaStart(mca.StartOp.STOP), seq(n)))  # cut short)
+                    continue
                 try:
                     x.mca.start(seq(n), mca.StartOp.STOP)
                 except UcomError as err:
@@ -311,6 +362,7 @@ def robot_trees(robot: Robot, files: Sequence[str | Path] = ()) -> RobotTrees:
     return with_files(bind(robot.topology), files)
 
 
-__all__ = ["RECENT_SAMPLES", "BoardCheck", "BoardEvent", "CheckReport", "LoopStats",
-           "MappingError", "RawSnapshot", "RemotePart", "RemoteStop", "Summary", "Trace",
-           "Value", "WriteEvent", "robot_trees"]
+__all__ = ["HOLD", "POLICIES", "RECENT_SAMPLES", "STOP", "BoardCheck", "BoardEvent",
+           "BoardFault", "BoardLost", "CheckReport", "LoopStats", "LostBoard",
+           "LostBoardWrite", "MappingError", "RawSnapshot", "RemotePart", "RemoteStop",
+           "Summary", "Trace", "Value", "WriteEvent", "robot_trees"]

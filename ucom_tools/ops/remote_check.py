@@ -37,6 +37,8 @@ class BusCheck:
     """The edges of the boards that match their trees, in tree order."""
     described: dict[int, BoardEdges] = field(default_factory=dict)
     """Seq ID -> the edges the board described (every board that got that far)."""
+    serials: dict[int, int] = field(default_factory=dict)
+    """Seq ID -> the serial number its Init Ack gave (what Init Request REJOIN names)."""
 
 
 def check_bus(h: BusHandle, x: BusExchange, trees: RobotTrees) -> BusCheck:
@@ -44,7 +46,9 @@ def check_bus(h: BusHandle, x: BusExchange, trees: RobotTrees) -> BusCheck:
     started if needed, descriptions fetched and compared with the block.  A board that
     fails is named in its BoardCheck and does not stop the others."""
     out = BusCheck()
-    numbers = h.client.init_chain().numbers
+    chain = h.client.init_chain()
+    numbers = chain.numbers
+    out.serials = {a.seq_id: a.serial for a in chain.acks}
     name = h.name
     for spec in x.bus.boards:
         n = spec.position + 1

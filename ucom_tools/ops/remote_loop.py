@@ -8,6 +8,25 @@ per bus where the interface can batch them: socketcand), then takes every frame 
 buses delivered meanwhile.
 ``realtime`` runs the loop's thread under SCHED_FIFO (:mod:`ucom_tools.ops.realtime`).
 The in-process fleet in virtual time: the loop drives the fleet clock, nothing waits.
+
+After its drain the loop watches every board (``man/ucom-protocol.7``, RUN TIME, Faults):
+a board none of whose fastest SO maps came for :func:`~ucom_tools.ops.remote_faults.
+lost_after` is lost.  The silence is measured on the time stamps of the frames its bus
+delivers (another board's frame stamped that long after its last one proves it; stamps
+are only compared with stamps of the same bus, so another host's clock does not
+matter), so that neither the loop's own stall nor a transport or served fleet that
+falls behind for a moment (its frames come late, together) makes a live board look
+lost.  A board from which nothing came at all for :data:`QUIET_MIN_S` of the loop's own
+running time (a cycle counts at most :data:`PRESENT_CAP` periods: a stall of the loop is
+no silence; the drain after it takes what came meanwhile) is lost too: that is a whole
+bus gone silent.  A bus that fails (the connection or adapter: a BusError, an interface
+that reports error-passive or bus-off) is a fault of every board on it, at once.
+The policy (``on_fault``): ``stop`` broadcasts MCA Start STOP on every bus in the cycle
+of the detection and raises
+:class:`~ucom_tools.ops.remote_faults.BoardLost`; ``hold`` runs the others on and, with
+``rejoin``, steps a conversation that brings the lost board back
+(:mod:`~ucom_tools.ops.rejoin`) after each cycle's drain; a lost board whose maps come
+again before that ran on all along and is back as it was.
 :class:`~ucom_tools.ops.remote.RemotePart` is a :class:`RemoteLoop`; its
 :meth:`~RemoteLoop.cycle` is the performance-critical path (``benchmarks/runtime.py``).
 """
@@ -21,7 +40,7 @@ from typing import Any, Final, Self
 
 import can
 
-from ucom_tools.errors import BusError, FrameError, UcomError
+from ucom_tools.errors import BusError, FrameError, InputError, UcomError
 from ucom_tools.native import mypyc_attr
 from ucom_tools.ops.exchange import BusExchange
 from ucom_tools.ops.realtime import (
@@ -30,13 +49,23 @@ from ucom_tools.ops.realtime import (
     let_signals_in,
     precise_sleep,
 )
+from ucom_tools.ops.remote_faults import (
+    HOLD,
+    POLICIES,
+    STOP,
+    BoardFault,
+    BoardLost,
+    LostBoard,
+    lost_after,
+)
 from ucom_tools.ops.remote_report import BoardEvent, LoopStats, Value
 from ucom_tools.ops.remote_values import RemoteValues
 from ucom_tools.ops.robot import BusHandle, Robot
 from ucom_tools.protocol.dispatch import share_clock
+from ucom_tools.wire import mca
 from ucom_tools.wire import messages as wire_messages
-from ucom_tools.wire.codes import ErrorCode
-from ucom_tools.wire.ids import Function
+from ucom_tools.wire.codes import ErrorCode, ReadyReason
+from ucom_tools.wire.ids import ALL, Function
 
 SPIN_S: Final = 0.0001
 """The most the loop spins before a deadline.  A sleep wakes a little late (the thread's
@@ -59,6 +88,57 @@ _sleep: Final = time.sleep
 """Bound once: the loop's wait calls them every cycle."""
 RECENT_SAMPLES: Final = 2_000
 """The cycles a running view's lateness figures are taken over (the last 2 s at 1 kHz)."""
+QUIET_MIN_S: Final = 0.02
+"""A board from which nothing at all came for this long of the loop's running time is lost
+(when its bus's other boards are silent too, or their frames carry no usable time stamps,
+the time stamps cannot tell: a whole bus silent, a cable, every board off - where the
+interface does not say so at once by its state - or a transport or served fleet that
+fell behind for a moment, which must not stop the robot)."""
+PRESENT_CAP: Final = 2.0
+"""A cycle counts at most this many periods of the loop's running time (the time a board's
+silence is measured on): a loop that was away longer was stalled."""
+_EPSILON: Final = 1e-9
+"""Sums of periods on the clock: a silence of exactly the limit counts as the limit."""
+
+
+class BoardWatch:
+    """One board's fastest SO maps as the loop watches them: the time stamps of their
+    latest frames in the process image (:attr:`~ucom_tools.protocol.mca.ProcessImage.
+    stamps`), the latest of them (:attr:`stamp`), when a new one was noticed on the
+    loop's running time (:attr:`last`), whether one came since the watch began
+    (:attr:`armed`), and the silences after which it is lost: :attr:`limit` measured on
+    its bus's time stamps, :attr:`quiet` on the loop's running time."""
+
+    def __init__(self, bus: str, board: int, where: str, stamps: dict[int, float],
+                 maps: list[int], limit: float, quiet: float, present: float) -> None:
+        self.bus = bus
+        self.board = board
+        self.where = where
+        self.stamps = stamps
+        self.maps = maps
+        self.limit = limit
+        self.quiet = quiet
+        self.stamp = self.latest()
+        self.last = present
+        self.armed = False
+        self.lost = False
+
+    def latest(self) -> float:
+        """The time stamp of the latest frame of its watched maps (0: none yet)."""
+        stamps = self.stamps
+        out = 0.0
+        for n in self.maps:
+            t = stamps.get(n, 0.0)
+            if t > out:
+                out = t
+        return out
+
+    def back(self, present: float) -> None:
+        """Watched again from ``present`` (it rejoined)."""
+        self.stamp = self.latest()
+        self.last = present
+        self.armed = False
+        self.lost = False
 
 
 @mypyc_attr(allow_interpreted_subclasses=True)  # RemotePart (ops/remote.py, from source)
@@ -67,8 +147,57 @@ class RemoteLoop(RemoteValues):
     docstring); :meth:`_start_loop` begins it, :meth:`_end_loop` ends it."""
 
     def __init__(self, robot: Robot, exchanges: dict[str, BusExchange], period_s: float,
-                 *, realtime: bool = False) -> None:
+                 *, realtime: bool = False, on_fault: str = STOP, rejoin: bool = False,
+                 ) -> None:
         super().__init__(robot, exchanges)
+        if on_fault not in POLICIES:
+            raise InputError(f"on_fault must be {' or '.join(POLICIES)}, not {on_fault!r}",
+                             key="--on-fault")
+        if rejoin and on_fault != HOLD:
+            raise InputError("rejoin needs the hold policy (--on-fault hold): under stop "
+                             "a lost board ends the run", key="--rejoin")
+        self.on_fault = on_fault
+        """The policy when a board is lost: ``stop`` (every other board stopped, the run
+        ends: :class:`~ucom_tools.ops.remote_faults.BoardLost`) or ``hold``."""
+        self.rejoin = rejoin
+        """With ``hold``: bring a lost board back when it returns."""
+        self.faults: list[BoardFault] = []
+        """Every board lost or rejoined, in order (``man/ucom-protocol.7``, Faults)."""
+        self.fault_hooks: list[Callable[[BoardFault], None]] = []
+        """Called on the loop's thread with every fault event as it happens (a board lost,
+        rejoined); what is called here must not wait for anything."""
+        self.rejoiner: Callable[[str, int, float], Any] | None = None
+        """Starts the conversation that brings board (bus, n) back, its first question
+        after a delay in seconds (set by :class:`~ucom_tools.ops.remote.RemotePart` with
+        ``rejoin``): an object with ``step()``, ``cancel()``, ``done``, ``ok``,
+        ``answered`` and ``how``."""
+        self._present = 0.0
+        """The loop's own running time since its start (seconds): the clock, but a cycle
+        that came late counts at most :data:`PRESENT_CAP` periods.  Silence is measured on
+        it, so that a stall of this process (or of the machine, a served fleet on it
+        with it) is no silence of the boards: after it they get the time to deliver."""
+        self._watch_at = 0.0
+        """The clock when :attr:`_present` last moved on."""
+        self._watches: list[BoardWatch] = []
+        self._groups: list[list[BoardWatch]] = []
+        """The watched boards by bus."""
+        self._watched: dict[tuple[str, int], BoardWatch] = {}
+        self._notes: dict[tuple[str, int], tuple[float, str]] = {}
+        """What each board said last besides its maps (an Error, its bootloader's Ready,
+        its program's unsolicited MCA Ready), with when (:attr:`_present`): what a lost
+        event names."""
+        self._failed: dict[str, str] = {}
+        """Buses that failed (their connection or adapter) -> why; nothing is sent there."""
+        self._sending: list[BusExchange] = list(exchanges.values())
+        self._drain_of: list[tuple[str, Callable[[], int]]] = []
+        """Each bus's name and its dispatcher's ``drain`` (:meth:`_drain`), from the first
+        cycle on (a failed bus's left out)."""
+        self._states: list[tuple[str, Any]] = []
+        """Buses whose interface reports its state (python-can's ``state``)."""
+        self._bad_state: dict[str, str] = {}
+        self._newly: list[BoardFault] = []
+        self._halt: BoardLost | None = None
+        self._rejoins: list[Any] = []
         self.period_s = period_s
         self.virtual = robot.virtual_time
         self.stats = LoopStats(self.period_s)
@@ -84,8 +213,6 @@ class RemoteLoop(RemoteValues):
         self.events: list[BoardEvent] = []
         """What the boards reported while the exchange ran (their Error messages)."""
         self._event_subs: list[tuple[Any, Any]] = []
-        self._drains: list[Callable[[], int]] = []
-        """Each bus's dispatcher's ``drain`` (:meth:`_drain`), from the first cycle on."""
         self._batching: list[tuple[str, Any]] = []
         """The buses whose frames of a cycle go out in one write (``hold``/``release``:
         :class:`~ucom_tools.transport.socketcand.SocketcandBus`)."""
@@ -117,6 +244,12 @@ class RemoteLoop(RemoteValues):
         return text if granted is None else f"{text}, time slice {granted / 1e6:g} ms"
 
     @property
+    def failed_buses(self) -> dict[str, str]:
+        """The buses whose connection or adapter failed while the loop ran, and why (their
+        boards are lost; nothing more is sent there)."""
+        return dict(self._failed)
+
+    @property
     def running(self) -> bool:
         """Between :meth:`start` and :meth:`stop`."""
         return self._running
@@ -144,6 +277,7 @@ class RemoteLoop(RemoteValues):
         self._listen_for_events(clock)
         self.stats = LoopStats(self.period_s, started_wall=time.perf_counter(),
                                started_clock=clock)
+        self._watch_from(clock)
         self._deadline = clock
         self._sent_at = -1.0
         self._k = 0
@@ -174,6 +308,8 @@ class RemoteLoop(RemoteValues):
         return the latest SO values by name."""
         if not self._running:
             raise UcomError("the exchange is not running (start() it first)")
+        if self._halt is not None:
+            raise self._halt
         if not self._prepared:
             self._prepare()  # once, in the loop's own thread
         self._wait(self._deadline)
@@ -193,9 +329,16 @@ class RemoteLoop(RemoteValues):
         batching = self._batching
         for _, bus in batching:
             bus.hold()
+        deadline = self._deadline
+        failed: list[tuple[str, str]] | None = None
         try:
-            for x in self.exchanges.values():
-                x.send_cycle(self._deadline)
+            for x in self._sending:
+                try:
+                    x.send_cycle(deadline)
+                except BusError as err:  # this bus's connection or adapter: its boards'
+                    if failed is None:  # fault; the other buses' cycles go on
+                        failed = []
+                    failed.append((x.bus.name, str(err)))
         except BaseException:
             for _, bus in batching:
                 bus.release(write=False)
@@ -204,12 +347,22 @@ class RemoteLoop(RemoteValues):
             try:
                 bus.release()
             except can.CanError as err:
-                raise BusError(f"{name}: cannot send: {err}") from err
+                if failed is None:
+                    failed = []
+                failed.append((name, f"{name}: cannot send: {err}"))
         if not self.virtual:
             self._drain()  # after the sends: what came during the period, as fresh as can be
+        if failed is not None:
+            for name, why in failed:
+                self._bus_failed(name, why, now)
+        self._watch_boards(now)
+        if self._rejoins:
+            self._step_rejoins()
         self.stats.cycles += 1
         self._k += 1
         self._deadline += self.period_s
+        if self._newly:
+            self._react()
         if self.on_values is not None:
             self._report_so()
         for hook in self.each_cycle:
@@ -240,15 +393,38 @@ class RemoteLoop(RemoteValues):
                 now = h.link.clock()
                 if self.virtual:  # when it came: the pump hands over a stretch's frames
                     now -= max(0.0, h.link.dispatcher.stamp() - msg.timestamp)  # at its end
-                self.events.append(BoardEvent(
-                    round(now - started, 4), h.name, n, x.where(n), err.code,
-                    f"its watchdog stopped every motor: no MCA Alive for {err.detail} ms "
-                    "(stopped until MCA Start)" if err.code is ErrorCode.WATCHDOG
-                    else err.describe()))
+                text = (f"its watchdog stopped every motor: no MCA Alive for {err.detail} "
+                        "ms (stopped until MCA Start)" if err.code is ErrorCode.WATCHDOG
+                        else err.describe())
+                note = self._notes.get((h.name, n))
+                if err.code is not ErrorCode.LATCHED or note is None or \
+                        not note[1].startswith("its watchdog"):  # (its CI refused since:
+                    self._notes[(h.name, n)] = (self._present, text)  # the same news)
+                if (h.name, n) in self._lost:
+                    return  # answers to the rejoin's questions (NOT_RUNNING ...): not events
+                self.events.append(BoardEvent(round(now - started, 4), h.name, n,
+                                              x.where(n), err.code, text))
+
+            def on_ready(msg: can.Message, h: BusHandle = h) -> None:
+                if msg.arbitration_id & 0x20 or len(msg.data) < 2:
+                    return  # a fixed ID (no run-time board), or no Ready of ours
+                ident = msg.arbitration_id >> 6
+                if ident == Function.READY and msg.data[0] == ReadyReason.BOOT:
+                    text = "its bootloader announcing itself (Ready BOOT: it was reset)"
+                elif ident == Function.MCA_READY and msg.data[1] == Function.MCA_READY:
+                    text = ("its program announcing itself (an unsolicited MCA Ready: it "
+                            "started again)")
+                else:
+                    return
+                self._notes[(h.name, msg.arbitration_id & 0x1F)] = (self._present, text)
             d = h.link.dispatcher
             self._event_subs.append((d, d.subscribe(
                 lambda msg: msg.arbitration_id >> 6 == Function.ERROR,
                 f"{h.name} board errors", on_frame=on_error)))
+            self._event_subs.append((d, d.subscribe(
+                lambda msg: msg.arbitration_id >> 6 in (Function.READY, Function.MCA_READY)
+                and not msg.is_extended_id, f"{h.name} boards restarting",
+                on_frame=on_ready)))
 
     def _prepare(self) -> None:
         """The loop's thread: SCHED_FIFO (``realtime``), else a short time slice; precise
@@ -261,18 +437,33 @@ class RemoteLoop(RemoteValues):
             precise_sleep()
             if rt is None or not rt.active:
                 self.time_slice.enter()
-        self._batching = [(h.name, h.link.dispatcher.bus) for h, _ in self._handles()
+        live = [h for h, _ in self._handles() if h.name not in self._failed]
+        self._batching = [(h.name, h.link.dispatcher.bus) for h in live
                           if not self.virtual and callable(
                               getattr(h.link.dispatcher.bus, "hold", None))]
-        self._drains = [h.link.dispatcher.drain for h, _ in self._handles()]
+        self._drain_of = [(h.name, h.link.dispatcher.drain) for h in live]
+        self._states = [(h.name, h.link.dispatcher.bus) for h in live
+                        if type(h.link.dispatcher.bus).state is not can.BusABC.state]
 
     def _drain(self) -> int:
-        """Take and dispatch every frame the buses have delivered (without waiting)."""
+        """Take and dispatch every frame the buses have delivered (without waiting); a
+        bus that fails meanwhile is a fault of its boards (:meth:`_bus_failed`)."""
         if not self._prepared:
-            self._drains = [h.link.dispatcher.drain for h, _ in self._handles()]
+            self._drain_of = [(h.name, h.link.dispatcher.drain) for h, _ in self._handles()
+                              if h.name not in self._failed]
         count = 0
-        for drain in self._drains:
-            count += drain()
+        failed: list[tuple[str, str]] | None = None
+        for name, drain in self._drain_of:
+            try:
+                count += drain()
+            except BusError as err:
+                if failed is None:
+                    failed = []
+                failed.append((name, str(err)))
+        if failed is not None:
+            now = self._clock()
+            for name, why in failed:
+                self._bus_failed(name, why, now)
         return count
 
     def _wait(self, deadline: float) -> None:
@@ -284,7 +475,11 @@ class RemoteLoop(RemoteValues):
         passes."""
         if self.virtual:
             for h, _ in self._handles():
-                h.link.dispatcher.pump(deadline)
+                if h.name not in self._failed:
+                    try:
+                        h.link.dispatcher.pump(deadline)
+                    except BusError as err:
+                        self._bus_failed(h.name, str(err), self._clock())
             return
         while True:
             now = _monotonic()
@@ -308,3 +503,227 @@ class RemoteLoop(RemoteValues):
             self.cycle()
             if each is not None:
                 each(self)
+
+    # ------------------------------------------------------------------ faults
+    def _watch_from(self, now: float) -> None:
+        """Watch every configured board's fastest SO maps from ``now`` (the loop's start)."""
+        self._watches = []
+        self._watched = {}
+        self._groups = []
+        self._present = 0.0
+        self._watch_at = now
+        for name, x in self.exchanges.items():
+            stamps = x.mca.image.stamps
+            group: list[BoardWatch] = []
+            for n in x.configured:
+                maps = x.plan.maps_of(n)
+                if not maps:
+                    continue  # no SO map: nothing tells whether it lives
+                fastest = min(m.interval_us for m in maps)
+                limit = lost_after(fastest / 1e6)
+                w = BoardWatch(name, n, x.where(n), stamps,
+                               [m.number for m in maps if m.interval_us == fastest],
+                               limit - _EPSILON, max(limit, QUIET_MIN_S) - _EPSILON, 0.0)
+                group.append(w)
+                self._watched[(name, n)] = w
+            if group:
+                self._groups.append(group)
+                self._watches += group
+
+    def _watch_boards(self, now: float) -> None:
+        """After the cycle's drain, per bus: a board none of whose watched maps came for
+        its limit while the bus delivered frames meant after that (by their time
+        stamps) is lost; so is one from which nothing came for its quiet time of the
+        loop's running time (:attr:`_present`: the whole bus silent, or no usable time
+        stamps); and every board of a bus whose interface reports error-passive or
+        bus-off."""
+        step = now - self._watch_at
+        self._watch_at = now
+        cap = PRESENT_CAP * self.period_s
+        present = self._present + (step if step < cap else cap)
+        self._present = present
+        for group in self._groups:
+            top = 0.0
+            for w in group:
+                latest = w.latest()
+                if latest != w.stamp:
+                    w.stamp = latest
+                    w.last = present
+                    w.armed = True
+                    if w.lost:  # (hold) its maps came again: it ran on, its configuration
+                        self._maps_again(w, now)  # and targets as they were
+                if latest > top:
+                    top = latest
+            for w in group:
+                if w.lost:
+                    continue
+                if w.armed and top - w.stamp >= w.limit:
+                    self._lose(w, now, f"silence: none of its SO maps for "
+                                       f"{(top - w.stamp) * 1e3:.1f} ms")
+                elif present - w.last >= w.quiet:
+                    self._lose(w, now, self._quiet_text(group, w, present))
+        if self._states:
+            self._watch_states(now)
+
+    def _quiet_text(self, group: list[BoardWatch], w: BoardWatch, present: float) -> str:
+        silent = present - w.last
+        if all(present - other.last >= other.quiet or other.lost for other in group):
+            return f"silence: nothing from any board of {w.bus} for {silent * 1e3:.1f} ms"
+        return f"silence: none of its SO maps for {silent * 1e3:.1f} ms"
+
+    def _watch_states(self, now: float) -> None:
+        for name, bus in self._states:
+            try:
+                state = bus.state
+            except Exception:  # an interface whose state cannot be read: it reports none
+                self._states = [(n, b) for n, b in self._states if n != name]
+                continue
+            if state is can.BusState.ACTIVE:
+                self._bad_state.pop(name, None)
+            elif name not in self._bad_state:  # the moment it turns: every board's fault
+                what = "bus-off" if state is can.BusState.ERROR else "error-passive"
+                self._bad_state[name] = what
+                for w in self._watches:
+                    if w.bus == name and not w.lost:
+                        self._lose(w, now, f"the bus failing: the interface reports {name} "
+                                           f"{what}")
+
+    def _bus_failed(self, name: str, why: str, now: float) -> None:
+        """Bus ``name``'s connection or adapter failed: nothing more is sent there or
+        read from it, and every board on it is lost."""
+        if name in self._failed:
+            return
+        self._failed[name] = why
+        self._sending = [x for x in self._sending if x.bus.name != name]
+        self._drain_of = [(n, d) for n, d in self._drain_of if n != name]
+        self._batching = [(n, b) for n, b in self._batching if n != name]
+        self._states = [(n, b) for n, b in self._states if n != name]
+        for w in self._watches:
+            if w.bus == name and not w.lost:
+                self._lose(w, now, f"the bus failing: {why}")
+
+    def _lose(self, w: BoardWatch, now: float, seen: str) -> None:
+        """Board ``w`` is lost at ``now``: its event (with what was seen of it last), the
+        lost set; the policy acts at the end of the cycle (:meth:`_react`)."""
+        w.lost = True
+        key = (w.bus, w.board)
+        if seen.startswith("silence"):
+            note = self._notes.get(key)
+            if note is not None and note[0] >= w.last - self.period_s:
+                seen = note[1]  # it said something after its last map
+        t = round(now - self.stats.started_clock, 4)
+        fault = BoardFault(t, w.bus, w.board, w.where, "lost", seen)
+        self.faults.append(fault)
+        status = "lost"
+        if self.on_fault == HOLD and self.rejoin:
+            status = ("cannot rejoin: its bus failed" if w.bus in self._failed
+                      else "asking it to rejoin")
+        lost = dict(self._lost)
+        lost[key] = LostBoard(w.bus, w.board, w.where, t, seen, status)
+        self._lost = lost
+        self._newly.append(fault)
+        for hook in self.fault_hooks:
+            hook(fault)
+
+    def _react(self) -> None:
+        """The policy, at the end of the cycle that found boards lost: ``stop`` sends MCA
+        Start STOP to every board of every bus at once (broadcast) and raises BoardLost;
+        ``hold`` leaves the lost board as it is (if it still hears, it holds its targets,
+        which no write changes while it is lost) and, with ``rejoin``, starts asking it
+        back."""
+        newly, self._newly = self._newly, []
+        if self.on_fault == STOP:
+            stop = mca.encode(mca.McaStart(mca.StartOp.STOP), ALL)
+            for x in list(self._sending):
+                try:
+                    x.link.send_raw(*stop)
+                except BusError as err:  # that bus's boards are lost too: their watchdog
+                    self._bus_failed(x.bus.name, str(err), self._clock())
+            self._halt = BoardLost(newly + self._newly)
+            self._newly = []
+            raise self._halt
+        if self.rejoin and self.rejoiner is not None:
+            k = 0
+            for f in newly:
+                if f.bus not in self._failed:  # boards lost together asked a cycle apart
+                    self._rejoins.append(self.rejoiner(f.bus, f.board, k * self.period_s))
+                    k += 1
+
+    def _maps_again(self, w: BoardWatch, now: float) -> None:
+        """(hold) A lost board's maps came again before the PC brought it back: it ran on
+        all along (a silence shorter than its watchdog: its bus-off, a cable, a stall of
+        the source), configured as before and holding the targets it had, which did not
+        change meanwhile (writes to it were refused): it is back as it was.  A rejoin
+        under way that has not reached it yet is called off."""
+        key = (w.bus, w.board)
+        for r in self._rejoins:
+            if (r.bus, r.board) == key:
+                if r.answered is not None:
+                    return  # the rejoin reached it: it finishes the job
+                self._rejoins.remove(r)
+                r.cancel()
+                break
+        lost = self._lost.get(key)
+        if lost is None:
+            return
+        w.lost = False
+        replaced = dict(self._lost)
+        del replaced[key]
+        self._lost = replaced
+        t = round(now - self.stats.started_clock, 4)
+        fault = BoardFault(t, w.bus, w.board, w.where, "rejoined",
+                           f"its SO maps came again {t - lost.since:.3f} s after the loss: "
+                           "it ran on, as configured, with the targets it had")
+        self.faults.append(fault)
+        for hook in self.fault_hooks:
+            hook(fault)
+
+    def _step_rejoins(self) -> None:
+        """Hand each rejoin conversation control if what it waits for came (after the
+        cycle's drain); a conversation that ended brings its board back, or says why
+        not."""
+        for r in list(self._rejoins):
+            r.step()
+            if r.done:
+                self._rejoins.remove(r)
+                self._rejoin_ended(r)
+
+    def _rejoin_ended(self, r: Any) -> None:
+        key = (r.bus, r.board)
+        lost = self._lost.get(key)
+        if lost is None:
+            return
+        if not r.ok:
+            replaced = dict(self._lost)
+            replaced[key] = LostBoard(lost.bus, lost.board, lost.where, lost.since,
+                                      lost.seen, r.how)
+            self._lost = replaced
+            return
+        now = self._clock()
+        w = self._watched[key]
+        w.back(self._present)
+        replaced = dict(self._lost)
+        del replaced[key]
+        self._lost = replaced
+        started = self.stats.started_clock
+        answered = None if r.answered is None else round(r.answered - started, 4)
+        fault = BoardFault(round(now - started, 4), r.bus, r.board, w.where, "rejoined",
+                           r.how, answered)
+        self.faults.append(fault)
+        for hook in self.fault_hooks:
+            hook(fault)
+
+    def _set_lost_status(self, bus: str, board: int, status: str) -> None:
+        """What the PC does about lost board (bus, board) now (the rejoin's progress)."""
+        lost = self._lost.get((bus, board))
+        if lost is not None and lost.status != status:
+            replaced = dict(self._lost)
+            replaced[(bus, board)] = LostBoard(lost.bus, lost.board, lost.where,
+                                               lost.since, lost.seen, status)
+            self._lost = replaced
+
+    def _end_rejoins(self) -> None:
+        """Cancel every rejoin under way (the part stops)."""
+        rejoins, self._rejoins = self._rejoins, []
+        for r in rejoins:
+            r.cancel()

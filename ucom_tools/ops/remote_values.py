@@ -17,6 +17,7 @@ from ucom_tools.errors import InputError
 from ucom_tools.native import mypyc_attr
 from ucom_tools.ops.edges import EdgeRef, Names
 from ucom_tools.ops.exchange import BusExchange
+from ucom_tools.ops.remote_faults import LostBoard, LostBoardWrite
 from ucom_tools.ops.remote_report import RawSnapshot, Value
 from ucom_tools.ops.robot import Robot
 from ucom_tools.protocol.mca import ProcessImage, values_of
@@ -44,6 +45,9 @@ class RemoteValues:
         self._last_raw: dict[EdgeRef, int] = {}
         self._feeds: list[_SoFeed] = []
         """Per SO map with named slots, what :meth:`_report_so` needs (:meth:`_bind_values`)."""
+        self._lost: dict[tuple[str, int], LostBoard] = {}
+        """(bus, board) -> the board, while it is lost (its values are stale, writes to
+        it refused): replaced, never changed in place, so other threads may copy it."""
         self.on_values: Callable[[float, EdgeRef, Value], None] | None = None
         """Called with (time, edge, value) for every SO value a cycle saw change (and its
         first), and for every CI or PAR value set (recorders); the time on the base of the
@@ -217,6 +221,11 @@ class RemoteValues:
             raise InputError(f"{ref.qualified} is a sensor output; only CI and PAR edges "
                              "can be set", key=key)
         raw = ref.raw(value, what=key)
+        lost = self._lost.get((ref.bus, ref.board))
+        if lost is not None:
+            raise LostBoardWrite(f"{ref.qualified}: {lost.where} is lost since "
+                                 f"{lost.since:.3f} s ({lost.seen}); writes to it are "
+                                 "refused until it rejoins", key=key)
         x = self.exchanges[ref.bus]
         if ref.kind is mca.Kind.CI:
             x.set_ci(ref.board, ref.generic, raw)
@@ -227,6 +236,34 @@ class RemoteValues:
         if self.on_values is not None:  # stamped as the frames are (SO values, --record)
             self.on_values(x.link.dispatcher.stamp(), ref, ref.value(raw))
         return ref
+
+    # ------------------------------------------------------------------ validity
+    @property
+    def lost(self) -> dict[tuple[str, int], LostBoard]:
+        """The boards lost now, (bus, board) -> since when, what was seen last, what the
+        PC does about it (``man/ucom-protocol.7``, RUN TIME, Faults); a copy."""
+        return dict(self._lost)
+
+    def valid(self, name: str | EdgeRef) -> bool:
+        """Whether an edge's value is current: its board is not lost and, for an SO, a
+        value of it has arrived (a lost board's values are its last before the loss)."""
+        ref = name if isinstance(name, EdgeRef) else self.names.resolve(name)
+        if (ref.bus, ref.board) in self._lost:
+            return False
+        return ref.kind is not mca.Kind.SO or self._so(ref) is not None
+
+    def age(self, name: str | EdgeRef) -> float | None:
+        """Seconds since an SO value's map arrived (by the frame's time stamp, on its bus's
+        time base), None before the first or for a CI or PAR (set by the PC)."""
+        ref = name if isinstance(name, EdgeRef) else self.names.resolve(name)
+        if ref.kind is not mca.Kind.SO:
+            return None
+        image = self.exchanges[ref.bus].mca.image
+        for m in self.exchanges[ref.bus].plan.maps_of(ref.board):
+            if ref.index in m.edges and m.number in image.stamps:
+                stamp = image.stamps[m.number]
+                return max(0.0, self.robot.buses[ref.bus].link.dispatcher.stamp() - stamp)
+        return None
 
     @property
     def so(self) -> Mapping[str, Value | None]:

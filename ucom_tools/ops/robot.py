@@ -56,10 +56,14 @@ class ConnectSpec:
     """Open only this bus of the topology (``--bus NAME`` of the run-time commands): its
     channel is the one given for it (-c for every bus, in order), the one channel given,
     or, with none, the bus's name (a served fleet's channel)."""
+    scenario: Path | None = None
+    """With :attr:`virtual`: a scenario of injected faults for the in-process fleet
+    (``--scenario FILE``; ``ucom(1)``, SCENARIOS)."""
 
     def describe(self) -> str:
         if self.virtual:
-            return f"--virtual {self.virtual}"
+            return f"--virtual {self.virtual}" + (
+                f" --scenario {self.scenario}" if self.scenario else "")
         parts = [f"-i {self.interface}"] if self.interface else []
         if self.host and self.port:
             parts.append(f"{self.host}:{self.port}")
@@ -201,6 +205,10 @@ def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:
 def _open(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
     if spec.virtual:
         return _open_virtual(spec, timeouts)
+    if spec.scenario is not None:
+        raise InputError("a scenario of injected faults is for the in-process virtual fleet "
+                         "(--virtual); a served fleet takes it as 'ucom fleet serve "
+                         "--scenario FILE'", key="--scenario")
     topology = topo_mod.load(spec.topology) if spec.topology else None
     if not spec.interface:
         raise InputError("no CAN interface given: use --virtual NAME for the virtual fleet, or "
@@ -289,8 +297,10 @@ def _open_virtual(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
     with _closed_on_failure(buses):
         for b in topology.buses:
             try:
+                extra: dict[str, Any] = {} if spec.scenario is None else {
+                    "scenario": str(spec.scenario)}
                 bus = can.Bus(interface="ucom_virtual", channel=f"{spec.virtual}/{b.name}",
-                              state_dir=spec.state_dir, realtime=spec.pace)
+                              state_dir=spec.state_dir, realtime=spec.pace, **extra)
             except can.CanError as err:
                 if isinstance(err.__cause__, UcomError):
                     raise err.__cause__ from None

@@ -208,6 +208,23 @@ class BootloaderClient:
         self.link.send(m.InitRequest(InitOp.END), ALL)
         return InitResult(tuple(acks))
 
+    def rejoin(self, number: int, serial: int, wait: float | None = None,
+               ) -> m.InitAck | None:
+        """Init Request REJOIN (INIT CHAIN, Rejoin): the board with ``serial`` takes seq ID
+        ``number`` without an init chain; its Init Ack ASSIGNED, or None when it did not
+        answer within ``wait`` (the reply time when None) and the transport's margin.
+        Asked once: a board that is away is asked again at the caller's pace."""
+        self.link.send(m.InitRequest(InitOp.REJOIN, number, serial), ALL)
+        deadline = self.link.deadline(self.timeouts.reply if wait is None else wait,
+                                      answers=1)
+        for got in self.link.until(deadline):
+            msg = got.message
+            if isinstance(msg, m.InitAck) and msg.kind is InitAckKind.ASSIGNED and \
+                    msg.seq_id == number and msg.serial == serial:
+                return msg
+            self._absorb(got)
+        return None
+
     def probe(self, *, last: bool = False) -> list[m.InitAck]:
         """Which board(s) see no predecessor (first) or no successor (last) on the init line."""
         op = InitOp.PROBE_LAST if last else InitOp.PROBE_FIRST

@@ -13,6 +13,10 @@ deadline passes; with :meth:`Dispatcher.start` a background thread reads instead
 buses shared by a console and a running exchange).  Sends from several threads are
 serialised.
 
+A thread whose waits are stepped by another (:func:`stepped_by`: a conversation beside
+the run time's loop, :mod:`~ucom_tools.protocol.stepped`) does not read at all: its
+:meth:`Dispatcher.wait` hands control back to the loop, which stays the bus's one reader.
+
 Periodic frames (:meth:`Dispatcher.every`: the cyclic exchange's CI maps, MCA Alive) are
 sent by the reader too, on their deadlines on the bus clock: whoever waits for a frame
 keeps them going, so a console command that waits for a board's answer never starves the
@@ -26,7 +30,7 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterable
-from typing import Final
+from typing import Any, Final
 
 import can
 
@@ -41,6 +45,18 @@ QUEUE_LIMIT: Final = 10_000
 """Frames a subscriber may have waiting; older ones are dropped (and counted) beyond."""
 POLL_S: Final = 0.05
 """How long the background reader waits for a frame before it looks at its stop flag."""
+
+_stepping = threading.local()
+"""``stepper``: the :class:`~ucom_tools.protocol.stepped.Stepped` conversation whose
+worker this thread is (its waits yield to the loop, :func:`stepped_by`)."""
+
+
+def stepped_by(stepper: Any) -> None:
+    """From now on this thread's :meth:`Dispatcher.wait` calls are
+    ``stepper.wait(dispatcher, sub, deadline)``: the thread never reads a bus (None: it
+    reads again)."""
+    _stepping.stepper = stepper
+
 
 Accepts = Callable[[can.Message], bool]
 """A subscriber's filter.  It must look only at the identifier and the frame's type
@@ -352,8 +368,19 @@ class Dispatcher:
                 self._in_tasks = False
 
     # ------------------------------------------------------------------ receiving
+    def take(self, sub: Subscription) -> can.Message | None:
+        """The next frame queued for ``sub`` now, or None (never reads the bus)."""
+        with self._lock:
+            return sub.queue.popleft() if sub.queue else None
+
     def wait(self, sub: Subscription, deadline: float) -> can.Message | None:
-        """The next frame for ``sub``, or None at ``deadline`` (on :attr:`clock`)."""
+        """The next frame for ``sub``, or None at ``deadline`` (on :attr:`clock`).  In a
+        thread stepped by a loop (:func:`stepped_by`) the loop reads and this waits for
+        it."""
+        stepper = getattr(_stepping, "stepper", None)
+        if stepper is not None:
+            got: can.Message | None = stepper.wait(self, sub, deadline)
+            return got
         while True:
             with self._lock:
                 if sub.queue:

@@ -76,6 +76,10 @@ class Link:  # send_raw on an instance (frames lost on purpose), which a native 
         self._frame_time = [worst_frame_bits(dlc) / bitrate for dlc in range(9)]
         self.frames_sent = 0
 
+    def close(self) -> None:
+        """Take no more frames (a second link on a dispatcher, for a while)."""
+        self.dispatcher.unsubscribe(self._sub)
+
     # ------------------------------------------------------------------ timing
     @property
     def horizon(self) -> float:

@@ -17,6 +17,7 @@ from typing import Final
 import can
 
 from ucom_tools.errors import BoardError, FrameError, UcomTimeoutError
+from ucom_tools.protocol.dispatch import Subscription
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.wire import mca
@@ -89,19 +90,24 @@ start), which says nothing about when it came, and is taken as before."""
 class McaClient:
     """Run-time services on one bus."""
 
-    def __init__(self, link: Link, timeouts: Timeouts = DEFAULT) -> None:
+    def __init__(self, link: Link, timeouts: Timeouts = DEFAULT, *,
+                 process_data: bool = True) -> None:
         self.link = link
         self.timeouts = timeouts
         self.image = ProcessImage()
         self.errors: list[tuple[Address, m.Error]] = []
         dispatcher = link.dispatcher
         self._sub = dispatcher.subscribe(_answer, f"{link.name} run time")
-        self._maps = dispatcher.subscribe(_so_map, f"{link.name} process data",
-                                          on_data=self.image.take_data)
+        self._maps: Subscription | None = dispatcher.subscribe(
+            _so_map, f"{link.name} process data", on_data=self.image.take_data) \
+            if process_data else None
+        """The SO maps into :attr:`image` (not with ``process_data`` false: a second
+        client beside the run time's, for requests only)."""
 
     def close(self) -> None:
         self.link.dispatcher.unsubscribe(self._sub)
-        self.link.dispatcher.unsubscribe(self._maps)
+        if self._maps is not None:
+            self.link.dispatcher.unsubscribe(self._maps)
 
     # ------------------------------------------------------------------ plumbing
     def _send(self, msg: mca.McaMessage, address: Address | None = None) -> None:
@@ -194,23 +200,42 @@ class McaClient:
                                f"({1 + self.timeouts.retries} times asked)")
 
     # ------------------------------------------------------------------ descriptions
-    def describe(self, address: Address, counts: tuple[int, int, int] | None = None
-                 ) -> BoardEdges:
+    def describe(self, address: Address, counts: tuple[int, int, int] | None = None,
+                 *, one_by_one: bool = False) -> BoardEdges:
         """Every edge's description.  ``counts`` (CI, SO, PAR; from MCA Ready, asked for
         when not given) tells when the description is complete; edges that did not arrive
-        whole are asked for again, each on its own."""
+        whole are asked for again, each on its own.  ``one_by_one``: each edge asked for
+        on its own, the next once it came (a board joining a running exchange: its whole
+        description at once would hold the bus for tens of milliseconds, and MCA Alive,
+        whose identifier loses to it, with it)."""
         if counts is None:
             ready = self.query(address)
             counts = (ready.ci, ready.so, ready.par)
         parts: dict[tuple[int, int], dict[int, bytes]] = {}
         done: dict[tuple[int, int], mca.EdgeRecord] = {}
         lasts: dict[tuple[int, int], int] = {}
-        wanted = {(k, i) for k in mca.Kind for i in range(counts[k])}
-        ask: list[mca.DescrRequest] = [mca.DescrRequest()]
+        wanted = {(int(k), i) for k in mca.Kind for i in range(counts[k])}
+        if one_by_one:
+            for k, i in sorted(wanted):
+                self._gather(address, {(k, i)}, [mca.DescrRequest(mca.Kind(k), i)], parts,
+                             lasts, done)
+        else:
+            self._gather(address, wanted, [mca.DescrRequest()], parts, lasts, done)
+        if wanted - done.keys():
+            raise UcomTimeoutError(f"board {address}: {len(wanted - done.keys())} edge "
+                                   "descriptions did not arrive")
+        return BoardEdges(*(tuple(done[(k, i)] for i in range(counts[k])) for k in mca.Kind))
+
+    def _gather(self, address: Address, wanted: set[tuple[int, int]],
+                ask: list[mca.DescrRequest], parts: dict[tuple[int, int], dict[int, bytes]],
+                lasts: dict[tuple[int, int], int],
+                done: dict[tuple[int, int], mca.EdgeRecord]) -> None:
+        """Ask with ``ask`` and collect the records of ``wanted`` into ``done``; what did
+        not arrive whole is asked for again, edge by edge, twice at most."""
         for _ in range(1 + self.timeouts.retries):
             for request in ask:
                 self._send(request, address)
-            frames = sum(counts) * 10 if len(ask) == 1 and ask[0].kind is None \
+            frames = len(wanted) * 10 if len(ask) == 1 and ask[0].kind is None \
                 else 10 * len(ask)
             deadline = self.link.deadline(self.timeouts.reply, answers=frames)
             while wanted - done.keys() and (got := self._next(deadline)) is not None:
@@ -234,12 +259,8 @@ class McaClient:
                         lasts.pop(key)
             missing = sorted(wanted - done.keys())
             if not missing:
-                break
+                return
             ask = [mca.DescrRequest(mca.Kind(k), i) for k, i in missing]
-        if wanted - done.keys():
-            raise UcomTimeoutError(f"board {address}: {len(wanted - done.keys())} edge "
-                                   "descriptions did not arrive")
-        return BoardEdges(*(tuple(done[(k, i)] for i in range(counts[k])) for k in mca.Kind))
 
     # ------------------------------------------------------------------ values
     def write(self, address: Address, kind: mca.Kind, index: int, raws: Sequence[int],

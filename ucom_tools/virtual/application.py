@@ -93,9 +93,12 @@ class DspProgram:
         self._running(t, desc.name)
 
     def _running(self, t: float, program: str = "") -> None:
-        self.board.report_text(t, f"program '{self.name}' running (ProgID 0x{self.progid:08X})")
-        spec, model, plant = make_model(program, self.board, self.board.placement)
-        self.runtime = McaRuntime(self.board, spec, model, plant, t, fault=self.fault)
+        board = self.board
+        board.report_text(t, f"program '{self.name}' running (ProgID 0x{self.progid:08X})")
+        spec, model, plant = make_model(program, board, board.placement, board.plant)
+        if plant is not None:
+            board.bind_plant(plant, t)  # the board's plant, resumed (or a new one)
+        self.runtime = McaRuntime(board, spec, model, plant, t, fault=self.fault)
 
     def end(self) -> None:
         """The board leaves the program (reset, power loss, its own end)."""

@@ -8,7 +8,15 @@ AutoStart in non-volatile memory and volatile ExtRAM behave as in the dissertati
 The board is composed of its memory (flash and bootloader record, the FPGA behind the X:
 window), its programming part (:mod:`~ucom_tools.virtual.programming`) and the program it
 runs (:mod:`~ucom_tools.virtual.application`); it hands itself to those parts as a
-:class:`~ucom_tools.virtual.port.BoardPort`, so they never import this module.
+:class:`~ucom_tools.virtual.port.BoardPort`, so they never import this module.  The
+plant behind the board (motors, joints, sensors) is its hardware too: a program that
+starts again drives the plant the last one left (:meth:`VirtualBoard.bind_plant`).
+
+Injected faults (:mod:`~ucom_tools.virtual.injected` times them) act through
+:meth:`VirtualBoard.lose_power` / :meth:`VirtualBoard.regain_power` (a power loss, a reset
+of the DSP) and :meth:`VirtualBoard.enter_bus_off` / :meth:`VirtualBoard.leave_bus_off`
+(its CAN controller off the bus).  A board that lost its seq ID is numbered again with
+Init Request REJOIN (INIT CHAIN, Rejoin).
 """
 
 from __future__ import annotations
@@ -26,6 +34,7 @@ from ucom_tools.virtual.application import DspProgram
 from ucom_tools.virtual.fpga import ExternalMemory, VirtualFpga
 from ucom_tools.virtual.nvmem import NonVolatile
 from ucom_tools.virtual.programming import BoardProgramming
+from ucom_tools.virtual.programs.base import Plant
 from ucom_tools.virtual.simbus import SimBus
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
@@ -95,6 +104,21 @@ class VirtualBoard:
         if state_file is not None:
             self.nv.load(state_file)
         self._powered = False
+        self._rx = False
+        """The CAN controller passes frames to the software: powered and not bus-off (the
+        one flag :meth:`on_frame` looks at)."""
+        self._tx = False
+        """The CAN controller sends: powered and not bus-off."""
+        self.bus_off = False
+        """The CAN controller is off the bus (an injected fault): it neither sends nor
+        acknowledges; the program runs on."""
+        self._epoch = 0
+        """Counts the power losses: a reset timer of a life before one does nothing."""
+        self.plant: Plant | None = None
+        """The motors, joints and sensors behind the board (its hardware, kept across its
+        programs and power losses); None until a program made one."""
+        self._plant_t = 0.0
+        """When a program last moved :attr:`plant`."""
         self.in_drive = False
         self.out_drive = False
         self.seq_id = 0
@@ -117,6 +141,11 @@ class VirtualBoard:
     @property
     def powered(self) -> bool:
         return self._powered
+
+    @property
+    def listening(self) -> bool:
+        """The CAN controller takes (and acknowledges) frames: powered, not bus-off."""
+        return self._rx
 
     @property
     def state(self) -> BoardState:
@@ -142,6 +171,7 @@ class VirtualBoard:
     def power_on(self, t: float) -> None:
         """Power-on: volatile state cleared, init outputs set (B.2.2 (b))."""
         self._powered = True
+        self._rx = self._tx = not self.bus_off
         self.seq_id = 0
         self._claimed = False
         if self.fault == mutants.AUTOSTART_LOST and self.nv.record.autostart:
@@ -152,6 +182,7 @@ class VirtualBoard:
     def power_off(self) -> None:
         """Power loss: flash keeps what was written; everything else is gone."""
         self._powered = False
+        self._rx = self._tx = False
         self.fpga = VirtualFpga(self.fpga.config, self.fpga.plug_board_id)
         self.xmem = ExternalMemory(self.fpga)
         self._drop_volatile()
@@ -179,21 +210,89 @@ class VirtualBoard:
             self.nv.record.autostart = False
             self.persist(record_only=True)
         self._end_application()
-        self.bus.at(t + self.timing.reset_us, self._after_reset)
+        self._after_reset_at(t + self.timing.reset_us)
+
+    def _after_reset_at(self, t: float) -> None:
+        """:meth:`_after_reset` at ``t``, unless the board lost power before."""
+        epoch = self._epoch
+
+        def after(when: float) -> None:
+            if self._epoch == epoch:
+                self._after_reset(when)
+        self.bus.at(t, after)
 
     def _end_application(self) -> None:
-        if self.application is not None:
-            self.application.end()
+        app = self.application
+        if app is not None:
+            if app.runtime is not None and app.runtime.plant is not None:
+                self._plant_t = app.runtime.last_tick  # where the loop left the plant
+            app.end()
             self.application = None
             self.filters_changed()
+
+    def bind_plant(self, plant: Plant, t: float) -> None:
+        """A program starts driving ``plant`` at ``t``: the board's plant from before is
+        resumed over the time since a program last moved it (it coasted; after a power
+        loss it is bound to the new FPGA, :meth:`Plant.resume`); a new one replaces it."""
+        if plant is self.plant:
+            plant.resume(self.fpga, self.adc, max(0.0, t - self._plant_t))
+        self.plant = plant
+        self._plant_t = t
+
+    # ================================================================= injected faults
+    def lose_power(self, t: float) -> None:
+        """The board loses power at ``t`` (an injected fault; a reset of the DSP as well):
+        silent at once - the frames its CAN controller still held are lost, one on the
+        wire is cut short -, its RAM gone (program, exchange, seq ID, the FPGA's registers
+        and counters), its LEDs off; flash and AutoStart stay.  The plant moved with the
+        outputs as they were up to ``t``."""
+        if not self._powered:
+            return
+        app = self.application
+        if app is not None and app.runtime is not None:
+            app.runtime.settle(t)
+        self.bus.withdraw(self)
+        self._epoch += 1
+        self._suppress_autostart = False
+        self.power_off()
+        self.seq_id = 0
+        self._claimed = False
+
+    def regain_power(self, t: float, *, announce: bool = False) -> None:
+        """Power returns at ``t``: the board comes up as at power-on (:meth:`power_on`:
+        its bootloader, or with AutoStart its program, STOPPED and unconfigured), with no
+        seq ID, so it sends nothing until it is numbered again (REJOIN).  ``announce``
+        (after a reset of the DSP): Ready BOOT, as after a Reset, where it has a fixed
+        ID to send it with."""
+        if self._powered:
+            return
+        self.power_on(t)
+        if announce and self.reply_address() is not None:
+            self.send(t, m.Ready(ReadyReason.BOOT, self.state, 0, self.identity.serial))
+
+    def enter_bus_off(self) -> None:
+        """The CAN controller goes bus-off (an injected fault): it neither sends nor
+        acknowledges; what it held to send is lost, and so is what the program sends
+        meanwhile.  The program runs on (its watchdog may fire); the red LED is lit."""
+        self.bus_off = True
+        self._rx = self._tx = False
+        self.bus.withdraw(self)
+        self.filters_changed()
+
+    def leave_bus_off(self) -> None:
+        """The CAN controller is error-active again."""
+        self.bus_off = False
+        self._rx = self._tx = self._powered
+        self.filters_changed()
 
     def takes_ci_map(self, number: int) -> bool:
         """Whether the board's CAN controller passes CI map ``number`` on to its software
         (:class:`~ucom_tools.virtual.simbus.Node`): while it is powered and its program's
-        run time defined that map.  :meth:`on_frame` would ignore every other CI map frame,
+        run time defined that map (and it is not bus-off).  :meth:`on_frame` would ignore
+        every other CI map frame,
         at no cost to the program's load."""
         app = self.application
-        return self._powered and number != 0 and app is not None and app.takes_ci_map(number)
+        return self._rx and number != 0 and app is not None and app.takes_ci_map(number)
 
     def filters_changed(self) -> None:
         """What :meth:`takes_ci_map` answers may have changed: the bus asks again."""
@@ -208,7 +307,7 @@ class VirtualBoard:
         self._end_application()
         if reset:
             self._suppress_autostart = True
-            self.bus.at(t + self.timing.reset_us, self._after_reset)
+            self._after_reset_at(t + self.timing.reset_us)
 
     def _after_reset(self, t: float) -> None:
         if not self._powered:
@@ -231,13 +330,15 @@ class VirtualBoard:
 
     def send(self, t: float, msg: m.BootMessage | mca.McaMessage, *, via_fixed: bool = False,
              address: Address | None = None) -> None:
+        if not self._tx:
+            return
         addr = address or self.reply_address(via_fixed)
         if addr is None:
             return
         self.bus.send(self, t, encode_id(msg.FUNCTION, addr), msg.encode())
 
     def send_raw(self, t: float, arbitration_id: int, data: bytes) -> None:
-        if self.seq_id or self.identity.fixed_id:
+        if self._tx and (self.seq_id or self.identity.fixed_id):
             self.bus.send(self, t, arbitration_id, data)
 
     def report_text(self, t: float, text: str) -> None:
@@ -256,7 +357,7 @@ class VirtualBoard:
     def on_bus_error(self, t: float) -> None:
         """An error frame on the bus: the CAN controller's error counter (a running
         program shows it on the red LED)."""
-        if not self._powered:
+        if not self._rx:
             return
         self.can_errors += 1
         if self.application is not None and self.application.runtime is not None:
@@ -268,7 +369,7 @@ class VirtualBoard:
         bits would mean in an 11-bit one: no answer, no Error, no state change."""
 
     def on_frame(self, arbitration_id: int, data: bytes, t: float) -> None:
-        if not self._powered:
+        if not self._rx:
             return
         function = arbitration_id >> 6
         if function == _PROGRAM and len(data) == 8:
@@ -379,6 +480,14 @@ class VirtualBoard:
             self.in_drive, self.out_drive = not first, first
             self.bus.at(settle, self._probe(InitAckKind.FIRST if first else InitAckKind.LAST))
             self.bus.at(settle + 1.0, self._restore_pins(saved))
+        elif msg.op is InitOp.REJOIN and msg.serial == self.identity.serial:
+            # only the board it names takes it, in any state; no pin moves
+            self.seq_id = msg.number
+            self._claimed = False
+            ack = m.InitAck(InitAckKind.ASSIGNED, msg.number, self.identity.fixed_id,
+                            BOOTLOADER_VERSION[0] << 4 | BOOTLOADER_VERSION[1],
+                            self.identity.serial)
+            self.send(t + self.timing.reply_us, ack)
 
     def _claim_if_first(self, number: int) -> Callable[[float], None]:
         def sample(t: float) -> None:
@@ -504,6 +613,13 @@ class VirtualBoard:
         """LEDs as B.2.3 describes: init pins in the bootloader, program status when running."""
         if not self._powered:
             return {"red": "off", "yellow": "off", "green": "off"}
+        if self.bus_off:  # the CAN controller is off the bus: the red LED says so
+            shown = self._shown_leds()
+            shown["red"] = "on"
+            return shown
+        return self._shown_leds()
+
+    def _shown_leds(self) -> dict[str, str]:
         if self.application is not None:
             return self.application.leds(self.bus.now)
         pins = self.pins()

@@ -8,7 +8,11 @@ In virtual time (the default) the host drives the fleet clock: ``send`` runs it 
 frame is on the wire, ``recv`` until a frame arrives or the timeout has passed in virtual
 time - a timeout costs no wall time.  Every bus of a fleet shares that clock.  With
 ``realtime=True`` a clock thread paces the fleet to the wall clock and ``recv`` waits for
-real.
+real.  ``scenario="FILE"`` gives the fleet a scenario of injected faults (``ucom(1)``,
+SCENARIOS); it is part of the shared fleet's key, as the topology, ``state_dir`` and
+``realtime`` are.  :attr:`VirtualUcomBus.state` is python-can's controller state:
+error-passive while no other node acknowledges this host's frames (a cut cable, every
+board of the bus powered off or bus-off), else active.
 """
 
 from __future__ import annotations
@@ -88,7 +92,7 @@ class VirtualUcomBus(can.BusABC):
     def __init__(self, channel: Any = None, *, topology: str | None = None,
                  state_dir: str | Path | None = None, fleet: Fleet | None = None,
                  realtime: bool = False, receive_own_messages: bool = False,
-                 **kwargs: Any) -> None:
+                 scenario: str | Path | None = None, **kwargs: Any) -> None:
         name = str(channel or "")
         self._shared = fleet is None
         if fleet is None:
@@ -100,7 +104,7 @@ class VirtualUcomBus(can.BusABC):
                 topology, name = name.rsplit("/", 1)
             try:
                 fleet = shared_fleet(topology, Path(state_dir) if state_dir else None,
-                                     realtime)
+                                     realtime, scenario)
             except UcomError as err:
                 raise _init_error(err) from err
         elif "/" in name:
@@ -120,6 +124,20 @@ class VirtualUcomBus(can.BusABC):
         self.sim.attach(self.port)
         self.channel_info = f"virtual UCoM bus {fleet.name}/{name}"
         super().__init__(channel=name, **kwargs)
+
+    @property
+    def state(self) -> can.BusState:
+        """python-can's controller state: ``PASSIVE`` (error-passive) while no other node of the bus
+        would acknowledge a frame of this host (:meth:`SimBus.acknowledged`: the cable to
+        the boards cut, every board powered off or bus-off, and no other host), else
+        ``ACTIVE``."""
+        if self.sim.acknowledged(self.port):
+            return can.BusState.ACTIVE
+        return can.BusState.PASSIVE
+
+    @state.setter
+    def state(self, new_state: can.BusState) -> None:
+        raise NotImplementedError("the virtual UCoM bus's state follows its nodes")
 
     def clock(self) -> float:
         """Seconds on this bus's time base: the fleet clock's virtual time, or the wall

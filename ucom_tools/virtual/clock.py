@@ -174,6 +174,28 @@ class FleetClock:
         heap[pos] = last
         return first
 
+    def cancel(self, unwanted: Callable[[float, Callable[..., None], tuple[Any, ...]], bool],
+               ) -> int:
+        """Drop every scheduled event for which ``unwanted(t, callback, args)`` is true (fault
+        injection: a board's frames that its CAN controller lost); returns how many.  The
+        others keep their order (a sorted list is a heap).  Costs the whole queue once; may
+        be called from a callback (the queue is changed in place)."""
+        if _NATIVE:
+            heap = self._heap
+            kept = [e for e in heap if not unwanted(e.t, e.callback, e.call[1:])]
+            dropped = len(heap) - len(kept)
+            if dropped:
+                kept.sort(key=lambda e: (e.t, e.tier, e.seq))
+                heap[:] = kept  # in place: a run_until under way holds the list
+            return dropped
+        events = self._events
+        left = [e for e in events if not unwanted(e[0], e[3], e[4])]
+        dropped = len(events) - len(left)
+        if dropped:
+            heapq.heapify(left)
+            events[:] = left  # in place: a run_until under way holds the list
+        return dropped
+
     def next_event_time(self) -> float | None:
         if _NATIVE:
             return self._heap[0].t if self._heap else None
@@ -295,6 +317,11 @@ class RealtimeDriver:
         self._rooms: list[Callable[[], bool]] = []
         self._runner = threading.Thread(target=self._run, name=f"ucom-clock-{name}",
                                         daemon=True)
+
+    def in_driver_thread(self) -> bool:
+        """Is this the driver's own thread (a node's ``on_frame``, a callback, work handed
+        to it)?"""
+        return threading.current_thread() is self._runner
 
     def now_us(self) -> float:
         """Virtual time that corresponds to the wall clock now."""

@@ -3,7 +3,10 @@
 ``state_dir`` keeps each board's non-volatile memory (flash, bootloader record with the
 AutoStart flag) across restarts, like power cycles of the real robot.  ``fault`` makes
 every board that does not name its own fault in the topology a mutant board
-(:mod:`~ucom_tools.virtual.mutants`).
+(:mod:`~ucom_tools.virtual.mutants`).  ``scenario`` times injected faults (a power loss, a
+reset, bus-off, a cut cable, the emergency stop: :mod:`ucom_tools.config.scenario`) from
+each bus's first MCA Alive; :meth:`Fleet.inject` applies one at once
+(:mod:`~ucom_tools.virtual.injected`).
 """
 
 from __future__ import annotations
@@ -20,12 +23,14 @@ from typing import Any
 import can
 
 from ucom_tools.config import topology as topo
+from ucom_tools.config.scenario import InjectedFault, Scenario
 from ucom_tools.config.topology import BoardSpec, Topology
-from ucom_tools.errors import InputError, TopologyError, UcomError
+from ucom_tools.errors import BusError, InputError, TopologyError, UcomError
 from ucom_tools.plugons import PLUG_ON_BOARDS
 from ucom_tools.virtual import mutants
 from ucom_tools.virtual.board import Identity, VirtualBoard
 from ucom_tools.virtual.clock import FleetClock, RealtimeDriver
+from ucom_tools.virtual.injected import Injector
 from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
 from ucom_tools.wire.transfer import TransferPlan
 
@@ -33,6 +38,8 @@ HOST_AHEAD_US = 2000.0
 """How far ahead of a lagging paced fleet's present a host's frame may be ready."""
 ROOM_POLL_S = 0.0002
 """How often a host waiting for room in its transmit queue looks again."""
+INJECT_TIMEOUT_S = 5.0
+"""How long :meth:`Fleet.inject` waits for a paced fleet's driver to apply a fault."""
 
 
 class Fleet:
@@ -40,8 +47,11 @@ class Fleet:
 
     def __init__(self, topology: Topology, *, state_dir: Path | None = None,
                  realtime: bool = False, fault: str | None = None,
-                 client_loss: float = 0.0, seed: int = 0) -> None:
+                 client_loss: float = 0.0, seed: int = 0,
+                 scenario: Scenario | None = None) -> None:
         self.fault = mutants.check(fault)
+        if scenario is not None:
+            scenario.check(topology)  # before anything is built: the caller's mistake
         """The fault of every board whose topology entry names none (None: they conform)."""
         if not 0.0 <= client_loss < 1.0:
             raise InputError(f"a share of frames lost must be in [0, 1), not {client_loss:g}",
@@ -86,6 +96,12 @@ class Fleet:
                     board.power_on(0.0)
             self.buses[spec.name] = sim
             self.boards[spec.name] = boards
+        self.scenario = scenario
+        """The timed injected faults (None: none)."""
+        self.injector = Injector(topology, self.buses, self.boards, self.clock)
+        """The injected faults: in progress, and the scenario's to come."""
+        if scenario is not None:
+            self.injector.arm(scenario)
         if realtime:
             self._driver = RealtimeDriver(
                 self.clock, f"{topology.name} ({', '.join(b.name for b in topology.buses)})")
@@ -98,10 +114,45 @@ class Fleet:
 
     @classmethod
     def load(cls, name_or_path: str, *, state_dir: Path | None = None,
-             realtime: bool = False, fault: str | None = None) -> Fleet:
+             realtime: bool = False, fault: str | None = None,
+             scenario: Scenario | None = None) -> Fleet:
         mutants.check(fault)  # before the topology: a wrong name is the caller's mistake
         return cls(topo.load(name_or_path), state_dir=state_dir, realtime=realtime,
-                   fault=fault)
+                   fault=fault, scenario=scenario)
+
+    def inject(self, fault: InjectedFault) -> str:
+        """Apply ``fault`` now (its ``at_s`` is not looked at) and return what was done in
+        a sentence, e.g. "CAN0 board 3 (head right) powered off for 1 s"; it ends by
+        itself ``for_s`` later (:attr:`injector` keeps it meanwhile, :meth:`snapshot`
+        shows it).  A bus or board the fleet lacks is an :class:`InputError` naming what
+        it has.  Thread-safe: on a paced fleet the driver applies it in its thread (within
+        :data:`INJECT_TIMEOUT_S`, else :class:`BusError`), at the wall clock's time; else
+        at the clock's present."""
+        fault.check(self.topology)
+        driver = self._driver
+        if driver is None or driver.in_driver_thread():
+            with self.clock.lock:
+                return self.injector.apply(fault, self.clock.now)
+        done = threading.Event()
+        result: list[str | BaseException] = []
+
+        def apply() -> None:
+            try:
+                result.append(self.injector.apply(fault, self.clock.now))
+            except BaseException as err:  # handed to the caller's thread
+                result.append(err)
+            finally:
+                done.set()
+
+        driver.submit(apply)
+        driver.poke()
+        if not done.wait(INJECT_TIMEOUT_S):
+            raise BusError(f"the fleet {self.name} did not apply the fault in "
+                           f"{INJECT_TIMEOUT_S:g} s (its driver is not running)")
+        outcome = result[0]
+        if isinstance(outcome, BaseException):
+            raise outcome
+        return outcome
 
     def _state_file(self, bus: str, spec: BoardSpec) -> Path | None:
         if self.state_dir is None:
@@ -252,6 +303,7 @@ class Fleet:
                              "neutral": b.fpga.neutral},
                     "init_pins": b.pins(),
                     "can_errors": b.can_errors,
+                    "bus_off": b.bus_off,
                     "runtime": _runtime(b),
                     **({"fault": b.fault} if b.fault else {}),
                 } for b in self.boards[name]]
@@ -262,8 +314,10 @@ class Fleet:
                               "busy_us": round(sim.stats.busy_us, 1),
                               "load": round(sim.stats.load(elapsed), 4)},
                 })
+        with self.clock.lock:
+            injected = self.injector.snapshot()
         return {"topology": self.topology.name, "description": self.topology.description,
-                "buses": buses}
+                "buses": buses, "injected": injected}
 
 
 def _runtime(board: VirtualBoard) -> dict[str, Any] | None:
@@ -344,27 +398,32 @@ about 30 ms a board (0.3 s for ARMAR-III, at every fleet a test or command build
 _PLANS: dict[tuple[str, int, int], TransferPlan] = {}
 
 
-_SHARED: dict[tuple[str, str, bool], Fleet] = {}
-_USERS: dict[tuple[str, str, bool], int] = {}
+_Key = tuple[str, str, bool, str]
+_SHARED: dict[_Key, Fleet] = {}
+_USERS: dict[_Key, int] = {}
 _SHARED_LOCK = threading.Lock()
 
 
-def _key(name_or_path: str, state_dir: Path | None, realtime: bool) -> tuple[str, str, bool]:
-    return (name_or_path, str(state_dir or ""), realtime)
+def _key(name_or_path: str, state_dir: Path | None, realtime: bool,
+         scenario: str | Path | None) -> _Key:
+    return (name_or_path, str(state_dir or ""), realtime, str(scenario or ""))
 
 
 def shared_fleet(name_or_path: str, state_dir: Path | None = None,
-                 realtime: bool = False) -> Fleet:
-    """The process-wide fleet for a topology, so several bus objects share its boards.
+                 realtime: bool = False, scenario: str | Path | None = None) -> Fleet:
+    """The process-wide fleet for a topology, so several bus objects share its boards
+    (one per state directory, pace and scenario file: ``scenario`` names a scenario of
+    injected faults, :meth:`Scenario.load`).
 
     Each call counts as one user; :func:`release_shared` ends a use, and the fleet is
     closed and forgotten when its last user is gone, so the next one powers up anew."""
-    key = _key(name_or_path, state_dir, realtime)
+    key = _key(name_or_path, state_dir, realtime, scenario)
     with _SHARED_LOCK:
         fleet = _SHARED.get(key)
         if fleet is None:
+            loaded = Scenario.load(scenario) if scenario else None
             fleet = _SHARED[key] = Fleet.load(name_or_path, state_dir=state_dir,
-                                              realtime=realtime)
+                                              realtime=realtime, scenario=loaded)
         _USERS[key] = _USERS.get(key, 0) + 1
         return fleet
 

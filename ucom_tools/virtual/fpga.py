@@ -6,7 +6,9 @@ address to RAM.  The FPGA compares the plug-on board's Board-ID (its resistor ne
 with its own; on a mismatch it enters the neutral state: inputs from the plug-on board
 are ignored, its outputs are high impedance, and DSP<->FPGA access keeps working.
 Six 16-bit quadrature decoders with prescalers count encoder edges and can be read and
-set by the DSP program.
+set by the DSP program.  A channel can take an absolute sensor instead (SSI, dissertation
+5.2.1: the FPGA reads a potentiometer's position; :attr:`QuadratureDecoder.absolute`):
+then it shows that position, prescaled, whatever it counted before, from power-on.
 
 :meth:`VirtualFpga.read` and :meth:`VirtualFpga.write` decode every offset.  Code that runs
 every control cycle (the program models and plants) may take the short way to the same
@@ -17,6 +19,7 @@ OUTPUT_ENABLE, ...) is plain storage, ``registers[offset]``, holding 16-bit valu
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -37,14 +40,25 @@ _READ_ONLY: Final = frozenset((_VERSION1, _VERSION2, _BOARD_ID, _STATUS, _DIGITA
 
 @dataclass
 class QuadratureDecoder:
-    """A 16-bit up/down counter of encoder edges with a prescaler."""
+    """A 16-bit up/down counter of encoder edges with a prescaler.
+
+    With :attr:`absolute` set the channel reads an absolute sensor (SSI) instead: its
+    count is the sensor's position in edges divided by the prescaler (toward zero), plus
+    what the program wrote to it since (:meth:`set`: an offset, gone with the FPGA at a
+    power loss); edges fed only make it read the sensor again."""
 
     count: int = 0
     prescale: int = 1
     _residue: int = 0
+    absolute: Callable[[], int] | None = None
+    """The absolute sensor's position in edges (None: a quadrature encoder, counted)."""
+    _offset: int = 0
 
     def feed(self, edges: int) -> None:
         """Count ``edges`` encoder edges (negative = backwards), every ``prescale``-th."""
+        if self.absolute is not None:
+            self.reread()
+            return
         total = self._residue + edges
         step = self.prescale
         if step > 1:
@@ -57,6 +71,24 @@ class QuadratureDecoder:
     def set(self, value: int) -> None:
         self.count = value & 0xFFFF
         self._residue = 0
+        if self.absolute is not None:
+            self._offset = value - self._position()
+
+    def rescale(self, prescale: int) -> None:
+        """A new prescaler (0 and 1: every edge); an absolute channel reads anew with it."""
+        self.prescale = max(1, prescale)
+        if self.absolute is not None:
+            self.reread()
+
+    def reread(self) -> None:
+        """An absolute channel's count from its sensor now."""
+        self.count = (self._position() + self._offset) & 0xFFFF
+
+    def _position(self) -> int:
+        source = self.absolute
+        edges = 0 if source is None else source()
+        step = self.prescale
+        return int(edges / step) if step > 1 else edges
 
 
 @dataclass
@@ -102,7 +134,7 @@ class VirtualFpga:
         if _QUAD_COUNT0 <= offset < _QUAD_COUNT0 + QUAD_CHANNELS:
             self.quad[offset - _QUAD_COUNT0].set(value)
         elif _QUAD_PRESCALE0 <= offset < _QUAD_PRESCALE0 + QUAD_CHANNELS:
-            self.quad[offset - _QUAD_PRESCALE0].prescale = max(1, value)
+            self.quad[offset - _QUAD_PRESCALE0].rescale(value)
         else:
             self.registers[offset] = value
 

@@ -96,6 +96,9 @@ class MotorAxis:
         self.joint_edges, self.motor_edges = self._edge_indices()
         self.sensed_angle = self.angle
         """The angle the edge counts are of."""
+        self.joint_origin = self.joint_edges
+        """The joint sensor's edge count at the start angle: its zero as an absolute sensor
+        (:meth:`joint_position`), so that it reads at power-on what the counter did."""
         self._fixed = (self.inertia, p.torque_constant, p.resistance, p.gear_ratio,
                        *(p.end_stops if p.end_stops is not None else (-math.inf, math.inf)))
         """J, Kt, R, N and the end stops (none: never reached)."""
@@ -228,12 +231,18 @@ class MotorAxis:
 
     def sense(self, counters: list[QuadratureDecoder] | None, k: int) -> None:
         """Feed the edges since the last call to quadrature ``counters`` 2k and 2k+1 (the
-        FPGA's; None in its neutral state, which counts nothing)."""
+        FPGA's; None in its neutral state, or unpowered, which counts nothing)."""
         self.sensed_angle = self.angle
         joint, motor = self._edge_indices()
+        joint_before, motor_before = self.joint_edges, self.motor_edges
+        self.joint_edges, self.motor_edges = joint, motor  # (an absolute channel reads them)
         if counters is not None:
-            if joint != self.joint_edges:
-                counters[2 * k].feed(joint - self.joint_edges)
-            if motor != self.motor_edges:
-                counters[2 * k + 1].feed(motor - self.motor_edges)
-        self.joint_edges, self.motor_edges = joint, motor
+            if joint != joint_before:
+                counters[2 * k].feed(joint - joint_before)
+            if motor != motor_before:
+                counters[2 * k + 1].feed(motor - motor_before)
+
+    def joint_position(self) -> int:
+        """The joint sensor's position in edges as an absolute sensor reads it (from
+        :attr:`joint_origin`; as of the last :meth:`sense`)."""
+        return self.joint_edges - self.joint_origin

@@ -109,7 +109,7 @@ class MultiServer:
         """The process of each bus."""
         self.processes: list[BusProcess] = []
         self.dispatcher = Dispatcher(host, port, self.buses, topology.name,
-                                     max_clients=max_clients)
+                                     max_clients=max_clients, topology=topology)
         for group in bus_groups(topology, processes):
             worker = BusProcess(BusConfig(topology, group, state_dir, max_queued_frames,
                                           log_level, switch_interval,

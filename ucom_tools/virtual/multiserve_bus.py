@@ -24,6 +24,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from ucom_tools.config.scenario import InjectedFault, Scenario
 from ucom_tools.config.topology import Topology
 from ucom_tools.errors import BusError, InputError, UcomError
 from ucom_tools.virtual.fleet import Fleet
@@ -79,6 +80,8 @@ class BusProcess:
                                        name=f"ucom-serve-{'+'.join(self.buses)}",
                                        args=(self._child_channel, config), daemon=True)
         self._handed: dict[int, threading.Event] = {}
+        self._faults: dict[int, tuple[threading.Event, list[tuple[str, str]]]] = {}
+        """Faults sent to the process and not yet answered: done, and (kind, text)."""
         self._ids = itertools.count(1)
         self._lock = threading.Lock()
         self._send_lock = threading.Lock()
@@ -114,6 +117,40 @@ class BusProcess:
                 self._handed.pop(key, None)
             return None
         return done
+
+    def send_fault(self, fault: InjectedFault) -> Callable[[float], str]:
+        """Ask the process to apply ``fault`` (to its fleet: its buses); returns the wait
+        for its answer, ``wait(timeout)``: what was done, or InputError / BusError."""
+        key = next(self._ids)
+        done = threading.Event()
+        answer: list[tuple[str, str]] = []
+        with self._lock:
+            ended = self.ended.is_set()
+            if not ended:
+                self._faults[key] = (done, answer)
+        if not ended:
+            try:
+                with self._send_lock:
+                    self._channel.send(pickle.dumps(("fault", key, fault)))
+            except OSError:
+                ended = True
+        label = self.label
+
+        def wait(timeout: float) -> str:
+            if ended:
+                raise BusError(f"the process of {label} has ended: no fault applied")
+            if not done.wait(timeout):
+                with self._lock:
+                    self._faults.pop(key, None)
+                raise BusError(f"the process of {label} did not apply the fault in "
+                               f"{timeout:g} s")
+            if not answer:
+                raise BusError(f"the process of {label} ended before it applied the fault")
+            kind, text = answer[0]
+            if kind == "ok":
+                return text
+            raise InputError(text) if kind == "input" else BusError(text)
+        return wait
 
     def stop(self) -> None:
         """Ask the process to close its clients and stop (it also stops on EOF)."""
@@ -164,7 +201,9 @@ class BusProcess:
                 self.ended.set()
                 handed = list(self._handed.values())
                 self._handed.clear()
-            for done in handed:
+                asked = [done for done, _ in self._faults.values()]
+                self._faults.clear()
+            for done in handed + asked:
                 done.set()
             if not self.ready.is_set() and self.error is None:
                 self.error = BusError(f"the process of {self.label} ended before serving "
@@ -179,6 +218,13 @@ class BusProcess:
                 done = self._handed.pop(message[1], None)
             if done is not None:
                 done.set()
+        elif kind == "fault-done":
+            _, key, outcome, text = message
+            with self._lock:
+                waiting = self._faults.pop(key, None)
+            if waiting is not None:
+                waiting[1].append((outcome, text))
+                waiting[0].set()
         elif kind == "ready":
             for bus in self.buses:
                 log.info("%s is served by process %d", bus, message[1])
@@ -215,6 +261,8 @@ def bus_process_main(channel: socket.socket, config: BusConfig) -> None:
     """The entry point of a bus process (spawned)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     logging.basicConfig(level=config.log_level, format=LOG_FORMAT, stream=sys.stderr)
+    logging.getLogger("ucom.fleet").setLevel(logging.INFO)  # a scenario's faults, as they
+    # happen
     if config.switch_interval is not None:
         sys.setswitchinterval(config.switch_interval)
     BusServer(channel, config).run()
@@ -239,10 +287,14 @@ class BusServer:
 
         signal.signal(signal.SIGTERM, terminated)
         config = self.config
+        options = dict(config.fleet_options)
+        scenario = options.get("scenario")
+        if isinstance(scenario, Scenario):  # this process's buses' faults and the robot's
+            options["scenario"] = scenario.only(config.buses)
         try:
             fleet = Fleet(replace(config.topology, buses=tuple(
                               config.topology.bus(name) for name in config.buses)),
-                          state_dir=config.state_dir, realtime=True, **config.fleet_options)
+                          state_dir=config.state_dir, realtime=True, **options)
         except _Terminated:
             return
         except UcomError as err:
@@ -276,6 +328,10 @@ class BusServer:
                 for fd in fds:
                     os.close(fd)
                 return
+            if request[0] == "fault" and not fds:
+                threading.Thread(target=self._fault, args=(fleet, request[1], request[2]),
+                                 daemon=True, name="ucom-serve-fault").start()
+                continue
             if request[0] == "client" and len(fds) == 1:
                 _, key, address, bus, pending = request
                 self._start_client(fleet, key, socket.socket(fileno=fds[0]), address, bus,
@@ -287,6 +343,18 @@ class BusServer:
                           len(fds))
                 if request[0] == "client":
                     self._send(("done", request[1]))  # its slot is free again
+
+    def _fault(self, fleet: Fleet, key: int, fault: InjectedFault) -> None:
+        """Apply a fault the main process was asked for; answer it (in a thread of its
+        own: the control channel keeps taking clients meanwhile)."""
+        try:
+            outcome, text = "ok", fleet.inject(fault)
+        except UcomError as err:
+            outcome, text = ("input" if isinstance(err, InputError) else "bus"), str(err)
+        except Exception as err:
+            log.exception("applying a fault failed")
+            outcome, text = "bus", f"{type(err).__name__}: {err}"
+        self._send(("fault-done", key, outcome, text))
 
     def _start_client(self, fleet: Fleet, key: int, sock: socket.socket, address: Any,
                       bus: str, pending: bytes) -> None:

@@ -1,7 +1,9 @@
 """The main process of a multi-process ``ucom fleet serve``
 (:mod:`ucom_tools.virtual.multiserve`): its TCP server (:class:`Dispatcher`) greets each
 client, answers its elements up to ``< open BUS >`` as one process would
-(:class:`Reception`), then hands the connection to the process of that bus.
+(:class:`Reception`), then hands the connection to the process of that bus.  A fault a
+client asks for (``< ucom_fault ... >``, before any open) goes to the process of its bus,
+a fault of the whole robot to every process at once (:meth:`Dispatcher.inject`).
 """
 
 from __future__ import annotations
@@ -10,10 +12,20 @@ import contextlib
 import logging
 import socket
 import threading
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
-from ucom_tools.virtual.serve_connection import NO_BUS_OPEN, check_open, peer_name, unsupported
+from ucom_tools.config.scenario import InjectedFault
+from ucom_tools.config.topology import Topology
+from ucom_tools.virtual.serve_connection import (
+    NO_BUS_OPEN,
+    check_open,
+    inject_element,
+    peer_name,
+    unsupported,
+)
 from ucom_tools.virtual.socketcand import MAX_CLIENTS, ClientServer
+from ucom_tools.wire import socketcand_fault
 from ucom_tools.wire.socketcand import (
     MAX_ELEMENT,
     ElementError,
@@ -28,6 +40,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("ucom.serve")
 
+FAULT_TIMEOUT_S = 10.0
+"""How long the main process waits for the bus processes to apply a fault."""
 REPLY_TIMEOUT_S = 5.0
 """How long the main process waits to write one answer to a client that has not opened a
 bus yet; a client that does not read it meanwhile is dropped."""
@@ -44,11 +58,14 @@ class Reception:
     returns the bus to open and the bytes the client sent after the open."""
 
     def __init__(self, sock: socket.socket, address: Any, buses: dict[str, BusProcess],
-                 fleet_name: str) -> None:
+                 fleet_name: str, inject: Callable[[InjectedFault], str] | None = None,
+                 ) -> None:
         self.sock = sock
         self.peer = peer_name(address)
         self.buses = buses
         self.fleet_name = fleet_name
+        self.inject = inject
+        """Applies a fault a client asks for (:meth:`Dispatcher.inject`)."""
         self.reason = "disconnected"
         self.dropped = False
         self._closing = False
@@ -114,6 +131,12 @@ class Reception:
             if verb == "echo":
                 self._reply("< echo >")
                 return None
+            if verb == socketcand_fault.COMMAND and self.inject is not None:
+                answer = inject_element(args, self.inject)
+                self._reply(answer)
+                log.warning("client %s injected a fault: %s", self.peer,
+                            answer[len("< ok "):-2])
+                return None
             if verb in ("rawmode", "send"):
                 raise ElementError(NO_BUS_OPEN)
             raise unsupported(verb)
@@ -139,9 +162,12 @@ class Dispatcher(ClientServer):
     it to the process of that bus; counts the connections of every bus."""
 
     def __init__(self, host: str, port: int, buses: dict[str, BusProcess], fleet_name: str,
-                 *, max_clients: int = MAX_CLIENTS) -> None:
+                 *, max_clients: int = MAX_CLIENTS, topology: Topology | None = None) -> None:
         self.buses = buses
         self.fleet_name = fleet_name
+        self.topology = topology
+        """The whole fleet's topology (faults are checked against it); None: this server
+        takes no faults."""
         self._receptions: set[Reception] = set()
         self._lock = threading.Lock()
         self._closed = False
@@ -150,7 +176,8 @@ class Dispatcher(ClientServer):
     def serve_client(self, sock: socket.socket, address: Any) -> None:
         """One accepted client, in its handler thread: until it opened a bus here, then
         until its bus process is done with it (the slot stays taken meanwhile)."""
-        reception = Reception(sock, address, self.buses, self.fleet_name)
+        reception = Reception(sock, address, self.buses, self.fleet_name,
+                              self.inject if self.topology is not None else None)
         with self._lock:
             if self._closed:
                 reception.close()
@@ -170,6 +197,23 @@ class Dispatcher(ClientServer):
             log.warning("dropped client %s: the process of %s has ended", reception.peer, bus)
             return
         done.wait()
+
+    def inject(self, fault: InjectedFault) -> str:
+        """Apply ``fault`` in the process of its bus, or (the whole robot) in every process
+        at once, and say what was done; InputError for a bus or board the fleet lacks,
+        BusError when a process does not apply it within :data:`FAULT_TIMEOUT_S`."""
+        topology = self.topology
+        assert topology is not None
+        fault.check(topology)
+        if fault.bus is not None:
+            workers = [self.buses[fault.bus]]
+        else:
+            workers = list(dict.fromkeys(self.buses.values()))  # each process once
+        waits = [worker.send_fault(fault) for worker in workers]  # all asked, then waited
+        texts = [wait(FAULT_TIMEOUT_S) for wait in waits]
+        if fault.bus is None:
+            return fault.describe(topology, topology.timing.reset_us / 1e6)
+        return texts[0]
 
     def server_close(self) -> None:
         """Stop listening and close the clients that have not opened a bus."""

@@ -66,13 +66,20 @@ shortened to what remains, semi-implicit in the damping terms (stable for any dt
 result for the same calls).  A motor at rest before and after a substep (sticking, or
 stalled at an end stop) skips the rest of the call's substeps: they would repeat that one
 exactly.  No randomness.
+
+The plant is the board's hardware, not its program's: a program that starts again gets the
+plant it left (:meth:`ThreeAxisPlant.resume`), which coasted meanwhile (output stages off)
+and, after a power loss, is bound to the board's new FPGA: its motor encoders count from 0
+again (incremental), its joint sensors read the joint's position (absolute: a potentiometer
+over SSI, dissertation 5.2.1, :attr:`~ucom_tools.virtual.fpga.QuadratureDecoder.absolute`),
+from the start angle's reading of the first power-on.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Final
+from typing import Final, Protocol
 
 from ucom_tools.edgelists.armar3 import PWM_FULL
 from ucom_tools.virtual.fpga import VirtualFpga
@@ -118,6 +125,54 @@ def _adc(volts: float) -> int:
 
 
 _ADC_ZERO: Final = _adc(0.0)
+COAST_CHUNK_US: Final = 10_000.0
+"""A plant coasting over a board's dead time (:func:`resume_motors`) is advanced in steps
+of this many microseconds until it comes to rest: the rest of the time would change
+nothing."""
+
+
+class _Bound(Protocol):
+    """A plant as :func:`resume_motors` moves and binds it."""
+
+    fpga: VirtualFpga
+    adc: list[int]
+
+    def advance(self, dt_us: float) -> None: ...
+
+
+def resume_motors(plant: _Bound, motors: Sequence[MotorAxis], fpga: VirtualFpga,
+                  adc: list[int], dead_us: float) -> bool:
+    """Bring a board's plant to the start of its program, ``dead_us`` after the last one
+    moved it: its joints coast meanwhile, every output stage off (a motor at rest skips
+    the time at once).  On the FPGA it was bound to (the board kept power: a DSP reset,
+    a program that ended) its counters counted the coasting; on another one (the board
+    lost power) nothing was counted, the plant is bound to ``fpga`` and ``adc``, the
+    motor encoders count from 0 and the joint sensors (channel 2k) read absolute.
+    True when it was bound anew (the caller writes its sensors to the new FPGA)."""
+    if plant.fpga is fpga:
+        _coast(plant, motors, dead_us)
+        return False
+    plant.fpga = VirtualFpga(fpga.config, -1)  # neutral: drives nothing, counts nothing
+    _coast(plant, motors, dead_us)
+    plant.fpga, plant.adc = fpga, adc
+    for k, motor in enumerate(motors):
+        motor.sense(None, k)  # the edges from here on are the new counters'
+        joint = fpga.quad[2 * k]
+        joint.absolute = motor.joint_position
+        joint.reread()
+    return True
+
+
+def _coast(plant: _Bound, motors: Sequence[MotorAxis], dead_us: float) -> None:
+    left = dead_us
+    while left > 0.0:
+        step = left if left < COAST_CHUNK_US else COAST_CHUNK_US
+        before = [(m.angle, m.speed) for m in motors]
+        plant.advance(step)
+        left -= step
+        if all(m.speed == 0.0 for m in motors) and \
+                [(m.angle, m.speed) for m in motors] == before:
+            return  # at rest, and stays so: the rest of the time changes nothing
 
 
 class ThreeAxisPlant:
@@ -141,8 +196,26 @@ class ThreeAxisPlant:
         self.fpga = fpga
         self.adc = adc
         self.axes = [MotorAxis(p) for p in params[:axes]]
+        self.analog_inputs_v = analog_inputs_v
+        self.key = self.key_of(axes, params, analog_inputs_v)
+        """What the plant was made of (:meth:`key_of`): a program model reuses a board's
+        plant made of the same."""
         adc[6], adc[7] = (_adc(v) for v in analog_inputs_v)
         self._write_current_sense()
+
+    @staticmethod
+    def key_of(axes: int, params: AxisParams | Sequence[AxisParams],
+               analog_inputs_v: tuple[float, float]) -> tuple[object, ...]:
+        """The :attr:`key` of a plant made with these arguments."""
+        if isinstance(params, AxisParams):
+            params = [params] * axes
+        return (axes, tuple(params[:axes]), tuple(analog_inputs_v))
+
+    def resume(self, fpga: VirtualFpga, adc: list[int], dead_us: float) -> None:
+        """The board's program starts again (:func:`resume_motors`)."""
+        if resume_motors(self, self.axes, fpga, adc, dead_us):
+            adc[6], adc[7] = (_adc(v) for v in self.analog_inputs_v)
+            self._write_current_sense()
 
     # ------------------------------------------------------------------ Plant protocol
     def advance(self, dt_us: float) -> None:

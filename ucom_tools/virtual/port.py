@@ -12,6 +12,7 @@ from typing import Protocol
 
 from ucom_tools.config.topology import Timing
 from ucom_tools.virtual.fpga import ExternalMemory, VirtualFpga
+from ucom_tools.virtual.programs.base import Plant
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import ErrorCode, Target
@@ -61,6 +62,14 @@ class ProgramHost(BoardPort, Protocol):
 
     fpga: VirtualFpga
     adc: list[int]
+    plant: Plant | None
+    """The motors, joints and sensors behind the board (its hardware, kept across its
+    programs); None until a program made one."""
+
+    def bind_plant(self, plant: Plant, t: float) -> None:
+        """A program starts driving ``plant`` at ``t``: the board's plant from before is
+        resumed over the time since it last moved (:meth:`Plant.resume`), a new one
+        replaces it."""
 
     @property
     def placement(self) -> str:

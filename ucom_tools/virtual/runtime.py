@@ -143,7 +143,8 @@ class McaRuntime:
         self.latched_at: float | None = None
         """Fleet time (us) of the last watchdog latch."""
         self.stopped = False
-        self._last_tick = t
+        self.last_tick = t
+        """When the loop last ran (and moved the plant)."""
         self._on_tick: Callable[[float], None] = self._tick
         """:meth:`_tick` bound once (each read of ``self._tick`` makes a new bound method)."""
         self._kinds = {k: spec.of(EdgeKind(k)) for k in mca.Kind}
@@ -158,11 +159,18 @@ class McaRuntime:
         self.stopped = True
         self.model.stop()
 
+    def settle(self, t: float) -> None:
+        """The plant moves on to ``t`` with the outputs as the last cycle set them (the
+        board loses power at ``t``: they drove until then)."""
+        if self.plant is not None and not self.stopped and t > self.last_tick:
+            self.plant.advance(t - self.last_tick)
+            self.last_tick = t
+
     def _tick(self, t: float) -> None:
         if self.stopped:
             return
-        dt = t - self._last_tick
-        self._last_tick = t
+        dt = t - self.last_tick
+        self.last_tick = t
         if self.plant is not None:
             self.plant.advance(dt)
         running = self.state is mca.RunState.RUNNING

@@ -7,6 +7,10 @@ The protocol, and what no client can do to the others, is described in
 cut and read by :mod:`ucom_tools.wire.socketcand`.  A client's handler thread reads its
 socket until raw mode begins on a paced fleet; from then on the fleet's driver thread
 reads it (:meth:`Connection._read_by_driver`) and the handler thread waits.
+
+Before ``< open >`` a client may also ask for an injected fault (``< ucom_fault TARGET KIND
+[SECONDS] >``, :mod:`ucom_tools.wire.socketcand_fault`: ``ucom fleet fault``), which
+:func:`inject_element` applies to the fleet and answers.
 """
 
 from __future__ import annotations
@@ -24,10 +28,13 @@ from typing import Any
 
 import can
 
+from ucom_tools.config.scenario import injected
+from ucom_tools.errors import InputError, UcomError
 from ucom_tools.virtual.fleet import HOST_AHEAD_US, Fleet
 from ucom_tools.virtual.loss import FrameLoss
 from ucom_tools.virtual.serve_outbox import MAX_QUEUED_FRAMES, Outbox, encode_lines
 from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
+from ucom_tools.wire import socketcand_fault
 from ucom_tools.wire.socketcand import (
     CAN_EFF_FLAG,
     CAN_EFF_MASK,
@@ -67,6 +74,20 @@ def check_open(args: list[str], buses: Collection[str], fleet_name: str,
     if args[0] not in buses:
         raise ElementError(f"no bus {quote(args[0])} in {fleet_name}")
     return args[0]
+
+
+def inject_element(args: list[str], inject: Callable[..., str]) -> str:
+    """Apply ``< ucom_fault TARGET KIND [SECONDS] >`` (the words after the command) with
+    ``inject(fault)`` (:meth:`Fleet.inject`, or a multi-process server's routing) and
+    return the answer ``< ok TEXT >``; ElementError with the refusal or failure."""
+    target, kind, seconds = socketcand_fault.parse_fault(args)
+    try:
+        text = inject(injected(kind, target, seconds))
+    except InputError as err:
+        raise ElementError(socketcand_fault.refusal(str(err))) from None
+    except UcomError as err:
+        raise ElementError(socketcand_fault.refusal(str(err), failed=True)) from None
+    return socketcand_fault.ok_element(text)
 
 
 def unsupported(verb: str) -> ElementError:
@@ -165,7 +186,7 @@ class Connection:
         self._room_checked = 0.0
         self._commands: dict[str, Callable[[list[str]], None]] = {
             "open": self._open, "rawmode": self._rawmode, "send": self._send,
-            "echo": self._echo}
+            "echo": self._echo, socketcand_fault.COMMAND: self._fault}
 
     @property
     def alive(self) -> bool:
@@ -411,6 +432,16 @@ class Connection:
                                later=self.fleet.after_step, flush=self._flush)
         self.reply("< ok >")
         log.info("client %s opened %s", self.peer, sim.name)
+
+    def _fault(self, args: list[str]) -> None:
+        """``< ucom_fault ... >``: an injected fault, applied at once (before ``< open >``
+        only: a bus's client does not steer the fleet)."""
+        if self.port is not None:
+            raise ElementError(socketcand_fault.refusal(
+                "send it on a connection of its own, before any open"))
+        answer = inject_element(args, self.fleet.inject)
+        self.reply(answer)
+        log.warning("client %s injected a fault: %s", self.peer, answer[len("< ok "):-2])
 
     def _rawmode(self, args: list[str]) -> None:
         port = self._require_open()

@@ -16,6 +16,13 @@ only the nodes that take them (``on_extended_frame``), as a CAN controller whose
 acceptance filter passes standard frames only never shows the others to its software:
 the boards ignore them.
 
+Injected faults (:mod:`~ucom_tools.virtual.injected`) act on the bus too: a node whose CAN
+controller stops (a board that loses power or goes bus-off) has its frames not yet on the
+wire withdrawn (:meth:`SimBus.withdraw`), and a cable cut between the PC and the boards
+(:meth:`SimBus.cut_cable`) loses every frame between a host and a board, both ways, while
+the boards still hear each other; a host then finds its frames acknowledged by nobody
+(:meth:`SimBus.acknowledged`).
+
 Every bus of a fleet runs on the fleet's :class:`~ucom_tools.virtual.clock.FleetClock`:
 a frame becomes ready, the bus arbitrates among the ready frames when it falls idle (after
 every frame ready at that instant), the winner ends ``bits / bitrate`` later and is then
@@ -96,6 +103,12 @@ class BusStats:
         return self.busy_us / elapsed_us if elapsed_us > 0 else 0.0
 
 
+def _board_side(node: object) -> bool:
+    """A node on the boards' side of the bus (a board: it takes no board's frames, see
+    :class:`Node`), not the PC's."""
+    return getattr(node, "takes_board_frames", True) is False
+
+
 class ChainMember(Protocol):
     in_drive: bool
     out_drive: bool
@@ -139,7 +152,13 @@ class SimBus:
         """Frames each sender has queued that are not on the wire yet (its TX queue)."""
         self.drop: Callable[[object, int, bytes], bool] | None = None
         """Fault injection: ``drop(node, id, data)`` true = ``node`` misses that standard
-        frame (extended frames are not offered to it)."""
+        frame (extended frames are not offered to it); :attr:`delivering` is its sender."""
+        self.delivering: object = None
+        """The sender of the frame being delivered while :attr:`drop` is asked."""
+        self._cuts = 0
+        """Cable cuts in force (:meth:`cut_cable`)."""
+        self._drop_uncut: Callable[[object, int, bytes], bool] | None = None
+        """:attr:`drop` before the cable was cut."""
         # the clock's callbacks of every frame, bound once (``self._ready`` makes a new
         # bound method each time it is read)
         self._on_ready: Callable[..., None] = self._ready
@@ -333,6 +352,7 @@ class SimBus:
                 if node is not sender:
                     node.on_frame(arbitration_id, data, t_end)
             return
+        self.delivering = sender
         for node in self.nodes:
             if node is not sender and not drop(node, arbitration_id, data):
                 node.on_frame(arbitration_id, data, t_end)
@@ -352,6 +372,90 @@ class SimBus:
                 if hook is not None:
                     hook(when)
         self.clock.at(t, signal)
+
+    # ---------------------------------------------------------------- injected faults
+    def withdraw(self, sender: object) -> int:
+        """The frames ``sender`` queued that are not on the wire yet are lost (its CAN
+        controller lost power or went bus-off), and one of its frames on the wire now is
+        cut short: it ends unreceived (an error, :attr:`BusStats.errors`) when it would
+        have ended.  Returns how many frames were lost.  Costs the clock's queue once."""
+        on_ready, on_end = self._on_ready, self._on_end
+        ends: list[float] = []
+
+        def unwanted(t: float, callback: Callable[..., None], args: tuple[object, ...],
+                     ) -> bool:
+            if callback is on_ready and args[3] is sender:
+                return True
+            if callback is on_end and args[3] is sender:
+                ends.append(t)
+                return True
+            return False
+
+        lost = self.clock.cancel(unwanted) - len(ends)
+        queue = self._waiting.pop(id(sender), None) if id(sender) in self._waiting else None
+        contenders = self._contenders
+        kept = [e for e in contenders if e[3] is not sender]
+        lost += len(contenders) - len(kept) + (len(queue) if queue else 0)
+        if len(kept) != len(contenders):
+            heapq.heapify(kept)
+            contenders[:] = kept
+        if lost:
+            self.queued[sender] = self.queued.get(sender, 0) - lost
+        for t_end in ends:
+            self.clock.at(t_end, self._cut_short, sender)
+        return lost + len(ends)
+
+    def _cut_short(self, t: float, sender: object) -> None:
+        """A frame of ``sender`` that was on the wire when its controller stopped ends
+        here, received by nobody."""
+        self._busy = False
+        self.stats.errors += 1
+        self.queued[sender] = self.queued.get(sender, 0) - 1
+        if self._contenders:
+            self._want_arbitration(t)
+
+    def cut_cable(self) -> None:
+        """Cut the cable between the PC and the boards (an injected fault; cuts add up):
+        every standard frame between a host and a board is lost, both ways; the boards
+        hear each other, and so do the hosts.  Costs the slow way of :attr:`drop` per
+        frame while it lasts, nothing after."""
+        self._cuts += 1
+        if self._cuts == 1:
+            self._drop_uncut = self.drop
+            self.drop = self._cut_drop
+
+    def mend_cable(self) -> None:
+        """End one :meth:`cut_cable`."""
+        if self._cuts == 0:
+            return
+        self._cuts -= 1
+        if self._cuts == 0:
+            self.drop = self._drop_uncut
+            self._drop_uncut = None
+
+    @property
+    def cable_cut(self) -> bool:
+        return self._cuts > 0
+
+    def _cut_drop(self, node: object, arbitration_id: int, data: bytes) -> bool:
+        if _board_side(node) != _board_side(self.delivering):
+            return True
+        inner = self._drop_uncut
+        return inner is not None and inner(node, arbitration_id, data)
+
+    def acknowledged(self, sender: object) -> bool:
+        """Would a frame that ``sender`` sends now be acknowledged: does another node take
+        it - one that listens (a board powered and not bus-off; not a listen-only node:
+        ``listening`` false), on ``sender``'s side of a cut cable?  (python-can's
+        ``bus.state`` of a host: error-passive while nobody does.)"""
+        cut = self._cuts > 0
+        board = _board_side(sender)
+        for node in list(self.nodes):
+            if node is sender or (cut and _board_side(node) != board) or \
+                    not getattr(node, "listening", True):
+                continue
+            return True
+        return False
 
     def sent_at(self, token: int) -> float | None:
         """End time of the frame queued with ``token`` once it went out (and forget it)."""

@@ -10,7 +10,7 @@ from ucom_tools.edgelists.model import ProgramSpec
 from ucom_tools.virtual.programs.base import Hardware, Plant, ProgramModel
 from ucom_tools.virtual.programs.idle import IdleModel
 
-Factory = Callable[[Hardware, str], tuple[ProgramModel, Plant | None]]
+Factory = Callable[[Hardware, str, Plant | None], tuple[ProgramModel, Plant | None]]
 
 
 def _factories() -> dict[str, Factory]:
@@ -28,15 +28,17 @@ def _factories() -> dict[str, Factory]:
     return out
 
 
-def make(name: str, hardware: Hardware, placement: str = "",
+def make(name: str, hardware: Hardware, placement: str = "", plant: Plant | None = None,
          ) -> tuple[ProgramSpec, ProgramModel, Plant | None]:
     """The model of the program called ``name`` (an image descriptor's name), running on
     ``hardware`` of a board at ``placement`` (the topology's word for what it drives);
-    a program without a model runs idle, with no edges."""
+    a program without a model runs idle, with no edges.  ``plant``: the board's plant
+    from a program before (the board's hardware): the model keeps it if it drives that
+    kind, and the caller resumes it (:meth:`Plant.resume`)."""
     factory = _factories().get(name)
     spec = by_name(name)
     if factory is None or spec is None:
         idle = IdleModel()
         return idle.spec, idle, None
-    model, plant = factory(hardware, placement)
-    return spec, model, plant
+    model, made = factory(hardware, placement, plant)
+    return spec, model, made

@@ -79,7 +79,13 @@ from typing import Final
 
 from ucom_tools.edgelists.armar3 import AXES, SPEC
 from ucom_tools.edgelists.model import EdgeKind, ProgramSpec
-from ucom_tools.virtual.plant import ARMAR3_BOARD, AxisParams, ThreeAxisPlant
+from ucom_tools.virtual.plant import (
+    ANALOG_INPUTS_V,
+    ARMAR3_BOARD,
+    MAX_AXES,
+    AxisParams,
+    ThreeAxisPlant,
+)
 from ucom_tools.virtual.programs.armar3_axis import (  # the constants re-exported
     _AD_CHANNEL6,
     _AD_CHANNEL7,
@@ -107,7 +113,7 @@ from ucom_tools.virtual.programs.armar3_axis import (  # the constants re-export
     _Axis,
     _Config,
 )
-from ucom_tools.virtual.programs.base import Hardware
+from ucom_tools.virtual.programs.base import Hardware, Plant
 
 __all__ = ["AXIS_US", "BASE_US", "HOMED", "HOMING", "HOMING_FAILED", "HOMING_TIMEOUT_US",
            "LIMIT_APPROACH_PER_S", "NEVER_HOMED", "SETTLED_COUNTS", "SETTLED_SPEED",
@@ -305,9 +311,14 @@ class Armar3Model:
         registers[_OUTPUT_ENABLE] = 0
 
 
-def make(hardware: Hardware, placement: str = "", *,
+def make(hardware: Hardware, placement: str = "", plant: Plant | None = None, *,
          params: tuple[AxisParams, ...] = ARMAR3_BOARD) -> tuple[Armar3Model, ThreeAxisPlant]:
     """The program on ``hardware`` with its plant (:data:`~ucom_tools.virtual.plant.
     ARMAR3_BOARD` unless given: every ARMAR-III board drives the same kind of joints in
-    this model, whatever its ``placement``)."""
-    return Armar3Model(hardware), ThreeAxisPlant(hardware.fpga, hardware.adc, params=params)
+    this model, whatever its ``placement``).  ``plant``: the board's plant from a program
+    before, kept when it is made of the same (the caller resumes it)."""
+    model = Armar3Model(hardware)
+    if isinstance(plant, ThreeAxisPlant) and \
+            plant.key == ThreeAxisPlant.key_of(MAX_AXES, params, ANALOG_INPUTS_V):
+        return model, plant
+    return model, ThreeAxisPlant(hardware.fpga, hardware.adc, params=params)

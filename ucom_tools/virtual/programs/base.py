@@ -51,9 +51,19 @@ class ProgramModel(Protocol):
 
 
 class Plant(Protocol):
-    """The physical world behind a board's FPGA: motors, gears, loads, sensors."""
+    """The physical world behind a board's FPGA: motors, gears, loads, sensors.  It is the
+    board's (its hardware): a program that starts again gets the plant the last one left,
+    resumed (:meth:`resume`)."""
+
+    fpga: VirtualFpga
 
     def advance(self, dt_us: float) -> None:
         """Let ``dt_us`` microseconds pass: read PWM and output enables from the FPGA,
         integrate the mechanics, feed the encoders' edges to the FPGA's quadrature
         counters and set the ADC readings."""
+
+    def resume(self, fpga: VirtualFpga, adc: list[int], dead_us: float) -> None:
+        """A program starts on the board ``dead_us`` after the plant last moved with one:
+        the joints coast over that time with every output stage off; on a new ``fpga``
+        (the board lost power meanwhile) nothing was counted, the motor encoders count
+        from 0 and the joint sensors read the joints' positions (absolute)."""

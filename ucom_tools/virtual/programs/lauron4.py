@@ -75,8 +75,9 @@ from typing import Final
 
 from ucom_tools.edgelists.lauron4 import AXES, PWM_FULL, SPEC, LegMode, Status
 from ucom_tools.edgelists.model import EdgeKind, ProgramSpec
+from ucom_tools.virtual.motor import SUPPLY_V
 from ucom_tools.virtual.numeric import round_half_even
-from ucom_tools.virtual.programs.base import Hardware
+from ucom_tools.virtual.programs.base import Hardware, Plant
 from ucom_tools.virtual.programs.lauron4_leg import (  # the board's constants re-exported
     ADC_FORCE,
     ADC_MID,
@@ -477,18 +478,26 @@ class Lauron4Model:
         so[_SUPPLY_VOLTAGE] = min(40950, self.hw.adc[ADC_SUPPLY] * SUPPLY_MV_PER_LSB)
 
 
-def make(hardware: Hardware, placement: str = "") -> tuple[Lauron4Model, LegPlant]:
+def make(hardware: Hardware, placement: str = "", plant: Plant | None = None,
+         ) -> tuple[Lauron4Model, LegPlant]:
     """The program on ``hardware`` with the plant its board drives, chosen by the board's
     ``placement`` in the topology (the program cannot tell, the robot's mechanics can): a
     camera head ("head": pan, tilt, no foot, no ground), a right leg ("right": alpha's
     motor mounted the other way round, which the right legs' trees undo with Motor
-    Direction bit 0), else a left leg on the ground."""
+    Direction bit 0), else a left leg on the ground.  ``plant``: the board's plant from
+    a program before, kept when it is that leg (the caller resumes it)."""
     text = placement.lower()
+    model = Lauron4Model(hardware)
     if "head" in text:
-        return Lauron4Model(hardware), LegPlant(hardware.fpga, hardware.adc, HEAD_JOINTS,
-                                                ground_z=None, foot_sensor=False,
-                                                marks=(0.0, 0.0, None))
+        if isinstance(plant, LegPlant) and plant.key == LegPlant.key_of(
+                HEAD_JOINTS, None, False, (0.0, 0.0, None), SUPPLY_V):
+            return model, plant
+        return model, LegPlant(hardware.fpga, hardware.adc, HEAD_JOINTS, ground_z=None,
+                               foot_sensor=False, marks=(0.0, 0.0, None))
     params = LEG_JOINTS
     if "right" in text:
         params = (replace(LEG_JOINTS[0], motor_polarity=-1), *LEG_JOINTS[1:])
-    return Lauron4Model(hardware), LegPlant(hardware.fpga, hardware.adc, params)
+    if isinstance(plant, LegPlant) and plant.key == LegPlant.key_of(
+            params, GROUND_Z, True, (0.0, 0.0, 0.0), SUPPLY_V):
+        return model, plant
+    return model, LegPlant(hardware.fpga, hardware.adc, params)

@@ -23,6 +23,7 @@ from ucom_tools.virtual.plant import (
     SUPPLY_V,
     AxisParams,
     MotorAxis,
+    resume_motors,
 )
 from ucom_tools.wire.fpga import Reg
 
@@ -160,7 +161,25 @@ class LegPlant:
         """Integrate the joints apart while the foot is off the ground (False: always
         together with the ground's forces, the slower way that gives the same result:
         for the test that says so)."""
+        self.key = self.key_of(params, ground_z, foot_sensor, marks, supply_v)
+        """What the leg was made of (:meth:`key_of`): a program model reuses a board's
+        plant made of the same."""
         self._write_sensors()
+
+    @staticmethod
+    def key_of(params: Sequence[AxisParams], ground_z: float | None, foot_sensor: bool,
+               marks: Sequence[float | None], supply_v: float) -> tuple[object, ...]:
+        """The :attr:`key` of a leg made with these arguments (all given: a compiled
+        caller in another module does not see this module's constants as defaults)."""
+        return (tuple(params), ground_z, foot_sensor, tuple(marks), supply_v)
+
+    def resume(self, fpga: VirtualFpga, adc: list[int], dead_us: float) -> None:
+        """The board's program starts again: the joints coast over the dead time (the
+        ground still acts), then, after a power loss, the leg is bound to the new FPGA
+        with its joint sensors absolute (:func:`~ucom_tools.virtual.plant.resume_motors`,
+        the rule of the three-axis plant)."""
+        if resume_motors(self, self.joints, fpga, adc, dead_us):
+            self._write_sensors()
 
     # ------------------------------------------------------------------ Plant protocol
     def advance(self, dt_us: float) -> None:
