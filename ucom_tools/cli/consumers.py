@@ -28,8 +28,10 @@ from typing import Any
 import can
 
 from ucom_tools.errors import BusError, InputError, UcomError, WriteError
+from ucom_tools.ops.remote_faults import BoardFault
 from ucom_tools.ops.remote_feed import LoopFeed, Unpacker, pack
 from ucom_tools.ops.remote_mirror import Mirror
+from ucom_tools.ops.remote_publish import LoopSnapshot
 from ucom_tools.protocol.dispatch import ERROR, EXTENDED, REMOTE, SENT, SinkEntry
 
 READY_S = 30.0
@@ -127,6 +129,7 @@ class Consumers:
             self.recorder = RunRecorder(c["record"])
             self.mirror.frame_sinks.append(self._frames)
             self.mirror.change_sinks.append(self._change)
+            self.mirror.fault_sinks.append(self._fault)
         if c.get("zenoh"):
             from ucom_tools.net.share import RobotShare
 
@@ -148,6 +151,11 @@ class Consumers:
     def _change(self, t: float, ref: Any, value: Any) -> None:
         self.recorder.value(t, ref.bus, ref.board, ref.prefix, ref.unique, ref.kind.name,
                             value)
+
+    def _fault(self, fault: BoardFault, snap: LoopSnapshot) -> None:
+        """A board lost: its values in the recording are stale from then on."""
+        if fault.event == "lost":
+            self.recorder.lost(snap.on_stamps(fault.time), fault.bus, fault.board)
 
     def run(self) -> None:
         """Until the run ends: the live view on the terminal (its quit ends the run), or
@@ -194,11 +202,11 @@ class Consumers:
             except BaseException:
                 self.recorder.discard()
                 raise
-        err = self.mirror.error
-        if err is not None:
-            if isinstance(err, WriteError):
-                return 5, str(err), None
-            return 1, f"the consumers' process failed: {err!r}", None
+        failure = self.mirror.error
+        if failure is not None:
+            if isinstance(failure, WriteError):
+                return 5, str(failure), None
+            return 1, f"the consumers' process failed: {failure!r}", None
         return outcome
 
     def stats(self) -> dict[str, Any]:

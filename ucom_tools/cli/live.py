@@ -237,11 +237,8 @@ class LiveView:
                 if lost is not None and got is not None:
                     text += f" ({age_text(snap.stamp - got[0])})"
                 rows.append((ref.unique, text, ref.spec.unit))
-            stale = ""
-            if lost is not None:
-                since = getattr(lost, "since", None)
-                stale = "LOST" + ("" if since is None else " " + age_text(
-                    snap.clock - f.started_clock - since))
+            stale = "" if lost is None else "LOST " + age_text(
+                snap.clock - f.started_clock - lost.since)
             boxes.append(_box(f"{refs[0].prefix} - {refs[0].where}", rows, stale=stale))
         return "\n".join([head, *_arrange(boxes, width)]) + "\n"
 
@@ -256,9 +253,7 @@ class LiveView:
         faults = snap.newer(snap.faults, snap.faults_total, self._faults_seen)
         self._faults_seen = snap.faults_total
         if faults:
-            fault = faults[-1]
-            describe = getattr(fault, "describe", None)
-            self.message = "! " + (describe() if callable(describe) else str(fault))
+            self.message = "! " + faults[-1].describe()
 
     def application(self) -> Application[None]:
         out = Buffer(completer=NameCompleter(self.image.names.names()),

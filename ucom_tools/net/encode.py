@@ -201,9 +201,12 @@ class BoardEncoder:
             self.edge_source[r] = ("par", r, 0)
         self._edge_heads = {r: f',"name":{_json(r.unique)},"value":' for r in refs}
 
-    def sample(self, snap: RawSnapshot) -> bytes:
+    def sample(self, snap: RawSnapshot, lost: tuple[float, str] | None = None) -> bytes:
         """The board's ``values`` sample (``man/ucom-network.7``): JSON, as
-        ``keys.dumps({"robot", "bus", "board", "t", "values"})`` of the decoded values."""
+        ``keys.dumps({"robot", "bus", "board", "t", "values", "valid"})`` of the decoded
+        values; where the board is ``lost`` (since when, on the frames' time base, and what
+        was seen last) ``"valid": false`` and ``"lost": {"since", "seen"}``: its values
+        are its last before the loss."""
         frames, stamps = snap.frames[self.bus], snap.stamps[self.bus]
         parts = []
         t: float | None = None
@@ -221,12 +224,16 @@ class BoardEncoder:
         for text in (self._ci.text(snap.ci[self.bus]), self._par.text(snap.par)):
             if text:
                 parts.append(text)
+        tail = ('},"valid":true}' if lost is None else
+                '},"valid":false,"lost":{"since":' + _stamp(lost[0]) + ',"seen":'
+                + _json(lost[1]) + "}}")
         return (self._head + _stamp(snap.clock if t is None else t) + ',"values":{'
-                + ",".join(parts) + "}}").encode()
+                + ",".join(parts) + tail).encode()
 
-    def edge_sample(self, ref: EdgeRef, snap: RawSnapshot) -> bytes | None:
-        """The sample of one edge's own key (``{"v", "t", "name", "value"}``), None where
-        the snapshot has no value of it."""
+    def edge_sample(self, ref: EdgeRef, snap: RawSnapshot, valid: bool = True,
+                    ) -> bytes | None:
+        """The sample of one edge's own key (``{"v", "t", "name", "value", "valid"}``),
+        None where the snapshot has no value of it; ``valid`` false: its board is lost."""
         where, what, pos = self.edge_source[ref]
         t: float = snap.clock
         raw: int | None
@@ -244,7 +251,7 @@ class BoardEncoder:
         if raw is None:
             return None
         return (f'{{"v":{keys.VERSION},"t":{_stamp(t)}{self._edge_heads[ref]}'
-                f"{write(conv, raw)}}}").encode()
+                f'{write(conv, raw)},"valid":{"true" if valid else "false"}}}').encode()
 
 
 def encoders(image: PartImage, robot: str) -> dict[tuple[str, int], BoardEncoder]:

@@ -49,7 +49,7 @@ from ucom_tools.net.encode import BoardEncoder, encoders
 from ucom_tools.net.keys import check_rate
 from ucom_tools.net.session import address_in_use, check_endpoint, config, open_session
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote import RemotePart, WriteEvent
+from ucom_tools.ops.remote import BoardFault, RemotePart, WriteEvent
 from ucom_tools.ops.remote_feed import Applied, LocalRun
 from ucom_tools.ops.remote_image import PartImage
 from ucom_tools.ops.remote_publish import Doorbell, LoopSnapshot
@@ -84,15 +84,13 @@ def status_doc(report: m.StatusReport, t: float) -> dict[str, Any]:
             "tec": report.tec, "rec": report.rec, "overruns": report.overruns}
 
 
-def fault_doc(fault: Any) -> dict[str, Any]:
-    """A board lost or rejoined (``BoardFault``) as an event (``man/ucom-network.7``)."""
-    doc: dict[str, Any] = {"kind": "fault", "t": getattr(fault, "time", None),
-                           "bus": getattr(fault, "bus", None),
-                           "board": getattr(fault, "board", None),
-                           "where": getattr(fault, "where", None),
-                           "event": getattr(fault, "event", None),
-                           "seen": getattr(fault, "seen", None)}
-    return doc
+def fault_doc(fault: BoardFault, t: float) -> dict[str, Any]:
+    """A board lost or rejoined as an event (``man/ucom-network.7``): ``t`` on the
+    values' time base, ``time`` seconds since the exchange started (as ``--json``'s
+    faults)."""
+    return {"kind": "fault", "t": round(t, 6), "time": fault.time, "bus": fault.bus,
+            "board": fault.board, "where": fault.where, "event": fault.event,
+            "seen": fault.seen, "answered": fault.answered}
 
 
 def origin() -> str:
@@ -111,7 +109,7 @@ class _Answer:
     query: zenoh.Query
     ok: bool
     doc: dict[str, Any]
-    event: WriteEvent
+    event: WriteEvent | None
 
 
 def open_shared(robot: str, *, zenoh: str | None = None,
@@ -190,6 +188,8 @@ class RunSource(Protocol):
 
     @property
     def status_sinks(self) -> list[Callable[[str, int, bytes, float], None]]: ...
+
+    def close(self) -> None: ...
 
 
 class RobotShare:
@@ -525,8 +525,8 @@ class RobotShare:
         if self._state == "starting" and loop.running:
             self._state = "running"
             for board in self._board_pubs:
-                self._board_tokens[board] = self.session.liveliness().declare_token(
-                    keys.board_key(self.robot, *board, what="board_alive"))
+                if board not in loop.lost:
+                    self._alive(board, True)
             self._event({"kind": "state", "state": "running", "t": snap.clock})
         if self._encoders is None:  # once: the boards are configured now
             assert self._image is not None
@@ -534,7 +534,9 @@ class RobotShare:
         now = time.monotonic()
         for board, (k, pub) in self._board_pubs.items():
             self._clear_of_the_loop()
-            payload = self._encoders[board].sample(snap)
+            lost = loop.lost.get(board)
+            payload = self._encoders[board].sample(
+                snap, None if lost is None else (loop.on_stamps(lost.since), lost.seen))
             if payload == self._latest.get(k) and now - self._put_at.get(k, 0.0) < RESEND_S:
                 continue  # nothing new on this board: its latest stays where it is
             self._latest[k] = payload
@@ -545,7 +547,8 @@ class RobotShare:
             self._publish_status()
         for k in list(self._matched):  # the edges someone subscribes to (few)
             ref, pub = self._edge_by_key[k]
-            edge = self._encoders[(ref.bus, ref.board)].edge_sample(ref, snap)
+            edge = self._encoders[(ref.bus, ref.board)].edge_sample(
+                ref, snap, (ref.bus, ref.board) not in loop.lost)
             if edge is None or (edge == self._edge_latest.get(k)
                                 and now - self._put_at.get(k, 0.0) < RESEND_S):
                 continue
@@ -553,6 +556,16 @@ class RobotShare:
             self._put_at[k] = now
             pub.put(edge)
             self.published += 1
+
+    def _alive(self, board: tuple[str, int], alive: bool) -> None:
+        """The board's liveliness token: there while it runs, gone while it is lost or
+        stopped."""
+        token = self._board_tokens.pop(board, None)
+        if token is not None and not alive:
+            token.undeclare()
+        elif alive:
+            self._board_tokens[board] = token or self.session.liveliness().declare_token(
+                keys.board_key(self.robot, *board, what="board_alive"))
 
     def _clear_of_the_loop(self) -> None:
         """Wait out the loop's next deadline when it is about to come (real buses)."""
@@ -591,9 +604,7 @@ class RobotShare:
                          "where": e.where, "error": e.code.name, "text": e.text,
                          "stopped_motors": e.stopped_motors})
             if e.stopped_motors:  # stopped until started again: not alive
-                token = self._board_tokens.pop((e.bus, e.board), None)
-                if token is not None:
-                    token.undeclare()
+                self._alive((e.bus, e.board), False)
         self._events_seen = snap.events_total
         for w in snap.newer(snap.writes, snap.writes_total, self._writes_seen):
             self._event({"kind": "stop" if w.value == "stop" and not w.name else "write",
@@ -601,7 +612,9 @@ class RobotShare:
                          "result": w.result})
         self._writes_seen = snap.writes_total
         for f in snap.newer(snap.faults, snap.faults_total, self._faults_seen):
-            self._event(fault_doc(f))
+            self._event(fault_doc(f, snap.on_stamps(f.time)))
+            if self._state == "running" and (f.bus, f.board) in self._board_pubs:
+                self._alive((f.bus, f.board), f.event == "rejoined")
         self._faults_seen = snap.faults_total
 
     # ------------------------------------------------------------------ the end

@@ -20,15 +20,17 @@ from concurrent.futures import Future
 from typing import Any
 
 from ucom_tools.ops.edges import EdgeRef
+from ucom_tools.ops.remote_faults import BoardFault, LostBoard
 from ucom_tools.ops.remote_feed import Applied, Unpacker, pack
 from ucom_tools.ops.remote_image import PartImage
 from ucom_tools.ops.remote_publish import LateChunks, LoopFigures, LoopSnapshot, Snapshots, Tail
-from ucom_tools.ops.remote_report import RawSnapshot, Value
+from ucom_tools.ops.remote_report import BoardEvent, RawSnapshot, Value, WriteEvent
 from ucom_tools.protocol.dispatch import SinkEntry
 
 FrameSink = Callable[[str, list[SinkEntry]], None]
 ChangeSink = Callable[[float, EdgeRef, Value], None]
 StatusSink = Callable[[str, int, bytes, float], None]
+FaultSink = Callable[[BoardFault, LoopSnapshot], None]
 
 
 class Mirror(Snapshots):
@@ -48,18 +50,20 @@ class Mirror(Snapshots):
         self.frame_sinks: list[FrameSink] = []
         self.change_sinks: list[ChangeSink] = []
         self.status_sinks: list[StatusSink] = []
+        self.fault_sinks: list[FaultSink] = []
+        """Called with each board lost or rejoined, and the snapshot that brought it."""
         self.error: BaseException | None = None
         """What stopped the reader (a consumer's callback that failed), if anything."""
         self._write_lock = threading.Lock()
         self._answers: dict[int, Future[Applied]] = {}
         self._number = 0
-        self._events: Tail[Any] = Tail()
-        self._writes: Tail[Any] = Tail()
-        self._faults: Tail[Any] = Tail()
+        self._events: Tail[BoardEvent] = Tail()
+        self._writes: Tail[WriteEvent] = Tail()
+        self._faults: Tail[BoardFault] = Tail()
         self._late = LateChunks()
         self._par: dict[EdgeRef, int] = {}
         self._by_key: dict[tuple[str, int, int, int], EdgeRef] = {}
-        self._lost: dict[tuple[str, int], Any] = {}
+        self._lost: dict[tuple[str, int], LostBoard] = {}
         self._thread = threading.Thread(target=self._run, name="ucom-mirror", daemon=True)
 
     def start(self) -> None:
@@ -68,6 +72,9 @@ class Mirror(Snapshots):
     def final(self) -> LoopSnapshot | None:
         """The last snapshot (after the end: how the run ended)."""
         return self._latest
+
+    def close(self) -> None:
+        """Nothing to let go of: the pipes belong to the process."""
 
     def wait_image(self, timeout: float | None = None) -> PartImage | None:
         """The part's structure, once the loop's process sent it (None: not within
@@ -122,7 +129,11 @@ class Mirror(Snapshots):
                 if future is not None:
                     future.set_result(applied)
             if snap is not None:
-                self._deliver(self._rebuild(snap))
+                rebuilt, new_faults = self._rebuild(snap)
+                for fault in new_faults:
+                    for fault_sink in self.fault_sinks:
+                        fault_sink(fault, rebuilt)
+                self._deliver(rebuilt)
         elif kind == "image":
             self.image = message[1]
             self.period_s = self.image.period_s
@@ -134,7 +145,8 @@ class Mirror(Snapshots):
             return False
         return True
 
-    def _rebuild(self, wire: tuple[Any, ...]) -> LoopSnapshot:
+    def _rebuild(self, wire: tuple[Any, ...]) -> tuple[LoopSnapshot, tuple[BoardFault, ...]]:
+        """The snapshot the loop took, and the faults it added."""
         (number, clock, stamp, taken, running, v_clock, frames, stamps, ci, par,
          figures, new_events, events_total, new_writes, writes_total, new_faults,
          faults_total, lost, traffic) = wire
@@ -153,7 +165,7 @@ class Mirror(Snapshots):
             RawSnapshot(v_clock, frames, stamps, ci, self._par),
             LoopFigures(period_s, cycles, missed, gap, started, ended, self._late.chunks),
             self._events.items, self._events.total, self._writes.items, self._writes.total,
-            self._faults.items, self._faults.total, self._lost, traffic)
+            self._faults.items, self._faults.total, self._lost, traffic), new_faults
 
     # ------------------------------------------------------------------ requests
     def _send(self, message: object) -> None:
@@ -207,4 +219,4 @@ class Mirror(Snapshots):
         self._send(("ended", code, message, key, stats or {}))
 
 
-__all__ = ["ChangeSink", "FrameSink", "Mirror", "StatusSink"]
+__all__ = ["ChangeSink", "FaultSink", "FrameSink", "Mirror", "StatusSink"]

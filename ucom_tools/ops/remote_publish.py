@@ -37,6 +37,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Final, Generic, TypeVar
 
+from ucom_tools.ops.remote_faults import BoardFault, LostBoard
 from ucom_tools.ops.remote_loop import RECENT_SAMPLES, RemoteLoop
 from ucom_tools.ops.remote_report import BoardEvent, RawSnapshot, WriteEvent
 
@@ -115,12 +116,12 @@ class LoopSnapshot:
     writes: tuple[WriteEvent, ...]
     """The newest of the values set or stops asked from the network."""
     writes_total: int
-    faults: tuple[Any, ...]
-    """The newest boards lost or rejoined (``BoardFault``, :func:`faults_of`)."""
+    faults: tuple[BoardFault, ...]
+    """The newest boards lost or rejoined."""
     faults_total: int
-    lost: Mapping[tuple[str, int], Any]
-    """(bus, board) -> the board (``LostBoard``: since when, what was seen last) for every
-    board lost at that moment: its values are stale (:func:`lost_of`)."""
+    lost: Mapping[tuple[str, int], LostBoard]
+    """(bus, board) -> the board (since when, what was seen last) for every board lost at
+    that moment: its values are stale."""
     traffic: Mapping[str, tuple[float, int, int]]
     """Bus -> (its clock, bits seen so far, its bitrate): two snapshots give its load
     (:meth:`load_since`)."""
@@ -128,6 +129,18 @@ class LoopSnapshot:
     def stale(self, bus: str, board: int) -> bool:
         """Are the board's values stale (the board is lost)?"""
         return (bus, board) in self.lost
+
+    def on_stamps(self, since: float) -> float:
+        """A time of the run's events (seconds since the exchange started: a fault's
+        ``time``, a lost board's ``since``) on the base of the frames' time stamps (the
+        values' ``t``)."""
+        return self.stamp - (self.clock - self.figures.started_clock - since)
+
+    def lost_since(self, bus: str, board: int) -> float | None:
+        """Since when the board is lost, on the base of the frames' time stamps (None: it
+        is not)."""
+        lost = self.lost.get((bus, board))
+        return None if lost is None else self.on_stamps(lost.since)
 
     @staticmethod
     def newer(items: tuple[T, ...], total: int, seen: int) -> tuple[T, ...]:
@@ -149,19 +162,16 @@ class LoopSnapshot:
         return out
 
 
-# ---------------------------------------------------------------------- faults (adapter)
-def lost_of(part: Any) -> Mapping[tuple[str, int], Any]:
-    """The boards lost now, as the part says (``part.lost``: (bus, board) -> the board,
-    since when, what was seen last; a copy); empty for a part that does not tell."""
-    lost = getattr(part, "lost", None)
-    return lost if isinstance(lost, Mapping) else {}
+# ---------------------------------------------------------------------- faults
+def lost_of(part: RemoteLoop) -> Mapping[tuple[str, int], LostBoard]:
+    """The boards lost now (``part.lost``, a copy: (bus, board) -> since when, what was
+    seen last, what the PC does about it)."""
+    return part.lost
 
 
-def faults_of(part: Any) -> Sequence[Any]:
-    """The boards lost and rejoined so far (``part.faults``), in order; empty for a part
-    that does not tell."""
-    faults = getattr(part, "faults", None)
-    return faults if isinstance(faults, list) else ()
+def faults_of(part: RemoteLoop) -> Sequence[BoardFault]:
+    """The boards lost and rejoined so far (``part.faults``), in order."""
+    return part.faults
 
 
 # ---------------------------------------------------------------------- the loop's side
@@ -326,10 +336,10 @@ class LoopHandover(Snapshots):
         last one added)."""
         self._events: Tail[BoardEvent] = Tail()
         self._writes: Tail[WriteEvent] = Tail()
-        self._faults: Tail[Any] = Tail()
+        self._faults: Tail[BoardFault] = Tail()
         self.new_events: tuple[BoardEvent, ...] = ()
         self.new_writes: tuple[WriteEvent, ...] = ()
-        self.new_faults: tuple[Any, ...] = ()
+        self.new_faults: tuple[BoardFault, ...] = ()
         """What the last snapshot added (for a consumer that forwards only that)."""
         part.each_cycle.append(self.on_cycle)
 
