@@ -33,6 +33,7 @@ from ucom_tools.ops.remote_feed import LoopFeed, Unpacker, pack
 from ucom_tools.ops.remote_mirror import Mirror
 from ucom_tools.ops.remote_publish import LoopSnapshot
 from ucom_tools.protocol.dispatch import ERROR, EXTENDED, REMOTE, SENT, SinkEntry
+from ucom_tools.wire import mca
 
 READY_S = 30.0
 """How long the loop's process waits for this one to open the recording and the network."""
@@ -118,6 +119,9 @@ class Consumers:
         self.recorder: Any = None
         self.share: Any = None
         self.view: Any = None
+        self._stale: dict[tuple[str, int], tuple[float, bool]] = {}
+        """(bus, board) -> since when it is lost (the frames' time base) and whether it
+        rejoined, while its values in the recording are stale."""
 
     def open(self) -> dict[str, Any]:
         """The recording's files and the Zenoh session; what the loop's process prints."""
@@ -130,6 +134,7 @@ class Consumers:
             self.mirror.frame_sinks.append(self._frames)
             self.mirror.change_sinks.append(self._change)
             self.mirror.fault_sinks.append(self._fault)
+            self.mirror.snapshot_sinks.append(self._fresh)
         if c.get("zenoh"):
             from ucom_tools.net.share import RobotShare
 
@@ -153,9 +158,41 @@ class Consumers:
                             value)
 
     def _fault(self, fault: BoardFault, snap: LoopSnapshot) -> None:
-        """A board lost: its values in the recording are stale from then on."""
+        """A board lost: its values in the recording are stale from then on (until
+        :meth:`_fresh` sees them again)."""
+        board = (fault.bus, fault.board)
         if fault.event == "lost":
-            self.recorder.lost(snap.on_stamps(fault.time), fault.bus, fault.board)
+            at = snap.on_stamps(fault.time)
+            self.recorder.lost(at, *board)
+            self._stale[board] = (at, False)
+        elif board in self._stale:
+            self._stale[board] = (self._stale[board][0], True)
+
+    def _fresh(self, snap: LoopSnapshot) -> None:
+        """The values of a board that was lost, once they are fresh again: its sensor
+        values from frames that came after the loss, the values the PC sends it and
+        wrote once it rejoined.  The loop reports a value only when it changed: one
+        that came back as it was would stay stale in the recording otherwise."""
+        if not self._stale or self.mirror.image is None:
+            return
+        values = self.mirror.image.decode(snap.values)
+        for board, (since, rejoined) in list(self._stale.items()):
+            waiting = False
+            for ref in self.mirror.image.refs:
+                if (ref.bus, ref.board) != board:
+                    continue
+                got = values.get(ref)
+                if got is None:
+                    continue
+                t, value = got
+                if (ref.kind is mca.Kind.SO and t <= since) or (
+                        ref.kind is not mca.Kind.SO and not rejoined):
+                    waiting = True
+                    continue
+                self.recorder.fresh(max(t, since), ref.bus, ref.board, ref.prefix,
+                                    ref.unique, ref.kind.name, value)
+            if not waiting:
+                del self._stale[board]
 
     def run(self) -> None:
         """Until the run ends: the live view on the terminal (its quit ends the run), or

@@ -235,11 +235,13 @@ class LoopFeed:
     :meth:`send_image` once the boards run; :meth:`end` after the boards' stop."""
 
     def __init__(self, part: Any, out_fd: int, in_fd: int, *, frames: bool,
-                 rate_hz: float) -> None:
+                 rate_hz: float, wait: bool | None = None) -> None:
         self.part = part
         self.out_fd, self.in_fd = out_fd, in_fd
         self.frames_wanted = frames
-        self.virtual = bool(part.virtual)
+        self.wait = bool(part.virtual) if wait is None else wait
+        """Whether the loop waits for the consumers (in virtual time: nothing waits for
+        the wall clock there, and nothing is lost); on the wall clock it never does."""
         self.handover = LoopHandover.of(part, rate_hz)
         self._wire: WireSnapshots | None = None
         self._pending = bytearray()
@@ -264,7 +266,7 @@ class LoopFeed:
         self.stats: dict[str, Any] = {}
         self._waiting: dict[str, tuple[Any, ...]] = {}
         self._on_values: Callable[[float, EdgeRef, Value], None] | None = None
-        if not self.virtual:
+        if not self.wait:
             os.set_blocking(out_fd, False)
             with contextlib.suppress(OSError, AttributeError):
                 fcntl.fcntl(out_fd, fcntl.F_SETPIPE_SZ, PIPE_SIZE)
@@ -353,10 +355,9 @@ class LoopFeed:
         if self.gone is not None:
             return
         data = pack(message)
-        if self.virtual:  # nothing waits for the wall: the loop waits for the consumers
+        if self.wait:  # nothing waits for the wall: the loop waits for the consumers
             try:
-                os.write(self.out_fd, data) if len(data) < 65536 else _write_all(
-                    self.out_fd, data)
+                _write_all(self.out_fd, data)
             except OSError as err:
                 self.gone = f"the consumers' process is gone ({err.strerror or err})"
             return

@@ -52,6 +52,8 @@ class Mirror(Snapshots):
         self.status_sinks: list[StatusSink] = []
         self.fault_sinks: list[FaultSink] = []
         """Called with each board lost or rejoined, and the snapshot that brought it."""
+        self.snapshot_sinks: list[Callable[[LoopSnapshot], None]] = []
+        """Called with each snapshot, on the reader's thread (before the doorbells)."""
         self.error: BaseException | None = None
         """What stopped the reader (a consumer's callback that failed), if anything."""
         self._write_lock = threading.Lock()
@@ -133,6 +135,8 @@ class Mirror(Snapshots):
                 for fault in new_faults:
                     for fault_sink in self.fault_sinks:
                         fault_sink(fault, rebuilt)
+                for snapshot_sink in self.snapshot_sinks:
+                    snapshot_sink(rebuilt)
                 self._deliver(rebuilt)
         elif kind == "image":
             self.image = message[1]

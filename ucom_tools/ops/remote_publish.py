@@ -41,6 +41,10 @@ from ucom_tools.ops.remote_faults import BoardFault, LostBoard
 from ucom_tools.ops.remote_loop import RECENT_SAMPLES, RemoteLoop
 from ucom_tools.ops.remote_report import BoardEvent, RawSnapshot, WriteEvent
 
+READ_LEASE_S: Final = 1.0
+"""A hand-over goes on publishing this long (of the loop's time) after a consumer last
+read :attr:`~Snapshots.latest`, then stops until the next read: a reader now and then
+always gets one at most a publishing period old, nobody reading costs nothing."""
 RATE_HZ: Final = 20.0
 """The rate a hand-over publishes at unless a consumer asks for more (a terminal view
 refreshes ten times a second; the Zenoh share asks for its ``--publish-rate``)."""
@@ -277,14 +281,14 @@ class Snapshots:
         self.period_s = period_s
         """The loop's period."""
         self._latest: LoopSnapshot | None = None
-        self._read = True
-        """Someone read :attr:`latest` since the last snapshot (or will: the first)."""
+        self._reads = 1
+        """How often :attr:`latest` was read (the loop notes when it changes)."""
         self._bells: tuple[Doorbell, ...] = ()
 
     @property
     def latest(self) -> LoopSnapshot | None:
         """The newest snapshot (None before the first)."""
-        self._read = True
+        self._reads += 1
         return self._latest
 
     def subscribe(self, rate_hz: float | None = None,
@@ -300,7 +304,6 @@ class Snapshots:
 
     def _deliver(self, snap: LoopSnapshot) -> None:
         """``snap`` is the newest from now on; the doorbells ring."""
-        self._read = False
         self._latest = snap
         tolerance = self.period_s / 2
         for bell in self._bells:
@@ -323,6 +326,9 @@ class LoopHandover(Snapshots):
         self.rate_hz = 0.0
         self._every = 1
         self._countdown = 1
+        self._reads_seen = 0
+        self._lease = 0
+        """Publications left before the hand-over stops for want of readers."""
         self.want(rate_hz)
         self.taken: list[Callable[[LoopSnapshot], None]] = []
         """Called with every snapshot on the thread that took it (the loop's): a consumer
@@ -386,7 +392,11 @@ class LoopHandover(Snapshots):
         if self._countdown > 0:
             return
         self._countdown = self._every
-        if self._read or self._bells or self.taken:
+        if self._reads != self._reads_seen:
+            self._reads_seen = self._reads
+            self._lease = max(1, round(READ_LEASE_S * self.rate_hz))
+        if self._lease > 0 or self._bells or self.taken:
+            self._lease -= 1
             self.publish()
 
     def publish(self) -> LoopSnapshot:
@@ -443,5 +453,5 @@ class LoopHandover(Snapshots):
 _HANDOVERS: weakref.WeakKeyDictionary[RemoteLoop, LoopHandover] = weakref.WeakKeyDictionary()
 """The hand-over of each part that has one (:meth:`LoopHandover.of`)."""
 
-__all__ = ["KEPT", "RATE_HZ", "Doorbell", "LateChunks", "LoopFigures", "LoopHandover",
+__all__ = ["KEPT", "RATE_HZ", "READ_LEASE_S", "Doorbell", "LateChunks", "LoopFigures", "LoopHandover",
            "LoopSnapshot", "Tail", "faults_of", "lost_of"]

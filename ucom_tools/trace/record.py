@@ -203,6 +203,16 @@ class RunRecorder(can.Listener):
             self._last[key] = (number, prefix, kind_, text)
             return True
 
+    def fresh(self, timestamp: float, bus: str, board: int, prefix: str, name: str,
+              kind: str | Enum, value: int | float | Decimal) -> bool:
+        """:meth:`value` of an edge only where it is stale (its board was lost since its
+        last row): its value is current again, even where the same as before."""
+        with self._lock:
+            last = self._last.get((bus, int(board), name))
+            if last is None or last[0] is not None:
+                return False
+        return self.value(timestamp, bus, board, prefix, name, kind, value)
+
     def lost(self, timestamp: float, bus: str, board: int) -> int:
         """Board ``board`` of ``bus`` was lost at ``timestamp``: a row with ``valid`` 0 and
         its last value for each of its edges recorded so far (its values are stale from
