@@ -45,7 +45,6 @@ import os
 import pty
 import re
 import select
-import signal
 import statistics
 import struct
 import subprocess
@@ -156,8 +155,16 @@ class Terminal:
             os.close(self.master)
 
 
+REALTIME: list[str] = []
+"""``--realtime`` where the benchmark was asked to."""
+
+
 def connection(port: int) -> list[str]:
-    return ["armar3", "-i", "socketcand", "--host", "127.0.0.1", "--port", str(port)]
+    """The robot, and ``--on-fault hold``: a served fleet that a busy machine holds up
+    for more than 5 ms makes its boards silent that long, which the loop counts as lost
+    (``ucom-protocol(7)``, Faults); under the default policy that would end the run."""
+    return ["armar3", "-i", "socketcand", "--host", "127.0.0.1", "--port", str(port),
+            "--on-fault", "hold", *REALTIME]
 
 
 def sets() -> list[str]:
@@ -194,10 +201,9 @@ def run_with(port: int, seconds: float, tmp: Path) -> dict[str, Any]:
             while proc.poll() is None and time.monotonic() < deadline:
                 time.sleep(0.05)  # the benchmark's own pace: nothing here waits on this
             if proc.poll() is None:
-                with contextlib.suppress(Exception):
-                    with RobotClient.connect(endpoint, timeout=5) as client:
-                        got = client.read(["Right Eye Joint Sensor"], timeout=5)
-                        zenoh_ok = bool(got)
+                with contextlib.suppress(Exception), RobotClient.connect(
+                        endpoint, timeout=5) as client:
+                    zenoh_ok = bool(client.read(["Right Eye Joint Sensor"], timeout=5))
             t1 = time.monotonic()
             if proc.poll() is None:
                 term.type("q\r")
@@ -230,10 +236,12 @@ def figures_of_text(text: str, code: int) -> dict[str, Any]:
     p99 = _P99.findall(text)
     missed = _MISSED.findall(text)
     stopped = "its watchdog stopped every motor" in text
-    failed = "Traceback" in text or code not in (0, 1) or (code == 1 and not stopped)
+    lost = len(re.findall(r" lost at \d", text))
+    failed = "Traceback" in text or code not in (0, 1) or (
+        code == 1 and not stopped and not lost)
     return {"p99_ms": float(p99[-1][1]) if p99 else None,
             "missed": int(missed[-1][1]) if missed else None,
-            "stopped": stopped, "exception": bool(failed), "exit": code,
+            "stopped": stopped, "exception": bool(failed), "exit": code, "lost": lost,
             "tail": "" if not failed and not stopped else text[-1500:]}
 
 
@@ -246,13 +254,155 @@ def run_without(port: int, seconds: float) -> dict[str, Any]:
         doc = json.loads(proc.stdout)
     except ValueError:
         return {"p99_ms": None, "missed": None, "stopped": False, "exception": True,
-                "exit": proc.returncode, "tail": (proc.stdout + proc.stderr)[-1500:]}
+                "exit": proc.returncode, "lost": 0,
+                "tail": (proc.stdout + proc.stderr)[-1500:]}
     stopped = any(e.get("stopped_motors") for e in doc.get("events", []))
+    lost = sum(f.get("event") == "lost" for f in doc.get("faults", []))
     run = doc.get("run", {})
     return {"p99_ms": run.get("jitter_ms", {}).get("p99"), "missed": run.get("missed"),
             "stopped": stopped, "exception": proc.returncode not in (0, 1)
-            or (proc.returncode == 1 and not stopped), "exit": proc.returncode,
-            "tail": "" if proc.returncode == 0 else proc.stderr[-1500:]}
+            or (proc.returncode == 1 and not stopped and not lost), "exit": proc.returncode,
+            "lost": lost, "tail": "" if proc.returncode == 0 else proc.stderr[-1500:]}
+
+
+# ---------------------------------------------------------------------- what the loop pays
+def costs(cycles: int = 3000) -> dict[str, float]:
+    """In process, ARMAR-III in virtual time: what the hand-over and the feed to the
+    consumers' process cost the loop's thread (its each_cycle hooks timed one by one)."""
+    from tests.runtime_rig import programmed, robot_of
+    from ucom_tools.config.attrtree.robot import bind
+    from ucom_tools.ops.remote import RemotePart
+    from ucom_tools.ops.remote_feed import LoopFeed
+    from ucom_tools.ops.remote_publish import LoopHandover
+
+    fleet = programmed("armar3")
+    robot = robot_of(fleet)
+    part = RemotePart(robot, bind(robot.topology))
+    out: dict[str, float] = {}
+    try:
+        part.start()
+        handover = LoopHandover.of(part, 100.0)
+        part.run(1.5)  # nobody reads: its lease runs out
+        t = time.perf_counter()
+        for _ in range(100_000):
+            handover.on_cycle()
+        out["handover_idle_ns"] = round((time.perf_counter() - t) / 100_000 * 1e9)
+        t = time.perf_counter()
+        for _ in range(1000):
+            handover.publish()
+        out["snapshot_us"] = round((time.perf_counter() - t) / 1000 * 1e6, 1)
+        # the feed: frames of every bus, value changes, snapshots at 100 Hz, into a pipe
+        # a thread drains (as the consumers' process does)
+        r, w = os.pipe()
+        back_r, back_w = os.pipe()
+        drained = threading.Thread(target=lambda: [None for _ in iter(
+            lambda: os.read(r, 1 << 16), b"")], daemon=True)
+        drained.start()
+        feed = LoopFeed(part, w, back_r, frames=True, rate_hz=100.0, wait=False)
+        feed.attach_frames()
+        feed.attach()
+        feed.send_image()
+        spent = [0.0]
+
+        def timed(hook: Any) -> Any:
+            def call() -> None:
+                t0 = time.perf_counter()
+                hook()
+                spent[0] += time.perf_counter() - t0
+            return call
+        part.each_cycle[:] = [timed(h) for h in part.each_cycle]
+        for _ in range(cycles):
+            part.cycle()
+        frames = sum(h.link.dispatcher.received + h.link.dispatcher.sent
+                     for h in part.robot.buses.values())
+        out["feed_us_per_cycle"] = round(spent[0] / cycles * 1e6, 1)
+        out["frames_per_cycle"] = round(frames / max(1, part.stats.cycles), 1)
+        out["lost"] = feed.lost
+        for fd in (w, back_r, back_w):
+            os.close(fd)
+    finally:
+        part.close()
+        robot.close()
+    return out
+
+
+# ---------------------------------------------------------------------- the decision
+_LOOP = """
+import sys, time
+sys.path.insert(0, sys.argv[1])
+from ucom_tools.ops.realtime import RealtimeScheduling, ShortSlice, precise_sleep
+realtime, seconds, mode = sys.argv[2] == "1", float(sys.argv[3]), sys.argv[4]
+
+def work(stop):  # a consumer: 30 % of a core of Python work, in 3 ms stretches
+    while not stop.is_set():
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < 0.003:
+            sum(i * i for i in range(200))
+        time.sleep(0.007)
+
+if __name__ == "__main__":
+    import multiprocessing, threading
+    stop = threading.Event() if mode == "thread" else multiprocessing.Event()
+    worker = (threading.Thread(target=work, args=(stop,), daemon=True) if mode == "thread"
+              else multiprocessing.Process(target=work, args=(stop,), daemon=True)
+              if mode == "process" else None)
+    if worker is not None:
+        worker.start()
+    sys.setswitchinterval(1e-4)  # as the loop of ucom remote run
+    rt = RealtimeScheduling()
+    if realtime:
+        rt.enter()
+    if not rt.active:
+        ShortSlice().enter()
+    precise_sleep()
+    period = 1e-3
+    deadline = time.monotonic() + period
+    end = deadline + seconds
+    late, last, gap = [], time.monotonic(), 0.0
+    while deadline < end:
+        now = time.monotonic()
+        if deadline - now > 1e-4:
+            time.sleep(deadline - now - 1e-4)
+        while time.monotonic() < deadline:
+            pass
+        now = time.monotonic()
+        behind = now - deadline
+        if behind >= period:
+            deadline += (behind // period) * period
+            behind %= period
+        late.append(behind)
+        gap, last = max(gap, now - last), now
+        sum(i for i in range(100))  # a cycle's own work
+        deadline += period
+    stop.set()
+    late.sort()
+    print(late[int(0.99 * len(late))] * 1e3, gap * 1e3, rt.active)
+"""
+
+
+def decision(rounds: int, seconds: float) -> dict[str, Any]:
+    """A 1 kHz Python loop beside a consumer doing 30 % of a core of Python work: none, in
+    a thread of the loop's process, in a process of its own; under SCHED_FIFO where
+    permitted (``--realtime``), and at normal priority: lateness p99 (median of the
+    rounds) and the longest gap between two cycles (the worst)."""
+    out: dict[str, Any] = {}
+    for realtime in (True, False):
+        for mode in ("none", "thread", "process"):
+            p99s, gaps, active = [], [], False
+            for _ in range(rounds):
+                got = subprocess.run([sys.executable, "-c", _LOOP, str(ROOT),
+                                      "1" if realtime else "0", str(seconds), mode],
+                                     capture_output=True, text=True, timeout=seconds + 60)
+                p99, gap, rt = got.stdout.split()
+                p99s.append(float(p99))
+                gaps.append(float(gap))
+                active = rt == "True"
+            if realtime and not active:
+                break  # SCHED_FIFO is not permitted here
+            key = f"{'fifo' if realtime else 'normal'}_{mode}"
+            out[f"{key}_p99_ms"] = round(statistics.median(p99s), 3)
+            out[f"{key}_gap_ms"] = round(max(gaps), 1)
+    return out
 
 
 def median(values: list[float]) -> float | None:
@@ -265,12 +415,24 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=10.0)
     ap.add_argument("--hogs", type=int, default=2,
                     help="CPU-bound processes beside the runs (default 2)")
+    ap.add_argument("--realtime", action="store_true",
+                    help="both runs with --realtime (the loop under SCHED_FIFO)")
+    ap.add_argument("--decision-rounds", type=int, default=3,
+                    help="rounds of the thread-or-process measurement (0: none)")
+    ap.add_argument("--skip-costs", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
+    figures_costs: dict[str, Any] = {}
+    if args.realtime:
+        REALTIME.append("--realtime")
     with_runs: list[dict[str, Any]] = []
     without_runs: list[dict[str, Any]] = []
+    if not args.skip_costs:
+        figures_costs = costs()
     with tempfile.TemporaryDirectory() as tmp, served_armar3("auto") as (_, port), \
             hogs(args.hogs):
+        figures_decision = decision(args.decision_rounds, 3.0) if args.decision_rounds \
+            else {}
         for k in range(args.runs):
             with_runs.append(run_with(port, args.seconds, Path(tmp)))
             without_runs.append(run_without(port, args.seconds))
@@ -278,9 +440,11 @@ def main() -> int:
                 w, o = with_runs[-1], without_runs[-1]
                 print(f"  run {k + 1:2}: with p99 {w['p99_ms']} ms"
                       f"{' WATCHDOG' if w['stopped'] else ''}"
+                      f"{' LOST ' + str(w['lost']) if w['lost'] else ''}"
                       f"{' EXCEPTION' if w['exception'] else ''}, {w['renders_per_s']} "
                       f"screens/s, {w['rows']} rows, zenoh {'ok' if w['zenoh'] else 'NO'}"
                       f"; without p99 {o['p99_ms']} ms{' WATCHDOG' if o['stopped'] else ''}"
+                      f"{' LOST ' + str(o['lost']) if o['lost'] else ''}"
                       f"{' EXCEPTION' if o['exception'] else ''}", flush=True)
         load = os.getloadavg()[0]
     p_with = [r["p99_ms"] for r in with_runs if r["p99_ms"] is not None]
@@ -288,6 +452,7 @@ def main() -> int:
     m_with, m_without = median(p_with), median(p_without)
     figures: dict[str, Any] = {
         "runs": args.runs, "seconds": args.seconds, "hogs": args.hogs,
+        "realtime": args.realtime,
         "run_time": compiled.status().reason,
         "watchdog_stops": sum(r["stopped"] for r in with_runs),
         "watchdog_stops_without": sum(r["stopped"] for r in without_runs),
@@ -299,10 +464,13 @@ def main() -> int:
         "worst_p99_ms_without": max(p_without, default=None),
         "missed_with": sum(r["missed"] or 0 for r in with_runs),
         "missed_without": sum(r["missed"] or 0 for r in without_runs),
+        "boards_lost_with": sum(r["lost"] for r in with_runs),
+        "boards_lost_without": sum(r["lost"] for r in without_runs),
         "renders_per_s": median([r["renders_per_s"] for r in with_runs]),
         "recorded_rows": median([r["rows"] for r in with_runs]),
         "zenoh_reads": sum(r["zenoh"] for r in with_runs),
         "load_average": round(load, 2),
+        "costs": figures_costs, "decision": figures_decision,
         "failures": [r["tail"] for r in with_runs + without_runs if r["tail"]][:3],
     }
     targets = {
@@ -328,10 +496,27 @@ def main() -> int:
           f"{figures['missed_without']} cycles")
     print(f"  watchdog stops {figures['watchdog_stops']} with, "
           f"{figures['watchdog_stops_without']} without; exceptions {figures['exceptions']}"
-          f" with, {figures['exceptions_without']} without")
+          f" with, {figures['exceptions_without']} without; boards lost (the served fleet "
+          f"held up) {figures['boards_lost_with']} with, {figures['boards_lost_without']} "
+          "without")
     print(f"  live view {figures['renders_per_s']} screens/s, {figures['recorded_rows']} "
           f"value rows recorded, Zenoh answered in {figures['zenoh_reads']} of "
           f"{args.runs} runs; load average {figures['load_average']}")
+    c = figures["costs"]
+    if c:
+        print(f"  the loop pays: {c['handover_idle_ns']} ns a cycle for a hand-over nobody "
+              f"reads, {c['snapshot_us']} us a snapshot; the feed to the consumers' process "
+              f"{c['feed_us_per_cycle']} us a cycle ({c['frames_per_cycle']} frames a cycle, "
+              "100 snapshots a second)")
+    d = figures["decision"]
+    if d:
+        for prio in ("fifo", "normal"):
+            if f"{prio}_none_p99_ms" in d:
+                print(f"  a 1 kHz loop ({'SCHED_FIFO' if prio == 'fifo' else 'normal'}) "
+                      "beside 30 % of a core of Python work: "
+                      + ", ".join(f"{m} p99 {d[f'{prio}_{m}_p99_ms']} ms (gap "
+                                  f"{d[f'{prio}_{m}_gap_ms']} ms)"
+                                  for m in ("none", "thread", "process")))
     for tail in figures["failures"]:
         print("  --- a failed run's end:\n" + tail)
     for name, ok in targets.items():

@@ -225,11 +225,12 @@ class Consumers:
                            f"--zenoh: {err}", None)
         if self.recorder is not None:
             try:
-                if self.mirror.lost_bytes:
+                if self.mirror.lost:
                     self.recorder.discard()
-                    return 5, (f"--record: {self.recorder.path}: the loop's process could "
-                               f"not hand over {self.mirror.lost_bytes} bytes of frames "
-                               "(this machine did not keep up); nothing was kept"), None
+                    return 5, (f"--record: {self.recorder.path}: {self.mirror.lost} frames "
+                               "and value changes could not be handed over to the "
+                               "recording (this machine did not keep up with it); nothing "
+                               "was kept"), None
                 if self.mirror.image is None:
                     self.recorder.discard()
                 else:

@@ -26,9 +26,10 @@ The loop's thread does all of this in :meth:`LoopFeed.on_cycle` (``each_cycle``)
 takes what the buses' dispatchers collected, sends a message every
 :data:`FLUSH_EVERY_S` or with each snapshot, reads what the consumers asked every few
 cycles and applies it (as the in-process share does).  It never waits: the pipe is
-non-blocking, what it does not take now waits in a buffer, and past
-:data:`PENDING_LIMIT` what cannot be sent is counted as lost (a recording that lost
-frames fails rather than keep a gap).  In virtual time the loop waits for the
+non-blocking, what it does not take now waits (in the messages as they were packed, at
+most :data:`WRITE_BUDGET` handed over a flush), and past :data:`PENDING_LIMIT` the frames
+and value changes are counted as lost (a recording that lost frames fails rather than
+keep a gap).  In virtual time the loop waits for the
 consumers instead (nothing waits for the wall clock there, and nothing is lost).
 The consumers' side is :mod:`ucom_tools.ops.remote_mirror`.
 """
@@ -42,6 +43,7 @@ import pickle
 import select
 import struct
 import time
+from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
@@ -66,7 +68,10 @@ REQUESTS_EVERY_S: Final = 0.005
 PIPE_SIZE: Final = 1 << 20
 """The pipe's buffer asked for (Linux; about a second of ARMAR-III's frames)."""
 PENDING_LIMIT: Final = 16 << 20
-"""What may wait on the loop's side when the consumers do not keep up; more is lost."""
+"""What may wait on the loop's side when the consumers do not keep up; beyond, the
+frames and value changes are lost (the rest, small, still goes)."""
+WRITE_BUDGET: Final = 256 << 10
+"""The most one flush hands to the pipe (what waits beyond goes with the next)."""
 STATUS_PERIOD_S: Final = 1.0
 """Each board's Status report is asked for about this often, the boards in turn."""
 _HEADER: Final = struct.Struct(">I")
@@ -199,7 +204,8 @@ def is_status(msg: can.Message) -> bool:
 class WireSnapshots:
     """A snapshot as it goes over (the loop's side): the values' raw state with the
     PAR values by number, and of the figures, events, writes and faults only what the
-    snapshot added; the PAR values and the lost boards only when they changed."""
+    snapshot added; the PAR values and the lost boards only when they changed.  A
+    ``full`` one carries all of it (after snapshots that could not be sent)."""
 
     def __init__(self, image: PartImage, handover: LoopHandover) -> None:
         self.handover = handover
@@ -207,25 +213,28 @@ class WireSnapshots:
         self._par: dict[Any, int] | None = None
         self._lost: Any = None
 
-    def wire(self, snap: LoopSnapshot) -> tuple[Any, ...]:
+    def wire(self, snap: LoopSnapshot, *, full: bool = False) -> tuple[Any, ...]:
         v = snap.values
         par = None
-        if v.par != self._par:
+        if full or v.par != self._par:
             self._par = v.par
             index = self._par_index
             par = {index[ref]: raw for ref, raw in v.par.items() if ref in index}
         lost = None
-        if snap.lost != self._lost:
+        if full or snap.lost != self._lost:
             self._lost = snap.lost
             lost = dict(snap.lost)
         f = snap.figures
         h = self.handover
-        return (snap.number, snap.clock, snap.stamp, snap.taken, snap.running, v.clock,
-                v.frames, v.stamps, v.ci, par,
+        late = f.late if full else (h.new_late,)
+        events, writes, faults = ((snap.events, snap.writes, snap.faults) if full
+                                  else (h.new_events, h.new_writes, h.new_faults))
+        return (snap.number, full, snap.clock, snap.stamp, snap.taken, snap.running,
+                v.clock, v.frames, v.stamps, v.ci, par,
                 (f.period_s, f.cycles, f.missed, f.longest_gap_s, f.started_clock,
-                 f.ended_clock, h.new_late),
-                h.new_events, snap.events_total, h.new_writes, snap.writes_total,
-                h.new_faults, snap.faults_total, lost, dict(snap.traffic))
+                 f.ended_clock, late),
+                events, snap.events_total, writes, snap.writes_total, faults,
+                snap.faults_total, lost, dict(snap.traffic))
 
 
 # ---------------------------------------------------------------------- the loop's side
@@ -244,14 +253,19 @@ class LoopFeed:
         the wall clock there, and nothing is lost); on the wall clock it never does."""
         self.handover = LoopHandover.of(part, rate_hz)
         self._wire: WireSnapshots | None = None
-        self._pending = bytearray()
-        self.lost_bytes = 0
-        """Bytes the consumers could not be sent (they did not keep up)."""
+        self._pending: deque[memoryview] = deque()
+        """Messages (or the rest of one) the pipe did not take yet, in order."""
+        self._pending_bytes = 0
+        self.lost = 0
+        """Frames and value changes the consumers could not be sent (they did not keep
+        up: more than :data:`PENDING_LIMIT` waited)."""
         self._unpacker = Unpacker()
         self._changes: list[tuple[float, str, int, int, int, Value]] = []
         self._status: list[tuple[str, int, bytes, float]] = []
         self._answers: list[tuple[Any, ...]] = []
-        self._snap: tuple[Any, ...] | None = None
+        self._snap: LoopSnapshot | None = None
+        self._resync = False
+        """Snapshots could not be sent: the next goes whole."""
         self._flush_every = max(1, round(FLUSH_EVERY_S / part.period_s))
         self._requests_every = max(1, round(REQUESTS_EVERY_S / part.period_s))
         self._flush_in = self._flush_every
@@ -305,7 +319,9 @@ class LoopFeed:
 
     def _taken(self, snap: LoopSnapshot) -> None:
         if self._wire is not None:
-            self._snap = self._wire.wire(snap)
+            if self._snap is not None:
+                self._resync = True  # one not sent: the next goes whole
+            self._snap = snap
             self._flush_in = 0
 
     def _status_frame(self, bus: str) -> Callable[[can.Message], None]:
@@ -347,8 +363,20 @@ class LoopFeed:
                     frames[name] = taken
         if not (frames or self._changes or self._status or self._answers or self._snap):
             return
-        message = ("data", frames, self._changes, self._status, self._answers, self._snap)
-        self._changes, self._status, self._answers, self._snap = [], [], [], None
+        snap = None
+        if self._pending_bytes > PENDING_LIMIT:  # they do not keep up: lost but the
+            self.lost += len(self._changes) + sum(  # answers (the next snapshot whole)
+                len(f) for f in (frames or {}).values())
+            frames, self._changes, self._status = None, [], []
+            self._resync = self._resync or self._snap is not None
+        elif self._snap is not None and self._wire is not None:
+            snap = self._wire.wire(self._snap, full=self._resync)
+            self._resync = False
+        self._snap = None
+        if not (frames or self._changes or self._status or self._answers or snap):
+            return
+        message = ("data", frames, self._changes, self._status, self._answers, snap)
+        self._changes, self._status, self._answers = [], [], []
         self._send(message)
 
     def _send(self, message: object) -> None:
@@ -362,22 +390,23 @@ class LoopFeed:
                 self.gone = f"the consumers' process is gone ({err.strerror or err})"
             return
         pending = self._pending
-        if pending:
-            if len(pending) + len(data) > PENDING_LIMIT:
-                self.lost_bytes += len(data)
-                return
-            pending += data
-            data = bytes(pending)
-            pending.clear()
+        pending.append(memoryview(data))
+        self._pending_bytes += len(data)
+        budget = WRITE_BUDGET
         try:
-            sent = os.write(self.out_fd, data)
+            while pending and budget > 0:
+                chunk = pending[0]
+                sent = os.write(self.out_fd, chunk[:budget])
+                budget -= sent
+                self._pending_bytes -= sent
+                if sent < len(chunk):
+                    pending[0] = chunk[sent:]
+                    break
+                pending.popleft()
         except BlockingIOError:
-            sent = 0
+            pass  # the pipe is full: the rest waits for the next flush
         except OSError as err:
             self.gone = f"the consumers' process is gone ({err.strerror or err})"
-            return
-        if sent < len(data):
-            pending += data[sent:]
 
     # ------------------------------------------------------------------ requests
     def _read_requests(self) -> None:
@@ -445,17 +474,18 @@ class LoopFeed:
             self.handover.taken.remove(self._taken)
         final = self.handover.final()
         if final is not None and self._wire is not None:
-            self._snap = self._wire.wire(final)
+            self._snap = final
+            self._resync = True  # the last one whole
         self.flush()
         for h in part.robot.buses.values():
             h.link.dispatcher.sink = None
         if self.gone is None:
             os.set_blocking(self.out_fd, True)
             try:
-                if self._pending:
-                    _write_all(self.out_fd, bytes(self._pending))
-                    self._pending.clear()
-                _write_all(self.out_fd, pack(("end", self.lost_bytes)))
+                while self._pending:
+                    _write_all(self.out_fd, self._pending.popleft())
+                self._pending_bytes = 0
+                _write_all(self.out_fd, pack(("end", self.lost)))
             except OSError as err:
                 self.gone = f"the consumers' process is gone ({err.strerror or err})"
 
@@ -495,7 +525,7 @@ class LoopFeed:
                     self._waiting[message[0]] = message
 
 
-def _write_all(fd: int, data: bytes) -> None:
+def _write_all(fd: int, data: bytes | memoryview) -> None:
     view = memoryview(data)
     while view:
         n = os.write(fd, view)

@@ -45,8 +45,9 @@ class Mirror(Snapshots):
         self.image: PartImage | None = None
         self._image_ready = threading.Event()
         self.ended = threading.Event()
-        self.lost_bytes = 0
-        """What the loop's side could not send (its consumers did not keep up)."""
+        self.lost = 0
+        """The frames and value changes the loop's side could not send (its consumers did
+        not keep up)."""
         self.frame_sinks: list[FrameSink] = []
         self.change_sinks: list[ChangeSink] = []
         self.status_sinks: list[StatusSink] = []
@@ -145,25 +146,37 @@ class Mirror(Snapshots):
                             for r in self.image.refs}
             self._image_ready.set()
         elif kind == "end":
-            self.lost_bytes = int(message[1])
+            self.lost = int(message[1])
             return False
         return True
 
     def _rebuild(self, wire: tuple[Any, ...]) -> tuple[LoopSnapshot, tuple[BoardFault, ...]]:
-        """The snapshot the loop took, and the faults it added."""
-        (number, clock, stamp, taken, running, v_clock, frames, stamps, ci, par,
-         figures, new_events, events_total, new_writes, writes_total, new_faults,
-         faults_total, lost, traffic) = wire
+        """The snapshot the loop took, and the faults it added (a ``full`` one, sent after
+        snapshots that were lost on the way, carries everything, not what it added)."""
+        (number, full, clock, stamp, taken, running, v_clock, frames, stamps, ci, par,
+         figures, events, events_total, writes, writes_total, faults, faults_total, lost,
+         traffic) = wire
         if par is not None and self.image is not None:
             refs = self.image.refs
             self._par = {refs[i]: raw for i, raw in par.items()}
         if lost is not None:
             self._lost = lost
-        period_s, cycles, missed, gap, started, ended, new_late = figures
-        self._late.add(new_late)
-        self._events.add(new_events, events_total)
-        self._writes.add(new_writes, writes_total)
-        self._faults.add(new_faults, faults_total)
+        period_s, cycles, missed, gap, started, ended, late = figures
+        if full:
+            self._late.clear()
+            new_faults = tuple(faults[len(faults) - min(len(faults), max(
+                0, faults_total - self._faults.total)):])
+            for tail, items, total in ((self._events, events, events_total),
+                                       (self._writes, writes, writes_total),
+                                       (self._faults, faults, faults_total)):
+                tail.items, tail.total = tuple(items), total
+        else:
+            new_faults = tuple(faults)
+            self._events.add(events, events_total)
+            self._writes.add(writes, writes_total)
+            self._faults.add(faults, faults_total)
+        for chunk in late:
+            self._late.add(chunk)
         return LoopSnapshot(
             number, clock, stamp, taken, running,
             RawSnapshot(v_clock, frames, stamps, ci, self._par),

@@ -453,5 +453,5 @@ class LoopHandover(Snapshots):
 _HANDOVERS: weakref.WeakKeyDictionary[RemoteLoop, LoopHandover] = weakref.WeakKeyDictionary()
 """The hand-over of each part that has one (:meth:`LoopHandover.of`)."""
 
-__all__ = ["KEPT", "RATE_HZ", "READ_LEASE_S", "Doorbell", "LateChunks", "LoopFigures", "LoopHandover",
-           "LoopSnapshot", "Tail", "faults_of", "lost_of"]
+__all__ = ["KEPT", "RATE_HZ", "READ_LEASE_S", "Doorbell", "LateChunks", "LoopFigures",
+           "LoopHandover", "LoopSnapshot", "Tail", "faults_of", "lost_of"]
