@@ -89,8 +89,11 @@ def ucom(*args: str) -> list[str]:
 
 @contextlib.contextmanager
 def hogs(n: int) -> Iterator[list[subprocess.Popen[bytes]]]:
-    """``n`` CPU-bound processes for the block's length."""
-    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+    """``n`` CPU-bound processes for the block's length, each in a session of its own (as
+    another user's jobs are: Linux shares the processors between sessions first, then
+    between a session's processes)."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"],
+                              start_new_session=True) for _ in range(n)]
     try:
         yield procs
     finally:
@@ -248,7 +251,7 @@ def figures_of_text(text: str, code: int) -> dict[str, Any]:
 def run_without(port: int, seconds: float) -> dict[str, Any]:
     """The same command for ``seconds`` without view, share or record (--json)."""
     proc = subprocess.run(ucom("remote", "run", *connection(port), "--for", str(seconds),
-                               "--json", *sets()),
+                               "--json", *sets()), start_new_session=True,  # as the other
                           capture_output=True, text=True, timeout=START_S + seconds + END_S)
     try:
         doc = json.loads(proc.stdout)

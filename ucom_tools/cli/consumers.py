@@ -39,6 +39,10 @@ READY_S = 30.0
 """How long the loop's process waits for this one to open the recording and the network."""
 END_S = 30.0
 """How long it waits, after the boards' stop, for this one to commit the recording."""
+NICE = 10
+"""This process's niceness: where the machine is short of processor time, the loop and
+the buses get it first (the view renders less often, the recording lags behind and
+catches up)."""
 
 
 # ---------------------------------------------------------------------- the loop's side
@@ -256,6 +260,8 @@ def main(argv: list[str]) -> int:
     from and to the loop's process."""
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)  # the loop's process decides the end
+    with contextlib.suppress(OSError):
+        os.nice(NICE)
     in_fd, out_fd = int(argv[0]), int(argv[1])
     config = _read_config(in_fd)
     mirror = Mirror(in_fd, out_fd)
