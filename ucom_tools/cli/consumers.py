@@ -2,7 +2,8 @@
 process of their own, apart from the PC's loop (why: :mod:`ucom_tools.ops.remote_feed`).
 
 The loop's process starts this one (:class:`ConsumerProcess`, ``python -m
-ucom_tools.cli.consumers IN OUT``: two pipes) before it opens the buses, sends it what
+ucom_tools.cli.consumers IN OUT``: two pipes; a session of its own, niceness
+:data:`NICE`) before it opens the buses, sends it what
 to do (a config message) and goes on with its own start; this process opens the
 recording and the Zenoh session and answers "ready" (or why it cannot: the exit code and
 the message of the error, which the loop's process raises before anything is sent to the
@@ -42,7 +43,11 @@ END_S = 30.0
 NICE = 10
 """This process's niceness: where the machine is short of processor time, the loop and
 the buses get it first (the view renders less often, the recording lags behind and
-catches up)."""
+catches up).  It runs in a session of its own as well: where Linux shares the processors
+between sessions first (its autogroups), what it uses counts against its own session,
+not the loop's, which wakes at its deadlines as if it were alone (measured: with the
+consumers in the loop's session, the loop of ``benchmarks/consumers.py`` missed ten
+times the cycles it missed without them)."""
 
 
 # ---------------------------------------------------------------------- the loop's side
@@ -56,7 +61,8 @@ class ConsumerProcess:
         try:
             self.proc = subprocess.Popen(
                 [sys.executable, "-m", "ucom_tools.cli.consumers", str(to_child),
-                 str(from_child)], pass_fds=(to_child, from_child), close_fds=True)
+                 str(from_child)], pass_fds=(to_child, from_child), close_fds=True,
+                start_new_session=True)  # see NICE
         finally:
             os.close(to_child)
             os.close(from_child)

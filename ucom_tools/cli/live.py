@@ -3,12 +3,15 @@ their robot-wide names, refreshed ten times a second, the loop's figures and eac
 load, and a command line to set CI and PAR values while the boards run (with completion
 of the names).
 
-The PC's loop runs in a thread of its own (:meth:`RemotePart.cycle`), started before
-anything else of the view; the view reads nothing of the loop's but the snapshots it hands
-over (:class:`~ucom_tools.ops.remote_publish.LoopHandover`: values, figures, events, the
-lost boards), never its live structures.  A lost board's box says so and since when, its
-values dimmed with their age.  The boxes are plain text with ANSI styles, prompt_toolkit
-runs the screen and the input line.
+The view reads nothing of the loop's but the snapshots it hands over
+(:class:`~ucom_tools.ops.remote_publish.LoopSnapshot`: values, figures, events, the lost
+boards) and the part's structure (:class:`~ucom_tools.ops.remote_image.PartImage`);
+its writes are applied on the loop's thread and answered.  ``ucom remote run`` shows it
+from the consumers' process (:mod:`ucom_tools.cli.consumers`), the loop in another;
+:meth:`LiveView.local` shows it beside the loop in one process (the loop on a thread of
+the view's).  A lost board's box says so and for how long, its values dimmed with their
+age.  The boxes are plain text with ANSI styles, prompt_toolkit runs the screen and the
+input line.
 """
 
 from __future__ import annotations

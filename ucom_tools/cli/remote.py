@@ -354,7 +354,9 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
     Alive every cycle.  It first listens on every bus for the boards' watchdog time:
     where another host's exchange runs (MCA Alive or CI maps it did not send) nothing is
     sent and the exit code is 4, unless --force.  On a terminal a live view shows every
-    value; 'set NAME VALUE' changes a CI or PAR while running.  With --for it runs N
+    value; 'set NAME VALUE' changes a CI or PAR while running.  The live view, --record
+    and --zenoh run in a process of their own, apart from the loop, and read only the
+    snapshots it hands over: none of them can keep it from its deadline.  With --for it runs N
     seconds and prints what the joints did (--json: every edge's last value and the
     loop's figures).  Ctrl-C or the end stops every board (motors off); a PC that dies
     leaves them to their watchdog.  A board that is lost (it went silent: power,
@@ -441,7 +443,7 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                     before = part.traffic()
                     if seconds is not None:
                         part.run(seconds)
-                    elif feed is not None:
+                    elif view:
                         while True:  # until the view is quit, Ctrl-C, a stop
                             part.cycle()
                     else:
