@@ -25,10 +25,10 @@ from prompt_toolkit.application import Application
 from prompt_toolkit.buffer import Buffer
 from prompt_toolkit.completion import CompleteEvent, Completer, Completion
 from prompt_toolkit.document import Document
-from prompt_toolkit.formatted_text import ANSI, StyleAndTextTuples
+from prompt_toolkit.formatted_text import StyleAndTextTuples
 from prompt_toolkit.input import Input
 from prompt_toolkit.key_binding import KeyBindings, KeyPressEvent
-from prompt_toolkit.layout import HSplit, Layout, Window
+from prompt_toolkit.layout import Dimension, HSplit, Layout, Window
 from prompt_toolkit.layout.controls import BufferControl, FormattedTextControl
 from prompt_toolkit.output import Output
 
@@ -76,27 +76,38 @@ def parse_command(line: str) -> tuple[str, str] | None:
     return name.strip(), value.strip()
 
 
+Line = list[tuple[str, str]]
+"""A line of the view as prompt_toolkit's formatted text: (style, text) fragments."""
+BOLD, DIM, RED = "bold", "dim", "bold fg:ansired"
+_ESCAPES = {"": "", BOLD: _BOLD, DIM: _DIM, RED: _RED}
+
+
+def ansi(lines: list[Line]) -> str:
+    """The lines as text with ANSI styles."""
+    return "\n".join("".join(text if not style else _ESCAPES[style] + text + _RESET
+                               for style, text in line) for line in lines)
+
+
 def _box(title: str, rows: list[tuple[str, str, str]], *, stale: str = "",
-         ) -> tuple[int, list[str]]:
+         ) -> tuple[int, list[Line]]:
     """A rounded box titled ``title`` with a row per (name, value, unit): its width in
-    columns and its lines (ANSI styles do not count in the width).  ``stale``: the board
-    is lost; the title says so (e.g. 'LOST 1.2 s') and the values are dimmed."""
+    columns and its lines.  ``stale``: the board is lost; the title says so (e.g. 'LOST
+    1.2 s', red) and the values are dimmed."""
     names = [n if len(n) <= NAME_WIDTH else n[:NAME_WIDTH - 1] + "\u2026" for n, _, _ in rows]
     name_w = max((len(n) for n in names), default=0)
     value_w = max([VALUE_WIDTH, *(len(v) for _, v, _ in rows)])
     unit_w = max((len(u) for _, _, u in rows), default=0)
-    head = f"{title}  {stale}" if stale else title
-    inner = max(name_w + 1 + value_w + 1 + unit_w, len(head) + 2)
-    if len(head) + 2 > inner:  # pragma: no cover - max() above
-        head = head[:inner - 2]
-    shown = (head[:len(title)] + _RED + head[len(title):] + _RESET) if stale else head
-    lines = ["\u256d\u2500 " + shown + " " + "\u2500" * (inner - len(head) - 1) + "\u256e"]
+    lost = f"  {stale}" if stale else ""
+    inner = max(name_w + 1 + value_w + 1 + unit_w, len(title) + len(lost) + 2)
+    lines: list[Line] = [[("", "\u256d\u2500 " + title), (RED, lost),
+                          ("", " " + "\u2500" * (inner - len(title) - len(lost) - 1)
+                           + "\u256e")]]
     pad = inner - (name_w + 1 + value_w + 1 + unit_w)
-    value_style = _DIM if stale else ""
+    value_style = DIM if stale else ""
     for name, (_, value, unit) in zip(names, rows, strict=True):
-        lines.append(f"\u2502 {name:<{name_w}} {value_style}{value:>{value_w}}{_RESET} "
-                     f"{_DIM}{unit:<{unit_w}}{_RESET}{' ' * pad} \u2502")
-    lines.append("\u2570" + "\u2500" * (inner + 2) + "\u256f")
+        lines.append([("", f"\u2502 {name:<{name_w}} "), (value_style, f"{value:>{value_w}}"),
+                      ("", " "), (DIM, f"{unit:<{unit_w}}"), ("", f"{' ' * pad} \u2502")])
+    lines.append([("", "\u2570" + "\u2500" * (inner + 2) + "\u256f")])
     return inner + 4, lines
 
 
@@ -110,17 +121,21 @@ def age_text(seconds: float) -> str:
     return f"{seconds / 60:.0f} min"
 
 
-def _arrange(boxes: list[tuple[int, list[str]]], width: int) -> list[str]:
+def _arrange(boxes: list[tuple[int, list[Line]]], width: int) -> list[Line]:
     """Boxes side by side as many as fit in ``width``, then the next row of them."""
-    out: list[str] = []
-    row: list[tuple[int, list[str]]] = []
+    out: list[Line] = []
+    row: list[tuple[int, list[Line]]] = []
     used = 0
     for box in [*boxes, (0, [])]:
         if row and (not box[1] or used + 1 + box[0] > width):
             height = max(len(lines) for _, lines in row)
             for k in range(height):
-                out.append(" ".join(lines[k] if k < len(lines) else " " * w
-                                    for w, lines in row).rstrip())
+                line: Line = []
+                for i, (w, lines) in enumerate(row):
+                    if i:
+                        line.append(("", " "))
+                    line += lines[k] if k < len(lines) else [("", " " * w)]
+                out.append(line)
             row, used = [], 0
         if box[1]:
             row.append(box)
@@ -207,13 +222,18 @@ class LiveView:
 
     # ------------------------------------------------------------------ rendering
     def render(self, width: int) -> str:
-        """The view as text with ANSI styles: the loop's figures, then a box per board,
-        all from the latest snapshot the loop handed over.  Written out by hand, not with
-        rich's tables: at ten renders a second rich took most of a core for ARMAR-III's
-        220 values."""
+        """The view as text with ANSI styles (:meth:`lines`)."""
+        return ansi(self.lines(width)) + "\n"
+
+    def lines(self, width: int) -> list[Line]:
+        """The view, a line at a time: the loop's figures, then a box per board, all from
+        the latest snapshot the loop handed over.  Written out by hand as fragments of
+        prompt_toolkit's formatted text, a fragment per style: at ten renders a second
+        rich's tables took most of a core for ARMAR-III's 220 values, and text with ANSI
+        styles cost prompt_toolkit three times as much as the fragments."""
         snap = self.source.latest
         if snap is None:
-            return "starting ...\n"
+            return [[("", "starting ...")]]
         self._note_events(snap)
         if self._load_from is None:
             self._load_from = snap
@@ -221,15 +241,17 @@ class LiveView:
             self._loads = snap.load_since(self._load_from)
             self._load_from = snap
         f = snap.figures
-        head = (f"{_BOLD}{f.cycles}{_RESET} cycles  {_BOLD}{f.rate(snap.clock):.0f}"
-                f"{_RESET} Hz  missed {_BOLD}{f.missed}{_RESET}  lateness (last "
-                f"{RECENT_SAMPLES} cycles) p50 {f.percentile(50) * 1e3:.3f} ms"
-                f"  p99 {f.percentile(99) * 1e3:.3f} ms"
-                + ("  (virtual time)" if self.image.virtual else "")
-                + "   bus load " + "  ".join(f"{n} {v:.1%}" for n, v in self._loads.items()))
+        head: Line = [
+            (BOLD, str(f.cycles)), ("", " cycles  "), (BOLD, f"{f.rate(snap.clock):.0f}"),
+            ("", " Hz  missed "), (BOLD, str(f.missed)),
+            ("", f"  lateness (last {RECENT_SAMPLES} cycles) p50 "
+                 f"{f.percentile(50) * 1e3:.3f} ms  p99 {f.percentile(99) * 1e3:.3f} ms"
+                 + ("  (virtual time)" if self.image.virtual else "")
+                 + "   bus load " + "  ".join(f"{n} {v:.1%}"
+                                              for n, v in self._loads.items()))]
         if snap.lost:
-            head += f"  {_RED}{len(snap.lost)} board(s) lost{_RESET}"
-        values = self.image.decode(snap.values)
+            head.append((RED, f"  {len(snap.lost)} board(s) lost"))
+        values = self.image.decode(snap.values, (mca.Kind.SO,))
         boxes = []
         for (bus, board), refs in self.boards.items():
             lost = snap.lost.get((bus, board))
@@ -243,7 +265,7 @@ class LiveView:
             stale = "" if lost is None else "LOST " + age_text(
                 snap.clock - f.started_clock - lost.since)
             boxes.append(_box(f"{refs[0].prefix} - {refs[0].where}", rows, stale=stale))
-        return "\n".join([head, *_arrange(boxes, width)]) + "\n"
+        return [head, *_arrange(boxes, width)]
 
     def _note_events(self, snap: LoopSnapshot) -> None:
         """The latest of what the boards reported (Errors) and of the boards lost or
@@ -279,14 +301,22 @@ class LiveView:
 
         def body() -> StyleAndTextTuples:
             size = app.output.get_size()
-            lines = self.render(size.columns).splitlines()
+            lines = self.lines(size.columns)
             room = max(1, size.rows - 3)
             self.scroll = min(self.scroll, max(0, len(lines) - room))
-            return ANSI("\n".join(lines[self.scroll:self.scroll + room])).__pt_formatted_text__()
+            out: StyleAndTextTuples = []
+            for k, line in enumerate(lines[self.scroll:self.scroll + room]):
+                if k:
+                    out.append(("", "\n"))
+                out += line
+            return out
 
         app: Application[None] = Application(
             layout=Layout(HSplit([
-                Window(FormattedTextControl(body), wrap_lines=False),
+                # the rows left (a preferred height given: prompt_toolkit then does not
+                # lay the whole view out once more to measure it)
+                Window(FormattedTextControl(body), wrap_lines=False,
+                       height=Dimension(weight=1, preferred=1)),
                 Window(FormattedTextControl(lambda: [("class:message", self.message)]),
                        height=1),
                 Window(BufferControl(out, input_processors=[]), height=1,

@@ -461,7 +461,7 @@ class LoopFeed:
     # ------------------------------------------------------------------ the end
     def end(self) -> None:
         """After the boards' stop (the loop ended): the last snapshot and everything
-        collected, then the end; the pipes stay open for :meth:`wait_ended`."""
+        collected, then the end; the pipes stay open for :meth:`wait_for`."""
         part = self.part
         for d, sub in self._status_subs:
             d.unsubscribe(sub)

@@ -149,11 +149,14 @@ class PartImage:
             self._map_refs = out
         return self._map_refs
 
-    def decode(self, snap: RawSnapshot) -> dict[EdgeRef, tuple[float, Value]]:
-        """(time stamp, value) of every edge ``snap`` holds a value of, as
+    def decode(self, snap: RawSnapshot, kinds: tuple[mca.Kind, ...] = tuple(mca.Kind),
+               ) -> dict[EdgeRef, tuple[float, Value]]:
+        """(time stamp, value) of every edge of ``kinds`` ``snap`` holds a value of, as
         :meth:`RemotePart.decode <ucom_tools.ops.remote_values.RemoteValues.decode>`
         gives it (an SO stamped with its map's frame, a CI or PAR with the snapshot)."""
         out: dict[EdgeRef, tuple[float, Value]] = {}
+        if mca.Kind.SO not in kinds:
+            return self._decode_set(snap, kinds, out)
         for bus, m, records, refs in self._maps():
             frame = snap.frames[bus].get(m.number)
             if frame is None:
@@ -163,12 +166,21 @@ class PartImage:
             for ref, raw in zip(refs, raws, strict=True):
                 if ref is not None:
                     out[ref] = (stamp, ref.value(raw))
+        return self._decode_set(snap, kinds, out)
+
+    def _decode_set(self, snap: RawSnapshot, kinds: tuple[mca.Kind, ...],
+                    out: dict[EdgeRef, tuple[float, Value]],
+                    ) -> dict[EdgeRef, tuple[float, Value]]:
+        """:meth:`decode` of the CI and PAR values (those the PC sets) into ``out``."""
+        ci, par = mca.Kind.CI in kinds, mca.Kind.PAR in kinds
+        if not (ci or par):
+            return out
         for ref in self.refs:
-            if ref.kind is mca.Kind.CI:
+            if ci and ref.kind is mca.Kind.CI:
                 sent = snap.ci[ref.bus].get((ref.board, ref.index))
                 if sent is not None:
                     out[ref] = (snap.clock, ref.value(sent))
-            elif ref.kind is mca.Kind.PAR and ref in snap.par:
+            elif par and ref.kind is mca.Kind.PAR and ref in snap.par:
                 out[ref] = (snap.clock, ref.value(snap.par[ref]))
         return out
 
