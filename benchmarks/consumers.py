@@ -3,9 +3,12 @@
 and ``--record`` at once, over ``ucom fleet serve armar3``, on a machine that two
 CPU-bound processes keep busy, against the same runs without view, share and record.
 
-ARMAR-III (11 boards, 4 buses, armar3.fl.S flashed) is served by ``ucom fleet serve`` in
-another process; ``--hogs`` processes (default 2, ``python -c 'while True: pass'``) keep
-the machine's cores busy for the whole benchmark.  Each of ``--runs`` rounds (default 20)
+ARMAR-III (11 boards, 4 buses, armar3.fl.S flashed) is served by ``ucom fleet serve``
+(the robot's boards: a session of its own); ``--hogs`` processes (default 2, ``python -c
+'while True: pass'``, each in a session of its own, as another user's jobs) keep the
+machine's cores busy for the whole benchmark.  Every run is started in a session of its
+own too, as from a terminal: Linux shares the processors between sessions first
+(autogroups), then between a session's processes.  Each of ``--runs`` rounds (default 20)
 runs the user's command twice, one after the other (so that both see the same machine):
 
 - *with*: ``ucom remote run armar3 -i socketcand ... --zenoh tcp/127.0.0.1:PORT --record
@@ -45,6 +48,7 @@ import os
 import pty
 import re
 import select
+import signal
 import statistics
 import struct
 import subprocess
@@ -61,7 +65,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from benchmarks.network import free_port  # noqa: E402
-from benchmarks.runtime import served_armar3  # noqa: E402
+from benchmarks.runtime import IMAGE  # noqa: E402
 from ucom_tools import compiled  # noqa: E402
 from ucom_tools.signals import stop_signals  # noqa: E402
 
@@ -85,6 +89,37 @@ _MISSED = re.compile(r"([0-9]+) cycles at [0-9]+ Hz \([a-z ]+\), ([0-9]+) missed
 
 def ucom(*args: str) -> list[str]:
     return [sys.executable, "-m", "ucom_tools", *args]
+
+
+@contextlib.contextmanager
+def served_armar3() -> Iterator[int]:
+    """ARMAR-III with armar3.fl.S flashed, served by ``ucom fleet serve`` (a process per
+    bus) in a session of its own: the fleet stands for the robot's boards, which have
+    processors of their own; it must not share its session's processor time with this
+    process.  Its port; stopped afterwards (SIGINT, then killed)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        state = Path(tmp) / "state"
+        flash = subprocess.run(ucom("flash", str(IMAGE), "--virtual", "armar3", "--state",
+                                    str(state)), capture_output=True, text=True)
+        if flash.returncode:
+            raise SystemExit(f"flash failed: {flash.stderr}")
+        proc = subprocess.Popen(ucom("fleet", "serve", "armar3", "--state", str(state),
+                                     "--port", "0"), text=True, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, start_new_session=True)
+        try:
+            assert proc.stdout is not None
+            line = proc.stdout.readline()
+            if not line.startswith("listening on"):
+                raise SystemExit(f"fleet serve did not start: {line}"
+                                 + (proc.stderr.read() if proc.stderr else ""))
+            yield int(line.rsplit(":", 1)[1])
+        finally:
+            proc.send_signal(signal.SIGINT)
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
 
 
 @contextlib.contextmanager
@@ -432,8 +467,7 @@ def main() -> int:
     without_runs: list[dict[str, Any]] = []
     if not args.skip_costs:
         figures_costs = costs()
-    with tempfile.TemporaryDirectory() as tmp, served_armar3("auto") as (_, port), \
-            hogs(args.hogs):
+    with tempfile.TemporaryDirectory() as tmp, served_armar3() as port, hogs(args.hogs):
         figures_decision = decision(args.decision_rounds, 3.0) if args.decision_rounds \
             else {}
         for k in range(args.runs):
