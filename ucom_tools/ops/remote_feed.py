@@ -5,9 +5,10 @@ Why another process: the loop is Python, and Python runs one thread at a time (t
 GIL).  A consumer in the loop's process that holds that lock when the machine takes the
 processor from it (another busy process) keeps the loop from its deadline until the
 consumer runs again, whatever priority the loop has: measured on two cores beside two
-busy processes, a 1 kHz loop under SCHED_FIFO was late by 0.9 ms (p99) with a thread
-doing 30 % of a core of Python work beside it and by 0.02 ms with the same work in
-another process (``benchmarks/consumers.py``, ``man/ucom.1``).  As ros2_control keeps
+busy processes, a 1 kHz loop under SCHED_FIFO was late by 0.12 to 0.94 ms (p99) with a
+thread doing 30 % of a core of Python work beside it, and by less than 0.001 ms with the
+same work in another process, as without it (``benchmarks/consumers.py``,
+``man/ucom.1``).  As ros2_control keeps
 its real-time loop apart from the rest, the consumers run apart, and the loop's process
 runs the loop alone.
 
