@@ -180,6 +180,46 @@ def test_values_file_holds_only_changes_as_exact_decimal_text(tmp_path: Path) ->
     assert values_path(path).name == "run.asc.values.csv"
 
 
+def test_a_lost_boards_values_are_marked_stale_until_they_come_again(tmp_path: Path,
+                                                                    ) -> None:
+    path = tmp_path / "run.log"
+    with RunRecorder(path) as rec:
+        rec.value(1.0, "CAN0", 3, "Eyes", "Right Eye Joint Sensor", "SO", 7)
+        rec.value(1.0, "CAN0", 3, "Eyes", "Right Eye Target", "CI", 5)
+        rec.value(1.0, "CAN0", 1, "Neck", "Neck Yaw Joint Sensor", "SO", 1)
+        assert rec.lost(1.5, "CAN0", 3) == 2  # a row for each of its edges so far
+        assert not rec.fresh(1.6, "CAN0", 1, "Neck", "Neck Yaw Joint Sensor", "SO", 1)
+        assert rec.fresh(1.7, "CAN0", 3, "Eyes", "Right Eye Joint Sensor", "SO", 7)
+        assert not rec.fresh(1.8, "CAN0", 3, "Eyes", "Right Eye Joint Sensor", "SO", 7)
+        assert rec.value(1.9, "CAN0", 3, "Eyes", "Right Eye Target", "CI", 5)  # same, valid
+    got = [(r["timestamp"], r["name"], r["value"], r["valid"])
+           for r in rows(values_path(path))]
+    assert got == [("1.000000", "Right Eye Joint Sensor", "7", "1"),
+                   ("1.000000", "Right Eye Target", "5", "1"),
+                   ("1.000000", "Neck Yaw Joint Sensor", "1", "1"),
+                   ("1.500000", "Right Eye Joint Sensor", "7", "0"),
+                   ("1.500000", "Right Eye Target", "5", "0"),
+                   ("1.700000", "Right Eye Joint Sensor", "7", "1"),
+                   ("1.900000", "Right Eye Target", "5", "1")]
+    values = read_values(values_path(path))
+    assert values.series["Eyes/Right Eye Joint Sensor"].stale == [(1.5, 1.7)]
+    assert values.series["Eyes/Right Eye Joint Sensor"].points == [(1.0, 7), (1.7, 7)]
+    assert values.series["Neck/Neck Yaw Joint Sensor"].stale == []
+
+
+def test_values_files_of_earlier_versions_are_all_valid_and_a_bad_flag_is_named(
+        tmp_path: Path) -> None:
+    old = tmp_path / "old.values.csv"
+    old.write_text("timestamp,bus,board,prefix,name,kind,value\n"
+                   "1.0,CAN0,3,Eyes,Right Eye Target,CI,5\n")
+    s = read_values(old).series["Eyes/Right Eye Target"]
+    assert s.points == [(1.0, 5)] and s.stale == []
+    bad = tmp_path / "bad.values.csv"
+    bad.write_text(",".join(VALUES_HEADER) + "\n1.0,CAN0,3,Eyes,Right Eye Target,CI,5,yes\n")
+    with pytest.raises(InputError, match=r"bad.values.csv:2: valid: 'yes' is not 0 or 1"):
+        read_values(bad)
+
+
 def test_names_with_commas_and_quotes_survive_the_csv(tmp_path: Path) -> None:
     path = tmp_path / "run.log"
     with RunRecorder(path) as rec:
@@ -262,6 +302,11 @@ def test_write_failure_removes_the_partial_files(tmp_path: Path) -> None:
 
     writer.on_message_received = fail  # type: ignore[method-assign]
     rec.on_message_received(can.Message(arbitration_id=1))  # never raises in a reader
+    deadline = time.monotonic() + 5  # the writer's thread meets the failure
+    while rec._frames.failure is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    with pytest.raises(LogError, match="No space left"):
+        rec.check()  # what the loop asks every cycle
     with pytest.raises(LogError, match="No space left"):
         rec.value(0.0, "CAN0", 1, "Eyes", "X", "SO", 1)
     with pytest.raises(LogError, match="No space left"):

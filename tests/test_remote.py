@@ -354,7 +354,7 @@ def test_the_live_view_sets_values_by_name_and_quits(part) -> None:
 
     part.start()
     with create_pipe_input() as pipe:
-        view = LiveView(part, pt_input=pipe, pt_output=DummyOutput())
+        view = LiveView.local(part, pt_input=pipe, pt_output=DummyOutput())
         pipe.send_text("Right Eye Target 500\r")
         pipe.send_text("set Eyes/RightEye I=0.0004\r")
         pipe.send_text("Right Eye Targt 1\r")  # a typo: a message, nothing set

@@ -227,6 +227,7 @@ def test_precompiled_samples_are_what_the_decoded_values_give(flashed: Path,
     RemotePart.decode, for every board and every edge's own key."""
     from ucom_tools.net.encode import encoders
     from ucom_tools.ops.remote import RemotePart
+    from ucom_tools.ops.remote_image import PartImage
     from ucom_tools.wire import mca
 
     state = tmp_path / "state"
@@ -234,7 +235,7 @@ def test_precompiled_samples_are_what_the_decoded_values_give(flashed: Path,
     with RemotePart.open("armar3", virtual=True, state_dir=state) as part:
         part.run(0.02)
         part[TARGET] = 1234
-        enc = encoders(part, "armar3")
+        enc = encoders(PartImage.of(part), "armar3")
         assert len(enc) == 11
         for _ in range(3):
             part.cycle()
@@ -245,13 +246,19 @@ def test_precompiled_samples_are_what_the_decoded_values_give(flashed: Path,
                 stamps = [t for r, (t, _) in mine.items() if r.kind is mca.Kind.SO]
                 want = {"v": keys.VERSION, "robot": "armar3", "bus": bus, "board": board,
                         "t": round(max(stamps, default=snap.clock), 6),
-                        "values": {r.unique: keys.number(v) for r, (_, v) in mine.items()}}
+                        "values": {r.unique: keys.number(v) for r, (_, v) in mine.items()},
+                        "valid": True}
                 assert json.loads(e.sample(snap)) == want
                 assert json.loads(e.sample(snap)) == want  # again, from its caches
+                lost = json.loads(e.sample(snap, (snap.clock - 0.5, 'silence: "x"')))
+                assert lost == {**want, "valid": False,
+                                "lost": {"since": round(snap.clock - 0.5, 6),
+                                         "seen": 'silence: "x"'}}
                 for r, (t, v) in mine.items():
                     assert json.loads(e.edge_sample(r, snap) or b"") == {
                         "v": keys.VERSION, "t": round(t, 6), "name": r.unique,
-                        "value": keys.number(v)}
+                        "value": keys.number(v), "valid": True}
+                    assert json.loads(e.edge_sample(r, snap, False) or b"")["valid"] is False
         assert any(r.spec.exponent < 0 for r in values)  # edges with decimals too
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import sys
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 from rich.markup import escape
@@ -16,9 +16,26 @@ from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.errors import InputError
 from ucom_tools.net.keys import DEFAULT_ENDPOINT
 
+if TYPE_CHECKING:
+    from ucom_tools.net.client import Reading
+
 
 def _line(name: str, value: object, unit: str) -> str:
     return f"{name} = {value}{' ' + unit if unit else ''}"
+
+
+def _stale(reading: Reading, where: str) -> str:
+    """`` (stale: ...)`` after a value whose board is lost, else nothing."""
+    if reading.valid:
+        return ""
+    return f" (stale: {where} is lost" + (f", {reading.seen}" if reading.seen else "") + ")"
+
+
+def _value_json(reading: Reading) -> dict[str, Any]:
+    out: dict[str, Any] = {"t": reading.t, "value": reading.value, "valid": reading.valid}
+    if not reading.valid:
+        out["lost_since"] = reading.lost_since
+    return out
 
 
 @click.command("browse")
@@ -91,11 +108,12 @@ def browse(robot: str | None, endpoint: str, config_file: str | None, gets: tupl
                                soft_wrap=True)
         if gets:
             values = client.read(list(gets), timeout=timeout)
-            out["values"] = {n: {"t": t, "value": v} for n, (t, v) in values.items()}
+            out["values"] = {n: _value_json(r) for n, r in values.items()}
             if not as_json:
-                for n, (_, v) in values.items():
-                    stdout().print(escape(_line(n, v, client.resolve(n).spec.unit)),
-                                   soft_wrap=True)
+                for n, r in values.items():
+                    ref = client.resolve(n)
+                    stdout().print(escape(_line(n, r.value, ref.spec.unit)
+                                          + _stale(r, ref.where)), soft_wrap=True)
         if stop:
             out["stop"] = client.stop(timeout=timeout)
             if not as_json:
@@ -103,25 +121,26 @@ def browse(robot: str | None, endpoint: str, config_file: str | None, gets: tupl
         if watches:
             if as_json and (wanted or gets or stop):
                 emit_json(out)  # the document first, then the watch's lines
-            for t, n, v in client.watch(list(watches), seconds):
+            for t, n, v, valid in client.watch(list(watches), seconds, validity=True):
                 if as_json:
-                    sys.stdout.write(json.dumps({"t": t, "name": n, "value": v}) + "\n")
+                    sys.stdout.write(json.dumps({"t": t, "name": n, "value": v,
+                                                 "valid": valid}) + "\n")
                 else:
-                    sys.stdout.write(f"{t:.6f} {n} {v}\n")
+                    sys.stdout.write(f"{t:.6f} {n} {v}{'' if valid else ' stale'}\n")
                 sys.stdout.flush()
             return
         if not (wanted or gets or stop):
             values = client.read(timeout=timeout)
             if as_json:
                 out["structure"] = client.structure
-                out["values"] = {n: {"t": t, "value": v} for n, (t, v) in values.items()}
+                out["values"] = {n: _value_json(r) for n, r in values.items()}
             else:
                 _print_tree(client.structure, values, client)
         if as_json:
             emit_json(out)
 
 
-def _print_tree(structure: dict[str, Any], values: dict[str, tuple[float, Any]],
+def _print_tree(structure: dict[str, Any], values: dict[str, Reading],
                 client: Any) -> None:
     s = structure
     stdout().print(f"[bold]{escape(s.get('name', s['robot']))}[/] ({escape(s['robot'])}) on "
@@ -131,13 +150,18 @@ def _print_tree(structure: dict[str, Any], values: dict[str, tuple[float, Any]],
     for bus in s["buses"]:
         stdout().print(f"{escape(bus['name'])}")
         for b in bus["boards"]:
+            stale = next((v for e in b["edges"] if (v := values.get(e["robot_name"]))
+                          is not None and not v.valid), None)
             stdout().print(f"  {escape(b['where'])} [{escape(b['prefix'])}] "
-                           f"{escape(b.get('program') or '')}")
+                           f"{escape(b.get('program') or '')}"
+                           + ("" if stale is None else
+                              f"  [bold red]LOST[/] ({escape(stale.seen or 'silent')})"))
             for e in b["edges"]:
                 v = values.get(e["robot_name"])
-                shown = "-" if v is None else v[1]
+                shown = "-" if v is None else v.value
                 stdout().print(f"    {e['kind']:<3} {escape(e['robot_name'])} = {shown}"
-                               + (f" {escape(e['unit'])}" if e["unit"] else ""),
+                               + (f" {escape(e['unit'])}" if e["unit"] else "")
+                               + ("" if v is None or v.valid else " (stale: board lost)"),
                                soft_wrap=True)
     if not values:
         stderr().print("[dim]no values yet (the robot is starting)[/]")

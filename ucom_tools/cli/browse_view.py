@@ -73,6 +73,9 @@ class Model:
     """(bus, board) -> the Error that stopped its motors (its watchdog, say)."""
     status: dict[tuple[str, int], dict[str, Any]] = field(default_factory=dict)
     """(bus, board) -> its latest ``status`` document (LEDs, CAN error counters)."""
+    lost_at: dict[tuple[str, int], float] = field(default_factory=dict)
+    """(bus, board) -> when the first sample came that said it is lost (its values are
+    stale until one says it is valid again)."""
     connection: str = "connecting"
     """``connected``, ``lost`` or ``connecting``."""
     since: float = 0.0
@@ -90,6 +93,7 @@ class Model:
         self.running.clear()
         self.stopped_by.clear()
         self.status.clear()
+        self.lost_at.clear()
         self.connection, self.since = "connected", now
 
     def lost(self, now: float) -> None:
@@ -99,7 +103,21 @@ class Model:
 
     def sample(self, doc: dict[str, Any], now: float) -> None:
         with contextlib.suppress(KeyError, TypeError, ValueError):
-            self.samples[(str(doc["bus"]), int(doc["board"]))] = (now, doc)
+            key = (str(doc["bus"]), int(doc["board"]))
+            self.samples[key] = (now, doc)
+            if doc.get("valid", True) is False:
+                self.lost_at.setdefault(key, now)
+            else:
+                self.lost_at.pop(key, None)
+
+    def board_lost(self, bus: str, board: int) -> dict[str, Any] | None:
+        """What the board's latest sample says of its loss (since, seen), None: it is not
+        lost."""
+        got = self.samples.get((bus, board))
+        if got is None or got[1].get("valid", True) is not False:
+            return None
+        lost = got[1].get("lost")
+        return lost if isinstance(lost, dict) else {}
 
     def board_status(self, doc: dict[str, Any]) -> None:
         with contextlib.suppress(KeyError, TypeError, ValueError):
@@ -125,6 +143,10 @@ class Model:
         elif kind in ("write", "stop"):
             what = f"set {doc.get('name')}={doc.get('value')}" if kind == "write" else "stop"
             text = f"{what} from {doc.get('origin')}: {doc.get('result')}"
+        elif kind == "fault":
+            where = doc.get("where") or f"{doc.get('bus')} board {doc.get('board')}"
+            text = f"{where} {doc.get('event')}" + (f": {doc['seen']}" if doc.get("seen")
+                                                    else "")
         elif kind == "state":
             text = f"the loop is {doc.get('state')}"
         else:
@@ -133,7 +155,9 @@ class Model:
 
     def value(self, bus: str, board: int, unique: str, now: float,
               ) -> tuple[Any, float | None]:
-        """The edge's latest value and its age (None, None: none yet)."""
+        """The edge's latest value and its age (None, None: none yet): since its sample
+        came, or where its board is lost since the board's last value (how long it was
+        lost when this host heard of it, and since)."""
         got = self.samples.get((bus, board))
         if got is None:
             return None, None
@@ -141,6 +165,13 @@ class Model:
         values = doc.get("values") or {}
         if unique not in values:
             return None, None
+        lost = self.board_lost(bus, board)
+        if lost is not None:
+            heard = self.lost_at.get((bus, board), arrived)
+            since, t = lost.get("since"), doc.get("t")
+            before = max(0.0, float(since) - float(t)) if isinstance(
+                since, int | float) and isinstance(t, int | float) else 0.0
+            return values[unique], now - heard + before
         return values[unique], now - arrived
 
 
@@ -202,6 +233,10 @@ def tree_rows(structure: dict[str, Any] | None, filter_text: str = "") -> list[R
 
 def _state(model: Model, bus: str, board: int) -> Text:
     key = (bus, board)
+    lost = model.board_lost(bus, board)
+    if lost is not None and model.connection == "connected":
+        seen = lost.get("seen")
+        return Text("LOST" + (f": {seen}" if seen else ""), style="bold red")
     if key in model.stopped_by:
         return Text(f"stopped: {model.stopped_by[key]}", style="bold red")
     running = model.running.get(key)
@@ -265,11 +300,12 @@ def _line(model: Model, row: Row, now: float, name_width: int, unit_width: int) 
     name = str(e.get("robot_name") or e.get("name"))
     t.append(name.ljust(name_width), style="bold" if e.get("writable") else "")
     shown = "-" if value is None else str(value)
-    t.append(" " + shown.rjust(12), style="bold cyan" if value is not None else "dim")
+    lost = model.board_lost(str(bus.get("name")), int(b.get("board", 0))) is not None
+    t.append(" " + shown.rjust(12), style="dim" if lost or value is None else "bold cyan")
     unit = str(e.get("unit") or "")
     t.append(" " + unit.ljust(unit_width))
     if age is not None:
-        stale = model.connection != "connected"
+        stale = lost or model.connection != "connected"
         t.append(age_text(age).rjust(8), style="red" if stale else "dim")
     return t
 

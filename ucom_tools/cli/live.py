@@ -3,31 +3,40 @@ their robot-wide names, refreshed ten times a second, the loop's figures and eac
 load, and a command line to set CI and PAR values while the boards run (with completion
 of the names).
 
-The PC's loop runs in a thread of its own (:meth:`RemotePart.cycle`); this view only
-reads the latest values.  The boxes are plain text with ANSI styles, prompt_toolkit runs the
-screen and the input line.
+The view reads nothing of the loop's but the snapshots it hands over
+(:class:`~ucom_tools.ops.remote_publish.LoopSnapshot`: values, figures, events, the lost
+boards) and the part's structure (:class:`~ucom_tools.ops.remote_image.PartImage`);
+its writes are applied on the loop's thread and answered.  ``ucom remote run`` shows it
+from the consumers' process (:mod:`ucom_tools.cli.consumers`), the loop in another;
+:meth:`LiveView.local` shows it beside the loop in one process (the loop on a thread of
+the view's).  A lost board's box says so and for how long, its values dimmed with their
+age.  The boxes are plain text with ANSI styles, prompt_toolkit runs the screen and the
+input line.
 """
 
 from __future__ import annotations
 
 import threading
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from decimal import Decimal
+from typing import Any
 
 from prompt_toolkit.application import Application
 from prompt_toolkit.buffer import Buffer
 from prompt_toolkit.completion import CompleteEvent, Completer, Completion
 from prompt_toolkit.document import Document
-from prompt_toolkit.formatted_text import ANSI, StyleAndTextTuples
+from prompt_toolkit.formatted_text import StyleAndTextTuples
 from prompt_toolkit.input import Input
 from prompt_toolkit.key_binding import KeyBindings, KeyPressEvent
-from prompt_toolkit.layout import HSplit, Layout, Window
+from prompt_toolkit.layout import Dimension, HSplit, Layout, Window
 from prompt_toolkit.layout.controls import BufferControl, FormattedTextControl
 from prompt_toolkit.output import Output
 
-from ucom_tools.errors import UcomError
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.remote import RECENT_SAMPLES, RemotePart
+from ucom_tools.ops.remote_feed import LocalRun
+from ucom_tools.ops.remote_image import PartImage
+from ucom_tools.ops.remote_publish import LoopSnapshot
 from ucom_tools.wire import mca
 
 REFRESH_S = 0.1
@@ -35,7 +44,12 @@ NAME_WIDTH = 32
 """Longer names are cut (with an ellipsis) in the boxes."""
 VALUE_WIDTH = 8
 """The least width of a value column (so that boxes do not jump as values change)."""
+WRITE_S = 5.0
+"""How long the view waits for the loop's answer to a write."""
+LOAD_EVERY_S = 1.0
+"""The buses' load is measured over this long (of the bus clock)."""
 _BOLD, _DIM, _RESET = "\x1b[1m", "\x1b[2m", "\x1b[0m"
+_RED = "\x1b[1;31m"
 HELP = ("NAME VALUE (or set NAME VALUE, NAME=VALUE) sets a CI or PAR by its robot-wide "
         "name; Tab completes; PgUp/PgDn scroll; q, Ctrl-C or Ctrl-D stop the boards and quit")
 
@@ -62,36 +76,66 @@ def parse_command(line: str) -> tuple[str, str] | None:
     return name.strip(), value.strip()
 
 
-def _box(title: str, rows: list[tuple[str, str, str]]) -> tuple[int, list[str]]:
+Line = list[tuple[str, str]]
+"""A line of the view as prompt_toolkit's formatted text: (style, text) fragments."""
+BOLD, DIM, RED = "bold", "dim", "bold fg:ansired"
+_ESCAPES = {"": "", BOLD: _BOLD, DIM: _DIM, RED: _RED}
+
+
+def ansi(lines: list[Line]) -> str:
+    """The lines as text with ANSI styles."""
+    return "\n".join("".join(text if not style else _ESCAPES[style] + text + _RESET
+                               for style, text in line) for line in lines)
+
+
+def _box(title: str, rows: list[tuple[str, str, str]], *, stale: str = "",
+         ) -> tuple[int, list[Line]]:
     """A rounded box titled ``title`` with a row per (name, value, unit): its width in
-    columns and its lines (ANSI styles do not count in the width)."""
+    columns and its lines.  ``stale``: the board is lost; the title says so (e.g. 'LOST
+    1.2 s', red) and the values are dimmed."""
     names = [n if len(n) <= NAME_WIDTH else n[:NAME_WIDTH - 1] + "\u2026" for n, _, _ in rows]
     name_w = max((len(n) for n in names), default=0)
     value_w = max([VALUE_WIDTH, *(len(v) for _, v, _ in rows)])
     unit_w = max((len(u) for _, _, u in rows), default=0)
-    inner = max(name_w + 1 + value_w + 1 + unit_w, len(title) + 2)
-    if len(title) + 2 > inner:  # pragma: no cover - max() above
-        title = title[:inner - 2]
-    lines = ["\u256d\u2500 " + title + " " + "\u2500" * (inner - len(title) - 1) + "\u256e"]
+    lost = f"  {stale}" if stale else ""
+    inner = max(name_w + 1 + value_w + 1 + unit_w, len(title) + len(lost) + 2)
+    lines: list[Line] = [[("", "\u256d\u2500 " + title), (RED, lost),
+                          ("", " " + "\u2500" * (inner - len(title) - len(lost) - 1)
+                           + "\u256e")]]
     pad = inner - (name_w + 1 + value_w + 1 + unit_w)
+    value_style = DIM if stale else ""
     for name, (_, value, unit) in zip(names, rows, strict=True):
-        lines.append(f"\u2502 {name:<{name_w}} {value:>{value_w}} {_DIM}{unit:<{unit_w}}"
-                     f"{_RESET}{' ' * pad} \u2502")
-    lines.append("\u2570" + "\u2500" * (inner + 2) + "\u256f")
+        lines.append([("", f"\u2502 {name:<{name_w}} "), (value_style, f"{value:>{value_w}}"),
+                      ("", " "), (DIM, f"{unit:<{unit_w}}"), ("", f"{' ' * pad} \u2502")])
+    lines.append([("", "\u2570" + "\u2500" * (inner + 2) + "\u256f")])
     return inner + 4, lines
 
 
-def _arrange(boxes: list[tuple[int, list[str]]], width: int) -> list[str]:
+def age_text(seconds: float) -> str:
+    """``12 ms``, ``3.4 s``, ``2 min``."""
+    seconds = max(0.0, seconds)
+    if seconds < 1.0:
+        return f"{seconds * 1000:.0f} ms"
+    if seconds < 60.0:
+        return f"{seconds:.1f} s"
+    return f"{seconds / 60:.0f} min"
+
+
+def _arrange(boxes: list[tuple[int, list[Line]]], width: int) -> list[Line]:
     """Boxes side by side as many as fit in ``width``, then the next row of them."""
-    out: list[str] = []
-    row: list[tuple[int, list[str]]] = []
+    out: list[Line] = []
+    row: list[tuple[int, list[Line]]] = []
     used = 0
     for box in [*boxes, (0, [])]:
         if row and (not box[1] or used + 1 + box[0] > width):
             height = max(len(lines) for _, lines in row)
             for k in range(height):
-                out.append(" ".join(lines[k] if k < len(lines) else " " * w
-                                    for w, lines in row).rstrip())
+                line: Line = []
+                for i, (w, lines) in enumerate(row):
+                    if i:
+                        line.append(("", " "))
+                    line += lines[k] if k < len(lines) else [("", " " * w)]
+                out.append(line)
             row, used = [], 0
         if box[1]:
             row.append(box)
@@ -118,9 +162,22 @@ class NameCompleter(Completer):
 
 
 class LiveView:
-    def __init__(self, part: RemotePart, *, pt_input: Input | None = None,
-                 pt_output: Output | None = None) -> None:
-        self.part = part
+    """The view of a run: ``image`` is the part's structure, ``source`` hands over the
+    loop's snapshots (``latest``) and applies the view's writes on the loop's thread
+    (``write``): the consumers' process's :class:`~ucom_tools.ops.remote_mirror.Mirror`
+    (``ucom remote run``), or in the loop's own process a
+    :class:`~ucom_tools.ops.remote_feed.LocalRun` with ``cycle``, the loop, run on a
+    thread of the view's own (:meth:`local`).  ``ended``: set when the run ended
+    elsewhere (the view then ends too)."""
+
+    def __init__(self, image: PartImage, source: Any, *,
+                 ended: threading.Event | None = None,
+                 cycle: Callable[[], object] | None = None,
+                 pt_input: Input | None = None, pt_output: Output | None = None) -> None:
+        self.image = image
+        self.source = source
+        self.ended = ended
+        self.cycle = cycle
         self.pt_input = pt_input
         self.pt_output = pt_output
         self.message = HELP
@@ -128,56 +185,103 @@ class LiveView:
         self.error: BaseException | None = None
         self._stop = threading.Event()
         self._loads: dict[str, float] = {}
-        self._traffic = part.traffic()
-        self._ticks = 0
-        self._events_seen = len(part.events)
+        self._load_from: LoopSnapshot | None = None
+        self._events_seen = 0
+        self._faults_seen = 0
+        self._app: Application[None] | None = None
         self.boards: dict[tuple[str, int], list[EdgeRef]] = {}
-        for ref in part.names:
+        for ref in image.refs:
             if ref.kind is mca.Kind.SO:
                 self.boards.setdefault((ref.bus, ref.board), []).append(ref)
 
+    @classmethod
+    def local(cls, part: RemotePart, **kwargs: Any) -> LiveView:
+        """The view of a started ``part`` in this process, its loop on a thread of the
+        view's (:meth:`run` starts it before anything else)."""
+        return cls(PartImage.of(part), LocalRun(part, 1.0 / REFRESH_S), cycle=part.cycle,
+                   **kwargs)
+
     # ------------------------------------------------------------------ the loop thread
-    def loop(self, app: Application[None]) -> None:
+    def loop(self) -> None:
+        """The loop's thread (:meth:`local`): cycles until the view ends (or the loop
+        fails: then the view ends, and :meth:`run` raises what stopped the loop)."""
+        assert self.cycle is not None
         try:
             while not self._stop.is_set():
-                self.part.cycle()
+                self.cycle()
         except BaseException as err:  # a bus failure ends the run; shown by the caller
             self.error = err
-            app.exit()
+            self._exit()
+
+    def _exit(self) -> None:
+        """End the screen (from any thread)."""
+        app = self._app
+        loop = None if app is None else app.loop
+        if app is not None and app.is_running and loop is not None:
+            loop.call_soon_threadsafe(app.exit)  # (the screen's own thread exits it)
 
     # ------------------------------------------------------------------ rendering
     def render(self, width: int) -> str:
-        """The view as text with ANSI styles: the loop's figures, then a box per board.
-        Written out by hand, not with rich's tables: at ten renders a second rich took
-        most of a core for ARMAR-III's 220 values, and held the GIL the loop needs."""
-        self._ticks += 1
-        if len(self.part.events) > self._events_seen:  # what the boards reported
-            self._events_seen = len(self.part.events)
-            e = self.part.events[-1]
-            self.message = f"! {e.where} at {e.time:.3f} s: {e.text}"
-        if self._ticks % 10 == 0:
-            now = self.part.traffic()
-            self._loads = self.part.load_between(self._traffic, now)
-            self._traffic = now
-        s = self.part.stats
-        head = (f"{_BOLD}{s.cycles}{_RESET} cycles  {_BOLD}{s.rate(self.part._clock()):.0f}"
-                f"{_RESET} Hz  missed {_BOLD}{s.missed}{_RESET}  lateness (last "
-                f"{RECENT_SAMPLES} cycles) p50 {s.percentile(50, RECENT_SAMPLES) * 1e3:.3f} ms"
-                f"  p99 {s.percentile(99, RECENT_SAMPLES) * 1e3:.3f} ms"
-                + ("  (virtual time)" if self.part.virtual else "")
-                + "   bus load " + "  ".join(f"{n} {v:.1%}" for n, v in self._loads.items()))
+        """The view as text with ANSI styles (:meth:`lines`)."""
+        return ansi(self.lines(width)) + "\n"
+
+    def lines(self, width: int) -> list[Line]:
+        """The view, a line at a time: the loop's figures, then a box per board, all from
+        the latest snapshot the loop handed over.  Written out by hand as fragments of
+        prompt_toolkit's formatted text, a fragment per style: at ten renders a second
+        rich's tables took most of a core for ARMAR-III's 220 values, and text with ANSI
+        styles cost prompt_toolkit three times as much as the fragments."""
+        snap = self.source.latest
+        if snap is None:
+            return [[("", "starting ...")]]
+        self._note_events(snap)
+        if self._load_from is None:
+            self._load_from = snap
+        elif snap.clock - self._load_from.clock >= LOAD_EVERY_S:
+            self._loads = snap.load_since(self._load_from)
+            self._load_from = snap
+        f = snap.figures
+        head: Line = [
+            (BOLD, str(f.cycles)), ("", " cycles  "), (BOLD, f"{f.rate(snap.clock):.0f}"),
+            ("", " Hz  missed "), (BOLD, str(f.missed)),
+            ("", f"  lateness (last {RECENT_SAMPLES} cycles) p50 "
+                 f"{f.percentile(50) * 1e3:.3f} ms  p99 {f.percentile(99) * 1e3:.3f} ms"
+                 + ("  (virtual time)" if self.image.virtual else "")
+                 + "   bus load " + "  ".join(f"{n} {v:.1%}"
+                                              for n, v in self._loads.items()))]
+        if snap.lost:
+            head.append((RED, f"  {len(snap.lost)} board(s) lost"))
+        values = self.image.decode(snap.values, (mca.Kind.SO,))
         boxes = []
-        for refs in self.boards.values():
+        for (bus, board), refs in self.boards.items():
+            lost = snap.lost.get((bus, board))
             rows = []
             for ref in refs:
-                raw = self.part.raw(ref)
-                rows.append((ref.unique, _text(None if raw is None else ref.value(raw)),
-                             ref.spec.unit))
-            boxes.append(_box(f"{refs[0].prefix} - {refs[0].where}", rows))
-        return "\n".join([head, *_arrange(boxes, width)]) + "\n"
+                got = values.get(ref)
+                text = "-" if got is None else _text(got[1])
+                if lost is not None and got is not None:
+                    text += f" ({age_text(snap.stamp - got[0])})"
+                rows.append((ref.unique, text, ref.spec.unit))
+            stale = "" if lost is None else "LOST " + age_text(
+                snap.clock - f.started_clock - lost.since)
+            boxes.append(_box(f"{refs[0].prefix} - {refs[0].where}", rows, stale=stale))
+        return [head, *_arrange(boxes, width)]
 
-    def run(self) -> None:
-        out = Buffer(completer=NameCompleter(self.part.names.names()),
+    def _note_events(self, snap: LoopSnapshot) -> None:
+        """The latest of what the boards reported (Errors) and of the boards lost or
+        rejoined, as the message line."""
+        events = snap.newer(snap.events, snap.events_total, self._events_seen)
+        self._events_seen = snap.events_total
+        if events:
+            e = events[-1]
+            self.message = f"! {e.where} at {e.time:.3f} s: {e.text}"
+        faults = snap.newer(snap.faults, snap.faults_total, self._faults_seen)
+        self._faults_seen = snap.faults_total
+        if faults:
+            self.message = "! " + faults[-1].describe()
+
+    def application(self) -> Application[None]:
+        out = Buffer(completer=NameCompleter(self.image.names.names()),
                      complete_while_typing=True, multiline=False,
                      accept_handler=self._accept)
         keys = KeyBindings()
@@ -197,14 +301,22 @@ class LiveView:
 
         def body() -> StyleAndTextTuples:
             size = app.output.get_size()
-            lines = self.render(size.columns).splitlines()
+            lines = self.lines(size.columns)
             room = max(1, size.rows - 3)
             self.scroll = min(self.scroll, max(0, len(lines) - room))
-            return ANSI("\n".join(lines[self.scroll:self.scroll + room])).__pt_formatted_text__()
+            out: StyleAndTextTuples = []
+            for k, line in enumerate(lines[self.scroll:self.scroll + room]):
+                if k:
+                    out.append(("", "\n"))
+                out += line
+            return out
 
         app: Application[None] = Application(
             layout=Layout(HSplit([
-                Window(FormattedTextControl(body), wrap_lines=False),
+                # the rows left (a preferred height given: prompt_toolkit then does not
+                # lay the whole view out once more to measure it)
+                Window(FormattedTextControl(body), wrap_lines=False,
+                       height=Dimension(weight=1, preferred=1)),
                 Window(FormattedTextControl(lambda: [("class:message", self.message)]),
                        height=1),
                 Window(BufferControl(out, input_processors=[]), height=1,
@@ -212,14 +324,36 @@ class LiveView:
             ]), focused_element=out),
             key_bindings=keys, full_screen=True, refresh_interval=REFRESH_S,
             mouse_support=False, input=self.pt_input, output=self.pt_output)
-        thread = threading.Thread(target=self.loop, args=(app,), name="ucom-loop",
-                                  daemon=True)
-        thread.start()
+        return app
+
+    async def _watch_end(self) -> None:
+        """The screen ends when the run ended elsewhere."""
+        import asyncio
+
+        while self.ended is not None and not self.ended.is_set():
+            await asyncio.sleep(REFRESH_S)
+        if self._app is not None:
+            self._app.exit()
+
+    def run(self) -> None:
+        """The loop's thread (:meth:`local`), then the screen until the user quits."""
+        thread = None
+        if self.cycle is not None:
+            thread = threading.Thread(target=self.loop, name="ucom-loop", daemon=True)
+            thread.start()  # first: the boards' watchdogs count from the start's last cycle
         try:
-            app.run()
+            app = self._app = self.application()
+
+            def pre_run() -> None:
+                if self.error is not None:  # the loop failed before the screen came up
+                    app.exit()
+                elif self.ended is not None:
+                    app.create_background_task(self._watch_end())
+            app.run(pre_run=pre_run)
         finally:
             self._stop.set()
-            thread.join(timeout=5)
+            if thread is not None:
+                thread.join(timeout=5)
         if self.error is not None:
             raise self.error
 
@@ -231,17 +365,17 @@ class LiveView:
             return False
         try:
             parsed = parse_command(line)
-            if parsed is not None:
-                ref = self.part.set(parsed[0], parsed[1])
-                raw = self.part.raw(ref)
-                self.message = (f"{ref.qualified} = "
-                                f"{_text(None if raw is None else ref.value(raw))}"
-                                f" {ref.spec.unit}")
-        except (UcomError, ValueError) as err:
+        except ValueError as err:
             self.message = f"! {err}"
+            return False
+        if parsed is None:
+            return False
+        future = self.source.write(parsed[0], parsed[1], "the live view", network=False)
+        try:
+            applied = future.result(timeout=WRITE_S)
+        except TimeoutError:
+            self.message = f"! no answer from the loop within {WRITE_S:g} s"
+            return False
+        self.message = (f"{applied.name} = {_text(applied.value)} {applied.unit}".rstrip()
+                        if applied.ok else f"! {applied.message}")
         return False
-
-
-def live_view(part: RemotePart) -> None:
-    """Show the live view until the user quits (the caller then stops the boards)."""
-    LiveView(part).run()

@@ -9,6 +9,7 @@ without them a drawing ends as bad input (exit 3) that says how to install them.
 from __future__ import annotations
 
 import difflib
+import math
 import os
 import shutil
 import sys
@@ -102,18 +103,29 @@ def series_json(values: Values, chosen: Sequence[Series]) -> dict[str, list[list
 
 def steps(values: Values, s: Series) -> tuple[list[float], list[float]]:
     """The step line of ``s``: each value holds until the next change, the last one to
-    the end of the recording; x in seconds from the first row."""
+    the end of the recording, but for the stretches where its board was lost (a gap: no
+    value, NaN); x in seconds from the first row."""
     start = values.start or 0.0
     end = (values.end or 0.0) - start
     xs: list[float] = []
     ys: list[float] = []
+    gaps = [t for t, _ in s.stale]
     for t, v in s.points:
+        while gaps and gaps[0] <= t:
+            x = gaps.pop(0) - start
+            if ys:
+                xs += [x, x]
+                ys += [ys[-1], math.nan]
         x = t - start
         if ys:
             xs.append(x)
             ys.append(ys[-1])
         xs.append(x)
         ys.append(float(v))
+    for gap in gaps:  # lost until the end
+        if ys:
+            xs += [gap - start, gap - start]
+            ys += [ys[-1], math.nan]
     if xs and end > xs[-1]:
         xs.append(end)
         ys.append(ys[-1])

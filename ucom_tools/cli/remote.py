@@ -4,18 +4,22 @@ boards against their trees, ``run`` the cyclic exchange (a live view on a termin
 
 from __future__ import annotations
 
+import gc
+import os
 import sys
-import time
-from collections.abc import Callable, Iterator
+import threading
+from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import replace
 from decimal import Decimal
+from pathlib import Path
 from typing import Any
 
 import click
 from rich.markup import escape
 from rich.table import Table
 
+from ucom_tools.cli.consumers import END_S, ConsumerProcess, error_of
 from ucom_tools.cli.exitcodes import EXIT_BUS, EXIT_FAILED
 from ucom_tools.cli.options import (
     Finite,
@@ -26,12 +30,11 @@ from ucom_tools.cli.options import (
 )
 from ucom_tools.cli.output import emit_json, json_number, stderr, stdout
 from ucom_tools.config import topology as topo
-from ucom_tools.errors import InputError
-from ucom_tools.net.keys import DEFAULT_ENDPOINT
+from ucom_tools.errors import InputError, UcomError
+from ucom_tools.net.keys import DEFAULT_ENDPOINT, check_rate, robot_id
 from ucom_tools.ops.remote import (
     HOLD,
     POLICIES,
-    RECENT_SAMPLES,
     STOP,
     BoardEvent,
     BoardFault,
@@ -44,8 +47,11 @@ from ucom_tools.ops.remote import (
     WriteEvent,
     robot_trees,
 )
+from ucom_tools.ops.remote_feed import ConsumersGone, LoopFeed, Quit
+from ucom_tools.ops.remote_publish import LoopHandover, LoopSnapshot
 from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.signals import Terminated, interrupt_exit_code
+from ucom_tools.trace.logs import check_buses, log_extension
 from ucom_tools.wire import mca
 from ucom_tools.wire.codes import ErrorCode
 
@@ -348,7 +354,9 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
     Alive every cycle.  It first listens on every bus for the boards' watchdog time:
     where another host's exchange runs (MCA Alive or CI maps it did not send) nothing is
     sent and the exit code is 4, unless --force.  On a terminal a live view shows every
-    value; 'set NAME VALUE' changes a CI or PAR while running.  With --for it runs N
+    value; 'set NAME VALUE' changes a CI or PAR while running.  The live view, --record
+    and --zenoh run in a process of their own, apart from the loop, and read only the
+    snapshots it hands over: none of them can keep it from its deadline.  With --for it runs N
     seconds and prints what the joints did (--json: every edge's last value and the
     loop's figures).  Ctrl-C or the end stops every board (motors off); a PC that dies
     leaves them to their watchdog.  A board that is lost (it went silent: power,
@@ -366,33 +374,44 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
     if allow_writes and not sharing:
         raise InputError("writes from the network need the network: give --zenoh",
                          key="--allow-writes")
+    view = seconds is None and sys.stdout.isatty() and not as_json
     summary = Summary()
     interrupted = 0  # the exit code of an interrupt
     how = ""
+    consumer_error: UcomError | None = None  # what ended the consumers' process
+    consumers: ConsumerProcess | None = None
     with ExitStack() as stack:
-        recorder = None
-        if record is not None:  # checked up front; discarded if the run is refused
-            from ucom_tools.trace.record import RunRecorder
-            recorder = stack.enter_context(RunRecorder(record))
-        with _part(robot_or_trees, _one_bus(spec, bus_name), rate_hz=rate,
-                   alive_ms=alive_ms, periods=cycles or None, realtime=realtime,
-                   on_fault=on_fault, rejoin=rejoin) as part:
+        spec = _one_bus(spec, bus_name)
+        if record is not None:  # checked up front; the file is written by the consumers
+            log_extension(record, key="--record")
+        with _part(robot_or_trees, spec, rate_hz=rate, alive_ms=alive_ms,
+                   periods=cycles or None, realtime=realtime, on_fault=on_fault,
+                   rejoin=rejoin) as part:
+            if sharing:
+                check_rate(publish_hz, 1.0 / part.period_s)
+            if record is not None:  # exit 3 before the exchange starts
+                check_buses(log_extension(record, key="--record"), part.robot.buses,
+                            Path(record), "--record")
             if not as_json:
                 _plan_notes(part)
-            if recorder is not None:
-                recorder.check_buses(part.robot.buses)  # exit 3 before the exchange starts
-                for h in part.robot.buses.values():
-                    h.link.dispatcher.taps.append(recorder.on_message_received)
-            if sharing:  # the robot already on the network: exit 4 before the buses
-                from ucom_tools.net.share import share
-
-                net = share(part, endpoint=zenoh_endpoint, config_file=zenoh_config,
-                            allow_writes=allow_writes, publish_hz=publish_hz, force=force)
-                if not as_json:
-                    stderr().print(f"[dim]zenoh: robot {escape(net.robot)} "
-                                   + (f"joined through {escape(net.joined)}" if net.joined
-                                      else f"on {escape(net.where)}")
-                                   + f", values at {net.publish_hz:g} Hz, writes "
+            feed: LoopFeed | None = None
+            if record is not None or sharing or view:
+                # the view, the recording and the share in a process of their own: none
+                # of them holds the lock this process's loop needs (ops/remote_feed.py)
+                consumers = ConsumerProcess(_consumers_config(
+                    part, record, view, zenoh_endpoint, zenoh_config, allow_writes,
+                    publish_hz, force))
+                stack.callback(consumers.close)
+                feed = consumers.feed(part, frames=record is not None, rate_hz=max(
+                    (publish_hz if sharing else 0.0), (10.0 if view else 0.0), 1.0))
+                feed.attach_frames()  # from the check on, as a recording always did
+                ready = consumers.wait_ready(feed)  # exit 3 or 4 before the buses
+                net = ready.get("zenoh")
+                if net and not as_json:
+                    stderr().print(f"[dim]zenoh: robot {escape(net['robot'])} "
+                                   + (f"joined through {escape(net['joined'])}"
+                                      if net["joined"] else f"on {escape(net['where'])}")
+                                   + f", values at {net['publish_hz']:g} Hz, writes "
                                    + ("allowed" if allow_writes else "refused") + "[/]",
                                    soft_wrap=True)
             part.claim(force=force)  # another host's exchange: exit 4, nothing sent
@@ -407,29 +426,28 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                     raise MappingError(report)
                 stderr().print("[yellow]ucom: --force: starting only the boards that match "
                                "their trees[/]")
-            if part.share is not None:
-                part.share.declare()  # the names known: declared before the boards start
             refs = [(part.names.resolve(n, key="--set", kinds=(mca.Kind.CI, mca.Kind.PAR)),
                      v) for n, v in wanted]
             raws = [(ref, ref.raw(v, what="--set")) for ref, v in refs]
-            part.on_values = _hooks(summary, recorder)
-            live: Callable[[RemotePart], None] | None = None
-            if seconds is None and sys.stdout.isatty() and not as_json:
-                # imported before the start: the first cycles must follow it within the
-                # boards' watchdog time, and prompt_toolkit takes a while to import
-                from ucom_tools.cli.live import live_view as live
+            part.on_values = summary  # on the loop's thread: a few dict look-ups a change
+            if feed is not None:
+                feed.attach()
             before: dict[str, tuple[float, int]] | None = None
             try:  # from the first board's start on: Ctrl-C stops the boards started
-                part.start(force=force)
-                for ref, raw in raws:
-                    part.set(ref, ref.value(raw))
-                before = part.traffic()
-                if seconds is not None:
-                    part.run(seconds)
-                elif live is not None:
-                    live(part)
-                else:
-                    _run_plain(part)
+                with _frozen():
+                    part.start(force=force)
+                    if feed is not None:
+                        feed.send_image()
+                    for ref, raw in raws:
+                        part.set(ref, ref.value(raw))
+                    before = part.traffic()
+                    if seconds is not None:
+                        part.run(seconds)
+                    elif view:
+                        while True:  # until the view is quit, Ctrl-C, a stop
+                            part.cycle()
+                    else:
+                        _run_plain(part)
             except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM, SIGHUP: stop every board
                 interrupted = interrupt_exit_code(e)
                 how = f"terminated ({e.name})" if isinstance(e, Terminated) else "interrupted"
@@ -437,8 +455,30 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                 how = str(e)
             except BoardLost:  # --on-fault stop: every other board was stopped at once
                 pass
+            except Quit:  # the live view's q
+                pass
+            except ConsumersGone as e:  # the view, the recording or the share failed
+                how = str(e)
+                consumer_error = e
+            finally:
+                part.on_values = None
             loads = {} if before is None else part.load_between(before, part.traffic())
             problems = part.stop()
+            network = None
+            if feed is not None and consumers is not None:
+                feed.end()
+                got = feed.wait_for("ended", END_S)  # the recording committed, the
+                if got is not None:  # terminal given back
+                    network = feed.stats.get("network")
+                    if got[1] and consumer_error is None:
+                        consumer_error = error_of(got[1], got[2], got[3])
+                elif consumer_error is None:
+                    consumer_error = UcomError(
+                        "the consumers' process (live view, --record, --zenoh) "
+                        + ("ended without saying how" if feed.gone
+                           else f"did not end within {END_S:g} s"))
+                if isinstance(consumer_error, ConsumersGone) and feed.ended is not None:
+                    consumer_error = error_of(*feed.ended)
             if how:
                 stderr().print(f"[yellow]{escape(how)}: "
                                + (f"{len(problems)} board(s) could not be stopped"
@@ -458,7 +498,7 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                            "lost": [{"bus": b.bus, "board": b.board, "where": b.where,
                                      "since": b.since, "seen": b.seen, "status": b.status}
                                     for b in still_lost],
-                           "network": None if part.share is None else part.share.stats(),
+                           "network": network,
                            "writes": [_write_json(w) for w in part.writes]})
             else:
                 _print_summary(part, summary, loads)
@@ -470,12 +510,41 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                 if stopped:
                     _print_loop_away(part)
                 _print_writes(part.writes)
+    if consumer_error is not None:
+        raise consumer_error
     if interrupted:
         ctx.exit(interrupted)
     if failed:
         ctx.exit(EXIT_BUS)
     if stopped or still_lost:
         ctx.exit(EXIT_FAILED)
+
+
+@contextmanager
+def _frozen() -> Iterator[None]:
+    """What exists when the loop starts is moved out of Python's collector (``gc.freeze``)
+    for the loop's time: a full collection then walks only what the run made since,
+    not the whole program (some ms with the GIL held, the loop waiting)."""
+    gc.collect()
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+
+
+def _consumers_config(part: RemotePart, record: str | None, view: bool,
+                      endpoint: str | None, config_file: str | None, allow_writes: bool,
+                      publish_hz: float, force: bool) -> dict[str, Any]:
+    """What the consumers' process is to do (:mod:`ucom_tools.cli.consumers`)."""
+    topology = part.robot.topology
+    assert topology is not None
+    sharing = endpoint is not None or config_file is not None
+    return {"record": record, "view": view, "pid": os.getpid(),
+            "robot": robot_id(topology.source, topology.name), "loop_hz": 1.0 / part.period_s,
+            "zenoh": {"endpoint": endpoint, "config": config_file,
+                      "allow_writes": allow_writes, "publish_hz": publish_hz,
+                      "force": force} if sharing else None}
 
 
 def _print_loop_away(part: RemotePart) -> None:
@@ -570,31 +639,36 @@ def _print_events(events: list[BoardEvent]) -> None:
                        f"{escape(first.text)}{times}[/]", soft_wrap=True)
 
 
-def _hooks(summary: Summary, recorder: Any) -> Any:
-    if recorder is None:
-        return summary
-
-    def both(t: float, ref: Any, value: Any) -> None:
-        summary(t, ref, value)
-        recorder.value(t, ref.bus, ref.board, ref.prefix, ref.unique, ref.kind.name, value)
-    return both
-
-
 def _run_plain(part: RemotePart) -> None:
-    """Not a terminal, no --for: run until interrupted, a status line every second."""
-    last = time.monotonic()
-    before = part.traffic()
-    while True:
-        part.cycle()
-        now = time.monotonic()
-        if now - last >= 1.0:
-            after = part.traffic()
-            loads = part.load_between(before, after)
-            before, last = after, now
-            s = part.stats
-            stderr().print(f"{s.cycles} cycles, {s.rate(part._clock()):.0f} Hz, {s.missed} "
-                           f"missed, p99 {s.percentile(99, RECENT_SAMPLES) * 1e3:.3f} ms; "
-                           + ", ".join(f"{n} {v:.1%}" for n, v in loads.items()))
+    """Not a terminal, no --for: run until interrupted; a thread of its own prints a
+    status line every second from what the loop hands over (the loop never waits for
+    the output)."""
+    bell = LoopHandover.of(part, 1.0).subscribe(1.0)
+    ended = threading.Event()
+
+    def status() -> None:
+        last: LoopSnapshot | None = None
+        while not ended.is_set():
+            snap = bell.wait(0.2)
+            if snap is None:
+                continue
+            if last is not None:
+                f = snap.figures
+                loads = snap.load_since(last)
+                stderr().print(f"{f.cycles} cycles, {f.rate(snap.clock):.0f} Hz, {f.missed} "
+                               f"missed, p99 {f.percentile(99) * 1e3:.3f} ms; "
+                               + ", ".join(f"{n} {v:.1%}" for n, v in loads.items()))
+            last = snap
+
+    thread = threading.Thread(target=status, name="ucom-status", daemon=True)
+    thread.start()
+    try:
+        while True:
+            part.cycle()
+    finally:
+        ended.set()
+        bell.close()
+        thread.join(1.0)
 
 
 try:

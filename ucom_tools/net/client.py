@@ -7,6 +7,7 @@
 
     with RobotClient.connect("tcp/127.0.0.1:7447") as robot:      # the only robot there
         print(robot.read(["Right Eye Joint Sensor"]))             # {name: (t, value)}
+        print(robot.read()["Right Eye Joint Sensor"].valid)       # False: its board is lost
         robot.write("Right Eye Target", 1000)                     # needs --allow-writes
         sub = robot.subscribe(["Right Eye Joint Sensor"], print)  # print(t, name, value)
 
@@ -40,7 +41,46 @@ JSON = zenoh.Encoding.APPLICATION_JSON
 ANSWER_S = 5.0
 """How long a write or a read waits for the robot's answer."""
 
-Callback = Callable[[float, str, int | float], None]
+Callback = Callable[..., None]
+"""``callback(t, name, value)``, with ``valid`` after them where asked for."""
+
+
+class Reading(tuple[float, Any]):
+    """An edge's latest value as :meth:`RobotClient.read` gives it: a ``(t, value)`` pair
+    that also says whether it is current (:attr:`valid`: False where its board is lost,
+    ``man/ucom-network.7``; the value is then the last before the loss) and since when
+    its board is lost (:attr:`lost_since`, on the base of ``t``)."""
+
+    valid: bool
+    lost_since: float | None
+    seen: str
+
+    def __new__(cls, t: float, value: Any, valid: bool = True,
+                lost_since: float | None = None, seen: str = "") -> Reading:
+        self = super().__new__(cls, (t, value))
+        self.valid, self.lost_since, self.seen = valid, lost_since, seen
+        return self
+
+    @property
+    def t(self) -> float:
+        return float(self[0])
+
+    @property
+    def value(self) -> Any:
+        return self[1]
+
+    @property
+    def age(self) -> float | None:
+        """Of a stale value: how old it was when its board was lost (None: valid)."""
+        return None if self.lost_since is None else self.lost_since - self.t
+
+
+def reading_of(doc: dict[str, Any], t: float, value: Any) -> Reading:
+    """A value of a board's ``values`` sample ``doc``, with the sample's validity."""
+    lost = doc.get("lost") if isinstance(doc.get("lost"), dict) else None
+    return Reading(t, value, doc.get("valid", True) is not False,
+                   None if lost is None else lost.get("since"),
+                   "" if lost is None else str(lost.get("seen", "")))
 
 
 class WritesForbidden(UcomError):
@@ -164,14 +204,15 @@ class RobotClient:
         return self.names.resolve(name)
 
     def read(self, names: Sequence[str] | None = None, *, timeout: float = ANSWER_S,
-             ) -> dict[str, tuple[float, int | float]]:
-        """The latest values (time stamp, value) by robot-wide name: of ``names``, or of
-        every edge that has one.  Waits up to ``timeout`` for boards that have published
-        nothing yet (a robot that just started)."""
+             ) -> dict[str, Reading]:
+        """The latest values (time stamp, value; a :class:`Reading`, which also says
+        whether the value is current) by robot-wide name: of ``names``, or of every edge
+        that has one.  Waits up to ``timeout`` for boards that have published nothing yet
+        (a robot that just started)."""
         wanted = [self.resolve(n) for n in names] if names is not None else None
         deadline = time.monotonic() + timeout
         while True:
-            got: dict[EdgeRef, tuple[float, int | float]] = {}
+            got: dict[EdgeRef, Reading] = {}
             for r in self.session.get(f"ucom/{keys.escape(self.robot)}/*/*/values",
                                       timeout=max(0.1, deadline - time.monotonic())):
                 if r.ok is None:
@@ -180,7 +221,7 @@ class RobotClient:
                 for unique, value in doc["values"].items():
                     ref = self._by_edge.get((doc["bus"], doc["board"], unique))
                     if ref is not None:
-                        got[ref] = (doc["t"], value)
+                        got[ref] = reading_of(doc, doc["t"], value)
             missing = [r for r in wanted or () if r not in got]
             if (got and not missing) or time.monotonic() >= deadline:
                 break
@@ -222,9 +263,12 @@ class RobotClient:
         raise BusError(f"robot {self.robot!r} on {self.where} did not answer within "
                        f"{timeout:g} s")
 
-    def subscribe(self, names: Sequence[str], callback: Callback) -> Subscription:
+    def subscribe(self, names: Sequence[str], callback: Callback, *,
+                  validity: bool = False) -> Subscription:
         """``callback(t, name, value)`` for each value of the edges ``names`` as the robot
-        publishes it (it publishes an edge's own key only while someone subscribes)."""
+        publishes it (it publishes an edge's own key only while someone subscribes); with
+        ``validity``, ``callback(t, name, value, valid)`` (False: its board is lost, the
+        value is the last before the loss)."""
         subscribers = []
         for n in names:
             ref = self.resolve(n)
@@ -235,7 +279,10 @@ class RobotClient:
                     doc = keys.loads(sample.payload.to_bytes())
                 except ValueError:
                     return
-                callback(doc["t"], shown, doc["value"])
+                if validity:
+                    callback(doc["t"], shown, doc["value"], doc.get("valid", True) is not False)
+                else:
+                    callback(doc["t"], shown, doc["value"])
             subscribers.append(self.session.declare_subscriber(self._keys[ref], on_sample))
         return Subscription(subscribers)
 
@@ -307,12 +354,13 @@ class RobotClient:
         return any(r.ok is not None for r in self.session.liveliness().get(
             keys.robot_key(self.robot, "alive"), timeout=1.0))
 
-    def watch(self, names: Sequence[str], seconds: float | None = None,
-              ) -> Iterator[tuple[float, str, int | float]]:
+    def watch(self, names: Sequence[str], seconds: float | None = None, *,
+              validity: bool = False) -> Iterator[tuple[Any, ...]]:
         """Yield (t, name, value) of ``names`` as they come, for ``seconds`` (None: until
-        the caller stops); RobotGone where the robot goes away meanwhile."""
-        q: queue.SimpleQueue[tuple[float, str, int | float] | None] = queue.SimpleQueue()
-        sub = self.subscribe(names, lambda t, n, v: q.put((t, n, v)))
+        the caller stops); with ``validity`` (t, name, value, valid); RobotGone where the
+        robot goes away meanwhile."""
+        q: queue.SimpleQueue[tuple[Any, ...] | None] = queue.SimpleQueue()
+        sub = self.subscribe(names, lambda *item: q.put(item), validity=validity)
         gone = self.on_gone(lambda: q.put(None))
         end = None if seconds is None else time.monotonic() + seconds
         try:

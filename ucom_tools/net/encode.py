@@ -1,8 +1,9 @@
 """A board's ``values`` sample and an edge's sample, encoded from precompiled parts
 (``man/ucom-network.7``, PAYLOADS and THE LOOP'S COST).
 
-:meth:`RemotePart.decode` turns a snapshot into (time stamp, value) per :class:`EdgeRef`
-(dict look-ups, a Decimal per value) and :func:`keys.dumps` walks the result again: about
+:meth:`PartImage.decode <ucom_tools.ops.remote_image.PartImage.decode>` turns a
+snapshot into (time stamp, value) per :class:`EdgeRef` (dict look-ups, a Decimal per
+value) and :func:`keys.dumps` walks the result again: about
 4 us per value in Python, on a thread that competes with the 1 kHz loop for the GIL.
 Here everything that does not change while the loop runs is done once, when the share
 declares its publishers: the JSON text around the values (names, keys, separators), one
@@ -24,7 +25,8 @@ from typing import Any
 
 from ucom_tools.net import keys
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote import RawSnapshot, RemotePart
+from ucom_tools.ops.remote_image import PartImage
+from ucom_tools.ops.remote_report import RawSnapshot
 from ucom_tools.wire import mca
 
 Conv = Callable[[int], Any] | None
@@ -160,20 +162,20 @@ class BoardEncoder:
     """One board's ``values`` sample from a :class:`RawSnapshot`, and the samples of its
     edges' own keys."""
 
-    def __init__(self, part: RemotePart, robot: str, bus: str, board: int,
+    def __init__(self, image: PartImage, robot: str, bus: str, board: int,
                  refs: Sequence[EdgeRef]) -> None:
         self.bus, self.board = bus, board
         self.key = keys.board_key(robot, bus, board)
         self._head = (f'{{"v":{keys.VERSION},"robot":{_json(robot)},"bus":{_json(bus)},'
                       f'"board":{board},"t":')
         by_index = {r.index: r for r in refs if r.kind is mca.Kind.SO}
-        x = part.exchanges[bus]
-        records = x.configured[board].edges.so if board in x.configured else ()
+        described = image.described(bus, board)
+        records = described.so if described is not None else ()
         self._maps: list[_SoMap] = []
         self.edge_source: dict[EdgeRef, tuple[str, Any, int]] = {}
         """Where an edge's raw value is: ("so", the map, its position among the picked
         values), ("ci", its key, 0) or ("par", its key, 0)."""
-        for m in x.plan.so_maps:
+        for m in image.so_maps(bus):
             if m.board != board:
                 continue
             specs = [(records[i].width, records[i].signed) for i in m.edges]
@@ -199,9 +201,12 @@ class BoardEncoder:
             self.edge_source[r] = ("par", r, 0)
         self._edge_heads = {r: f',"name":{_json(r.unique)},"value":' for r in refs}
 
-    def sample(self, snap: RawSnapshot) -> bytes:
+    def sample(self, snap: RawSnapshot, lost: tuple[float, str] | None = None) -> bytes:
         """The board's ``values`` sample (``man/ucom-network.7``): JSON, as
-        ``keys.dumps({"robot", "bus", "board", "t", "values"})`` of the decoded values."""
+        ``keys.dumps({"robot", "bus", "board", "t", "values", "valid"})`` of the decoded
+        values; where the board is ``lost`` (since when, on the frames' time base, and what
+        was seen last) ``"valid": false`` and ``"lost": {"since", "seen"}``: its values
+        are its last before the loss."""
         frames, stamps = snap.frames[self.bus], snap.stamps[self.bus]
         parts = []
         t: float | None = None
@@ -219,12 +224,16 @@ class BoardEncoder:
         for text in (self._ci.text(snap.ci[self.bus]), self._par.text(snap.par)):
             if text:
                 parts.append(text)
+        tail = ('},"valid":true}' if lost is None else
+                '},"valid":false,"lost":{"since":' + _stamp(lost[0]) + ',"seen":'
+                + _json(lost[1]) + "}}")
         return (self._head + _stamp(snap.clock if t is None else t) + ',"values":{'
-                + ",".join(parts) + "}}").encode()
+                + ",".join(parts) + tail).encode()
 
-    def edge_sample(self, ref: EdgeRef, snap: RawSnapshot) -> bytes | None:
-        """The sample of one edge's own key (``{"v", "t", "name", "value"}``), None where
-        the snapshot has no value of it."""
+    def edge_sample(self, ref: EdgeRef, snap: RawSnapshot, valid: bool = True,
+                    ) -> bytes | None:
+        """The sample of one edge's own key (``{"v", "t", "name", "value", "valid"}``),
+        None where the snapshot has no value of it; ``valid`` false: its board is lost."""
         where, what, pos = self.edge_source[ref]
         t: float = snap.clock
         raw: int | None
@@ -242,12 +251,12 @@ class BoardEncoder:
         if raw is None:
             return None
         return (f'{{"v":{keys.VERSION},"t":{_stamp(t)}{self._edge_heads[ref]}'
-                f"{write(conv, raw)}}}").encode()
+                f'{write(conv, raw)},"valid":{"true" if valid else "false"}}}').encode()
 
 
-def encoders(part: RemotePart, robot: str) -> dict[tuple[str, int], BoardEncoder]:
+def encoders(image: PartImage, robot: str) -> dict[tuple[str, int], BoardEncoder]:
     """A :class:`BoardEncoder` for every board the part names edges of (checked)."""
     by_board: dict[tuple[str, int], list[EdgeRef]] = {}
-    for ref in part.names:
+    for ref in image.refs:
         by_board.setdefault((ref.bus, ref.board), []).append(ref)
-    return {b: BoardEncoder(part, robot, b[0], b[1], refs) for b, refs in by_board.items()}
+    return {b: BoardEncoder(image, robot, b[0], b[1], refs) for b, refs in by_board.items()}

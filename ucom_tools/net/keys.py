@@ -14,6 +14,8 @@ from decimal import Decimal
 from pathlib import PurePath
 from typing import Any
 
+from ucom_tools.errors import InputError
+
 VERSION = 1
 """The payloads' version (their ``"v"`` field): a reader refuses another."""
 PREFIX = "ucom"
@@ -35,6 +37,13 @@ KEYS = {
 """Every key expression (``man/ucom-network.7`` lists the same; a test compares them)."""
 
 _ESCAPED = "%/*$?#"
+
+
+def check_rate(publish_hz: float, loop_hz: float) -> None:
+    """InputError unless 0 < ``publish_hz`` <= ``loop_hz`` (``--publish-rate``)."""
+    if not 0 < publish_hz <= loop_hz * 1.0001:
+        raise InputError(f"the publishing rate must be more than 0 and at most the loop's "
+                         f"rate ({loop_hz:g} Hz), not {publish_hz:g}", key="--publish-rate")
 
 
 def robot_id(source: str, name: str) -> str:

@@ -11,9 +11,11 @@ robot and one per running board.  What comes in: writes (``set``) and a stop (``
 refused unless ``allow_writes``; an allowed write is checked and applied exactly as a
 local one (:meth:`RemotePart.set`), on the loop's thread, and answered.
 
-Off the loop's critical path: the loop's thread only takes a snapshot every few cycles
-(:meth:`RemotePart.snapshot`: references and small dict copies) and hands it to the
-publishing thread through a queue, and applies the writes the network queued; it never
+Off the loop's critical path: the share reads the run through the loop's hand-over
+(:class:`~ucom_tools.ops.remote_publish.LoopHandover`: every publishing period the
+loop's thread takes a snapshot, references and small dict copies, and rings the
+publishing thread's queue), never the loop's live structures; the loop's thread only
+applies the writes the network queued and asks for the boards' Status reports; it never
 waits for the network.  Encoding (from parts prepared once, :mod:`.encode`: the
 publishing thread holds the GIL the loop needs as briefly as it can) and every Zenoh
 call happen on the publishing thread (or on Zenoh's own threads, for the queries).
@@ -34,23 +36,26 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
-import can
 import zenoh
 
-from ucom_tools.errors import BusError, FrameError, InputError, UcomError
+from ucom_tools.errors import BusError, FrameError, UcomError
 from ucom_tools.net import keys
 from ucom_tools.net.encode import BoardEncoder, encoders
+from ucom_tools.net.keys import check_rate
 from ucom_tools.net.session import address_in_use, check_endpoint, config, open_session
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote import RawSnapshot, RemotePart, RemoteStop, WriteEvent
+from ucom_tools.ops.remote import BoardFault, RemotePart, WriteEvent
+from ucom_tools.ops.remote_feed import Applied, LocalRun
+from ucom_tools.ops.remote_image import PartImage
+from ucom_tools.ops.remote_publish import Doorbell, LoopSnapshot
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
-from ucom_tools.wire.codes import ReportChannel
-from ucom_tools.wire.ids import Direction, Function, IdType, seq
+from ucom_tools.wire.ids import Direction, IdType
 
 JSON = zenoh.Encoding.APPLICATION_JSON
 PROBE_S = 1.0
@@ -65,10 +70,6 @@ CLEAR_OF_DEADLINE_S = 0.0003
 next deadline: it waits until the loop has sent that cycle (:data:`AFTER_DEADLINE_S`),
 so that the GIL is free when the loop wakes."""
 AFTER_DEADLINE_S = 0.00015
-STATUS_PERIOD_S = 1.0
-"""Each running board is asked for its Status report (state, LEDs, CAN error counters,
-overruns) once in this long, the boards one after the other (ARMAR-III: a Report Request
-every 91 ms, 0.1 % of a bus's capacity)."""
 
 
 def status_doc(report: m.StatusReport, t: float) -> dict[str, Any]:
@@ -83,8 +84,13 @@ def status_doc(report: m.StatusReport, t: float) -> dict[str, Any]:
             "tec": report.tec, "rec": report.rec, "overruns": report.overruns}
 
 
-def _is_status(msg: can.Message) -> bool:
-    return not msg.is_extended_id and msg.arbitration_id >> 6 == Function.REPORT_0
+def fault_doc(fault: BoardFault, t: float) -> dict[str, Any]:
+    """A board lost or rejoined as an event (``man/ucom-network.7``): ``t`` on the
+    values' time base, ``time`` seconds since the exchange started (as ``--json``'s
+    faults)."""
+    return {"kind": "fault", "t": round(t, 6), "time": fault.time, "bus": fault.bus,
+            "board": fault.board, "where": fault.where, "event": fault.event,
+            "seen": fault.seen, "answered": fault.answered}
 
 
 def origin() -> str:
@@ -97,24 +103,13 @@ def origin() -> str:
 
 
 @dataclass
-class _Request:
-    """A write (or stop) from the network, queued for the loop's thread."""
-
-    query: zenoh.Query
-    name: str
-    value: Any
-    origin: str
-    stop: bool = False
-
-
-@dataclass
 class _Answer:
     """What the loop's thread made of a request, for the publishing thread to send."""
 
     query: zenoh.Query
     ok: bool
     doc: dict[str, Any]
-    event: WriteEvent
+    event: WriteEvent | None
 
 
 def open_shared(robot: str, *, zenoh: str | None = None,
@@ -148,33 +143,72 @@ def share(part: RemotePart, *, endpoint: str | None = None,
     unless ``config_file`` names the endpoints), values at ``publish_hz`` (1 .. the loop's
     rate).  Call it before :meth:`RemotePart.start` (or open the part with
     :func:`open_shared`); it may also share a running part.  The part closes the share."""
-    s = RobotShare(part, endpoint=endpoint, config_file=config_file,
-                   allow_writes=allow_writes, publish_hz=publish_hz, force=force)
+    assert part.robot.topology is not None
+    loop_hz = 1.0 / part.period_s
+    check_rate(publish_hz, loop_hz)
+    run = LocalRun(part, publish_hz)
+    try:
+        s = RobotShare(run, keys.robot_id(part.robot.topology.source,
+                                          part.robot.topology.name), loop_hz,
+                       endpoint=endpoint, config_file=config_file,
+                       allow_writes=allow_writes, publish_hz=publish_hz, force=force)
+    except BaseException:
+        run.close()
+        raise
+    s.owns_source = True
     part.share = s
-    part.each_cycle.append(s.on_cycle)
     if part.report is not None:
         s.declare()  # the names are known: declared now, not while the loop runs
     return s
 
 
+class RunSource(Protocol):
+    """What a share reads and asks of the run: in the loop's own process its
+    :class:`~ucom_tools.ops.remote_feed.LocalRun`, in the consumers' process of ``ucom
+    remote run`` its :class:`~ucom_tools.ops.remote_mirror.Mirror`."""
+
+    @property
+    def image(self) -> PartImage | None: ...
+
+    @property
+    def latest(self) -> LoopSnapshot | None: ...
+
+    def subscribe(self, rate_hz: float | None = None, into: Any = None) -> Doorbell: ...
+
+    def next_deadline(self) -> float | None: ...
+
+    def final(self) -> LoopSnapshot | None: ...
+
+    def write(self, name: str, value: object, origin: str, *,
+              network: bool = True) -> Future[Applied]: ...
+
+    def stop(self, origin: str) -> Future[Applied]: ...
+
+    def poll_status(self, boards: list[tuple[str, int]]) -> None: ...
+
+    @property
+    def status_sinks(self) -> list[Callable[[str, int, bytes, float], None]]: ...
+
+    def close(self) -> None: ...
+
+
 class RobotShare:
     """One robot's run time on Zenoh (see the module docstring)."""
 
-    def __init__(self, part: RemotePart, *, endpoint: str | None = None,
-                 config_file: str | Path | None = None, allow_writes: bool = False,
-                 publish_hz: float = 100.0, force: bool = False) -> None:
-        assert part.robot.topology is not None
-        loop_hz = 1.0 / part.period_s
-        if not 0 < publish_hz <= loop_hz * 1.0001:
-            raise InputError(f"the publishing rate must be more than 0 and at most the loop's "
-                             f"rate ({loop_hz:g} Hz), not {publish_hz:g}", key="--publish-rate")
-        self.part = part
-        self.robot = keys.robot_id(part.robot.topology.source, part.robot.topology.name)
+    def __init__(self, source: RunSource, robot: str, loop_hz: float, *,
+                 endpoint: str | None = None, config_file: str | Path | None = None,
+                 allow_writes: bool = False, publish_hz: float = 100.0, force: bool = False,
+                 pid: int | None = None) -> None:
+        check_rate(publish_hz, loop_hz)
+        self.source = source
+        self.owns_source = False
+        """Closing the share closes its source (a :class:`LocalRun` made for it)."""
+        self.robot = robot
         """The robot's chunk of the keys (``armar3``)."""
+        self.pid = os.getpid() if pid is None else pid
+        """The loop's process (the structure names it)."""
         self.allow_writes = allow_writes
         self.publish_hz = loop_hz / max(1, round(loop_hz / publish_hz))
-        self._every = max(1, round(loop_hz / publish_hz))
-        self._countdown = 1
         if endpoint is None and config_file is None:
             endpoint = keys.DEFAULT_ENDPOINT
         self.endpoint = check_endpoint(endpoint) if endpoint is not None else None
@@ -189,8 +223,11 @@ class RobotShare:
                 other = self._other(self.session)
                 if other is not None:
                     raise BusError(self._refusal(other))
-            self._requests: queue.SimpleQueue[_Request] = queue.SimpleQueue()
-            self._out: queue.SimpleQueue[RawSnapshot | _Answer] = queue.SimpleQueue()
+            self._out: queue.SimpleQueue[Doorbell | _Answer] = queue.SimpleQueue()
+            """What the publishing thread does next: the loop's doorbell (a snapshot to
+            publish) or an answer to a write."""
+            self._bell = source.subscribe(self.publish_hz, into=self._out)
+            self._image: PartImage | None = None
             self._matched: set[str] = set()
             self._latest: dict[str, bytes] = {}
             self._edge_latest: dict[str, bytes] = {}
@@ -209,12 +246,9 @@ class RobotShare:
             """The Status report frames the loop's thread saw (bus, identifier, data,
             time), for the publishing thread to decode."""
             self._status_pubs: dict[tuple[str, int], zenoh.Publisher] = {}
-            self._status_subs: list[tuple[Any, Any]] = []
-            self._polled: list[tuple[str, int]] = []
-            self._poll_at = 0
-            self._poll_every = 1
             self._events_seen = 0
             self._writes_seen = 0
+            self._faults_seen = 0
             self._state = "starting"
             self.published = 0
             """Samples put so far (board values and edges)."""
@@ -310,9 +344,12 @@ class RobotShare:
         with self._lock:
             if self._declared:
                 return
-            part, s = self.part, self.session
-            self._structure = keys.dumps(self._structure_doc())
-            for ref in part.names:
+            image, s = self.source.image, self.session
+            if image is None:
+                return  # not checked yet: the publishing thread declares later
+            self._image = image
+            self._structure = keys.dumps(self._structure_doc(image))
+            for ref in image.refs:
                 board = (ref.bus, ref.board)
                 if board not in self._board_pubs:
                     k = keys.board_key(self.robot, ref.bus, ref.board)
@@ -325,22 +362,14 @@ class RobotShare:
                 self._edge_pubs[ref] = (k, pub)
                 self._edge_by_key[k] = (ref, pub)
                 self._listeners.append(pub.declare_matching_listener(self._matching(k)))
-            self._polled = sorted(self._board_pubs)
-            self._poll_every = max(1, round(STATUS_PERIOD_S / part.period_s
-                                            / max(1, len(self._polled))))
-            for name, h in part.robot.buses.items():
-                d = h.link.dispatcher
-                self._status_subs.append((d, d.subscribe(
-                    _is_status, "zenoh status", on_frame=self._status_taker(name))))
+            self.source.status_sinks.append(self._take_status)
+            self.source.poll_status(sorted(self._board_pubs))
             self._token = s.liveliness().declare_token(keys.robot_key(self.robot, "alive"))
             self._declared = True
 
-    def _status_taker(self, bus: str) -> Callable[[can.Message], None]:
-        frames = self._status_frames
-
-        def take(msg: can.Message) -> None:  # the loop's thread: keep it, decode later
-            frames.append((bus, msg.arbitration_id, bytes(msg.data), msg.timestamp))
-        return take
+    def _take_status(self, bus: str, ident: int, data: bytes, t: float) -> None:
+        """A Status report frame (the loop's thread: kept, decoded later)."""
+        self._status_frames.append((bus, ident, data, t))
 
     def _matching(self, key: str) -> Callable[[zenoh.MatchingStatus], None]:
         def changed(status: zenoh.MatchingStatus) -> None:
@@ -351,14 +380,14 @@ class RobotShare:
                 self._matched.discard(key)
         return changed
 
-    def _structure_doc(self) -> dict[str, Any]:
-        part = self.part
-        checks = {(b.bus, b.board): b for b in (part.report.boards if part.report else ())}
+    def _structure_doc(self, image: PartImage) -> dict[str, Any]:
+        report = image.report
+        checks = {(b.bus, b.board): b for b in (report.boards if report else ())}
         buses: dict[str, dict[str, Any]] = {}
         boards: dict[tuple[str, int], dict[str, Any]] = {}
-        for name, h in part.robot.buses.items():
-            buses[name] = {"name": name, "bitrate": h.link.bitrate, "boards": []}
-        for ref in part.names:
+        for name, bitrate in image.bitrates.items():
+            buses[name] = {"name": name, "bitrate": bitrate, "boards": []}
+        for ref in image.refs:
             b = boards.get((ref.bus, ref.board))
             if b is None:
                 c = checks.get((ref.bus, ref.board))
@@ -371,82 +400,21 @@ class RobotShare:
             spec = ref.spec
             b["edges"].append({
                 "name": ref.unique, "generic": ref.generic, "qualified": ref.qualified,
-                "robot_name": part.names.name_of(ref), "kind": ref.kind.name,
+                "robot_name": image.names.name_of(ref), "kind": ref.kind.name,
                 "unit": spec.unit, "min": keys.number(ref.value(spec.minimum)),
                 "max": keys.number(ref.value(spec.maximum)), "range": ref.describe_range(),
                 "encoding": {"width": spec.width, "signed": spec.signed,
                              "exponent": spec.exponent, "raw_min": spec.minimum,
                              "raw_max": spec.maximum},
-                "cyclic": part.cyclic(ref), "writable": ref.kind is not mca.Kind.SO,
+                "cyclic": image.cyclic(ref), "writable": ref.kind is not mca.Kind.SO,
                 "key": keys.edge_key(self.robot, ref.bus, ref.board, ref.unique)})
-        assert part.robot.topology is not None
-        return {"robot": self.robot, "name": part.robot.topology.name,
-                "host": socket.gethostname(), "pid": os.getpid(),
+        return {"robot": self.robot, "name": image.name,
+                "host": socket.gethostname(), "pid": self.pid,
                 "listen": self.endpoint if self.joined is None else None,
-                "started": round(self.started, 3), "rate_hz": round(1 / part.period_s, 3),
+                "started": round(self.started, 3), "rate_hz": round(1 / image.period_s, 3),
                 "publish_hz": round(self.publish_hz, 3), "allow_writes": self.allow_writes,
-                "virtual_time": part.virtual, "zid": str(self.session.zid()),
+                "virtual_time": image.virtual, "zid": str(self.session.zid()),
                 "buses": [b for b in buses.values() if b["boards"]]}
-
-    # ------------------------------------------------------------------ the loop's side
-    def on_cycle(self) -> None:
-        """The loop's thread, every cycle: apply what the network queued, and every
-        publishing period hand a snapshot over.  Never waits."""
-        if not self._requests.empty():
-            self._apply()
-        self._countdown -= 1
-        if self._countdown <= 0:
-            self._countdown = self._every
-            self._out.put(self.part.snapshot())
-        if self._polled:
-            self._poll_at -= 1
-            if self._poll_at <= 0:
-                self._poll_at = self._poll_every
-                self._ask_status()
-
-    def _ask_status(self) -> None:
-        """One running board's Status report asked for (round robin; a failed send is
-        the bus's business: the loop notices it itself)."""
-        bus, board = self._polled[0]
-        self._polled.append(self._polled.pop(0))
-        if self._state != "running" or (bus, board) not in self._board_tokens:
-            return
-        h = self.part.robot.buses.get(bus)
-        if h is None:
-            return
-        with contextlib.suppress(UcomError):
-            h.link.send(m.ReportRequest(ReportChannel.STATUS), seq(board))
-
-    def _apply(self) -> None:
-        part = self.part
-        while True:
-            try:
-                r = self._requests.get_nowait()
-            except queue.Empty:
-                return
-            t = round(part._clock() - part.stats.started_clock, 4)
-            if r.stop:
-                event = WriteEvent(t, "", "stop", r.origin, "done")
-                part.writes.append(event)
-                self._out.put(_Answer(r.query, True, {"ok": True, "done": "stopping"},
-                                      event))
-                raise RemoteStop(r.origin)
-            try:
-                ref = part.set(r.name, r.value)
-            except InputError as err:
-                result, ok = err.reason, False
-                doc: dict[str, Any] = {"ok": False, "error": "refused", "message": err.reason}
-            except UcomError as err:  # a PAR write the board did not acknowledge
-                result, ok = str(err), False
-                doc = {"ok": False, "error": "failed", "message": str(err)}
-            else:
-                result, ok = "done", True
-                doc = {"ok": True, "done": "set", "name": part.names.name_of(ref),
-                       "value": keys.number(part[part.names.name_of(ref)]),
-                       "range": ref.describe_range(), "unit": ref.spec.unit}
-            event = WriteEvent(t, r.name, str(r.value), r.origin, result)
-            part.writes.append(event)
-            self._out.put(_Answer(r.query, ok, doc, event))
 
     # ------------------------------------------------------------------ queries (Zenoh's threads)
     def _on_structure(self, query: zenoh.Query) -> None:
@@ -472,7 +440,8 @@ class RobotShare:
                 "message": f"robot {self.robot!r} does not allow other hosts to {what} (its "
                            "loop runs without --allow-writes)"}), encoding=JSON)
             return
-        if self._closing.is_set() or not self.part.running:
+        latest = self.source.latest
+        if self._closing.is_set() or (latest is not None and not latest.running):
             query.reply_err(keys.dumps({"ok": False, "error": "stopped",
                                         "message": "the loop is not running"}),
                             encoding=JSON)
@@ -481,7 +450,7 @@ class RobotShare:
             doc = keys.loads(query.payload.to_bytes() if query.payload is not None else b"{}")
             who = str(doc.get("origin") or "unknown")
             if stop:
-                self._requests.put(_Request(query, "", None, who, stop=True))
+                self._ask(query, self.source.stop(who))
                 return
             name, value = doc.get("name"), doc.get("value")
             if not isinstance(name, str) or isinstance(value, bool) \
@@ -491,7 +460,23 @@ class RobotShare:
             query.reply_err(keys.dumps({"ok": False, "error": "refused",
                                         "message": f"not a write: {err}"}), encoding=JSON)
             return
-        self._requests.put(_Request(query, name, value, who))
+        self._ask(query, self.source.write(name, value, who))
+
+    def _ask(self, query: zenoh.Query, future: Future[Applied]) -> None:
+        """The answer, once the loop's thread applied the request, to the publishing
+        thread (which replies)."""
+        def done(f: Future[Applied]) -> None:
+            a = f.result()
+            if a.ok:
+                doc: dict[str, Any] = ({"ok": True, "done": "stopping"}
+                                       if a.message == "stopping" else
+                                       {"ok": True, "done": "set", "name": a.name,
+                                        "value": keys.number(a.value), "range": a.range,
+                                        "unit": a.unit})
+            else:
+                doc = {"ok": False, "error": a.error, "message": a.message}
+            self._out.put(_Answer(query, a.ok, doc, a.event))
+        future.add_done_callback(done)
 
     def _on_set(self, query: zenoh.Query) -> None:
         self._request(query, stop=False)
@@ -506,12 +491,11 @@ class RobotShare:
                 try:
                     item = self._out.get(timeout=0.05)
                 except queue.Empty:
-                    self._publish_events()
                     continue
-                latest: RawSnapshot | None = None
+                latest: LoopSnapshot | None = None
                 while True:  # behind: answer everything, publish only the latest values
-                    if isinstance(item, RawSnapshot):
-                        latest = item
+                    if isinstance(item, Doorbell):
+                        latest = item.answer()
                     else:
                         self._answer(item)
                     try:
@@ -520,7 +504,7 @@ class RobotShare:
                         break
                 if latest is not None:
                     self._publish(latest)
-                self._publish_events()
+                    self._publish_events(latest)
         except BaseException as err:  # the share ends; the loop goes on
             self.error = err
 
@@ -532,22 +516,27 @@ class RobotShare:
             a.query.reply_err(payload, encoding=JSON)
         a.query.drop()
 
-    def _publish(self, snap: RawSnapshot) -> None:
+    def _publish(self, loop: LoopSnapshot) -> None:
         if not self._declared:
             self.declare()
-        part = self.part
-        if self._state == "starting" and part.running:
+            if not self._declared:
+                return  # not checked yet
+        snap = loop.values
+        if self._state == "starting" and loop.running:
             self._state = "running"
             for board in self._board_pubs:
-                self._board_tokens[board] = self.session.liveliness().declare_token(
-                    keys.board_key(self.robot, *board, what="board_alive"))
+                if board not in loop.lost:
+                    self._alive(board, True)
             self._event({"kind": "state", "state": "running", "t": snap.clock})
         if self._encoders is None:  # once: the boards are configured now
-            self._encoders = encoders(part, self.robot)
+            assert self._image is not None
+            self._encoders = encoders(self._image, self.robot)
         now = time.monotonic()
         for board, (k, pub) in self._board_pubs.items():
             self._clear_of_the_loop()
-            payload = self._encoders[board].sample(snap)
+            lost = loop.lost.get(board)
+            payload = self._encoders[board].sample(
+                snap, None if lost is None else (loop.on_stamps(lost.since), lost.seen))
             if payload == self._latest.get(k) and now - self._put_at.get(k, 0.0) < RESEND_S:
                 continue  # nothing new on this board: its latest stays where it is
             self._latest[k] = payload
@@ -558,7 +547,8 @@ class RobotShare:
             self._publish_status()
         for k in list(self._matched):  # the edges someone subscribes to (few)
             ref, pub = self._edge_by_key[k]
-            edge = self._encoders[(ref.bus, ref.board)].edge_sample(ref, snap)
+            edge = self._encoders[(ref.bus, ref.board)].edge_sample(
+                ref, snap, (ref.bus, ref.board) not in loop.lost)
             if edge is None or (edge == self._edge_latest.get(k)
                                 and now - self._put_at.get(k, 0.0) < RESEND_S):
                 continue
@@ -567,9 +557,19 @@ class RobotShare:
             pub.put(edge)
             self.published += 1
 
+    def _alive(self, board: tuple[str, int], alive: bool) -> None:
+        """The board's liveliness token: there while it runs, gone while it is lost or
+        stopped."""
+        token = self._board_tokens.pop(board, None)
+        if token is not None and not alive:
+            token.undeclare()
+        elif alive:
+            self._board_tokens[board] = token or self.session.liveliness().declare_token(
+                keys.board_key(self.robot, *board, what="board_alive"))
+
     def _clear_of_the_loop(self) -> None:
         """Wait out the loop's next deadline when it is about to come (real buses)."""
-        deadline = self.part.next_deadline
+        deadline = self.source.next_deadline()
         if deadline is not None:
             gap = deadline - time.monotonic()
             if 0.0 < gap < CLEAR_OF_DEADLINE_S:
@@ -596,24 +596,26 @@ class RobotShare:
     def _event(self, doc: dict[str, Any]) -> None:
         self._events.put(keys.dumps({"robot": self.robot, **doc}))
 
-    def _publish_events(self) -> None:
-        part = self.part
-        while self._events_seen < len(part.events):
-            e = part.events[self._events_seen]
-            self._events_seen += 1
+    def _publish_events(self, snap: LoopSnapshot) -> None:
+        """The run's events that came since the last snapshot: the boards' Errors, the
+        writes and stops from the network, the boards lost and rejoined."""
+        for e in snap.newer(snap.events, snap.events_total, self._events_seen):
             self._event({"kind": "board", "t": e.time, "bus": e.bus, "board": e.board,
                          "where": e.where, "error": e.code.name, "text": e.text,
                          "stopped_motors": e.stopped_motors})
             if e.stopped_motors:  # stopped until started again: not alive
-                token = self._board_tokens.pop((e.bus, e.board), None)
-                if token is not None:
-                    token.undeclare()
-        while self._writes_seen < len(part.writes):
-            w = part.writes[self._writes_seen]
-            self._writes_seen += 1
+                self._alive((e.bus, e.board), False)
+        self._events_seen = snap.events_total
+        for w in snap.newer(snap.writes, snap.writes_total, self._writes_seen):
             self._event({"kind": "stop" if w.value == "stop" and not w.name else "write",
                          "t": w.time, "name": w.name, "value": w.value, "origin": w.origin,
                          "result": w.result})
+        self._writes_seen = snap.writes_total
+        for f in snap.newer(snap.faults, snap.faults_total, self._faults_seen):
+            self._event(fault_doc(f, snap.on_stamps(f.time)))
+            if self._state == "running" and (f.bus, f.board) in self._board_pubs:
+                self._alive((f.bus, f.board), f.event == "rejoined")
+        self._faults_seen = snap.faults_total
 
     # ------------------------------------------------------------------ the end
     def close(self) -> None:
@@ -623,8 +625,10 @@ class RobotShare:
             return
         self._closing.set()
         self._thread.join(CLOSE_S)
-        for d, sub in self._status_subs:
-            d.unsubscribe(sub)
+        with contextlib.suppress(ValueError):
+            self.source.status_sinks.remove(self._take_status)
+        if self.owns_source:
+            self.source.close()  # what is still asked: answered as refused
         try:
             while True:
                 try:
@@ -633,17 +637,12 @@ class RobotShare:
                     break
                 if isinstance(item, _Answer):
                     self._answer(item)
-            while True:
-                try:
-                    r = self._requests.get_nowait()
-                except queue.Empty:
-                    break
-                r.query.reply_err(keys.dumps({"ok": False, "error": "stopped",
-                                              "message": "the loop stopped"}), encoding=JSON)
-                r.query.drop()
-            self._publish_events()
+            self._bell.close()
+            final = self.source.final()
+            if final is not None:
+                self._publish_events(final)
             self._event({"kind": "state", "state": "stopped",
-                         "t": round(self.part._clock(), 6)})
+                         "t": round(final.clock if final is not None else 0.0, 6)})
         except (zenoh.ZError, UcomError):
             pass
         finally:
@@ -653,6 +652,6 @@ class RobotShare:
         """For ``remote run --json``: where, how often, how much."""
         return {"endpoint": self.endpoint, "joined": self.joined,
                 "publish_hz": round(self.publish_hz, 3), "allow_writes": self.allow_writes,
-                "published": self.published, "writes": len(self.part.writes),
+                "published": self.published, "writes": self._writes_seen,
                 "error": None if self.error is None else str(self.error)}
 

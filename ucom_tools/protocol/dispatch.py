@@ -63,6 +63,22 @@ Accepts = Callable[[can.Message], bool]
 (extended, remote, error): its answer is kept per identifier."""
 OnData = Callable[[int, bytes, float], None]
 """A subscriber's callback for standard data frames by identifier, data and time stamp."""
+SENT: Final = 1
+""":attr:`Dispatcher.sink` flags: the frame was sent (else received), ..."""
+EXTENDED: Final = 2
+"""... has a 29-bit identifier, ..."""
+REMOTE: Final = 4
+"""... is a remote frame, ..."""
+ERROR: Final = 8
+"""... is an error frame."""
+SinkEntry = tuple[int, bytes, float, int]
+"""A frame in :attr:`Dispatcher.sink`: identifier, data, time stamp, flags."""
+
+
+def _flags(msg: can.Message) -> int:
+    """The :data:`SinkEntry` flags of a frame's type."""
+    return ((EXTENDED if msg.is_extended_id else 0) | (REMOTE if msg.is_remote_frame else 0)
+            | (ERROR if msg.is_error_frame else 0))
 
 
 class Subscription:
@@ -146,6 +162,11 @@ class Dispatcher:
         self.taps: list[Callable[[can.Message], None]] = []
         """Called with every frame received and sent (recorders), in the reading or
         sending thread."""
+        self.sink: list[SinkEntry] | None = None
+        """Where set, every frame received and sent is appended to it as plain data
+        (:data:`SinkEntry`), cheaper than a tap (no ``can.Message``): the run time hands
+        them to another process (``ucom remote run --record``); its owner swaps the list
+        for an empty one as it takes them."""
         self._lock = threading.RLock()
         """``_cond``'s lock: ``with self._lock`` is ``with self._cond`` without the Python
         wrapper around it (the per-cycle paths take it several times).  The reading flag
@@ -225,6 +246,10 @@ class Dispatcher:
             self.bus.send(msg, timeout=timeout)
         self.sent += 1
         self._count(msg)
+        sink = self.sink
+        if sink is not None:
+            sink.append((msg.arbitration_id, bytes(msg.data), self.stamp(),
+                         SENT | _flags(msg)))
         if self.taps:
             out = can.Message(timestamp=self.stamp(), arbitration_id=msg.arbitration_id,
                               data=msg.data, is_extended_id=False, is_rx=False,
@@ -255,6 +280,9 @@ class Dispatcher:
         if counted % STUFF_SAMPLE == 1:
             self._sample_nominal += nominal
             self._sample_exact += frame_bits(arbitration_id, bytes(data))
+        sink = self.sink
+        if sink is not None:
+            sink.append((arbitration_id, bytes(data), self._stamp(), SENT))
         taps = self.taps
         if taps:
             out = data_frame(self._stamp(), arbitration_id, bytearray(data),
@@ -460,6 +488,7 @@ class Dispatcher:
         may be a :data:`~ucom_tools.protocol.frames.DataFrame` from the bus (then its
         message is built only for a tap or a subscriber without ``on_data``)."""
         taps = self.taps
+        sink = self.sink
         for item in msgs:
             self.received += 1
             msg: can.Message | None
@@ -480,6 +509,12 @@ class Dispatcher:
                 if counted % STUFF_SAMPLE == 1:
                     self._sample_nominal += nominal
                     self._sample_exact += frame_bits(ident, data)
+            if sink is not None:
+                if plain:
+                    sink.append((ident, data, stamp, 0))
+                else:
+                    assert msg is not None
+                    sink.append((ident, bytes(msg.data), stamp, _flags(msg)))
             if taps:
                 if msg is None:
                     msg = self._message(item)

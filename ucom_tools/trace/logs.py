@@ -11,6 +11,7 @@ import copy
 import importlib.util
 import os
 import threading
+from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any, Protocol
@@ -210,43 +211,69 @@ def check_log(path: str | os.PathLike[str]) -> str:
     return ext
 
 
+WRITE_EVERY_S = 0.05
+"""How often a :class:`FrameWriter`'s thread writes the frames queued meanwhile."""
+
+
 class FrameWriter(can.Listener):
     """The one frame writer of ``--log`` and ``--record``: frames into python-can's writer
     for ``out`` (:func:`log_writer`), each with its bus name as channel (as the bus's
     number, :func:`channel_number`, in the formats of :data:`INT_CHANNELS`).
 
-    Thread-safe (the bus readers write from their threads).  A writing error does not
-    reach the bus reader that handed in the frame: it is kept (:attr:`failure`), and the
-    frames after it are dropped, so the owner discards the file instead of keeping a log
-    with a gap.  Committing or discarding ``out`` is the owner's business."""
+    The thread that hands a frame in (a bus's reader, the PC's 1 kHz loop) only queues
+    it: a thread of the writer's own formats and writes the queued frames every
+    :data:`WRITE_EVERY_S`, so no file, disk or formatter ever keeps the loop from its
+    deadline.  Thread-safe.  A writing error does not reach whoever handed in the frame:
+    it is kept (:attr:`failure`), and the frames after it are dropped, so the owner
+    discards the file instead of keeping a log with a gap.  :meth:`stop` writes what is
+    queued, then closes.  Committing or discarding ``out`` is the owner's business."""
 
     def __init__(self, out: Output, extension: str) -> None:
         self._int_channels = extension.removesuffix(".gz") in INT_CHANNELS
         self.channels: dict[str, int] = {}
         """Bus name -> channel number stored in the formats of :data:`INT_CHANNELS`."""
         self.frames = 0
+        """Frames written so far."""
         self.failure: BaseException | None = None
         """The first error writing met (then nothing more was written)."""
         self._lock = threading.Lock()
+        """Held while frames are written (by the writer's thread, or by :meth:`stop`)."""
         self._stopped = False
+        self._queue: deque[tuple[can.Message, str | None]] = deque()
+        self._stopping = threading.Event()
         self._writer: MessageWriter = log_writer(out)
+        self._thread = threading.Thread(target=self._run, name="ucom-frames", daemon=True)
+        self._thread.start()
 
     def write(self, msg: can.Message, bus: str | None = None) -> None:
-        """Write one frame of bus ``bus`` (default: its ``channel``, a bus name)."""
+        """Queue one frame of bus ``bus`` (default: its ``channel``, a bus name) for the
+        writer's thread; a frame handed in after :meth:`stop` is dropped."""
+        if not self._stopped:
+            self._queue.append((msg, bus))
+
+    def _run(self) -> None:
+        while not self._stopping.wait(WRITE_EVERY_S):
+            self._write_queued()
+
+    def _write_queued(self) -> None:
+        """Write every frame queued (the writer's thread, or :meth:`stop`)."""
+        queued = self._queue
         with self._lock:
-            if self._stopped or self.failure is not None:
-                return
-            try:
-                channel = msg.channel if bus is None else bus
-                if self._int_channels and isinstance(channel, str):
-                    channel = channel_number(self.channels, channel)
-                if channel != msg.channel:
-                    msg = copy.copy(msg)
-                    msg.channel = channel
-                self._writer.on_message_received(msg)
-                self.frames += 1
-            except Exception as err:  # a bus reader must not die of the recording
-                self.failure = err
+            while queued:
+                msg, bus = queued.popleft()
+                if self.failure is not None:
+                    continue
+                try:
+                    channel = msg.channel if bus is None else bus
+                    if self._int_channels and isinstance(channel, str):
+                        channel = channel_number(self.channels, channel)
+                    if channel != msg.channel:
+                        msg = copy.copy(msg)
+                        msg.channel = channel
+                    self._writer.on_message_received(msg)
+                    self.frames += 1
+                except Exception as err:  # the frames' source must not die of the log
+                    self.failure = err
 
     def on_message_received(self, msg: can.Message) -> None:
         self.write(msg)
@@ -255,12 +282,17 @@ class FrameWriter(can.Listener):
         """A bus reader's error is the reader's business; the recording goes on."""
 
     def stop(self) -> None:
-        """Flush and close python-can's writer (idempotent); an error doing so becomes
-        :attr:`failure`."""
+        """Write what is queued, then flush and close python-can's writer (idempotent);
+        an error doing so becomes :attr:`failure`."""
         with self._lock:
             if self._stopped:
                 return
             self._stopped = True
+        self._stopping.set()
+        if self._thread is not threading.current_thread():
+            self._thread.join()
+        self._write_queued()
+        with self._lock:
             try:
                 self._writer.stop()
             except Exception as err:

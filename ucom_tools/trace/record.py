@@ -1,8 +1,12 @@
 """Recording a run (``ucom remote run --record FILE``): every frame of every bus into a
 python-can log, every value change of the exchanged edges into ``FILE.values.csv``.
 
-:class:`RunRecorder` is a :class:`can.Listener`: the bus readers hand it each frame
-(from several threads at once; one lock keeps the files whole).  The log format follows
+:class:`RunRecorder` is a :class:`can.Listener`: the bus readers (the PC's loop) hand it
+each frame, from several threads at once, and it only queues them: a thread of its own
+writes them (:class:`~ucom_tools.trace.logs.FrameWriter`), so that no file keeps the
+loop from its deadline; ``ucom remote run`` hands it the value changes on a thread of
+their own too (:class:`~ucom_tools.ops.remote_publish.ChangeFeed`).  One lock keeps the
+values file whole.  The log format follows
 FILE's extension (:data:`FORMATS`, written by :func:`can.Logger`); the extension and the
 directory are checked before anything is written.  Both files are written by the rules of
 ``ucom(1)``, FILES (:mod:`ucom_tools.fileio`): under temporary names beside their targets,
@@ -13,8 +17,12 @@ The values file (``man/ucom.1``, ``remote plot``) is a CSV with the header
 :data:`VALUES_HEADER`, one row per change of a value: ``timestamp`` (seconds, 6
 decimals, the bus clock of the frame that carried it), ``bus``, ``board`` (seq ID),
 ``prefix`` (the board's attribute-tree prefix), ``name`` (the edge's robot-wide unique
-name), ``kind`` (CI, SO or PAR) and ``value`` (exact decimal text).  :func:`read_values`
-reads it back (for ``ucom remote plot``), naming FILE:LINE of what does not fit.
+name), ``kind`` (CI, SO or PAR), ``value`` (exact decimal text) and ``valid`` (1; 0 when
+its board was lost then: :meth:`RunRecorder.lost` writes such a row for each of the
+board's edges, with its last value, and the edge's next value is written as valid even
+where it is the same).  :func:`read_values` reads it back (for ``ucom remote plot``,
+which leaves a gap where values were stale; a file without ``valid`` is all valid),
+naming FILE:LINE of what does not fit.
 """
 
 from __future__ import annotations
@@ -43,8 +51,10 @@ from ucom_tools.trace.logs import FrameWriter, LogError, check_buses, log_extens
 VALUES_SUFFIX = ".values.csv"
 """Appended to the full name of the frame log: run.blf -> run.blf.values.csv."""
 
-VALUES_HEADER = ("timestamp", "bus", "board", "prefix", "name", "kind", "value")
+VALUES_HEADER = ("timestamp", "bus", "board", "prefix", "name", "kind", "value", "valid")
 """The columns of the values file, in this order."""
+REQUIRED = VALUES_HEADER[:-1]
+"""The columns a values file must have (files of earlier versions have no ``valid``)."""
 
 KINDS = ("CI", "SO", "PAR")
 """The edge kinds of the ``kind`` column."""
@@ -99,7 +109,9 @@ class RunRecorder(can.Listener):
         self.extension = log_extension(self.path)
         self._lock = threading.Lock()
         self._rows = 0
-        self._last: dict[tuple[str, int, str], Decimal] = {}
+        self._last: dict[tuple[str, int, str], tuple[Decimal | None, str, str, str]] = {}
+        """(bus, board, name) -> the last value recorded (None: it is stale, the next is
+        written whatever it is), its prefix, kind and text."""
         self._closed = False
         self._failure: BaseException | None = None
         self._batch = Batch(option="--record")
@@ -174,7 +186,8 @@ class RunRecorder(can.Listener):
         """Record ``value`` of edge ``name`` (unique name) of board ``board`` (seq ID,
         tree prefix ``prefix``) on ``bus`` at ``timestamp`` (seconds, bus clock) when it
         differs (numerically) from the last one recorded for (bus, board, name); the
-        first is always written.  True when a row was written."""
+        first is always written, and the first after its board was :meth:`lost`.  True
+        when a row was written."""
         text = value_text(value)
         kind_ = kind_text(kind)
         number = Decimal(text)
@@ -183,17 +196,56 @@ class RunRecorder(can.Listener):
             if self._closed:
                 raise ValueError(f"{self.values_path}: the recorder is closed")
             self._raise_failure()
-            if self._last.get(key) == number:
+            last = self._last.get(key)
+            if last is not None and last[0] == number:
                 return False
-            try:
-                self._csv.writerow((f"{float(timestamp):.6f}", bus, int(board), prefix,
-                                    name, kind_, text))
-            except Exception as err:
-                self._failure = err
-                self._raise_failure()
-            self._last[key] = number
-            self._rows += 1
+            self._row(timestamp, bus, board, prefix, name, kind_, text, 1)
+            self._last[key] = (number, prefix, kind_, text)
             return True
+
+    def fresh(self, timestamp: float, bus: str, board: int, prefix: str, name: str,
+              kind: str | Enum, value: int | float | Decimal) -> bool:
+        """:meth:`value` of an edge only where it is stale (its board was lost since its
+        last row): its value is current again, even where the same as before."""
+        with self._lock:
+            last = self._last.get((bus, int(board), name))
+            if last is None or last[0] is not None:
+                return False
+        return self.value(timestamp, bus, board, prefix, name, kind, value)
+
+    def lost(self, timestamp: float, bus: str, board: int) -> int:
+        """Board ``board`` of ``bus`` was lost at ``timestamp``: a row with ``valid`` 0 and
+        its last value for each of its edges recorded so far (its values are stale from
+        then on, until the next of each); how many rows."""
+        with self._lock:
+            if self._closed:
+                raise ValueError(f"{self.values_path}: the recorder is closed")
+            self._raise_failure()
+            n = 0
+            for key, (number, prefix, kind_, text) in list(self._last.items()):
+                if key[0] == bus and key[1] == int(board) and number is not None:
+                    self._row(timestamp, bus, board, prefix, key[2], kind_, text, 0)
+                    self._last[key] = (None, prefix, kind_, text)
+                    n += 1
+            return n
+
+    def _row(self, timestamp: float, bus: str, board: int, prefix: str, name: str,
+             kind: str, text: str, valid: int) -> None:
+        try:
+            self._csv.writerow((f"{float(timestamp):.6f}", bus, int(board), prefix, name,
+                                kind, text, valid))
+        except Exception as err:
+            self._failure = err
+            self._raise_failure()
+        self._rows += 1
+
+    def check(self) -> None:
+        """LogError when writing either file failed (cheap: the loop calls it every
+        cycle, so that a recording that failed ends the run as a failed write would)."""
+        if self._failure is not None or (self._frames is not None
+                                         and self._frames.failure is not None):
+            with self._lock:
+                self._raise_failure()
 
     def _raise_failure(self) -> None:
         err = self._failure or (self._frames.failure if self._frames is not None else None)
@@ -271,6 +323,10 @@ class Series:
     bus: str
     board: int
     points: list[tuple[float, Decimal]] = field(default_factory=list)
+    """The valid values."""
+    stale: list[tuple[float, float | None]] = field(default_factory=list)
+    """(from, until) where the edge's board was lost: its value stale from its row with
+    ``valid`` 0 to its next valid row (None: to the end)."""
 
     @property
     def qualified(self) -> str:
@@ -298,6 +354,7 @@ def read_values(path: str | os.PathLike[str]) -> Values:
     when it is not one (missing header column, bad number or kind, short row)."""
     file = os.fspath(path)
     series: dict[str, Series] = {}
+    rows_of: dict[str, list[tuple[float, Decimal, bool]]] = {}
     start: float | None = None
     end: float | None = None
     line = 1
@@ -310,11 +367,11 @@ def read_values(path: str | os.PathLike[str]) -> Values:
             if header is None:
                 raise InputError("empty file: not a values file (header "
                                  f"{','.join(VALUES_HEADER)})", file=file, line=1)
-            missing = [c for c in VALUES_HEADER if c not in header]
+            missing = [c for c in REQUIRED if c not in header]
             if missing:
                 raise InputError(f"not a values file: the header lacks {', '.join(missing)} "
                                  f"(expected {','.join(VALUES_HEADER)})", file=file, line=1)
-            col = {c: header.index(c) for c in VALUES_HEADER}
+            col = {c: header.index(c) for c in VALUES_HEADER if c in header}
             width = max(col.values()) + 1
             for row in reader:
                 line = reader.line_num
@@ -332,11 +389,19 @@ def read_values(path: str | os.PathLike[str]) -> Values:
                                      file=file, line=line)
                 if not name:
                     raise InputError("name: empty", file=file, line=line)
+                valid = True
+                if "valid" in col:
+                    flag = row[col["valid"]].strip()
+                    if flag not in ("0", "1"):
+                        raise InputError(f"valid: {flag!r} is not 0 or 1", file=file,
+                                         line=line)
+                    valid = flag == "1"
                 key = f"{prefix}/{name}"
                 s = series.get(key)
                 if s is None:
                     s = series[key] = Series(prefix, name, kind, row[col["bus"]], board)
-                s.points.append((t, value))
+                    rows_of[key] = []
+                rows_of[key].append((t, value, valid))
                 start = t if start is None else min(start, t)
                 end = t if end is None else max(end, t)
     except OSError as err:
@@ -345,8 +410,18 @@ def read_values(path: str | os.PathLike[str]) -> Values:
         raise InputError("not UTF-8 text: not a values file", file=file, line=line) from None
     except csv.Error as err:
         raise InputError(f"not a CSV file: {err}", file=file, line=line) from None
-    for s in series.values():
-        s.points.sort(key=lambda p: p[0])
+    for key, s in series.items():
+        since: float | None = None
+        for t, value, valid in sorted(rows_of[key], key=lambda r: r[0]):
+            if valid:
+                if since is not None:
+                    s.stale.append((since, t))
+                    since = None
+                s.points.append((t, value))
+            elif since is None:
+                since = t
+        if since is not None:
+            s.stale.append((since, None))
     return Values(file, series, start, end)
 
 
