@@ -61,7 +61,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -183,10 +183,11 @@ def baseline_child(realtime: bool) -> None:
     print(json.dumps(baseline(float(line), realtime)))
 
 
-def serve(state: Path, processes: str) -> tuple[subprocess.Popen[str], int]:
+def serve(state: Path, processes: str,
+          extra: Sequence[str] = ()) -> tuple[subprocess.Popen[str], int]:
     proc = subprocess.Popen([sys.executable, "-m", "ucom_tools", "fleet", "serve", "armar3",
                              "--state", str(state), "--port", "0",
-                             "--processes", processes], text=True,
+                             "--processes", processes, *extra], text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     assert proc.stdout is not None
     line = proc.stdout.readline()
@@ -197,9 +198,11 @@ def serve(state: Path, processes: str) -> tuple[subprocess.Popen[str], int]:
 
 
 @contextlib.contextmanager
-def served_armar3(processes: str) -> Iterator[tuple[subprocess.Popen[str], int]]:
+def served_armar3(processes: str,
+                  extra: Sequence[str] = ()) -> Iterator[tuple[subprocess.Popen[str], int]]:
     """ARMAR-III with armar3.fl.S flashed, served by ``ucom fleet serve --processes
-    PROCESSES`` in another process: the process and its port; stopped afterwards."""
+    PROCESSES`` (and ``extra``: ``--loss 0.01``, ``--scenario FILE``) in another process:
+    the process and its port; stopped afterwards."""
     with tempfile.TemporaryDirectory() as tmp:
         state = Path(tmp) / "state"
         flash = subprocess.run([sys.executable, "-m", "ucom_tools", "flash", str(IMAGE),
@@ -207,7 +210,7 @@ def served_armar3(processes: str) -> Iterator[tuple[subprocess.Popen[str], int]]
                                capture_output=True, text=True)
         if flash.returncode:
             raise SystemExit(f"flash failed: {flash.stderr}")
-        proc, port = serve(state, processes)
+        proc, port = serve(state, processes, extra)
         try:
             yield proc, port
         finally:
