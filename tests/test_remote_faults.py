@@ -336,6 +336,8 @@ def test_each_kind_rejoins_with_every_joint_where_it_stood(kind: str) -> None:
         assert part.lost == {}, part.lost
         rejoined = {(f.bus, f.board): f for f in part.faults if f.event == "rejoined"}
         assert set(rejoined) == set(lost) and lost
+        # the run time's own clients kept no copy of the conversations' answers
+        assert [x.mca.forget() for x in part.exchanges.values()] == [0] * 4
         for f in rejoined.values():
             assert f.time + part.stats.started_clock - back < 1.0, f  # back within 1 s
             assert f.answered is not None and f.answered < f.time
@@ -570,3 +572,27 @@ def test_help_names_the_policies() -> None:
     assert code == 0
     text = " ".join(out.split())
     assert "--on-fault [stop|hold]" in text and "--rejoin" in text
+
+
+def test_served_an_emergency_stop_is_the_bus_failing_at_once_and_every_board_rejoins(
+        flashed, tmp_path) -> None:
+    """Over socketcand: every board off leaves the PC's frames unacknowledged; the served
+    fleet says so with an error frame (``< error 020 ... >``), the bus turns error-passive
+    and every board on it is lost in that cycle, not after the quiet time of a silent
+    bus; when power returns every board rejoins."""
+    state = Path(shutil.copytree(flashed, tmp_path / "state"))
+    with served_in_process("armar3", state) as (fleet, port), RemotePart.open(
+            "armar3", interface="socketcand", channels=["CAN0"], host="127.0.0.1",
+            port=port, on_fault="hold", rejoin=True) as part:
+        part.run(0.2)
+        fleet.inject(fault("estop", seconds=0.3))
+        deadline = time.monotonic() + 10
+        while part.lost or len(part.faults) < 6:
+            assert time.monotonic() < deadline, part.faults
+            part.cycle()
+        lost = [f for f in part.faults if f.event == "lost"]
+        assert sorted(f.board for f in lost) == [1, 2, 3]
+        assert all(f.seen == "the bus failing: the interface reports CAN0 error-passive"
+                   for f in lost), lost
+        assert len({f.time for f in lost}) == 1  # in one cycle
+        assert sorted(f.board for f in part.faults if f.event == "rejoined") == [1, 2, 3]

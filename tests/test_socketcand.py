@@ -6,17 +6,21 @@ import os
 import selectors
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import can
 import pytest
 
-from tests.helpers import image_words, plan_of, program
+from tests.helpers import image_words, plan_of, program, served_in_process
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
+from ucom_tools.transport.socketcand import SocketcandBus
 from ucom_tools.wire.ids import seq
+from ucom_tools.wire.socketcand import CAN_ERR_ACK
 
 
 @contextmanager
@@ -151,3 +155,59 @@ def test_a_host_far_ahead_of_the_bus_does_not_overrun_slow_boards(tmp_path: Path
         boards = len(data["boards"])  # each may lose other frames than the others
         assert bus["resent_frames"] <= boards * (stalls + stalled_us / frame_us), (
             bus, stalls, stalled_us)
+
+
+# ---------------------------------------------------------------------- error frames
+def _cut(fleet: Any, seconds: float) -> None:
+    from ucom_tools.config.scenario import FaultKind, InjectedFault
+    fleet.inject(InjectedFault(FaultKind("cable"), "CAN0", None, for_s=seconds))
+
+
+def test_a_frame_nobody_acknowledges_is_an_error_frame_for_python_cans_client(
+        tmp_path: Path) -> None:
+    """CAN0's cable cut: the served fleet answers a host's frame that no node takes with
+    socketcand's error frame element, ``< error 020 SEC.USEC >`` (CAN_ERR_ACK), which
+    python-can's own client hands out as an error frame."""
+    from can.interfaces.socketcand import SocketCanDaemonBus
+    with served_in_process("armar3", tmp_path) as (fleet, port):
+        bus = SocketCanDaemonBus(channel="CAN0", host="127.0.0.1", port=port)
+        try:
+            bus.send(can.Message(arbitration_id=0x123, data=b"\x01", is_extended_id=False))
+            assert bus.recv(0.3) is None  # the boards take it: no error frame
+            _cut(fleet, 30.0)
+            bus.send(can.Message(arbitration_id=0x123, data=b"\x01", is_extended_id=False))
+            deadline = time.monotonic() + 5
+            msg = bus.recv(5)
+            while msg is not None and not msg.is_error_frame and time.monotonic() < deadline:
+                msg = bus.recv(5)
+            assert msg is not None and msg.is_error_frame, msg
+            assert msg.arbitration_id == CAN_ERR_ACK
+        finally:
+            bus.shutdown()
+
+
+def test_our_client_is_error_passive_while_nobody_acknowledges(tmp_path: Path) -> None:
+    """The same for :class:`SocketcandBus`: ``state`` is error-passive from the error
+    frame until the bus works again (a frame arrives), and the error frame itself is not
+    handed out as a frame."""
+    with served_in_process("armar3", tmp_path) as (fleet, port):
+        bus = SocketcandBus("CAN0", "127.0.0.1", port)
+        try:
+            boot = BootloaderClient(Link(bus, "CAN0"))
+            assert [a.seq_id for a in boot.init_chain().acks] == [1, 2, 3]
+            assert bus.state is can.BusState.ACTIVE and bus.error_frames == 0
+            _cut(fleet, 1.0)
+            bus.send(can.Message(arbitration_id=0x123, data=b"\x01", is_extended_id=False))
+            deadline = time.monotonic() + 5
+            while bus.state is can.BusState.ACTIVE:
+                assert time.monotonic() < deadline, "no error frame came"
+                assert bus.recv(0.05) is None  # (nothing is handed out meanwhile)
+            assert bus.state is can.BusState.PASSIVE and bus.error_frames >= 1
+            while fleet.buses["CAN0"].cable_cut:  # the fault ends after its second
+                assert time.monotonic() < deadline, "the cable was not mended"
+                bus.recv(0.05)
+            assert bus.state is can.BusState.PASSIVE  # until a frame says otherwise
+            boot.info(seq(1))  # answered (else a timeout): a frame came
+            assert bus.state is can.BusState.ACTIVE
+        finally:
+            bus.shutdown()

@@ -42,6 +42,14 @@ from ucom_tools.wire.ids import ALL, Address, Function, seq
 _KIND: Final = {Kind.CI: mca.Kind.CI, Kind.SO: mca.Kind.SO, Kind.PAR: mca.Kind.PAR}
 
 
+LISTEN_MIN_S: Final = 0.25
+"""The shortest listen for another host's exchange: its loop, or the transport between,
+may be held by a busy machine for a moment (another host whose watchdog time is long,
+500 ms say, keeps its boards running through a stall of a hundred milliseconds; measured:
+a second run beside such a host on a loaded machine missed it about once in ten with
+a listen of its own watchdog time, 50 ms)."""
+
+
 class ExchangeError(InputError):
     """A board cannot join the exchange (its edges differ from its tree, a default does
     not fit its edge); nothing was written to it."""
@@ -193,8 +201,8 @@ class ExchangeWatch(OtherHosts):
     def listen_time(link: Link, alive_ms: int = mca.ALIVE_DEFAULT_MS) -> float:
         """How long to listen: the boards' watchdog time (a running exchange sends MCA
         Alive five times in it, :data:`~ucom_tools.protocol.plan.ALIVE_DIVISOR`, and CI
-        maps more often) and the transport's margin."""
-        return link.budget(alive_ms / 1000, answers=1)
+        maps more often) and the transport's margin, at least :data:`LISTEN_MIN_S`."""
+        return max(link.budget(alive_ms / 1000, answers=1), LISTEN_MIN_S)
 
     def check(self, bus: str) -> None:
         """BusError naming what was seen, if another host runs an exchange on ``bus``."""
@@ -246,7 +254,10 @@ class BusExchange:
         (boards that do not announce themselves are asked)."""
         readies: dict[int, mca.McaReady] = {}
         for n in numbers:
-            (started,) = self.boot.start(seq(n))
+            answers = self.boot.start(seq(n))
+            if not answers:  # it went away between its check and its start
+                raise UcomTimeoutError(f"{self.where(n)}: no answer to Start")
+            started = answers[0]
             if not started.started:
                 why = "; ".join(e.describe() for e in started.errors) or "no answer"
                 raise BoardError(f"{self.where(n)}: its program did not start: {why}")

@@ -94,11 +94,22 @@ QUIET_MIN_S: Final = 0.5
 """A board from which nothing at all came for this long of the loop's running time (or
 the boards' watchdog time, if longer) is lost: a whole bus gone silent, which the other
 boards cannot tell.  Where the interface reports its state (error-passive: nobody
-acknowledges, a cut cable, every board off) that is noticed at once; where it does not
-(socketcand), a shorter time would make a transport or a served fleet that a busy
+acknowledges, a cut cable, every board off; socketcand by the server's error frames)
+that is noticed at once; where it does not (a socketcand server that sends no error
+frames), a shorter time would make a transport or a served fleet that a busy
 machine held for a moment (hundreds of milliseconds; the boards do not see it: their
 time stood still too) end the run.  A board cut off from the PC has stopped by its own
 watchdog long before."""
+BURST_TRUST_MAX_S: Final = 1.0
+"""After nothing came from a bus for cycles of this loop that sent (at least a board's
+limit of silence) and then frames came again, its boards' frames prove no silence for
+as long as the gap lasted (at most this long) and a limit more: the transport
+(socketcand, a served fleet that a busy machine held) held this host's frames too, and delivers them to the bus in a burst
+that wins arbitration over every SO map; the boards' queued maps then follow in the
+order of their identifiers, the lowest board's last, so a board of low priority may stay
+unheard for several milliseconds while the others' maps come (measured over
+``fleet serve`` beside two busy processes: 5-7 ms, a board lost that was not).  Only
+the quiet time and the bus's state tell meanwhile."""
 PRESENT_CAP: Final = 2.0
 """A cycle counts at most this many periods of the loop's running time (the time a board's
 silence is measured on): a loop that was away longer was stalled."""
@@ -203,6 +214,14 @@ class RemoteLoop(RemoteValues):
         """The clock when :attr:`_present` last moved on."""
         self._watches: list[BoardWatch] = []
         self._groups: list[list[BoardWatch]] = []
+        self._seen_received: list[int] = []
+        """Per group (bus): its image's ``received`` when frames last came ..."""
+        self._seen_at: list[float] = []
+        """... the clock then ..."""
+        self._trust_from: list[float] = []
+        self._quiet_cycles: list[int] = []
+        """Per group: the cycles since its frames last came."""
+        """... and until when its boards' frames prove no silence (:data:`BURST_TRUST`)."""
         """The watched boards by bus."""
         self._watched: dict[tuple[str, int], BoardWatch] = {}
         self._notes: dict[tuple[str, int], tuple[float, str]] = {}
@@ -533,6 +552,10 @@ class RemoteLoop(RemoteValues):
         self._watches = []
         self._watched = {}
         self._groups = []
+        self._seen_received = []
+        self._seen_at = []
+        self._trust_from = []
+        self._quiet_cycles = []
         self._present = 0.0
         self._watch_at = now
         for name, x in self.exchanges.items():
@@ -554,6 +577,10 @@ class RemoteLoop(RemoteValues):
                 self._watched[(name, n)] = w
             if group:
                 self._groups.append(group)
+                self._seen_received.append(image.received)
+                self._seen_at.append(now)
+                self._trust_from.append(now)
+                self._quiet_cycles.append(0)
                 self._watches += group
                 self._proofs(group)
 
@@ -580,16 +607,32 @@ class RemoteLoop(RemoteValues):
         bus's other boards sent as many frames as fill its limit at their periods is lost
         (counted in frames, in the order they were sent, not in time: neither a stall of
         this loop nor a transport or served fleet that delivers late and then all at once
-        makes a board that sends look lost); so is one from which nothing came for its
-        quiet time of the loop's running time (:attr:`_present`: the whole bus silent);
+        makes a board that sends look lost; and not for a while after frames came
+        again from a bus that had been silent while this loop cycled,
+        :data:`BURST_TRUST_MAX_S`); so is one from which nothing came for its quiet time
+        of the loop's running time (:attr:`_present`: the whole bus silent);
         and every board of a bus whose interface reports error-passive or bus-off."""
         step = now - self._watch_at
         self._watch_at = now
         cap = PRESENT_CAP * self.period_s
         present = self._present + (step if step < cap else cap)
         self._present = present
-        for group in self._groups:
+        for g, group in enumerate(self._groups):
             received = group[0].image.received
+            if received != self._seen_received[g]:
+                # nothing came for cycles that sent (the transport held this host's
+                # frames too), then all at once; a stall of this loop sent nothing
+                gap = now - self._seen_at[g]
+                if self._quiet_cycles[g] * self.period_s >= group[0].limit:
+                    trust = now + min(gap, BURST_TRUST_MAX_S) + group[0].limit
+                    if trust > self._trust_from[g]:
+                        self._trust_from[g] = trust
+                self._seen_received[g] = received
+                self._seen_at[g] = now
+                self._quiet_cycles[g] = 0
+            else:
+                self._quiet_cycles[g] += 1
+            trusted = now >= self._trust_from[g]
             for w in group:
                 index = w.latest()
                 if index != w.index:
@@ -602,7 +645,7 @@ class RemoteLoop(RemoteValues):
                 elif w.lost:
                     continue
                 after = received - index  # (a drain that brought its last frame and
-                if w.armed and w.frames > 0.0 and after >= w.frames:  # enough after it)
+                if trusted and w.armed and w.frames > 0.0 and after >= w.frames:
                     silent = max(w.limit, (after - w.extra) / w.others)
                     self._lose(w, now, f"silence: none of its SO maps for "
                                        f"{silent * 1e3:.1f} ms")
@@ -743,6 +786,10 @@ class RemoteLoop(RemoteValues):
             if r.done:
                 self._rejoins.remove(r)
                 self._rejoin_ended(r)
+            # the run time's own client got a copy of every answer the conversation
+            # had: dropped here, between its requests (kept, they piled up to the
+            # dispatcher's limit: megabytes over a day of faults)
+            self.exchanges[r.bus].mca.forget()
 
     def _rejoin_ended(self, r: Any) -> None:
         key = (r.bus, r.board)

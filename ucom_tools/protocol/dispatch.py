@@ -368,6 +368,14 @@ class Dispatcher:
                 self._in_tasks = False
 
     # ------------------------------------------------------------------ receiving
+    def discard(self, sub: Subscription) -> int:
+        """Drop what waits in ``sub``'s queue (a subscription whose owner reads it only
+        while it asks something, and answers meant for another came meanwhile); how many."""
+        with self._lock:
+            n = len(sub.queue)
+            sub.queue.clear()
+        return n
+
     def take(self, sub: Subscription) -> can.Message | None:
         """The next frame queued for ``sub`` now, or None (never reads the bus)."""
         with self._lock:

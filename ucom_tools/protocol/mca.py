@@ -121,6 +121,12 @@ class McaClient:
         if self._maps is not None:
             self.link.dispatcher.unsubscribe(self._maps)
 
+    def forget(self) -> int:
+        """Drop the answers and Errors that came while nothing of this client waited
+        (others' answers on a bus where another client asks, a rejoin's, say: each
+        subscription gets a copy); how many.  Only between this client's requests."""
+        return self.link.dispatcher.discard(self._sub)
+
     # ------------------------------------------------------------------ plumbing
     def _send(self, msg: mca.McaMessage, address: Address | None = None) -> None:
         arb, data = mca.encode(msg, address)

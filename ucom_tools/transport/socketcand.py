@@ -66,11 +66,15 @@ from ucom_tools.protocol.frames import DataFrame, received_message
 from ucom_tools.wire.socketcand import (
     CAN_EFF_FLAG,
     CAN_EFF_MASK,
+    CAN_ERR_ACK,
+    CAN_ERR_BUSOFF,
+    CAN_ERR_RESTARTED,
     CAN_SFF_MASK,
     MAX_ELEMENT,
     SEND_EMPTY,
     SEND_STD,
     ElementSplitter,
+    error_frame,
     frame_words,
     plain_frame,
 )
@@ -177,6 +181,14 @@ class SocketcandBus(can.BusABC):
         self.send_timeout = send_timeout
         self.receive_own_messages = receive_own_messages
         self.server_errors: deque[str] = deque(maxlen=SERVER_ERRORS_KEPT)
+        self.error_frames = 0
+        """Error frames the server passed on (``< error CLASS SEC.USEC >``)."""
+        self._error_state = can.BusState.ACTIVE
+        """The state the last error frame said (:attr:`state`)."""
+        self._frames_in = 0
+        """Data frames taken so far."""
+        self._error_mark = 0
+        """:attr:`_frames_in` when that error frame came."""
         self._where = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
         self._splitter = ElementSplitter(on_skip=_skipped)
         self._arrival = 0.0
@@ -344,6 +356,7 @@ class SocketcandBus(can.BusABC):
             frames, self.clock_offset = splitter.plain_data(self._arrival, self.clock_offset)
             if frames:
                 pending.extend(frames)
+                self._frames_in += len(frames)
                 if not splitter.unread():
                     return
             element = self._pop_element()
@@ -355,6 +368,7 @@ class SocketcandBus(can.BusABC):
         """One element between its brackets: a frame to :attr:`_pending`, an error noted."""
         frame = plain_frame(element)
         if frame is not None:
+            self._frames_in += 1
             can_id, stamp, data = frame
             self._pending.append(self._local(can.Message(
                 timestamp=stamp, arbitration_id=can_id & CAN_EFF_MASK, data=data,
@@ -368,11 +382,47 @@ class SocketcandBus(can.BusABC):
             except ValueError as err:
                 log.warning("socketcand %s: ignored %s: %s", self._where, _shown(element), err)
         elif kind == "error":
+            error = error_frame(element)
+            if error is not None:
+                self._error_frame(error[0])
+                return
             text = " ".join(words[1:])
             self.server_errors.append(text)
             log.warning("socketcand %s reports an error: %s", self._where, text)
         else:
             log.debug("socketcand %s: ignored %s", self._where, _shown(element))
+
+    def _error_frame(self, error_class: int) -> None:
+        """An error frame of the server's bus: what it says of this node's state."""
+        self.error_frames += 1
+        if error_class & CAN_ERR_BUSOFF:
+            state = can.BusState.ERROR
+        elif error_class & CAN_ERR_ACK:
+            state = can.BusState.PASSIVE
+        elif error_class & CAN_ERR_RESTARTED:
+            state = can.BusState.ACTIVE
+        else:
+            return  # the controller's details (CAN_ERR_CRTL) travel in data socketcand drops
+        self._error_state = state
+        self._error_mark = self._frames_in
+
+    @property
+    def state(self) -> can.BusState:
+        """python-can's controller state, as the server's error frames tell it:
+        ``PASSIVE`` (error-passive) after an acknowledgement error (a frame of this
+        node that no other node took: a cut cable, every board off), ``ERROR`` after
+        bus-off, each until the bus works again (a frame arrives, or the controller
+        restarted); ``ACTIVE`` otherwise.  Error frames are kept here, not handed out
+        by :meth:`recv` (they would look like data frames of identifier CLASS to the
+        protocol's readers; ``error_frames`` counts them)."""
+        if self._error_state is not can.BusState.ACTIVE and self._frames_in > self._error_mark:
+            self._error_state = can.BusState.ACTIVE
+        return self._error_state
+
+    @state.setter
+    def state(self, new_state: can.BusState) -> None:
+        raise NotImplementedError("a socketcand bus's state is the server's bus's: it "
+                                  "cannot be set from here")
 
     def _local(self, msg: can.Message) -> can.Message:
         """``msg`` stamped on this machine's clock (the module docstring, Time stamps)."""

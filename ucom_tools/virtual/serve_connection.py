@@ -38,12 +38,14 @@ from ucom_tools.wire import socketcand_fault
 from ucom_tools.wire.socketcand import (
     CAN_EFF_FLAG,
     CAN_EFF_MASK,
+    CAN_ERR_ACK,
     MAX_ELEMENT,
     ElementError,
     ElementSplitter,
     ElementTooLong,
     element_words,
     error_element,
+    error_frame_element,
     parse_send,
     plain_send,
     quote,
@@ -54,6 +56,8 @@ log = logging.getLogger("ucom.serve")
 RAWMODE_SETTLE_S = 0.02
 """Pause between the rawmode ``< ok >`` and the first frame (python-can compatibility)."""
 ROOM_POLL_S = 0.1
+UNACKED_EVERY_US = 1000.0
+"""At most one error frame a millisecond for a client's frames nobody acknowledges."""
 """How often a client waiting for room in its transmit queue is checked for liveness."""
 FLUSH_S = 1.0
 """How long the server waits for a last reply to be written before closing a client."""
@@ -184,6 +188,9 @@ class Connection:
         self._backlog: deque[tuple[int, bytes]] = deque()
         """Frames read by the driver while this client's transmit queue was full."""
         self._room_checked = 0.0
+        self._unacked_next = -1.0
+        """Before this fleet time (microseconds) no further error frame is sent for a frame
+        of this client's that nobody acknowledged (:meth:`_unacknowledged`)."""
         self._commands: dict[str, Callable[[list[str]], None]] = {
             "open": self._open, "rawmode": self._rawmode, "send": self._send,
             "echo": self._echo, socketcand_fault.COMMAND: self._fault}
@@ -504,10 +511,25 @@ class Connection:
         backlog."""
         if lossy and self.loss is not None and self.loss.lost("from"):
             return  # lost on the way (--loss): the client cannot tell
+        if not port.sim.acknowledged(port):
+            self._unacknowledged(port)
         if self._handed:
             self._queue_now(port, arbitration_id, data, t)
             return
         self._transmit_paced(port, arbitration_id, data)
+
+    def _unacknowledged(self, port: ClientPort) -> None:
+        """A frame of this client that no node of its bus acknowledges (a cut cable, every
+        board off or bus-off): the error frame its controller would report,
+        ``< error 020 SEC.USEC >`` (CAN_ERR_ACK), at most one every
+        :data:`UNACKED_EVERY_US` (a controller retransmits such a frame without end and
+        reports each failure; one a millisecond says it as soon, at a fraction of the
+        cost); the frame goes on as before (the cable's far side may still hear it)."""
+        t = self._now_us(port)
+        if t < self._unacked_next:
+            return
+        self._unacked_next = t + UNACKED_EVERY_US
+        self.outbox.put(error_frame_element(CAN_ERR_ACK, self.fleet.epoch + t / 1e6))
 
     def _transmit_paced(self, port: ClientPort, arbitration_id: int, data: bytes) -> None:
         """:meth:`_transmit` from the connection's thread: through

@@ -205,6 +205,38 @@ def error_element(text: str, raw: bool = False) -> str:
     return f"< error {text}>" if raw else f"< error {text} >"
 
 
+# ---------------------------------------------------------------------- error frame
+CAN_ERR_FLAG: Final = 0x20000000
+"""Marks an error frame's ``can_id`` in SocketCAN; its low bits are the error's class."""
+CAN_ERR_CRTL: Final = 0x004
+"""Error class: the controller's problems (its details are in the data, which socketcand
+does not pass on)."""
+CAN_ERR_ACK: Final = 0x020
+"""Error class: a frame this node sent was acknowledged by no other node (nobody on the
+bus listens: a cut cable, every other node off or bus-off)."""
+CAN_ERR_BUSOFF: Final = 0x040
+"""Error class: this node's controller went bus-off."""
+CAN_ERR_RESTARTED: Final = 0x100
+"""Error class: the controller was restarted (error-active again)."""
+_ERROR_FRAME = re.compile(rb" ?error ([0-9A-Fa-f]{1,8}) (\d+\.\d+) ?\Z")
+
+
+def error_frame_element(error_class: int, seconds: float) -> bytes:
+    """``< error CLASS SEC.USEC >``: socketcand's element for an error frame of its bus
+    (SocketCAN's ``can_id & CAN_EFF_MASK`` of it, three hex digits, and its time), as its
+    raw mode writes it; without the error frame's data, which socketcand drops."""
+    return b"< error %03X %.6f >" % (error_class & CAN_EFF_MASK, seconds)
+
+
+def error_frame(element: bytes) -> tuple[int, float] | None:
+    """The class and time of an error frame element (``error CLASS SEC.USEC`` between
+    the brackets), or None: another ``< error ... >`` (a server's complaint in words)."""
+    m = _ERROR_FRAME.match(element)
+    if m is None:
+        return None
+    return int(m.group(1), 16), float(m.group(2))
+
+
 # ---------------------------------------------------------------------- frame
 def frame_element(can_id: int, seconds: float, data: bytes) -> bytes:
     """``< frame ID SEC.USEC DATA >`` as socketcand writes it; ``can_id`` with
