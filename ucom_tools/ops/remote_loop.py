@@ -104,12 +104,13 @@ BURST_TRUST_MAX_S: Final = 1.0
 """After nothing came from a bus for cycles of this loop that sent (at least a board's
 limit of silence) and then frames came again, its boards' frames prove no silence for
 as long as the gap lasted (at most this long) and a limit more: the transport
-(socketcand, a served fleet that a busy machine held) held this host's frames too, and delivers them to the bus in a burst
-that wins arbitration over every SO map; the boards' queued maps then follow in the
-order of their identifiers, the lowest board's last, so a board of low priority may stay
-unheard for several milliseconds while the others' maps come (measured over
-``fleet serve`` beside two busy processes: 5-7 ms, a board lost that was not).  Only
-the quiet time and the bus's state tell meanwhile."""
+(socketcand, a served fleet that a busy machine held) held this host's frames too and
+delivers them to the bus in a burst that wins arbitration over every SO map; the
+boards' queued maps then follow in the order of their identifiers, the lowest board's
+last, so a board of low priority may stay unheard for several milliseconds while the
+others' maps come (measured over ``fleet serve`` beside two busy processes: 5-7 ms, a
+board lost that was not, in one run of two).  Only the quiet time and the bus's state
+tell meanwhile."""
 PRESENT_CAP: Final = 2.0
 """A cycle counts at most this many periods of the loop's running time (the time a board's
 silence is measured on): a loop that was away longer was stalled."""
