@@ -198,11 +198,13 @@ class ExchangeWatch(OtherHosts):
         return None  # an acknowledged CI write: a console, say, not an exchange
 
     @staticmethod
-    def listen_time(link: Link, alive_ms: int = mca.ALIVE_DEFAULT_MS) -> float:
+    def listen_time(link: Link, alive_ms: int = mca.ALIVE_DEFAULT_MS,
+                    floor: float = LISTEN_MIN_S) -> float:
         """How long to listen: the boards' watchdog time (a running exchange sends MCA
         Alive five times in it, :data:`~ucom_tools.protocol.plan.ALIVE_DIVISOR`, and CI
-        maps more often) and the transport's margin, at least :data:`LISTEN_MIN_S`."""
-        return max(link.budget(alive_ms / 1000, answers=1), LISTEN_MIN_S)
+        maps more often) and the transport's margin, at least ``floor`` (on the wall
+        clock :data:`LISTEN_MIN_S`; in virtual time no host is held by its machine)."""
+        return max(link.budget(alive_ms / 1000, answers=1), floor)
 
     def check(self, bus: str) -> None:
         """BusError naming what was seen, if another host runs an exchange on ``bus``."""

@@ -45,7 +45,7 @@ from ucom_tools.config import topology as topo_mod
 from ucom_tools.config.attrtree.robot import RobotTrees, bind, with_files
 from ucom_tools.errors import InputError, UcomError
 from ucom_tools.ops.edges import EdgeRef, Names
-from ucom_tools.ops.exchange import BusExchange, ExchangeWatch
+from ucom_tools.ops.exchange import LISTEN_MIN_S, BusExchange, ExchangeWatch
 from ucom_tools.ops.remote_check import BusCheck, check_bus, check_periods, tree_file
 from ucom_tools.ops.remote_faults import (
     HOLD,
@@ -206,7 +206,8 @@ class RemotePart(RemoteLoop):
 
         def listen(h: BusHandle, x: BusExchange) -> None:
             with ExchangeWatch(h.link) as watch:
-                watch.listen(ExchangeWatch.listen_time(h.link, x.plan.alive_ms))
+                watch.listen(ExchangeWatch.listen_time(
+                    h.link, x.plan.alive_ms, 0.0 if self.virtual else LISTEN_MIN_S))
                 watch.check(h.name)
 
         self._each_bus(listen)
