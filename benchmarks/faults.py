@@ -37,8 +37,9 @@ Figures, per kind (``kinds``):
 - ``joint_jump_max``: the largest difference, in raw counts, of a joint sensor of a
   rejoined board between its last value before the loss and its value ``--gap``
   seconds after the rejoin (it must hold where it stands).
-- ``lateness_p99_rejoin_ms``, ``missed_rejoin_pct``: the loop's lateness while this
-  kind's boards were brought back (below).
+- ``lateness_p99_rejoin_ms``, ``missed_rejoin_pct``, ``lateness_ratio``: the loop's
+  lateness while this kind's boards were brought back, and its ratio to the lateness
+  without a fault (below).
 - ``false_losses``: boards the fault did not take that were lost meanwhile, with
   examples (a served bus held by the machine for half a second is one: ``serve_held``).
 - ``unfinished``: boards a round should have lost and rejoined that were not lost, or
@@ -325,7 +326,8 @@ def skipped_pct(late: list[float], period: float) -> float:
     return round(100 * skipped / max(1, skipped + len(late)), 3)
 
 
-def kind_figures(rounds: list[Round], part: RemotePart, rec: Recorder) -> dict[str, Any]:
+def kind_figures(rounds: list[Round], part: RemotePart, rec: Recorder,
+                 p99_quiet: float) -> dict[str, Any]:
     detect = [d for r in rounds for d in r.detect.values()]
     beyond = [d - rec.limit[k] for r in rounds for k, d in r.detect.items()]
     rejoin = [t - r.ends for r in rounds for t, _ in r.rejoined.values()]
@@ -361,6 +363,8 @@ def kind_figures(rounds: list[Round], part: RemotePart, rec: Recorder) -> dict[s
         "joint_jump_max": max(jumps, default=0),
         "lateness_p99_rejoin_ms": round(percentile(late, 99) * 1e3, 3),
         "missed_rejoin_pct": skipped_pct(late, part.period_s),
+        "lateness_ratio": round(percentile(late, 99) / p99_quiet, 2) if p99_quiet > 0
+        else 0.0,
         "false_losses": len([f for r in rounds for f in r.others]),
         "false_loss_examples": sorted({f.describe() for r in rounds
                                        for f in r.others})[:5],
@@ -382,8 +386,6 @@ def run(port: int, kinds: list[str], repeat: int, gap: float) -> dict[str, Any]:
             for kind in kinds:  # slows each alike
                 rounds.append(inject(part, rec, port, kind, gap))
         rec.round = None
-        per_kind = {k: kind_figures([r for r in rounds if r.kind == k], part, rec)
-                    for k in kinds}
         rejoining = [w for r in rounds if (w := r.rejoining())]
         quiet: list[tuple[float, float]] = []  # no fault anywhere: from the last
         for r in rounds:  # rejoin (and a little) to the next fault
@@ -394,10 +396,12 @@ def run(port: int, kinds: list[str], repeat: int, gap: float) -> dict[str, Any]:
             quiet.append((quiet_from, time.monotonic()))
         late_rejoin = in_windows(rec.at, rec.late, rejoining)
         late_quiet = in_windows(rec.at, rec.late, quiet)
+        p99_quiet = percentile(late_quiet, 99)
+        per_kind = {k: kind_figures([r for r in rounds if r.kind == k], part, rec,
+                                    p99_quiet) for k in kinds}
 
         rejoins = [t - r.ends for r in rounds for t, _ in r.rejoined.values()]
         p99_rejoin = percentile(late_rejoin, 99)
-        p99_quiet = percentile(late_quiet, 99)
         return {"kinds": per_kind, "not_posed": unposed,
                 "rejoin_p50_s": round(percentile(rejoins, 50), 3),
                 "rejoin_p99_s": round(percentile(rejoins, 99), 3),
@@ -476,7 +480,8 @@ def main() -> int:
               f"after the return (REJOIN answered to rejoined p50 {f['configure_p50_s']} s, "
               f"p99 {f['configure_p99_s']} s), joint jump max {f['joint_jump_max']} counts")
         print(f"            the loop's lateness p99 {f['lateness_p99_rejoin_ms']} ms while "
-              f"it was brought back, {f['missed_rejoin_pct']} % of the cycles skipped")
+              f"it was brought back ({f['lateness_ratio']}x without), "
+              f"{f['missed_rejoin_pct']} % of the cycles skipped")
         for line in f["false_loss_examples"]:
             print(f"            lost, not touched by the fault: {line}")
         for line in f["unfinished"]:
