@@ -54,13 +54,16 @@ every board was back to the next fault), in the same run, and ``lateness_ratio``
 cycle's lateness is the loop's own figure (``stats.late``, as ``benchmarks/runtime.py``
 reports it) plus a period for every cycle the loop skipped before it (``stats.missed``:
 it came that much later than due); ``missed_rejoin_pct``, ``missed_quiet_pct``: the
-share of cycles skipped in each.  ``other_watchdog_stops``: boards outside a fault whose
-watchdog stopped them meanwhile.  Also ``seconds`` (the whole run), ``load_average_start``
-and ``_end`` (the machine's), ``run_time`` (compiled or pure Python, and why),
-``serve_held``: how often ``fleet serve`` said this machine kept it from running in real
-time (its standard error; a bus silent for half a second that way is lost as if it were,
-see ``QUIET_MIN_S`` in :mod:`ucom_tools.ops.remote_loop`), ``not_posed``: the joint
-sensors that did not follow their target at the start (the platform's wheels).
+share of cycles skipped in each; ``longest_gap_rejoin_ms``, ``longest_gap_quiet_ms``:
+the longest time between two cycles in each (no MCA Alive meanwhile: 50 ms stops the
+boards). A quiet window in which a board was lost all the same is left out.
+``other_watchdog_stops``: boards outside a fault whose watchdog stopped them meanwhile.
+Also ``seconds`` (the whole run), ``load_average_start`` and ``_end`` (the machine's),
+``run_time`` (compiled or pure Python, and why), ``serve_held``: how often ``fleet
+serve`` said this machine kept it from running in real time (its standard error; a bus
+silent for half a second that way is lost as if it were, see ``QUIET_MIN_S`` in
+:mod:`ucom_tools.ops.remote_loop`), ``not_posed``: the joint sensors that did not follow
+their target at the start (the platform's wheels).
 
 Targets (``targets_met``, MET or NOT MET in the text, exit 1 when one is not), for every
 kind: detection p99 <= 5 ms (the rule itself waits 5 ms of silence for a 1 ms map:
@@ -179,6 +182,8 @@ class Recorder:
         self.at: list[float] = []
         self.late: list[float] = []
         self.round: Round | None = None
+        self.false_at: list[float] = []
+        """time.monotonic() of every false loss (no quiet window has one)."""
         self._missed = part.stats.missed
         self._period = part.period_s
         self.maps = {(bus, n): [m.number for m in x.plan.maps_of(n)]
@@ -205,6 +210,7 @@ class Recorder:
         if key not in r.expect:
             if f.event == "lost":
                 r.others.append(f)
+                self.false_at.append(time.monotonic())
         elif f.event == "lost":
             image = self.part.exchanges[f.bus].mca.image
             stamps = [image.stamps[m] for m in self.maps[key] if m in image.stamps]
@@ -279,6 +285,9 @@ def inject(part: RemotePart, rec: Recorder, port: int, kind: str, gap: float) ->
         expect = {(bus, int(board))}
     else:
         expect = {(target, n) for n in part.exchanges[target].configured}
+    settle = time.monotonic() + DEADLINE_S  # a board lost meanwhile (a false loss) is
+    while part.lost and time.monotonic() < settle:  # back first
+        part.run(0.01, rec.each)
     sent = time.monotonic()
     r = Round(kind, sent, sent + seconds, expect)
     rec.round = r
@@ -315,6 +324,20 @@ def in_windows(at: list[float], late: list[float],
         j = k
         while j < len(at) and at[j] <= end:
             out.append(late[j])
+            j += 1
+    return out
+
+
+def longest_gap(at: list[float], windows: list[tuple[float, float]]) -> float:
+    """The longest time between the ends of two cycles within one of ``windows``."""
+    out = 0.0
+    k = 0
+    for begin, end in sorted(windows):
+        while k < len(at) and at[k] < begin:
+            k += 1
+        j = k + 1
+        while j < len(at) and at[j] <= end:
+            out = max(out, at[j] - at[j - 1])
             j += 1
     return out
 
@@ -394,6 +417,7 @@ def run(port: int, kinds: list[str], repeat: int, gap: float) -> dict[str, Any]:
             quiet_from = None if r.settled is None else r.settled + QUIET_AFTER_S
         if quiet_from is not None:
             quiet.append((quiet_from, time.monotonic()))
+        quiet = [(a, b) for a, b in quiet if not any(a <= t <= b for t in rec.false_at)]
         late_rejoin = in_windows(rec.at, rec.late, rejoining)
         late_quiet = in_windows(rec.at, rec.late, quiet)
         p99_quiet = percentile(late_quiet, 99)
@@ -411,6 +435,8 @@ def run(port: int, kinds: list[str], repeat: int, gap: float) -> dict[str, Any]:
                 else 0.0,
                 "lateness_cycles_rejoin": len(late_rejoin),
                 "lateness_cycles_quiet": len(late_quiet),
+                "longest_gap_rejoin_ms": round(longest_gap(rec.at, rejoining) * 1e3, 1),
+                "longest_gap_quiet_ms": round(longest_gap(rec.at, quiet) * 1e3, 1),
                 "missed_rejoin_pct": skipped_pct(late_rejoin, part.period_s),
                 "missed_quiet_pct": skipped_pct(late_quiet, part.period_s),
                 "other_watchdog_stops": sum(len(r.stopped) for r in rounds),
@@ -490,7 +516,9 @@ def main() -> int:
           f"({figures['lateness_cycles_rejoin']} cycles, {figures['missed_rejoin_pct']} % "
           f"skipped), {figures['lateness_p99_quiet_ms']} ms without "
           f"({figures['lateness_cycles_quiet']} cycles, {figures['missed_quiet_pct']} % "
-          f"skipped): {figures['lateness_ratio']}x")
+          f"skipped): {figures['lateness_ratio']}x; the longest gap between two cycles "
+          f"{figures['longest_gap_rejoin_ms']} ms during rejoins, "
+          f"{figures['longest_gap_quiet_ms']} ms without")
     if held:
         print(f"  fleet serve was held by the machine {len(held)} times (its stderr), e.g. "
               f"{held[0]}")
