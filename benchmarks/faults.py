@@ -367,7 +367,8 @@ def kind_figures(rounds: list[Round], part: RemotePart, rec: Recorder,
                 lost = part.lost.get(key)
                 unfinished.append(f"{key[0]}/{key[1]} not rejoined"
                                   + (f" ({lost.status})" if lost is not None else ""))
-    late = in_windows(rec.at, rec.late, [w for r in rounds if (w := r.rejoining())])
+    windows = [w for r in rounds if (w := r.rejoining())]
+    late = in_windows(rec.at, rec.late, windows)
     return {
         "rounds": len(rounds),
         "detect_p50_ms": round(percentile(detect, 50) * 1e3, 2),
@@ -388,6 +389,7 @@ def kind_figures(rounds: list[Round], part: RemotePart, rec: Recorder,
         "missed_rejoin_pct": skipped_pct(late, part.period_s),
         "lateness_ratio": round(percentile(late, 99) / p99_quiet, 2) if p99_quiet > 0
         else 0.0,
+        "longest_gap_ms": round(longest_gap(rec.at, windows) * 1e3, 1),
         "false_losses": len([f for r in rounds for f in r.others]),
         "false_loss_examples": sorted({f.describe() for r in rounds
                                        for f in r.others})[:5],
@@ -507,7 +509,8 @@ def main() -> int:
               f"p99 {f['configure_p99_s']} s), joint jump max {f['joint_jump_max']} counts")
         print(f"            the loop's lateness p99 {f['lateness_p99_rejoin_ms']} ms while "
               f"it was brought back ({f['lateness_ratio']}x without), "
-              f"{f['missed_rejoin_pct']} % of the cycles skipped")
+              f"{f['missed_rejoin_pct']} % of the cycles skipped, the longest gap "
+              f"{f['longest_gap_ms']} ms")
         for line in f["false_loss_examples"]:
             print(f"            lost, not touched by the fault: {line}")
         for line in f["unfinished"]:
