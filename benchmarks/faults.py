@@ -70,12 +70,12 @@ their target at the start (the platform's wheels).
 Targets (``targets_met``, MET or NOT MET in the text, exit 1 when one is not), for every
 kind: detection p99 <= 5 ms (the rule itself waits 5 ms of silence for a 1 ms map:
 ``beyond_rule_p99_ms`` says what the loop adds), rejoin p99 <= 1 s, every board lost and
-rejoined, no other board lost and none lost again, no joint jump of more than 50 counts (the soak's); over
-all: ``lateness_ratio`` <= 1.2 and no other board stopped by its watchdog.  Over
-socketcand a whole bus gone silent (``cable``, ``estop``) is noticed after the loop's
-quiet time (half a second) until the served fleet reports its bus's state.  ``--json``
-prints the figures as one JSON object.  ``--kinds`` picks kinds, ``--processes`` is
-passed to ``fleet serve``.  About 100 s on 2 cores with the defaults.
+rejoined, no other board lost and none lost again, no joint jump of more than 50 counts
+(the soak's); over all: ``lateness_ratio`` <= 1.2 and no other board stopped by its
+watchdog. Over socketcand a whole bus gone silent (``cable``, ``estop``) is noticed
+after the loop's quiet time (half a second) until the served fleet reports its bus's
+state. ``--json`` prints the figures as one JSON object. ``--kinds`` picks kinds,
+``--processes`` is passed to ``fleet serve``. About 100 s on 2 cores with the defaults.
 """
 
 from __future__ import annotations
