@@ -779,11 +779,26 @@ class RemoteLoop(RemoteValues):
     def _step_rejoins(self) -> None:
         """Hand each rejoin conversation control if what it waits for came (after the
         cycle's drain; on the wall clock until shortly before the next cycle at most); a
-        conversation that ended brings its board back, or says why not."""
+        conversation that ended brings its board back, or says why not.  On the wall
+        clock the conversations share that time: once it is spent the others wait for the
+        next cycle (handed control with none left, each would run on beside the loop, and
+        several at once kept it from its deadlines: boards lost together, an emergency
+        stop), and each cycle another one has the first turn."""
         virtual = self.virtual
         ends = self._deadline + self.period_s - REJOIN_MARGIN_S
-        for r in list(self._rejoins):
-            r.step(None if virtual else ends - _monotonic())
+        rejoins = list(self._rejoins)
+        count = len(rejoins)
+        first = 0 if virtual else self._k % count
+        for i in range(count):
+            r = rejoins[(first + i) % count]
+            if virtual:
+                r.step(None)
+            else:
+                budget = ends - _monotonic()
+                if budget <= 0.0:
+                    break
+                r.step(budget)
+        for r in rejoins:
             if r.done:
                 self._rejoins.remove(r)
                 self._rejoin_ended(r)
