@@ -109,6 +109,13 @@ class Journal:
         with contextlib.suppress(OSError):
             self.path.unlink()
         for d in (params, self.directory):
+            # what a job killed while it wrote left: the temporaries of fileio's atomic
+            # writes (".journal_json-XXXX.tmp", ".CAN0-1-XXXX.tree"), in the journal's
+            # own directories, which nothing else writes
+            with contextlib.suppress(OSError):
+                for tmp in d.glob(".*-*"):
+                    if tmp.is_file():
+                        tmp.unlink()
             with contextlib.suppress(OSError):
                 d.rmdir()
         self.boards = {}
