@@ -596,3 +596,4 @@ def test_served_an_emergency_stop_is_the_bus_failing_at_once_and_every_board_rej
                    for f in lost), lost
         assert len({f.time for f in lost}) == 1  # in one cycle
         assert sorted(f.board for f in part.faults if f.event == "rejoined") == [1, 2, 3]
+
