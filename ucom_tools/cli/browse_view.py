@@ -19,6 +19,8 @@ from typing import Any
 from rich.console import Group
 from rich.text import Text
 
+from ucom_tools.cli.ages import age_text
+
 KINDS = ("CI", "SO", "PAR")
 MAX_FPS = 20.0
 """The view refreshes at the robot's publishing rate, at most this often (a terminal, or
@@ -43,18 +45,6 @@ def value_of(text: str) -> int | float | str:
         return text
     f = float(d)
     return f if Decimal(repr(f)) == d else text
-
-
-def age_text(seconds: float) -> str:
-    """``12 ms``, ``3.4 s``, ``2 min``, ``5 h``."""
-    seconds = max(0.0, seconds)
-    if seconds < 1.0:
-        return f"{seconds * 1000:.0f} ms"
-    if seconds < 60.0:
-        return f"{seconds:.1f} s"
-    if seconds < 3600.0:
-        return f"{seconds / 60:.0f} min"
-    return f"{seconds / 3600:.0f} h"
 
 
 # ---------------------------------------------------------------------- the model

@@ -32,6 +32,7 @@ from prompt_toolkit.layout import Dimension, HSplit, Layout, Window
 from prompt_toolkit.layout.controls import BufferControl, FormattedTextControl
 from prompt_toolkit.output import Output
 
+from ucom_tools.cli.ages import age_text
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.remote import RECENT_SAMPLES, RemotePart
 from ucom_tools.ops.remote_feed import LocalRun
@@ -109,16 +110,6 @@ def _box(title: str, rows: list[tuple[str, str, str]], *, stale: str = "",
                       ("", " "), (DIM, f"{unit:<{unit_w}}"), ("", f"{' ' * pad} \u2502")])
     lines.append([("", "\u2570" + "\u2500" * (inner + 2) + "\u256f")])
     return inner + 4, lines
-
-
-def age_text(seconds: float) -> str:
-    """``12 ms``, ``3.4 s``, ``2 min``."""
-    seconds = max(0.0, seconds)
-    if seconds < 1.0:
-        return f"{seconds * 1000:.0f} ms"
-    if seconds < 60.0:
-        return f"{seconds:.1f} s"
-    return f"{seconds / 60:.0f} min"
 
 
 def _arrange(boxes: list[tuple[int, list[Line]]], width: int) -> list[Line]:
