@@ -36,7 +36,7 @@ import contextlib
 import os
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Final
+from typing import TYPE_CHECKING, Final, Protocol
 
 from ucom_tools.config.attrtree.match import program_of
 from ucom_tools.edgelists.model import ProgramSpec, Seed
@@ -54,7 +54,34 @@ from ucom_tools.wire.codes import ErrorCode
 from ucom_tools.wire.ids import Address, Function, seq
 
 if TYPE_CHECKING:
-    from ucom_tools.ops.remote import RemotePart
+    from ucom_tools.config.attrtree.robot import RobotTrees
+    from ucom_tools.ops.edges import EdgeRef, Names
+    from ucom_tools.ops.exchange import BusExchange
+    from ucom_tools.ops.realtime import RealtimeScheduling, ShortSlice
+    from ucom_tools.ops.robot import Robot
+
+
+class RejoinHost(Protocol):
+    """What a rejoin needs of the run-time part it brings a board back into
+    (:class:`~ucom_tools.ops.remote.RemotePart`, which makes the rejoins: named here by
+    what it offers, so that neither module imports the other)."""
+
+    @property
+    def robot(self) -> Robot: ...
+    @property
+    def exchanges(self) -> dict[str, BusExchange]: ...
+    @property
+    def trees(self) -> RobotTrees: ...
+    @property
+    def names(self) -> Names: ...
+    @property
+    def scheduling(self) -> RealtimeScheduling | None: ...
+    @property
+    def time_slice(self) -> ShortSlice: ...
+    def described(self, bus: str, board: int) -> BoardEdges | None: ...
+    def serial(self, bus: str, board: int) -> int: ...
+    def par_values(self, bus: str, board: int) -> list[tuple[EdgeRef, int]]: ...
+    def _set_lost_status(self, bus: str, board: int, status: str) -> None: ...
 
 
 DESCRIBE_AT_A_TIME: Final = 4
@@ -85,7 +112,7 @@ class Rejoin:
     (what was done, or why not), :attr:`answered` (when it first answered REJOIN, on the
     bus clock)."""
 
-    def __init__(self, part: RemotePart, bus: str, board: int, delay: float = 0.0) -> None:
+    def __init__(self, part: RejoinHost, bus: str, board: int, delay: float = 0.0) -> None:
         self.part = part
         self.bus = bus
         self.board = board
