@@ -343,6 +343,9 @@ def test_each_kind_rejoins_with_every_joint_where_it_stood(kind: str) -> None:
             assert f.answered is not None and f.answered < f.time
             assert "held where it stands" in f.seen
             assert "configured as at the start" in f.seen
+            # its program's MCA Ready ends its Start: not Start's whole verdict window,
+            # which waits for a reset too (0.15 s), then the edges, the configuration
+            assert f.time - f.answered < 0.3, f
         # every joint where it stood at the loss (it coasts a little, unpowered)
         for b in boards:
             now = sensors(part, *b)

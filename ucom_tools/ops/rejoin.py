@@ -50,7 +50,8 @@ from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import BoardEdges, McaClient
 from ucom_tools.protocol.stepped import Stepped
 from ucom_tools.wire import mca
-from ucom_tools.wire.codes import ErrorCode
+from ucom_tools.wire import messages as m
+from ucom_tools.wire.codes import ErrorCode, Target
 from ucom_tools.wire.ids import Address, Function, seq
 
 if TYPE_CHECKING:
@@ -250,6 +251,14 @@ class Rejoin:
                        and e.function == Function.MCA_START]
             if not refusal or refusal[-1].code is not ErrorCode.NOT_RUNNING:
                 raise
+        # Start, ended by its program's MCA Ready (which comes only once the program
+        # fits: COMPATIBILITY), not by the whole verdict window of Start, which waits
+        # for a reset too (150 ms more a board; every board of an emergency stop)
+        t = client.timeouts
+        boot.link.send(m.Start(Target.FLASH), address)
+        early = client.wait_started(address, t.reply + t.startup)
+        if isinstance(early, mca.McaReady):
+            return early, True
         start = next((r for r in boot.start(address) if r.address == address), None)
         refused = [] if start is None else [e for e in start.errors
                                             if e.function == Function.START]

@@ -191,6 +191,19 @@ class McaClient:
         except UcomTimeoutError:
             return None
 
+    def wait_started(self, address: Address, timeout: float,
+                     ) -> mca.McaReady | m.Error | None:
+        """After a Start sent to ``address``: its program's MCA Ready (the program is up,
+        its compatibility check passed: nothing else can follow), or an Error of that
+        board (its refusal, or another), whichever comes first within ``timeout``
+        seconds; None: neither (ask no QUERY: the caller decides)."""
+        deadline = self.link.deadline(timeout, answers=2)
+        while (got := self._next(deadline)) is not None:
+            source, msg = got
+            if source == address and isinstance(msg, (mca.McaReady, m.Error)):
+                return msg
+        return None
+
     def query(self, address: Address) -> mca.McaReady:
         return self._ack(address, mca.McaStart(mca.StartOp.QUERY), Function.MCA_START,
                          mca.StartOp.QUERY)
