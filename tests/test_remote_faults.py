@@ -600,3 +600,22 @@ def test_served_an_emergency_stop_is_the_bus_failing_at_once_and_every_board_rej
         assert len({f.time for f in lost}) == 1  # in one cycle
         assert sorted(f.board for f in part.faults if f.event == "rejoined") == [1, 2, 3]
 
+
+
+def test_after_an_emergency_stop_a_power_loss_is_noticed_by_the_rule() -> None:
+    """The silence of an emergency stop (every board lost, the buses error-passive) is
+    explained: once the boards are back, a board that loses power is lost by its
+    neighbours' frames, as before, not after the quiet time of a silent bus."""
+    with running("hold", rejoin=True) as (fleet, part):
+        part.run(0.3)
+        fleet.inject(fault("estop", seconds=0.2))
+        part.run(0.1)
+        while part.lost:  # the last one back: at once, the next fault
+            part.cycle()
+        assert len(part.faults) == 22, part.faults
+        lost = noticed(part)
+        fleet.inject(fault("power-off", seconds=0.2))
+        part.run(0.05)
+        (f, last), = lost.values()
+        assert f.seen.startswith("silence: none of its SO maps for "), f
+        assert f.time + part.stats.started_clock - last < 2 * LIMIT, (f, last)

@@ -622,9 +622,12 @@ class RemoteLoop(RemoteValues):
             received = group[0].image.received
             if received != self._seen_received[g]:
                 # nothing came for cycles that sent (the transport held this host's
-                # frames too), then all at once; a stall of this loop sent nothing
+                # frames too), then all at once; a stall of this loop sent nothing, and a
+                # bus whose boards were lost (an emergency stop, a cable) was silent
+                # for that reason (no frames held: they came as they were sent)
                 gap = now - self._seen_at[g]
-                if self._quiet_cycles[g] * self.period_s >= group[0].limit:
+                if self._quiet_cycles[g] * self.period_s >= group[0].limit and \
+                        not any(w.lost for w in group):
                     trust = now + min(gap, BURST_TRUST_MAX_S) + group[0].limit
                     if trust > self._trust_from[g]:
                         self._trust_from[g] = trust
