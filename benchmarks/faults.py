@@ -101,6 +101,7 @@ from ucom_tools import compiled  # noqa: E402
 from ucom_tools.config.attrtree.match import program_of  # noqa: E402
 from ucom_tools.edgelists.model import Seed  # noqa: E402
 from ucom_tools.ops.edges import EdgeRef  # noqa: E402
+from ucom_tools.ops.realtime import frozen_heap  # noqa: E402
 from ucom_tools.ops.remote import BoardFault, RemotePart  # noqa: E402
 from ucom_tools.ops.remote_faults import lost_after  # noqa: E402
 from ucom_tools.signals import stop_signals  # noqa: E402
@@ -423,7 +424,8 @@ def kind_figures(rounds: list[Round], part: RemotePart, rec: Recorder,
 
 def run(port: int, kinds: list[str], repeat: int, gap: float) -> dict[str, Any]:
     with RemotePart.open("armar3", interface="socketcand", host="127.0.0.1", port=port,
-                         rate_hz=1000.0, on_fault="hold", rejoin=True) as part:
+                         rate_hz=1000.0, on_fault="hold", rejoin=True) as part, \
+            frozen_heap():  # as ucom remote run does
         joints = held_joints(part)
         rec = Recorder(part, joints)
         unposed = pose(part, rec, joints)

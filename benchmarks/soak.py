@@ -101,6 +101,7 @@ from benchmarks.runtime import percentile, served_armar3  # noqa: E402
 from ucom_tools import compiled  # noqa: E402
 from ucom_tools.errors import UcomError  # noqa: E402
 from ucom_tools.ops.edges import EdgeRef  # noqa: E402
+from ucom_tools.ops.realtime import frozen_heap  # noqa: E402
 from ucom_tools.ops.remote import BoardFault, LostBoardWrite, RemotePart  # noqa: E402
 from ucom_tools.signals import stop_signals  # noqa: E402
 from ucom_tools.transport.fault_request import request_fault  # noqa: E402
@@ -526,7 +527,7 @@ def run(port: int, minutes: float, every: float, realtime: bool) -> dict[str, An
     try:
         with RemotePart.open("armar3", interface="socketcand", host="127.0.0.1",
                              port=port, on_fault="hold", rejoin=True,
-                             realtime=realtime) as part:
+                             realtime=realtime) as part, frozen_heap():  # as remote run
             soak = Soak(part, injector, schedule(part, minutes, every), every)
             warm = time.monotonic() + WARM_UP_S
             while time.monotonic() < warm:

@@ -4,7 +4,6 @@ boards against their trees, ``run`` the cyclic exchange (a live view on a termin
 
 from __future__ import annotations
 
-import gc
 import os
 import sys
 import threading
@@ -32,6 +31,7 @@ from ucom_tools.cli.output import emit_json, json_number, stderr, stdout
 from ucom_tools.config import topology as topo
 from ucom_tools.errors import InputError, UcomError
 from ucom_tools.net.keys import DEFAULT_ENDPOINT, check_rate, robot_id
+from ucom_tools.ops.realtime import frozen_heap
 from ucom_tools.ops.remote import (
     HOLD,
     POLICIES,
@@ -434,7 +434,7 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                 feed.attach()
             before: dict[str, tuple[float, int]] | None = None
             try:  # from the first board's start on: Ctrl-C stops the boards started
-                with _frozen():
+                with frozen_heap():
                     part.start(force=force)
                     if feed is not None:
                         feed.send_image()
@@ -518,19 +518,6 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
         ctx.exit(EXIT_BUS)
     if stopped or still_lost:
         ctx.exit(EXIT_FAILED)
-
-
-@contextmanager
-def _frozen() -> Iterator[None]:
-    """What exists when the loop starts is moved out of Python's collector (``gc.freeze``)
-    for the loop's time: a full collection then walks only what the run made since,
-    not the whole program (some ms with the GIL held, the loop waiting)."""
-    gc.collect()
-    gc.freeze()
-    try:
-        yield
-    finally:
-        gc.unfreeze()
 
 
 def _consumers_config(part: RemotePart, record: str | None, view: bool,

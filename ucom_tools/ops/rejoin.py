@@ -129,6 +129,10 @@ class Rejoin:
     def done(self) -> bool:
         return self._stepped.done
 
+    def busy(self) -> bool:
+        """Its conversation computes beside the loop (see :meth:`Stepped.busy`)."""
+        return self._stepped.busy()
+
     def step(self, budget: float | None = None) -> None:
         self._stepped.step(budget)
         if self._stepped.done and not self.how:

@@ -792,7 +792,9 @@ class RemoteLoop(RemoteValues):
         rejoins = list(self._rejoins)
         count = len(rejoins)
         first = 0 if virtual else self._k % count
-        for i in range(count):
+        if not virtual and any([r.busy() for r in rejoins]):
+            count = 0  # one runs beside the loop: none other joins it (each would share
+        for i in range(count):  # the GIL with the loop: boards lost together, 2-4 ms late)
             r = rejoins[(first + i) % count]
             if virtual:
                 r.step(None)

@@ -272,7 +272,8 @@ class McaClient:
             frames = len(wanted) * 10 if len(ask) == 1 and ask[0].kind is None \
                 else 10 * len(ask)
             deadline = self.link.deadline(self.timeouts.reply, answers=frames)
-            while wanted - done.keys() and (got := self._next(deadline)) is not None:
+            missing = wanted - done.keys()
+            while missing and (got := self._next(deadline)) is not None:
                 source, msg = got
                 if source == address and isinstance(msg, m.Error) and \
                         msg.function == Function.MCA_DUMPIO_DESCR_REQUEST:
@@ -288,13 +289,13 @@ class McaClient:
                     raw = b"".join(parts[key][n] for n in range(lasts[key] + 1))
                     try:
                         done[key] = mca.EdgeRecord.decode(raw)
+                        missing.discard(key)
                     except FrameError:
                         parts.pop(key)
                         lasts.pop(key)
-            missing = sorted(wanted - done.keys())
             if not missing:
                 return
-            ask = [mca.DescrRequest(mca.Kind(k), i) for k, i in missing]
+            ask = [mca.DescrRequest(mca.Kind(k), i) for k, i in sorted(missing)]
 
     # ------------------------------------------------------------------ values
     def write(self, address: Address, kind: mca.Kind, index: int, raws: Sequence[int],

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum, IntEnum
+from typing import Final
 
 from ucom_tools.errors import FrameError
 
@@ -138,6 +139,9 @@ class Address:
 
 ALL = Address(IdType.SEQUENTIAL, BROADCAST)
 
+_ADDRESSES: Final = tuple(Address(IdType(low >> 5), low & 0x1F) for low in range(64))
+"""Every address, by the identifier's low six bits (decoding a frame makes none)."""
+
 
 def seq(number: int) -> Address:
     """Address of the board with sequential ID ``number``."""
@@ -160,7 +164,7 @@ def decode_id(arbitration_id: int) -> tuple[int, Address]:
     """Split an 11-bit identifier into (function code, address)."""
     if not 0 <= arbitration_id <= 0x7FF:
         raise FrameError("identifier", f"must be an 11-bit value, got 0x{arbitration_id:X}")
-    return arbitration_id >> 6, Address(IdType((arbitration_id >> 5) & 1), arbitration_id & 0x1F)
+    return arbitration_id >> 6, _ADDRESSES[arbitration_id & 0x3F]
 
 
 DATA_SLOTS = 64

@@ -332,8 +332,10 @@ class DescrSegment:
         if not 3 <= len(data) <= 8:
             raise FrameError("MCA DumpIO Descr payload length",
                              f"expected 3..8 bytes, got {len(data)}")
-        return cls(check_enum(Kind, "DumpIO kind", data[0] >> 6), data[1], data[0] & 0x1F,
-                   bool(data[0] & 0x20), bytes(data[2:]))
+        kind = _KINDS.get(data[0] >> 6)
+        if kind is None:
+            raise FrameError("DumpIO kind", f"reserved value 0x{data[0] >> 6:02X}")
+        return cls(kind, data[1], data[0] & 0x1F, bool(data[0] & 0x20), bytes(data[2:]))
 
 
 @dataclass(frozen=True, slots=True)
@@ -505,6 +507,10 @@ class MapFrame:
 McaMessage = (EdgeWrite | McaReady | McaStart | DescrRequest | DescrSegment | DumpRequest
               | DumpValues | AdminData | Alive | MapFrame)
 
+_FUNCTIONS: Final = {int(f): f for f in Function}
+"""Each function by its code (an enum's call costs some microseconds a frame)."""
+_KINDS: Final = {int(k): k for k in Kind}
+
 MCA_FUNCTIONS: Final = frozenset({
     Function.MCA_CONTROLLER_INPUT, Function.MCA_SENSOR_OUTPUT, Function.MCA_PARAMETER,
     Function.MCA_READY, Function.MCA_START, Function.MCA_DUMPIO_DESCR_REQUEST,
@@ -530,7 +536,7 @@ def decode(arbitration_id: int, data: bytes) -> tuple[Address | None, McaMessage
     code, address = decode_id(arbitration_id)
     if code not in MCA_FUNCTIONS:
         raise FrameError("function", f"code {code} is not a run-time (MCA) message")
-    function = Function(code)
+    function = _FUNCTIONS[code]
     data = bytes(data)
     if address.id_type is IdType.FIXED:
         if function not in (Function.MCA_CONTROLLER_INPUT, Function.MCA_SENSOR_OUTPUT):
@@ -544,11 +550,13 @@ def decode(arbitration_id: int, data: bytes) -> tuple[Address | None, McaMessage
         return address, EdgeWrite(kind, data[0], data[1:])
     if function is Function.MCA_SENSOR_OUTPUT:
         raise FrameError("identifier type", "MCA Sensor Output is process data (type 1) only")
-    decoders: dict[Function, Callable[[bytes], McaMessage]] = {
-        Function.MCA_READY: McaReady.decode, Function.MCA_START: McaStart.decode,
-        Function.MCA_DUMPIO_DESCR_REQUEST: DescrRequest.decode,
-        Function.MCA_DUMPIO_DESCR: DescrSegment.decode, Function.MCA_DUMP_CI: DumpRequest.decode,
-        Function.MCA_ADMIN_DATA: AdminData.decode, Function.MCA_ALIVE: Alive.decode,
-        Function.MCA_DSP_CI: DumpValues.decode,
-    }
-    return address, decoders[function](data)
+    return address, _DECODERS[function](data)
+
+
+_DECODERS: Final[dict[Function, Callable[[bytes], McaMessage]]] = {
+    Function.MCA_READY: McaReady.decode, Function.MCA_START: McaStart.decode,
+    Function.MCA_DUMPIO_DESCR_REQUEST: DescrRequest.decode,
+    Function.MCA_DUMPIO_DESCR: DescrSegment.decode, Function.MCA_DUMP_CI: DumpRequest.decode,
+    Function.MCA_ADMIN_DATA: AdminData.decode, Function.MCA_ALIVE: Alive.decode,
+    Function.MCA_DSP_CI: DumpValues.decode,
+}
