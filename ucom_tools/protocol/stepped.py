@@ -34,7 +34,11 @@ Measured (ARMAR-III over ``fleet serve``, the PC at 1 kHz, compiled, a board's r
 some 170 steps in 0.42 s): a step takes 0.2-0.3 ms of the loop's wall time (two thread
 switches and the worker's part), p99 0.7-0.8 ms, and fewer than one step in twenty
 outlasts the budget; the other boards' cycles were late by 0.075 ms at p99 while it
-ran, 0.088 ms without (nine runs pooled).
+ran, 0.088 ms without (nine runs pooled).  Eleven at once (an emergency stop,
+``benchmarks/faults.py``, 20 rounds): 0.21 ms at p99 against 0.085 ms without; before a
+worker gave control back at its spent budget, and while others were handed control
+beside one computing past its own, 2.25 ms (eleven threads taking turns at the GIL with
+the loop).
 """
 
 from __future__ import annotations
