@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import click
 from click.testing import CliRunner
 
 from ucom_tools import compiled
@@ -54,3 +55,53 @@ def test_environment_and_exit_codes_are_documented_once_and_completely() -> None
         compiled.PURE_ENV}
     status = page[page.index(".SH EXIT STATUS"):page.index(".SH EXAMPLES")]
     assert {int(c) for c in re.findall(r"^\.B (\d+)$", status, re.M)} == set(exitcodes.ALL)
+
+
+def _leaf_commands() -> dict[tuple[str, ...], click.Command]:
+    """Every command of ``ucom`` by its words (``("fleet", "serve")``), groups walked."""
+    found: dict[tuple[str, ...], click.Command] = {}
+
+    def walk(cmd: click.Command, words: tuple[str, ...]) -> None:
+        if isinstance(cmd, click.Group):
+            ctx = click.Context(cmd)
+            for name in cmd.list_commands(ctx):
+                sub = cmd.get_command(ctx, name)
+                assert sub is not None, name
+                walk(sub, (*words, name))
+        else:
+            found[words] = cmd
+
+    walk(cli, ())
+    return found
+
+
+def _synopsis_commands(synopsis: str) -> set[tuple[str, ...]]:
+    """The commands the SYNOPSIS names: ``.B ucom fleet show`` and the alternatives after
+    it (``|`` then ``.B serve``), which belong to the same group."""
+    found: set[tuple[str, ...]] = set()
+    group: tuple[str, ...] = ()
+    for line in synopsis.replace("\\-", "-").splitlines():
+        if m := re.fullmatch(r"\.B ucom ([a-z-]+(?: [a-z-]+)*)", line):
+            words = tuple(m.group(1).split())
+            found.add(words)
+            group = words[:-1]
+        elif m := re.fullmatch(r"\.B ([a-z-]+)", line):
+            found.add((*group, m.group(1)))
+    return found
+
+
+def test_every_command_has_a_description_in_its_help() -> None:
+    for words, cmd in _leaf_commands().items():
+        assert (cmd.help or "").strip(), f"ucom {' '.join(words)} has no description"
+        text = CliRunner().invoke(cli, [*words, "--help"]).stdout
+        first = " ".join(cmd.help.strip().splitlines()[0].split())
+        assert first in " ".join(text.split()), f"ucom {' '.join(words)} --help: {text[:300]}"
+
+
+def test_the_synopsis_names_every_command_and_breaks_only_between_them() -> None:
+    page = (MAN / "ucom.1").read_text()
+    synopsis = page[page.index(".SH SYNOPSIS"):page.index(".SH DESCRIPTION")]
+    missing = set(_leaf_commands()) - _synopsis_commands(synopsis)
+    assert not missing, f"man/ucom.1 SYNOPSIS lacks: {sorted(' '.join(w) for w in missing)}"
+    glued = [line for line in synopsis.splitlines() if re.search(r"\S\.br\b", line)]
+    assert not glued, f"a .br glued to the text before it: {glued}"

@@ -138,19 +138,23 @@ def _print_check(report: CheckReport) -> None:
                 stdout().print(f"  {escape(where)}{escape(d.message)}", soft_wrap=True)
 
 
-@remote.command("check")
+CHECK_HELP = (
+    """Check the running boards against their attribute trees (the mapping check).
+
+    """
+    + ROBOT_HELP + """  Starts each board's program if it is not running, fetches
+    its edge descriptions and compares them with its tree's mapping table: every edge the
+    tree names must be the board's, in the same order and of the same kind.  Writes
+    nothing.  Exit 1 when a board differs or does not answer.""")
+
+
+@remote.command("check", help=CHECK_HELP)
 @click.argument("robot_or_trees", nargs=-1)
 @connection_options
 @json_option
 @click.pass_context
 def check(ctx: click.Context, robot_or_trees: tuple[str, ...], spec: ConnectSpec,
           bus_name: str | None, as_json: bool) -> None:
-    """Check the running boards against their attribute trees (the mapping check).
-
-    """ + ROBOT_HELP + """  Starts each board's program if it is not running, fetches
-    its edge descriptions and compares them with its tree's mapping table: every edge the
-    tree names must be the board's, in the same order and of the same kind.  Writes
-    nothing.  Exit 1 when a board differs or does not answer."""
     with _part(robot_or_trees, _one_bus(spec, bus_name)) as part:
         report = part.check()
     if as_json:
@@ -280,7 +284,32 @@ def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) 
         + ("" if part.scheduling is None else f"; {part.scheduled_as}"))
 
 
-@remote.command("run")
+RUN_HELP = (
+    """Run the robot's boards in the cyclic exchange.
+
+    """
+    + ROBOT_HELP + """  Starts each board's program if needed, checks its edges
+    against its tree (a difference: every one is listed, nothing starts, exit 1, unless
+    --force), writes the trees' PAR and CI defaults, sets up the SO maps at the programs'
+    default rates (the bus load is estimated first: over 100 % is refused, over 70 %
+    warned), starts the exchange on every bus and runs the PC's loop: CI maps and MCA
+    Alive every cycle.  It first listens on every bus for the boards' watchdog time:
+    where another host's exchange runs (MCA Alive or CI maps it did not send) nothing is
+    sent and the exit code is 4, unless --force.  On a terminal a live view shows every
+    value; 'set NAME VALUE' changes a CI or PAR while running.  The live view, --record
+    and --zenoh run in a process of their own, apart from the loop, and read only the
+    snapshots it hands over: none of them can keep it from its deadline.  With --for it runs N
+    seconds and prints what the joints did (--json: every edge's last value and the
+    loop's figures).  Ctrl-C or the end stops every board (motors off); a PC that dies
+    leaves them to their watchdog.  A board that is lost (it went silent: power,
+    reset, bus-off, a cable, the emergency stop; or its bus failed) stops every other
+    board and ends the run with exit 1 naming it (--on-fault stop), or is reported while
+    the others run on (--on-fault hold), and with --rejoin brought back when it returns,
+    its joints held where they stand (ucom-protocol(7), RUN TIME, Faults); --json lists
+    them under 'faults'.""")
+
+
+@remote.command("run", help=RUN_HELP)
 @click.argument("robot_or_trees", nargs=-1)
 @click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
               help="Set a CI or PAR edge by its robot-wide name after the start "
@@ -344,27 +373,6 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
         periods: tuple[str, ...], force: bool, realtime: bool, zenoh_endpoint: str | None,
         zenoh_config: str | None, allow_writes: bool, publish_hz: float, on_fault: str,
         rejoin: bool, spec: ConnectSpec, bus_name: str | None, as_json: bool) -> None:
-    """Run the robot's boards in the cyclic exchange.
-
-    """ + ROBOT_HELP + """  Starts each board's program if needed, checks its edges
-    against its tree (a difference: every one is listed, nothing starts, exit 1, unless
-    --force), writes the trees' PAR and CI defaults, sets up the SO maps at the programs'
-    default rates (the bus load is estimated first: over 100 % is refused, over 70 %
-    warned), starts the exchange on every bus and runs the PC's loop: CI maps and MCA
-    Alive every cycle.  It first listens on every bus for the boards' watchdog time:
-    where another host's exchange runs (MCA Alive or CI maps it did not send) nothing is
-    sent and the exit code is 4, unless --force.  On a terminal a live view shows every
-    value; 'set NAME VALUE' changes a CI or PAR while running.  The live view, --record
-    and --zenoh run in a process of their own, apart from the loop, and read only the
-    snapshots it hands over: none of them can keep it from its deadline.  With --for it runs N
-    seconds and prints what the joints did (--json: every edge's last value and the
-    loop's figures).  Ctrl-C or the end stops every board (motors off); a PC that dies
-    leaves them to their watchdog.  A board that is lost (it went silent: power,
-    reset, bus-off, a cable, the emergency stop; or its bus failed) stops every other
-    board and ends the run with exit 1 naming it (--on-fault stop), or is reported while
-    the others run on (--on-fault hold), and with --rejoin brought back when it returns,
-    its joints held where they stand (ucom-protocol(7), RUN TIME, Faults); --json lists
-    them under 'faults'."""
     if rejoin and on_fault != HOLD:
         raise click.UsageError("--rejoin needs --on-fault hold: under --on-fault stop a "
                                "lost board ends the run", ctx=ctx)
