@@ -139,15 +139,6 @@ class Entry:
     low: int | None = None
     high: int | None = None
     pdo_mappable: bool = False
-    node_relative: bool = False
-    """The default is relative to the node ID (``$NODEID+...``: COB-IDs)."""
-
-    def value(self, node_id: int) -> int | str:
-        """The default on node ``node_id``."""
-        if self.node_relative:
-            assert isinstance(self.default, int)
-            return self.default + node_id
-        return self.default
 
 
 @dataclass(frozen=True)
@@ -215,23 +206,20 @@ class Dictionary:
 
 # ------------------------------------------------------------------------- building
 def _var(index: int, name: str, data_type: DataType, access: Access, default: int | str,
-         *, low: int | None = None, high: int | None = None, pdo: bool = False,
-         relative: bool = False) -> Object:
+         *, low: int | None = None, high: int | None = None, pdo: bool = False) -> Object:
     return Object(index, name, ObjectType.VAR, (Entry(index, 0, name, data_type, access,
-                                                      default, low, high, pdo, relative),))
+                                                      default, low, high, pdo),))
 
 
 def _compound(index: int, name: str, object_type: ObjectType, access0: Access,
-              subs: Iterable[tuple[int, str, DataType, Access, int]],
-              *, relative: Iterable[int] = ()) -> Object:
+              subs: Iterable[tuple[int, str, DataType, Access, int]]) -> Object:
     """An ARRAY or RECORD: sub-index 0 holds the highest sub-index (UNSIGNED8)."""
     subs = list(subs)
-    rel = set(relative)
     highest = max(s[0] for s in subs)
     first = Entry(index, 0, "Highest sub-index supported", DataType.UNSIGNED8, access0,
                   highest)
     return Object(index, name, object_type, (first, *(
-        Entry(index, sub, n, dt, acc, default, node_relative=sub in rel)
+        Entry(index, sub, n, dt, acc, default)
         for sub, n, dt, acc, default in subs)))
 
 
@@ -253,7 +241,7 @@ def _communication(joint: Joint) -> list[Object]:
         _var(0x1006, "Communication cycle period", u32, rw, 0),
         _var(0x1008, "Manufacturer device name", DataType.VISIBLE_STRING, Access.CONST,
              joint.name),
-        _var(0x1014, "COB-ID EMCY", u32, rw, 0x80, relative=True),
+        _var(0x1014, "COB-ID EMCY", u32, rw, 0x80 + joint.node_id),
         _var(0x1015, "Inhibit time EMCY", u16, rw, 0),
         _compound(0x1016, "Consumer heartbeat time", ObjectType.ARRAY, ro, consumers),
         _var(0x1017, "Producer heartbeat time", u16, rw, HEARTBEAT_MS),
@@ -262,7 +250,7 @@ def _communication(joint: Joint) -> list[Object]:
             (2, "Product code", u32, ro, product_code(board.program.name)),
             (3, "Revision number", u32, ro, board.progid),
             (4, "Serial number", u32, ro, board.serial)]),
-        *_pdos(),
+        *_pdos(joint.node_id),
     ]
 
 
@@ -274,7 +262,7 @@ _MAP_BITS = {0x6040: 16, 0x6060: 8, 0x607A: 32, 0x60FF: 32, 0x6041: 16, 0x6061: 
              0x6064: 32, 0x606C: 32}
 
 
-def _pdos() -> list[Object]:
+def _pdos(node_id: int) -> list[Object]:
     u8, u16, u32, rw, ro = (DataType.UNSIGNED8, DataType.UNSIGNED16, DataType.UNSIGNED32,
                             Access.RW, Access.RO)
     out: list[Object] = []
@@ -283,7 +271,7 @@ def _pdos() -> list[Object]:
         what = "RPDO" if receive else "TPDO"
         for n in range(PDOS):
             mapped = maps[n] if n < len(maps) else ()
-            cob_id = cob + 0x100 * n + (0 if mapped else 0x80000000)
+            cob_id = cob + 0x100 * n + node_id + (0 if mapped else 0x80000000)
             kind = 255 if receive or not mapped else 1
             subs = [(1, f"COB-ID used by {what}", u32, rw, cob_id),
                     (2, "Transmission type", u8, rw, kind)]
@@ -291,7 +279,7 @@ def _pdos() -> list[Object]:
                 subs += [(3, "Inhibit time", u16, rw, 0), (5, "Event timer", u16, rw, 0),
                          (6, "SYNC start value", u8, rw, 0)]
             out.append(_compound(comm + n, f"{what}{n + 1} communication parameter",
-                                 ObjectType.RECORD, ro, subs, relative=(1,)))
+                                 ObjectType.RECORD, ro, subs))
             entries = [(i + 1, f"Mapping entry {i + 1}", u32, rw,
                         (mapped[i] << 16 | _MAP_BITS[mapped[i]]) if i < len(mapped) else 0)
                        for i in range(MAP_ENTRIES)]
@@ -453,12 +441,12 @@ def to_canopen(dictionary: Dictionary) -> ObjectDictionary:
         od.add_object(dummy)
     for o in dictionary.objects:
         if o.object_type is ObjectType.VAR:
-            od.add_object(_variable(o.entries[0], dictionary.node_id))
+            od.add_object(_variable(o.entries[0]))
             continue
         compound = ODArray(o.name, o.index) if o.object_type is ObjectType.ARRAY \
             else ODRecord(o.name, o.index)
         for e in o.entries:
-            compound.add_member(_variable(e, dictionary.node_id))
+            compound.add_member(_variable(e))
         od.add_object(compound)
     return od
 
@@ -468,12 +456,11 @@ BAUD_RATES_KBIT = (10, 20, 50, 125, 250, 500, 800, 1000)
 bus is whatever python-can bus it is given)."""
 
 
-def _variable(e: Entry, node_id: int) -> ODVariable:
+def _variable(e: Entry) -> ODVariable:
     var = ODVariable(e.name, e.index, e.subindex)
     var.data_type = int(e.data_type)
     var.access_type = e.access.value
     var.pdo_mappable = e.pdo_mappable
     var.min, var.max = e.low, e.high
-    var.relative = e.node_relative
-    var.default = e.value(node_id)  # type: ignore[assignment]  # a str: VISIBLE_STRING
+    var.default = e.default  # type: ignore[assignment]  # a str: VISIBLE_STRING
     return var
