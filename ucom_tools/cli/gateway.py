@@ -65,10 +65,10 @@ def eds_cmd(robot_name: str, directory: Path, force: bool, master_node: int,
     ("Right Eye").  Node IDs: canopen_node = { A = 10 } in a board's table of the
     topology, else numbered in topology order from 2 (1 is the master's).
 
-    Per joint DIR/<name>.eds (CiA 306: its object dictionary, CiA 402 objects and every
-    edge of its board as a manufacturer object; ucom-gateway(7)), and DIR/bus.yml:
-    'master:' and one key per joint (its name in lower snake case) with node_id and
-    dcf, in the form Lely's dcfgen and ros2_canopen take ('dcfgen -r bus.yml' in DIR
+    Per joint DIR/KEY.eds, KEY its name in lower snake case (right_eye.eds; CiA 306:
+    its object dictionary, the CiA 402 objects and every edge of its board as a
+    manufacturer object; ucom-gateway(7)), and DIR/bus.yml: 'master:' and one key per
+    joint (KEY) with node_id and dcf, in the form Lely's dcfgen and ros2_canopen take ('dcfgen -r bus.yml' in DIR
     writes master.dcf and each joint's .bin).  The same robot gives the same bytes.
 
     All files or none; each atomically.  A file in DIR with other content is refused
