@@ -68,8 +68,9 @@ def eds_cmd(robot_name: str, directory: Path, force: bool, master_node: int,
     Per joint DIR/KEY.eds, KEY its name in lower snake case (right_eye.eds; CiA 306:
     its object dictionary, the CiA 402 objects and every edge of its board as a
     manufacturer object; ucom-gateway(7)), and DIR/bus.yml: 'master:' and one key per
-    joint (KEY) with node_id and dcf, in the form Lely's dcfgen and ros2_canopen take ('dcfgen -r bus.yml' in DIR
-    writes master.dcf and each joint's .bin).  The same robot gives the same bytes.
+    joint (KEY) with node_id and dcf, in the form Lely's dcfgen and ros2_canopen take
+    ('dcfgen -r bus.yml' in DIR writes master.dcf and each joint's .bin).  The same
+    robot gives the same bytes.
 
     All files or none; each atomically.  A file in DIR with other content is refused
     (exit code 3, nothing written) unless --force; one with the same content is left.
