@@ -5,6 +5,7 @@ EDS and the bus.yml, checked by tools no one here wrote: Lely's ``dcfchk`` and `
 from __future__ import annotations
 
 import json
+import os
 import re
 import struct
 import subprocess
@@ -320,8 +321,11 @@ def test_lely_dcfgen_builds_the_master_dcf_and_each_joints_concise_dcf(
         written: dict[str, Path], tmp_path: Path) -> None:
     out = tmp_path / "dcf"
     out.mkdir()
+    # dcfgen imports pkg_resources, which newer setuptools warn of: not a finding of dcfgen
+    env = {**os.environ, "PYTHONWARNINGS": "ignore:pkg_resources is deprecated"}
     run = subprocess.run([_tool("dcfgen"), *(["-r"] if remote else []), "-d", str(out),
-                          "bus.yml"], cwd=written[robot], capture_output=True, text=True)
+                          "bus.yml"], cwd=written[robot], capture_output=True, text=True,
+                         env=env)
     assert run.returncode == 0 and not run.stderr, run.stderr
     master = (out / "master.dcf").read_text()
     check = subprocess.run([_tool("dcfchk"), "master.dcf"], cwd=out, capture_output=True,
@@ -418,6 +422,31 @@ def test_a_canopen_node_for_an_axis_that_is_no_joint_is_refused(
     with pytest.raises(TopologyError, match=message) as err:
         joints.load(str(path))
     assert err.value.line == _line_of(path, "head left") and err.value.file == str(path)
+
+
+def test_a_canopen_node_of_a_board_without_a_tree_is_refused(tmp_path: Path) -> None:
+    path = _topology(tmp_path, {"platform": "canopen_node = { A = 30 }"})
+    tree = f'tree = "{SOURCE_ROOT}/attribute_trees/armar3/platform.tree"\n'
+    path.write_text(path.read_text().replace(tree, ""))
+    with pytest.raises(TopologyError, match=r"node 30 for axis A of CAN3 board 1 "
+                       r"\(platform\): it has no attribute tree") as err:
+        joints.load(str(path))
+    assert err.value.line == _line_of(path, "platform")
+
+
+def test_the_cli_takes_a_topology_file_and_says_which_ids_it_gave(
+        tmp_path: Path) -> None:
+    path = _topology(tmp_path, {"right belly": "canopen_node = { B = 99 }"})
+    result = CliRunner().invoke(cli, ["gateway", "eds", str(path), "-o",
+                                      str(tmp_path / "out"), "--json"])
+    assert result.exit_code == EXIT_OK, result.output
+    nodes = {n["name"]: n for n in json.loads(result.stdout)["nodes"]}
+    assert nodes["Right Forearm Rotate"]["node_id"] == 99 and nodes["Right Forearm Rotate"][
+        "given"]
+    assert [n["name"] for n in nodes.values() if n["given"]] == ["Right Forearm Rotate"]
+    bus = (tmp_path / "out" / "bus.yml").read_text()
+    assert "right_forearm_rotate:  # Right Forearm Rotate: CAN1 board 3 (right belly), " \
+        "axis B\n  node_id: 99\n" in bus
 
 
 def test_the_master_node_must_be_free(robots: dict[str, joints.RobotJoints]) -> None:
