@@ -47,6 +47,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "remote": ("remote", "remote"), "browse": ("browse", "browse"),
     "params": ("params", "params"), "conformance": ("conformance", "conformance"),
     "decode": ("decode", "decode"), "dbc": ("dbc", "dbc"), "deploy": ("deploy", "deploy_cmd"),
+    "gateway": ("gateway", "gateway"),
 }
 """Each subcommand: its module in :mod:`ucom_tools.cli` and the command's name there."""
 

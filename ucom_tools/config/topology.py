@@ -5,6 +5,8 @@ TOML, bundled ones are package data (``armar3``, ``lauron4``, ``kairo2``, ``odet
 can describe wiring faults: ``init_link = "broken"`` (the init line into this board is
 cut), ``powered = false``, and two boards with the same ``fixed_id``; and mutant boards,
 ``fault = "NAME"``, a documented protocol fault of :mod:`ucom_tools.virtual.mutants`.
+``canopen_node = { A = 10, B = 11 }`` gives axes of a board their CANopen node IDs for
+``ucom gateway`` (1..127, unique in the topology; :mod:`ucom_tools.gateway.joints`).
 """
 
 from __future__ import annotations
@@ -52,6 +54,10 @@ IMAGE_FOLDERS = (SOURCE_ROOT, SOURCE_ROOT / "firmware_images")
 bundled images (``image = "armar3.fl.S"`` or ``"firmware_images/armar3.fl.S"``)."""
 MAX_BOARDS = 31
 """Boards one bus can hold: the protocol addresses seq IDs 1-31 (``ucom-protocol(7)``)."""
+CANOPEN_NODES = range(1, 128)
+"""The node IDs a CANopen device can have (CiA 301)."""
+AXIS_LETTERS = "ABCDEFGHIJKLMNOPQRSTUVWXYZ"
+"""How ``canopen_node`` names the axes of a board: A is its program's first axis."""
 MAX_BUSES = 16
 """Buses one topology can have (ARMAR-III has 4; a PC rarely carries more than 16 CAN
 channels): a larger file is a mistake, and each bus costs a thread or a process."""
@@ -105,6 +111,11 @@ class BoardSpec:
     image: Path | None = None
     """The image this board should run (the manifest ``ucom deploy`` brings the robot to,
     with :attr:`autostart`); None = deploy leaves the board alone."""
+    canopen_nodes: tuple[tuple[str, int], ...] = ()
+    """``canopen_node``: (axis letter, CANopen node ID) of the axes given one, by letter;
+    the gateway numbers the other joints (:mod:`ucom_tools.gateway.joints`)."""
+    canopen_line: int = 0
+    """Line of ``canopen_node`` in the topology file (0: not given)."""
 
 
 @dataclass(frozen=True)
@@ -297,7 +308,42 @@ def parse(text: str, source: str, base: Path | None = None) -> Topology:
                              f"{b.placement!r} is also the placement of board "
                              f"{first[1] + 1} on {first[0]}; every board needs its own")
         buses.append(BusSpec(bname, bitrate, boards))
+    _unique_nodes(c, buses)
     return Topology(name, description, source, tuple(buses), timing)
+
+
+def _unique_nodes(c: _Checker, buses: list[BusSpec]) -> None:
+    """Every ``canopen_node`` ID is given once in the topology."""
+    first: dict[int, str] = {}
+    for i, bus in enumerate(buses):
+        for j, b in enumerate(bus.boards):
+            for letter, node in b.canopen_nodes:
+                where = f"axis {letter} of {bus.name} board {j + 1} ({b.placement})"
+                if node in first:
+                    raise c.fail(("bus", i, "board", j), "canopen_node",
+                                 f"node {node} of {where} is also {first[node]}'s; every "
+                                 "joint needs its own node ID")
+                first[node] = where
+
+
+def _canopen_nodes(c: _Checker, raw: dict[str, Any], path: tuple[Any, ...]
+                   ) -> tuple[tuple[str, int], ...]:
+    """``canopen_node = { A = 10, C = 12 }``: node IDs 1..127 by axis letter."""
+    table = c.take(raw, path, "canopen_node", dict, {})
+    out = []
+    for letter, node in table.items():
+        if len(letter) != 1 or letter not in AXIS_LETTERS:
+            raise c.fail(path, "canopen_node", f"{letter!r} is not an axis: expected a "
+                         "capital letter (A = the program's first axis, B, C ...), e.g. "
+                         "canopen_node = { A = 10, B = 11 }")
+        if isinstance(node, bool) or not isinstance(node, int):
+            raise c.fail(path, "canopen_node", f"axis {letter}: expected a node ID "
+                         f"{CANOPEN_NODES.start}..{CANOPEN_NODES.stop - 1}, got {node!r}")
+        if node not in CANOPEN_NODES:
+            raise c.fail(path, "canopen_node", f"axis {letter}: node ID must be "
+                         f"{CANOPEN_NODES.start}..{CANOPEN_NODES.stop - 1}, got {node}")
+        out.append((letter, node))
+    return tuple(sorted(out))
 
 
 def _timing(c: _Checker, raw: dict[str, Any]) -> Timing:
@@ -365,7 +411,7 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
         raise c.fail(path[:2], "board", "must be [[bus.board]] tables")
     c.no_extra(raw, path, {"placement", "board", "fixed_id", "serial", "program", "autostart",
                            "powered", "init_link", "joints", "fpga", "tree", "tree_block",
-                           "fault", "image"})
+                           "fault", "image", "canopen_node"})
     placement = c.take(raw, path, "placement", str)
     board = c.take(raw, path, "board", str)
     if board not in PLUG_ON_BOARDS:
@@ -402,9 +448,11 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
     fault = c.take(raw, path, "fault", str, None)
     if fault is not None and fault not in mutants.BY_NAME:
         raise c.fail(path, "fault", mutants.unknown(fault))
+    nodes = _canopen_nodes(c, raw, path)
     return BoardSpec(
         position=j, fpga=fpga, placement=placement, board=board, fixed_id=fixed_id, serial=serial,
         program=program, autostart=c.take(raw, path, "autostart", bool, False),
         powered=c.take(raw, path, "powered", bool, True), init_link_broken=link == "broken",
         joints=tuple(joints), line=c.lines.of(*path) or 0, serial_explicit="serial" in raw,
-        tree=tree, tree_block=tree_block, fault=fault, image=image)
+        tree=tree, tree_block=tree_block, fault=fault, image=image, canopen_nodes=nodes,
+        canopen_line=(c.lines.of(*path, "canopen_node") or 0) if nodes else 0)
