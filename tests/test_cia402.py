@@ -665,6 +665,19 @@ def test_quick_stop_brakes_then_stays_and_holds(option: int) -> None:
     assert (out.command, out.target) == (Command.POSITION, 70)  # PP anew: where it stands
 
 
+def test_quick_stop_at_standstill_is_shown_for_one_update() -> None:
+    """Option 2 with the joint standing: complete at once, but QUICK STOP ACTIVE is
+    shown until the next update (canopen's state setter waits to see it)."""
+    bench = Bench()
+    bench.enable(1)
+    out = bench.cw(0x02)
+    assert (out.transitions, out.state, out.command) == ((11,), S.QUICK_STOP_ACTIVE,
+                                                         Command.POSITION)
+    out = bench.step(0.001)
+    assert (out.transitions, out.state, out.command) == ((12,), S.SWITCH_ON_DISABLED,
+                                                         Command.OFF)
+
+
 def test_quick_stop_option_0_switches_off_at_once() -> None:
     bench = Bench(quick_stop_option=0)
     bench.enable(3)

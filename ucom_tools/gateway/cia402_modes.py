@@ -8,8 +8,11 @@ while enabled): from rest where the joint stands, no set-point, no homing under 
 Profile position (PP, 1): Command POSITION, Target = the set-point in force, clamped into
 the software limits 0x607D and the Target edge's range ("internal limit active", bit 11,
 while it is clamped).  The drive has no trajectory generator: the axis's own cascade runs
-to the Target at most at its Max Velocity, which 0x6081 "profile velocity" sets
-(:func:`max_velocity_raw`).
+to the Target at most at its Max Velocity, which 0x6081 "profile velocity" [counts/s]
+sets: ``Max Velocity (x1000)`` = 0x6081 / 1000 to the nearest integer, at least 1 for any
+speed above 0, at most the edge's 32767 (:func:`max_velocity_raw`); the axis's limit is
+then that x 1000 counts/s.  The gateway writes the PAR when the output changes; it is
+the axis's one speed limit, in every mode (0x6081's default is the tree's value x 1000).
 
 - "New set-point" (controlword bit 4) 0->1 offers 0x607A "target position": absolute, or
   with bit 6 "abs/rel" relative to the preceding set-point.  With bit 5 "change set

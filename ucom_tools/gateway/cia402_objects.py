@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Final
 
-from ucom_tools.edgelists.armar3 import SPEC, Command
+from ucom_tools.edgelists.armar3 import SPEC
 
 INT32_MIN: Final = -(1 << 31)
 INT32_MAX: Final = (1 << 31) - 1
@@ -256,7 +256,8 @@ class DriveOutputs:
     transitions: tuple[int, ...]
     """The state transitions (0-16) this update took, in order."""
     command: int
-    """``MotorX Command`` (:class:`~ucom_tools.edgelists.armar3.Command`)."""
+    """``MotorX Command`` (:class:`~ucom_tools.edgelists.armar3.Command`: OFF below
+    OPERATION ENABLED)."""
     target: int
     """``MotorX Target`` [counts]."""
     target_vel: int
@@ -266,9 +267,6 @@ class DriveOutputs:
     reset_pwm: int
     """``Reset X PWM`` [1/16000] (the tree's, with the sign 0x6098 asks for)."""
     max_velocity: int
-    """``MotorX Max Velocity (x1000)`` from 0x6081 (see the module docstring)."""
-
-    @property
-    def off(self) -> bool:
-        return self.command == Command.OFF
+    """``MotorX Max Velocity (x1000)`` from 0x6081
+    (:func:`~ucom_tools.gateway.cia402_modes.max_velocity_raw`)."""
 
