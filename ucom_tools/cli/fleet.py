@@ -5,7 +5,9 @@ mutant boards' faults."""
 from __future__ import annotations
 
 import logging
+import re
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +19,7 @@ from ucom_tools.cli.output import emit_json, leds, stderr, stdout
 from ucom_tools.config import mutants
 from ucom_tools.config import topology as topo
 from ucom_tools.config.scenario import MAX_SECONDS, ROBOT, FaultKind, Scenario, injected
-from ucom_tools.config.topology import BUNDLED, Topology
+from ucom_tools.config.topology import BUNDLED, BusSpec, Topology
 from ucom_tools.errors import BusError, InputError
 from ucom_tools.plugons import board_name
 from ucom_tools.virtual.fleet import Fleet
@@ -37,6 +39,11 @@ from ucom_tools.virtual.socketcand import (
 
 SWITCH_INTERVAL_S = 0.0005
 """Python's thread switch interval while serving (its default is 5 ms)."""
+EXTRA_BUS_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_.-]{0,14}")
+"""A name ``--extra-bus`` takes: a network interface's as socketcand serves them (at most
+15 characters), a letter first, then letters, digits, ``_``, ``.`` or ``-``."""
+EXTRA_BUS_BITRATE = 1_000_000
+"""The bitrate of a bus ``--extra-bus`` adds (frames take their length at it)."""
 TOPOLOGY_HELP = f"a bundled topology ({', '.join(BUNDLED)}) or a topology file (TOML)"
 SHOW_HELP = f"""Show the buses and boards of TOPOLOGY at power-on (or MS later, --run).
 
@@ -120,6 +127,32 @@ class _Processes(click.ParamType):
                   ctx)
 
 
+def _extra_bus_names(ctx: click.Context, param: click.Parameter,
+                     value: tuple[str, ...]) -> tuple[str, ...]:
+    """``--extra-bus``: each a usable channel name, none twice."""
+    for i, name in enumerate(value):
+        if not EXTRA_BUS_NAME.fullmatch(name):
+            raise click.BadParameter(
+                f"{name!r} is not a channel name: 1-15 characters, a letter first, then "
+                "letters, digits, '_', '.' or '-'", ctx, param)
+        if name in value[:i]:
+            raise click.BadParameter(f"{name!r} is given twice", ctx, param)
+    return value
+
+
+def with_extra_buses(robot: Topology, names: tuple[str, ...]) -> Topology:
+    """``robot`` with a bus of no boards for each of ``names`` after its own (at
+    :data:`EXTRA_BUS_BITRATE`); a usage error naming the bus when one is the robot's."""
+    own = [bus.name for bus in robot.buses]
+    for name in names:
+        if name in own:
+            raise click.BadParameter(
+                f"{name!r} is a bus of {robot.name} ({', '.join(own)}); an extra bus needs "
+                "a name of its own", param_hint="'--extra-bus'")
+    return replace(robot, buses=robot.buses + tuple(
+        BusSpec(name, EXTRA_BUS_BITRATE, ()) for name in names))
+
+
 @fleet.command("serve")
 @click.argument("topology", metavar="TOPOLOGY")
 @click.option("--state", "state_dir", type=click.Path(path_type=Path),
@@ -153,10 +186,16 @@ class _Processes(click.ParamType):
               help="Injected faults, timed from each bus's first MCA Alive: boards that lose "
                    "power, reset or go bus-off, a cut cable, the emergency stop (TOML, 'man "
                    "ucom', SCENARIOS); 'ucom fleet fault' injects one by hand.")
+@click.option("--extra-bus", "extra_buses", metavar="NAME", multiple=True,
+              callback=_extra_bus_names,
+              help="Also serve a bus NAME with no boards on it (repeatable): a channel where "
+                   "clients in other processes meet (a gateway and a CANopen master), each "
+                   "one's frames reaching every other as on the robot's buses (1 Mbit/s; "
+                   "--loss applies as there).")
 @click.pass_context
 def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, port: int,
           max_clients: int, processes: int | None, fault: str | None, loss: float,
-          seed: int, scenario_file: Path | None) -> None:
+          seed: int, scenario_file: Path | None, extra_buses: tuple[str, ...]) -> None:
     """Serve TOPOLOGY's buses with the socketcand protocol, in real time.
 
     Other processes reach the boards through a socketcand client: 'ucom ... -i socketcand
@@ -177,8 +216,18 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
 
     --scenario FILE injects faults as it serves (each at its time after the first MCA
     Alive on its bus; a whole-robot fault on each bus from that bus's own); 'ucom fleet
-    fault' injects one by hand, on this port."""
+    fault' injects one by hand, on this port.
+
+    --extra-bus CO0 serves a channel CO0 beside the robot's buses with no boards on it,
+    e.g. for 'ucom gateway canopen' and a CANopen master in other processes."""
     mutants.check(fault, key="--fault")
+    robot = topo.load(topology)
+    scenario = None
+    if scenario_file is not None:
+        scenario = Scenario.load(scenario_file)
+        scenario.check(robot)  # before anything runs
+    robot = with_extra_buses(robot, extra_buses)
+    count = _process_count(robot, processes)
     verbose = int((ctx.find_root().obj or {}).get("verbose", 0))
     log_level = logging.INFO if verbose else logging.WARNING
     logging.basicConfig(level=log_level, format=LOG_FORMAT, stream=sys.stderr)
@@ -186,18 +235,12 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     # that clients' readers and writers get their turn within a cycle
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     logging.getLogger("ucom.fleet").setLevel(logging.INFO)  # a scenario's faults as they come
-    robot = topo.load(topology)
-    scenario = None
-    if scenario_file is not None:
-        scenario = Scenario.load(scenario_file)
-        scenario.check(robot)  # before anything runs
-    count = _process_count(robot, processes)
     if count > 1:
         _serve_per_bus(robot, state_dir, host, port, max_clients, log_level, count,
                        {**({"fault": fault} if fault else {}),
                         **({"client_loss": loss, "seed": seed} if loss else {}),
                         **({"scenario": scenario} if scenario else {})},
-                       auto=processes is None)
+                       extra=extra_buses, auto=processes is None)
         return
     f = Fleet(robot, state_dir=state_dir, realtime=True, fault=fault, client_loss=loss,
               seed=seed, scenario=scenario)
@@ -211,7 +254,8 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     one_core = ("one process (auto: 1 core); "
                 if processes is None and len(robot.buses) > 1 else "")
     stderr().print(f"serving {f.name} ({', '.join(f.buses)}) with socketcand on {h}:{p}; "
-                   f"{one_core}{_mutants(fault)}{_losing(loss)}{_scenario(scenario)}"
+                   f"{one_core}{_extra(extra_buses)}{_mutants(fault)}{_losing(loss)}"
+                   f"{_scenario(scenario)}"
                    f"state: {state_dir or 'not kept'}; Ctrl-C stops")
     try:
         with sigterm_interrupts():
@@ -238,7 +282,8 @@ def _process_count(robot: Topology, asked: int | None) -> int:
 
 def _serve_per_bus(robot: Topology, state_dir: Path | None, host: str, port: int,
                    max_clients: int, log_level: int, processes: int,
-                   fleet_options: dict[str, Any], *, auto: bool = False) -> None:
+                   fleet_options: dict[str, Any], *, extra: tuple[str, ...] = (),
+                   auto: bool = False) -> None:
     """``fleet serve --processes auto``: one process per bus (or N processes for the
     buses) behind one port."""
     try:
@@ -257,7 +302,8 @@ def _serve_per_bus(robot: Topology, state_dir: Path | None, host: str, port: int
                   + (f" (auto: {usable_cores()} cores)" if auto else "") + ": "
                   + "; ".join(worker.label for worker in server.processes))
         stderr().print(f"serving {robot.name} ({', '.join(server.buses)}) with socketcand on "
-                       f"{h}:{p}, {shares}; {_mutants(fleet_options.get('fault'))}"
+                       f"{h}:{p}, {shares}; {_extra(extra)}"
+                       f"{_mutants(fleet_options.get('fault'))}"
                        f"{_losing(fleet_options.get('client_loss', 0.0))}"
                        f"{_scenario(fleet_options.get('scenario'))}"
                        f"state: {state_dir or 'not kept'}; "
@@ -266,6 +312,12 @@ def _serve_per_bus(robot: Topology, state_dir: Path | None, host: str, port: int
             server.serve_until_interrupted()
         finally:
             sys.stdout.flush()
+
+
+def _extra(names: tuple[str, ...]) -> str:
+    if not names:
+        return ""
+    return f"{', '.join(names)} without boards (--extra-bus); "
 
 
 def _losing(loss: float) -> str:
