@@ -379,8 +379,18 @@ class NodeRuntime:
             except can.CanError as err:
                 self._send_failed(err, len(frames))
                 return
-        for ident, data in frames:
-            self._send_now(ident, data)
+        if self._send_data is not None:
+            for ident, data in frames:
+                self._send_now(ident, data)
+            return
+        send, message = self.bus.send, can.Message
+        for ident, data in frames:  # python-can's own buses: a message each
+            try:
+                send(message(arbitration_id=ident, data=data, is_extended_id=False,
+                             check=False))
+                self._frames_out += 1
+            except can.CanError as err:
+                self._send_failed(err, 1)
 
     def _send_now(self, ident: int, data: bytes) -> None:
         try:
