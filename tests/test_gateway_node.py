@@ -67,6 +67,7 @@ class Events:
         self.items: list[tuple[str, Any, float]] = []
         self.cond = threading.Condition()
         self.on_sync_hook: Callable[[int | None], None] | None = None
+        self.on_write_hook: Callable[[int, int, int, Any], None] | None = None
 
     def add(self, kind: str, value: Any) -> None:
         with self.cond:
@@ -92,8 +93,12 @@ class Events:
             if self.on_sync_hook is not None:
                 self.on_sync_hook(counter)
             self.add("sync", counter)
+        def on_write(node: int, index: int, sub: int, value: Any) -> None:
+            if self.on_write_hook is not None:
+                self.on_write_hook(node, index, sub, value)
+            self.add("write", (node, index, sub, value))
         return NodeCallbacks(
-            on_write=lambda n, i, s, v: self.add("write", (n, i, s, v)),
+            on_write=on_write,
             on_state=lambda change: self.add("state", change),
             on_sync=on_sync,
             master_lost=lambda reason: self.add("lost", reason),
@@ -308,7 +313,7 @@ def test_sdo_reads_and_writes_reach_the_application(rig: Rig) -> None:
 def test_the_application_may_refuse_a_write(rig: Rig) -> None:
     def refuse(node: int, index: int, sub: int, value: Any) -> None:
         raise SdoAbortedError(0x08000022)
-    rig.runtime.node(5)._on_write = refuse
+    rig.events.on_write_hook = refuse
     with pytest.raises(SdoAbortedError) as err:
         rig.remotes[5].sdo[0x60FF].raw = 5
     assert err.value.code == 0x08000022
@@ -714,3 +719,31 @@ def test_bad_input_is_refused_clearly(rig: Rig) -> None:
         rig.runtime.get(9, 0x1000)
     with pytest.raises(InputError, match="node ID 128"):
         NodeRuntime(rig.buses[2], {128: canopen.import_od(EDS, 127)})
+
+
+# ---------------------------------------------------------------- canopen's BaseNode402
+def test_base_node_402_drives_a_node_to_operation_enabled(rig: Rig) -> None:
+    """canopen's own CiA 402 client works through the runtime: its controlword by RPDO,
+    its statusword by TPDO on SYNC (an application with the smallest state machine)."""
+    statusword = {0x06: 0x0021, 0x07: 0x0023, 0x0F: 0x0027}
+
+    def on_write(node: int, index: int, sub: int, value: Any) -> None:
+        if index == 0x6040:
+            rig.runtime.set(5, 0x6041, 0, statusword.get(value & 0x0F, 0x0040)
+                            if value & 0x02 else 0x0040)
+    rig.events.on_write_hook = on_write
+    rig.runtime.set(5, 0x6041, 0, 0x0040)
+    drive = canopen.BaseNode402(5, canopen.import_od(EDS, 5))
+    rig.net.add_node(drive)  # (replaces the plain RemoteNode)
+    drive.nmt.wait_for_heartbeat(WAIT)
+    drive.setup_402_state_machine()
+    drive.nmt.state = "OPERATIONAL"
+    rig.events.wait_for("state", 2)
+    rig.net.sync.start(0.01)
+    try:
+        drive.state = "OPERATION ENABLED"
+        assert drive.state == "OPERATION ENABLED"
+    finally:
+        rig.net.sync.stop()
+    assert [v for n, i, s, v in rig.events.of("write") if i == 0x6040][-3:] == \
+        [0x06, 0x07, 0x0F]
