@@ -312,12 +312,19 @@ def _netns_ok() -> str | None:
 
 # ---------------------------------------------------------------------- faults (issue 18, 4)
 BROWSER = """
-import sys, time
+import sys, threading, time
 from ucom_tools.net.client import RobotClient
+lock = threading.Lock()
+def say(*words):
+    # one whole line at a time: print() writes its words and its newline separately, so the
+    # main thread's "ready" could land inside a line the subscriber's thread was printing
+    with lock:
+        sys.stdout.write(" ".join(map(str, words)) + "\\n")
+        sys.stdout.flush()
 client = RobotClient.connect(sys.argv[1], timeout=30)
-client.on_alive(lambda up: print("back" if up else "lost", time.monotonic(), flush=True))
-client.subscribe([sys.argv[2]], lambda t, n, v: print("value", t, v, flush=True))
-print("ready", flush=True)
+client.on_alive(lambda up: say("back" if up else "lost", time.monotonic()))
+client.subscribe([sys.argv[2]], lambda t, n, v: say("value", t, v))
+say("ready")
 sys.stdin.read()
 client.close()
 """
