@@ -24,6 +24,8 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import can
@@ -51,6 +53,19 @@ shared its session, 4.5 times in a session of their own)."""
 
 
 # ---------------------------------------------------------------------- the loop's side
+@dataclass(frozen=True)
+class ExtraConsumer:
+    """A consumer a command adds to a run (``gateway canopen``'s gateway): its ``config``
+    goes to the consumers' process under ``name``; the snapshots come at least at
+    ``rate_hz``; ``announce`` prints what the process opened for it (its ``ready``
+    entry), and ``--json`` carries its stats under ``name``."""
+
+    name: str
+    config: dict[str, Any]
+    rate_hz: float
+    announce: Callable[[Any], None] | None = None
+
+
 class ConsumerProcess:
     """The loop's handle of the consumers' process: started at once with ``config``
     (what :func:`main` reads); :meth:`feed` is the loop's end of the pipes."""
@@ -129,6 +144,9 @@ class Consumers:
         self.recorder: Any = None
         self.share: Any = None
         self.view: Any = None
+        self.gateway: Any = None
+        self._canopen: list[Any] = []
+        """The gateway's CANopen buses, opened in :meth:`open`."""
         self._stale: dict[tuple[str, int], tuple[float, bool]] = {}
         """(bus, board) -> since when it is lost (the frames' time base) and whether it
         rejoined, while its values in the recording are stale."""
@@ -156,7 +174,33 @@ class Consumers:
                                     pid=c["pid"])
             info["zenoh"] = {"robot": self.share.robot, "joined": self.share.joined,
                              "where": self.share.where, "publish_hz": self.share.publish_hz}
+        if c.get("gateway"):
+            info["gateway"] = self._open_gateway(c["gateway"])
         return info
+
+    def _open_gateway(self, g: dict[str, Any]) -> dict[str, Any]:
+        """The CANopen buses (BusError: exit 4 before the boards start); the nodes boot
+        once the boards run (:meth:`run`)."""
+        from ucom_tools.gateway import buses
+        from ucom_tools.gateway.bridge import dictionaries
+
+        # built now, while the loop's process still starts the boards: none of this
+        # work competes with the running loop for the processor
+        self._dictionaries = dictionaries(g["joints"])
+        for spec in g["buses"]:
+            self._canopen.append((spec, buses.open_bus(spec)))
+        return {"buses": [s.text for s in g["buses"]]}
+
+    def _start_gateway(self) -> None:
+        from ucom_tools.gateway.bridge import CanopenBus, Gateway
+
+        g = self.config["gateway"]
+        image = self.mirror.image
+        assert image is not None
+        self.gateway = Gateway(g["joints"], image, self.mirror,
+                               [CanopenBus(bus, spec.text, spec.ucom_buses)
+                                for spec, bus in self._canopen], cycle=g["cycle"],
+                               dictionaries=self._dictionaries).start()
 
     def _frames(self, bus: str, entries: list[SinkEntry]) -> None:
         rec = self.recorder
@@ -212,6 +256,8 @@ class Consumers:
             return  # the run ended before the boards ran
         if self.share is not None:
             self.share.declare()
+        if self._canopen:
+            self._start_gateway()
         if self.config.get("view") and not self.mirror.ended.is_set():
             from ucom_tools.cli.live import LiveView
 
@@ -227,6 +273,12 @@ class Consumers:
         """Say on the network that the robot stopped, commit the recording (or discard
         it where the run never started): (exit code, message, option)."""
         outcome: tuple[int, str, str | None] = (0, "", None)
+        if self.gateway is not None:
+            self.gateway_stats = self.gateway.stats()
+            self.gateway.close()
+        for _, bus in self._canopen:
+            with contextlib.suppress(Exception):
+                bus.shutdown()
         if self.share is not None:
             try:
                 self.share.close()
@@ -258,7 +310,8 @@ class Consumers:
         return outcome
 
     def stats(self) -> dict[str, Any]:
-        return {"network": None if self.share is None else self.share.stats()}
+        return {"network": None if self.share is None else self.share.stats(),
+                "gateway": getattr(self, "gateway_stats", None)}
 
 
 def main(argv: list[str]) -> int:
@@ -267,7 +320,7 @@ def main(argv: list[str]) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)  # the loop's process decides the end
     with contextlib.suppress(OSError):
-        os.nice(NICE)
+        os.nice(NICE)  # the loop first, the gateway's CANopen side too
     in_fd, out_fd = int(argv[0]), int(argv[1])
     config = _read_config(in_fd)
     mirror = Mirror(in_fd, out_fd)

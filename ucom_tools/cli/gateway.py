@@ -1,22 +1,37 @@
 """``ucom gateway``: a UCoM robot's joints as CANopen CiA 402 drives (``man/ucom-gateway.7``).
 
+``gateway canopen ROBOT --canopen SPEC`` runs the robot as ``remote run`` does and presents
+every joint as a CiA 402 node on the CANopen bus (the gateway runs in the consumers'
+process, :mod:`ucom_tools.cli.consumers`, fed by the loop's snapshots);
 ``gateway eds ROBOT -o DIR`` writes the files a CANopen master needs to drive the joints:
 an EDS per joint and a ``bus.yml`` for Lely's dcfgen and ros2_canopen, and prints the
-node table.  The logic is :mod:`ucom_tools.gateway` (joints, dictionary, eds).
+node table.  The logic is :mod:`ucom_tools.gateway` (joints, dictionary, eds, bridge).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
 from rich.markup import escape
 from rich.table import Table
 
-from ucom_tools.cli.options import json_option
+from ucom_tools.cli.consumers import ExtraConsumer
+from ucom_tools.cli.options import connection_options, json_option
 from ucom_tools.cli.output import emit_json, stderr, stdout
-from ucom_tools.gateway import eds, joints
+from ucom_tools.cli.remote import run_options, run_robot
+from ucom_tools.config import topology as topo
+from ucom_tools.errors import InputError
+from ucom_tools.gateway import buses, eds, joints
 from ucom_tools.gateway.joints import RobotJoints
+from ucom_tools.ops.robot import ConnectSpec
+
+VALUES_HZ = 500.0
+"""How often the loop hands its snapshot to the gateway (a joint's 0x6064 is at most
+2 ms older than the board's latest frame)."""
+CYCLE_S = 0.001
+"""The CANopen node runtime's cycle (its longest wait for a frame)."""
 
 
 @click.group("gateway")
@@ -93,3 +108,77 @@ def eds_cmd(robot_name: str, directory: Path, force: bool, master_node: int,
                    "nodes": [eds.node_row(j) for j in robot.joints]})
     else:
         _print_table(robot, directory, written, master_node)
+
+
+CANOPEN_HELP = """Run ROBOT's boards and present each joint as a CiA 402 drive on a CANopen bus.
+
+ROBOT is the robot's topology (a bundled name such as armar3, or a topology file; not
+needed with --virtual or --topology).  The UCoM side is 'ucom remote run' with every
+one of its options (start, tree check, 1 kHz loop, watchdog, --on-fault, --rejoin,
+--record, --zenoh); the gateway runs apart from the loop, in the consumers' process,
+and reads the loop's snapshots (500 Hz) and hands it the joints' commands.
+
+--canopen [UCOM_BUS[,UCOM_BUS]=]INTERFACE:CHANNEL (repeatable): the CANopen bus, any
+python-can interface (socketcan:vcan0, pcan:PCAN_USBBUS1) or socketcand:CHANNEL@HOST:PORT
+(a bus 'ucom fleet serve ROBOT --extra-bus CHANNEL' serves); with UCoM buses in front,
+only their joints (CAN0=socketcan:vcan0 --canopen CAN1=socketcan:vcan1 ...).
+
+One node per joint, node IDs as 'ucom gateway eds' writes them (printed at the start).
+Each sends its boot-up and a heartbeat every 100 ms (0x1017); CiA 402 modes profile
+position, profile velocity, homing and cyclic synchronous position; every edge of the
+board by SDO as a manufacturer object.  A joint whose board is lost, latched by its
+watchdog or sends an Error goes to FAULT with an EMCY.  The joints run only while their
+master lives: its heartbeat (0x1016) or, without, its SYNC (3 periods, at most
+100 ms); a master that goes switches every joint off and its node to FAULT
+(ucom-gateway(7)).  --json adds 'gateway': each CANopen bus's figures and each node's
+state at the end."""
+
+
+def _announce(robot: RobotJoints, specs: list[buses.CanopenSpec]) -> Any:
+    def show(ready: Any) -> None:
+        out = stderr()
+        by_bus = {b: s for s in specs for b in s.ucom_buses}
+        rest = next((s for s in specs if not s.ucom_buses), None)
+        for spec in specs:
+            mine = [j for j in robot.joints
+                    if by_bus.get(j.bus, rest) is spec]
+            nodes = ", ".join(f"{j.node_id} {escape(j.name)}" for j in mine)
+            out.print(f"[dim]gateway: {escape(spec.where)}: {len(mine)} nodes: {nodes}[/]",
+                      soft_wrap=True)
+    return show
+
+
+@gateway.command("canopen", help=CANOPEN_HELP)
+@click.argument("robot_name", metavar="[ROBOT]", required=False)
+@click.option("--canopen", "canopen_specs", multiple=True, required=True,
+              metavar="[UCOM_BUS=]INTERFACE:CHANNEL",
+              help="The CANopen bus (repeatable, one per UCoM bus or group of them): "
+                   "socketcan:vcan0, socketcand:CO0@127.0.0.1:29536, CAN0=socketcan:vcan0.")
+@run_options
+@connection_options
+@json_option
+@click.pass_context
+def canopen_cmd(ctx: click.Context, robot_name: str | None, canopen_specs: tuple[str, ...],
+                spec: ConnectSpec, **options: Any) -> None:
+    specs = [buses.parse(text) for text in canopen_specs]
+    for s in specs:
+        if s.interface == "virtual":
+            raise InputError(f"'{s.text}': python-can's virtual buses live in one process, "
+                             "and the gateway runs in a process of its own: use "
+                             "socketcand:CHANNEL@HOST:PORT over 'ucom fleet serve ROBOT "
+                             "--extra-bus CHANNEL' (or ucom_tools.gateway.bridge.Gateway "
+                             "from Python)", key="--canopen")
+    name = robot_name or spec.virtual or spec.topology
+    if not name:
+        raise InputError("which robot? give it (e.g. 'armar3'), --topology FILE or "
+                         "--virtual ROBOT", key="ROBOT")
+    robot = joints.load(name)
+    bus_names = [b.name for b in topo.load(name).buses]
+    buses.check(specs, bus_names)
+    for skipped in robot.skipped:
+        stderr().print(f"[yellow]gateway: {escape(skipped.where)} has no joints: "
+                       f"{escape(skipped.reason)}[/]", soft_wrap=True)
+    extra = ExtraConsumer("gateway", {"joints": robot.joints, "buses": specs,
+                                      "cycle": CYCLE_S}, VALUES_HZ,
+                          _announce(robot, specs))
+    run_robot(ctx, (robot_name,) if robot_name else (), spec=spec, extra=extra, **options)

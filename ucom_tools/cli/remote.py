@@ -18,7 +18,7 @@ import click
 from rich.markup import escape
 from rich.table import Table
 
-from ucom_tools.cli.consumers import END_S, ConsumerProcess, error_of
+from ucom_tools.cli.consumers import END_S, ConsumerProcess, ExtraConsumer, error_of
 from ucom_tools.cli.exitcodes import EXIT_BUS, EXIT_FAILED
 from ucom_tools.cli.options import (
     Finite,
@@ -309,70 +309,90 @@ RUN_HELP = (
     them under 'faults'.""")
 
 
+_RUN_OPTIONS = [
+    click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
+                  help="Set a CI or PAR edge by its robot-wide name after the start "
+                       "(repeatable), e.g. --set 'Right Eye Target=1000'."),
+    click.option("--for", "seconds", type=Finite(0, min_open=True), metavar="SECONDS",
+                  help="Run this long, then stop the boards and print what they did."),
+    click.option("--rate", type=Finite(1, 10_000), default=1000.0, show_default=True,
+                  metavar="HZ", help="Cycles per second of the PC's loop."),
+    click.option("--watchdog", "alive_ms", type=click.IntRange(mca.ALIVE_MIN_MS,
+                                                                mca.ALIVE_MAX_MS),
+                  default=mca.ALIVE_DEFAULT_MS, show_default=True, metavar="MS",
+                  help="The boards stop their motors when no MCA Alive came for this long."),
+    click.option("--record", "record", type=click.Path(), metavar="FILE",
+                  help="Record every frame (format by extension: .asc .blf .log .trc; .csv "
+                       ".db for one bus) and every value change to FILE.values.csv."),
+    click.option("--period", "periods", multiple=True, metavar="EDGE=CYCLES",
+                  help="Exchange a program edge (its generic name, on every board that runs "
+                       "the program) every CYCLES cycles instead of its default (0: not "
+                       "cyclic), e.g. --period 'Voltage A=10'."),
+    click.option("--force", is_flag=True,
+                  help="Start the boards that match their trees even when others do not, and "
+                       "start even where another host's exchange runs (its MCA Alive or CI "
+                       "maps are on the bus: exit code 4 without --force)."),
+    click.option("--realtime", is_flag=True,
+                  help="Run the PC's loop under SCHED_FIFO (Linux; needs CAP_SYS_NICE or an "
+                       "rtprio limit), so other busy processes cannot make it miss cycles; "
+                       "where not permitted it runs as usual and says why.  Without it the "
+                       "loop asks for a 0.1 ms time slice (Linux 6.12 and later)."),
+    click.option("--zenoh", "zenoh_endpoint", is_flag=False, flag_value=DEFAULT_ENDPOINT,
+                  default=None, metavar="[ENDPOINT]",
+                  help="Share the running robot on Zenoh, listening on ENDPOINT (alone: "
+                       f"{DEFAULT_ENDPOINT}, this host only): its structure, values and events "
+                       "for 'ucom browse' on other hosts (ucom-network(7))."),
+    click.option("--zenoh-config", "zenoh_config", type=click.Path(dir_okay=False),
+                  metavar="FILE", help="Share it with this Zenoh JSON5 configuration (TLS, "
+                       "authentication, access control, routers); --zenoh replaces its listen "
+                       "endpoints."),
+    click.option("--allow-writes", is_flag=True,
+                  help="Take writes (CI, PAR) and a stop from the network, checked as a local "
+                       "--set; without it they are refused.  Starting is never taken."),
+    click.option("--publish-rate", "publish_hz", type=Finite(0, min_open=True), default=100.0,
+                  show_default=True, metavar="HZ",
+                  help="How often the shared values go out (at most the loop's rate)."),
+    click.option("--on-fault", "on_fault", type=click.Choice(POLICIES), default=STOP,
+                  show_default=True,
+                  help="When a board is lost (none of its SO maps for 3 periods of its "
+                       "fastest, at least 5 ms; or its bus failed): 'stop' stops every other "
+                       "board at once (motors off) and ends the run, exit 1; 'hold' runs the "
+                       "others on with their targets and reports the lost board (writes to "
+                       "it are refused)."),
+    click.option("--rejoin", is_flag=True,
+                  help="With --on-fault hold: bring a lost board back when it returns, without "
+                       "stopping the loop (its program started and configured again, its "
+                       "targets set to where its joints stand: no joint jumps).  A run whose "
+                       "every lost board rejoined exits 0 and lists its faults."),
+]
+
+
+def run_options(f: Any) -> Any:
+    """The options of a run (``remote run``; ``gateway canopen`` adds its own)."""
+    for option in reversed(_RUN_OPTIONS):
+        f = option(f)
+    return f
+
+
 @remote.command("run", help=RUN_HELP)
 @click.argument("robot_or_trees", nargs=-1)
-@click.option("--set", "sets", multiple=True, metavar="NAME=VALUE",
-              help="Set a CI or PAR edge by its robot-wide name after the start "
-                   "(repeatable), e.g. --set 'Right Eye Target=1000'.")
-@click.option("--for", "seconds", type=Finite(0, min_open=True), metavar="SECONDS",
-              help="Run this long, then stop the boards and print what they did.")
-@click.option("--rate", type=Finite(1, 10_000), default=1000.0, show_default=True,
-              metavar="HZ", help="Cycles per second of the PC's loop.")
-@click.option("--watchdog", "alive_ms", type=click.IntRange(mca.ALIVE_MIN_MS,
-                                                            mca.ALIVE_MAX_MS),
-              default=mca.ALIVE_DEFAULT_MS, show_default=True, metavar="MS",
-              help="The boards stop their motors when no MCA Alive came for this long.")
-@click.option("--record", "record", type=click.Path(), metavar="FILE",
-              help="Record every frame (format by extension: .asc .blf .log .trc; .csv "
-                   ".db for one bus) and every value change to FILE.values.csv.")
-@click.option("--period", "periods", multiple=True, metavar="EDGE=CYCLES",
-              help="Exchange a program edge (its generic name, on every board that runs "
-                   "the program) every CYCLES cycles instead of its default (0: not "
-                   "cyclic), e.g. --period 'Voltage A=10'.")
-@click.option("--force", is_flag=True,
-              help="Start the boards that match their trees even when others do not, and "
-                   "start even where another host's exchange runs (its MCA Alive or CI "
-                   "maps are on the bus: exit code 4 without --force).")
-@click.option("--realtime", is_flag=True,
-              help="Run the PC's loop under SCHED_FIFO (Linux; needs CAP_SYS_NICE or an "
-                   "rtprio limit), so other busy processes cannot make it miss cycles; "
-                   "where not permitted it runs as usual and says why.  Without it the "
-                   "loop asks for a 0.1 ms time slice (Linux 6.12 and later).")
-@click.option("--zenoh", "zenoh_endpoint", is_flag=False, flag_value=DEFAULT_ENDPOINT,
-              default=None, metavar="[ENDPOINT]",
-              help="Share the running robot on Zenoh, listening on ENDPOINT (alone: "
-                   f"{DEFAULT_ENDPOINT}, this host only): its structure, values and events "
-                   "for 'ucom browse' on other hosts (ucom-network(7)).")
-@click.option("--zenoh-config", "zenoh_config", type=click.Path(dir_okay=False),
-              metavar="FILE", help="Share it with this Zenoh JSON5 configuration (TLS, "
-                   "authentication, access control, routers); --zenoh replaces its listen "
-                   "endpoints.")
-@click.option("--allow-writes", is_flag=True,
-              help="Take writes (CI, PAR) and a stop from the network, checked as a local "
-                   "--set; without it they are refused.  Starting is never taken.")
-@click.option("--publish-rate", "publish_hz", type=Finite(0, min_open=True), default=100.0,
-              show_default=True, metavar="HZ",
-              help="How often the shared values go out (at most the loop's rate).")
-@click.option("--on-fault", "on_fault", type=click.Choice(POLICIES), default=STOP,
-              show_default=True,
-              help="When a board is lost (none of its SO maps for 3 periods of its "
-                   "fastest, at least 5 ms; or its bus failed): 'stop' stops every other "
-                   "board at once (motors off) and ends the run, exit 1; 'hold' runs the "
-                   "others on with their targets and reports the lost board (writes to "
-                   "it are refused).")
-@click.option("--rejoin", is_flag=True,
-              help="With --on-fault hold: bring a lost board back when it returns, without "
-                   "stopping the loop (its program started and configured again, its "
-                   "targets set to where its joints stand: no joint jumps).  A run whose "
-                   "every lost board rejoined exits 0 and lists its faults.")
+@run_options
 @connection_options
 @json_option
 @click.pass_context
-def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ...],
-        seconds: float | None, rate: float, alive_ms: int, record: str | None,
-        periods: tuple[str, ...], force: bool, realtime: bool, zenoh_endpoint: str | None,
-        zenoh_config: str | None, allow_writes: bool, publish_hz: float, on_fault: str,
-        rejoin: bool, spec: ConnectSpec, bus_name: str | None, as_json: bool) -> None:
+def run(ctx: click.Context, robot_or_trees: tuple[str, ...], **options: Any) -> None:
+    run_robot(ctx, robot_or_trees, **options)
+
+
+def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ...],
+              seconds: float | None, rate: float, alive_ms: int, record: str | None,
+              periods: tuple[str, ...], force: bool, realtime: bool,
+              zenoh_endpoint: str | None, zenoh_config: str | None, allow_writes: bool,
+              publish_hz: float, on_fault: str, rejoin: bool, spec: ConnectSpec,
+              bus_name: str | None, as_json: bool, extra: ExtraConsumer | None = None,
+              ) -> None:
+    """``remote run``'s work; ``extra`` adds a consumer to the consumers' process (the
+    CANopen gateway of ``gateway canopen``)."""
     if rejoin and on_fault != HOLD:
         raise click.UsageError("--rejoin needs --on-fault hold: under --on-fault stop a "
                                "lost board ends the run", ctx=ctx)
@@ -403,17 +423,23 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
             if not as_json:
                 _plan_notes(part)
             feed: LoopFeed | None = None
-            if record is not None or sharing or view:
-                # the view, the recording and the share in a process of their own: none
-                # of them holds the lock this process's loop needs (ops/remote_feed.py)
-                consumers = ConsumerProcess(_consumers_config(
-                    part, record, view, zenoh_endpoint, zenoh_config, allow_writes,
-                    publish_hz, force))
+            if record is not None or sharing or view or extra is not None:
+                # the view, the recording, the share and the gateway in a process of their
+                # own: none of them holds the lock this process's loop needs
+                # (ops/remote_feed.py)
+                config = _consumers_config(part, record, view, zenoh_endpoint, zenoh_config,
+                                           allow_writes, publish_hz, force)
+                if extra is not None:
+                    config[extra.name] = extra.config
+                consumers = ConsumerProcess(config)
                 stack.callback(consumers.close)
                 feed = consumers.feed(part, frames=record is not None, rate_hz=max(
-                    (publish_hz if sharing else 0.0), (10.0 if view else 0.0), 1.0))
+                    (publish_hz if sharing else 0.0), (10.0 if view else 0.0), 1.0,
+                    extra.rate_hz if extra is not None else 0.0))
                 feed.attach_frames()  # from the check on, as a recording always did
                 ready = consumers.wait_ready(feed)  # exit 3 or 4 before the buses
+                if extra is not None and extra.announce is not None and not as_json:
+                    extra.announce(ready.get(extra.name))
                 net = ready.get("zenoh")
                 if net and not as_json:
                     stderr().print(f"[dim]zenoh: robot {escape(net['robot'])} "
@@ -507,6 +533,8 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
                                      "since": b.since, "seen": b.seen, "status": b.status}
                                     for b in still_lost],
                            "network": network,
+                           **({extra.name: _extra_json(feed, extra.name)}
+                              if extra is not None else {}),
                            "writes": [_write_json(w) for w in part.writes]})
             else:
                 _print_summary(part, summary, loads)
@@ -526,6 +554,15 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ..
         ctx.exit(EXIT_BUS)
     if stopped or still_lost:
         ctx.exit(EXIT_FAILED)
+
+
+def _extra_json(feed: LoopFeed | None, name: str) -> dict[str, Any] | None:
+    """An extra consumer's figures, with the loop's count of its writes."""
+    if feed is None:
+        return None
+    got = feed.stats.get(name)
+    return {**(got or {}), "writes_applied": feed.drive.applied,
+            "writes_refused": feed.drive.refused, "last_refused": feed.drive.reason or None}
 
 
 def _consumers_config(part: RemotePart, record: str | None, view: bool,

@@ -41,6 +41,9 @@ class SdoAbort(IntEnum):
     VALUE_TOO_HIGH = 0x06090031
     VALUE_TOO_LOW = 0x06090032
     GENERAL = 0x08000000
+    DEVICE_STATE = 0x08000022
+    """"Data cannot be transferred or stored because of the present device state": a
+    write to an edge of a board that is lost."""
 
 
 class Cob(IntEnum):

@@ -52,7 +52,10 @@ class NodeCallbacks:
     - ``on_sync(counter)``: a SYNC (its counter, or ``None``), after the synchronous
       RPDOs received before it were applied and before the TPDOs are built;
     - ``master_lost(reason)`` / ``master_back(reason)``: the master watch
-      (``ucom_tools.gateway.watch``), once each way.
+      (``ucom_tools.gateway.watch``), once each way;
+    - ``on_tick(now)``: once a cycle (at most), after the timers: the application's
+      periodic work (``now``: ``time.monotonic()``); frames it queues with the nodes'
+      values (an event-driven TPDO, an EMCY) go out with the cycle's.
     """
 
     on_write: Callable[[int, int, int, Any], None] | None = None
@@ -60,6 +63,7 @@ class NodeCallbacks:
     on_sync: Callable[[int | None], None] | None = None
     master_lost: Callable[[str], None] | None = None
     master_back: Callable[[str], None] | None = None
+    on_tick: Callable[[float], None] | None = None
 
 
 @dataclass(frozen=True)
@@ -123,6 +127,7 @@ class NodeRuntime:
         self._thread: threading.Thread | None = None
         self._failure: BaseException | None = None
         self._frames_in = self._frames_out = self._syncs = self._send_errors = 0
+        self._tick_errors = 0
         self._sync_cpu = self._thread_cpu = 0.0
 
     # ------------------------------------------------------------ public API
@@ -213,7 +218,9 @@ class NodeRuntime:
 
     def _loop(self) -> None:
         bus, cycle, stop = self.bus, self.cycle, self._stop
+        on_tick = self.callbacks.on_tick
         watch_due = INF
+        next_tick = 0.0
         while not stop.is_set():
             now = time.monotonic()
             timeout = min(cycle, self._next_due - now, watch_due - now)
@@ -232,6 +239,15 @@ class NodeRuntime:
                 stop.wait(cycle)
             try:
                 now = time.monotonic()
+                if on_tick is not None and now >= next_tick:
+                    next_tick = now + cycle
+                    try:
+                        on_tick(now)
+                    except Exception:  # the application's: logged, the timers run on
+                        self._tick_errors += 1
+                        if self._tick_errors % 1000 == 1:
+                            log.exception("the application's cycle callback failed (%d "
+                                          "times so far)", self._tick_errors)
                 if self._kicked or now >= self._next_due:
                     self._tick(now)
                 watch_due = self._watch.check(now)

@@ -58,6 +58,7 @@ from ucom_tools.ops.remote_image import PartImage
 from ucom_tools.ops.remote_publish import LoopHandover, LoopSnapshot, lost_of
 from ucom_tools.ops.remote_report import RemoteStop, Value, WriteEvent
 from ucom_tools.protocol.dispatch import SinkEntry, Subscription
+from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import ReportChannel
 from ucom_tools.wire.ids import Function, seq
@@ -161,6 +162,41 @@ def apply_write(part: Any, name: str, value: object, origin: str, *,
     part.writes.append(event)
     return Applied(applied.error, applied.message, applied.name, applied.value,
                    applied.range, applied.unit, event)
+
+
+DriveItems = list[tuple[str, int]]
+"""What a consumer that drives edges (the CANopen gateway) asks the loop to set: (the
+edge's robot-wide name, its raw value), in order."""
+
+
+class DriveWrites:
+    """The loop's side of a consumer's raw writes (:meth:`LocalRun.drive`,
+    :meth:`Mirror.drive <ucom_tools.ops.remote_mirror.Mirror.drive>`): applied on the
+    loop's thread as a local ``--set`` is, without an answer each (the consumer reads the
+    outcome in the snapshots) and without an entry in the run's writes (a joint's target
+    at every SYNC would fill them).  A write to a lost board, or a name or value the part
+    refuses, is counted (:attr:`refused`, the last reason in :attr:`reason`)."""
+
+    def __init__(self, part: Any) -> None:
+        self.part = part
+        self._refs: dict[str, EdgeRef] = {}
+        self.applied = 0
+        self.refused = 0
+        self.reason = ""
+
+    def apply(self, items: DriveItems) -> None:
+        part, refs = self.part, self._refs
+        for name, raw in items:
+            try:
+                ref = refs.get(name)
+                if ref is None:
+                    ref = refs[name] = part.names.resolve(
+                        name, kinds=(mca.Kind.CI, mca.Kind.PAR))
+                part.set(ref, ref.value(raw))
+                self.applied += 1
+            except UcomError as err:  # lost board, out of range: the consumer sees it
+                self.refused += 1
+                self.reason = f"{name}: {err}"
 
 
 def stop_event(part: Any, origin: str) -> WriteEvent:
@@ -279,6 +315,8 @@ class LoopFeed:
         """(exit code, message, option) the consumers' process ended with, once it said
         so; :attr:`stats` what it reported (``--json``'s ``network``)."""
         self.stats: dict[str, Any] = {}
+        self.drive = DriveWrites(part)
+        """The consumers' raw writes (the CANopen gateway's)."""
         self._waiting: dict[str, tuple[Any, ...]] = {}
         self._on_values: Callable[[float, EdgeRef, Value], None] | None = None
         if not self.wait:
@@ -428,7 +466,9 @@ class LoopFeed:
     def _handle(self, request: tuple[Any, ...]) -> None:
         kind = request[0]
         part = self.part
-        if kind == "set":
+        if kind == "drive":
+            self.drive.apply(request[1])
+        elif kind == "set":
             _, number, name, value, origin, network = request
             self._answers.append((number, apply_write(part, name, value, origin,
                                                       network=network)))
@@ -551,6 +591,8 @@ class LocalRun:
         self.status_sinks: list[Callable[[str, int, bytes, float], None]] = []
         self._poll: StatusPoll | None = None
         self._subs: list[tuple[Any, Subscription]] = []
+        self.drives = DriveWrites(part)
+        """What came of :meth:`drive`'s writes."""
         part.each_cycle.append(self.on_cycle)
 
     @property
@@ -586,6 +628,11 @@ class LocalRun:
         self._requests.put(("stop", future, origin))
         return future
 
+    def drive(self, items: DriveItems) -> None:
+        """Set edges by robot-wide name to raw values on the loop's thread, no answer
+        (:class:`DriveWrites`)."""
+        self._requests.put(("drive", items))
+
     def poll_status(self, boards: list[tuple[str, int]]) -> None:
         """Ask ``boards`` for their Status reports in turn; they come to
         :attr:`status_sinks` (on the loop's thread: a sink only keeps them)."""
@@ -606,6 +653,9 @@ class LocalRun:
         if not self._requests.empty():
             while not self._requests.empty():
                 r = self._requests.get_nowait()
+                if r[0] == "drive":
+                    self.drives.apply(r[1])
+                    continue
                 if r[0] == "stop":
                     event = stop_event(self.part, r[2])
                     r[1].set_result(Applied(None, "stopping", event=event))
@@ -625,9 +675,11 @@ class LocalRun:
             self.part.each_cycle.remove(self.on_cycle)
         while not self._requests.empty():
             r = self._requests.get_nowait()
-            r[1].set_result(Applied("stopped", "the loop is not running"))
+            if r[0] != "drive":
+                r[1].set_result(Applied("stopped", "the loop is not running"))
 
 
-__all__ = ["FLUSH_EVERY_S", "PENDING_LIMIT", "Applied", "ConsumersGone", "LocalRun",
+__all__ = ["FLUSH_EVERY_S", "PENDING_LIMIT", "Applied", "ConsumersGone", "DriveItems",
+           "DriveWrites", "LocalRun",
            "LoopFeed", "Quit", "StatusPoll", "Unpacker", "WireSnapshots", "apply_write",
            "is_status", "pack", "stop_event"]

@@ -93,6 +93,8 @@ class PartImage:
         self._described: dict[tuple[str, int], BoardEdges] = {}
         self._map_refs: list[tuple[str, SoMapPlan, list[mca.EdgeRecord],
                                    list[EdgeRef | None]]] | None = None
+        self._raw_plans: dict[frozenset[EdgeRef], list[tuple[
+            str, int, list[mca.EdgeRecord], list[tuple[int, EdgeRef]]]]] = {}
 
     def __getstate__(self) -> dict[str, Any]:
         return {k: v for k, v in self.__dict__.items() if not k.startswith("_")}
@@ -167,6 +169,28 @@ class PartImage:
                 if ref is not None:
                     out[ref] = (stamp, ref.value(raw))
         return self._decode_set(snap, kinds, out)
+
+    def raw_so(self, snap: RawSnapshot, wanted: frozenset[EdgeRef]) -> dict[EdgeRef, int]:
+        """The raw values of the SO edges ``wanted`` that ``snap`` holds (only the maps
+        that carry one of them are unpacked: a consumer that reads a few edges at the
+        snapshots' rate, such as the CANopen gateway)."""
+        plan = self._raw_plans.get(wanted)
+        if plan is None:
+            plan = self._raw_plans[wanted] = [
+                (bus, m.number, records,
+                 [(i, r) for i, r in enumerate(refs) if r is not None and r in wanted])
+                for bus, m, records, refs in self._maps()
+                if any(r is not None and r in wanted for r in refs)]
+        out: dict[EdgeRef, int] = {}
+        frames = snap.frames
+        for bus, number, records, picks in plan:
+            frame = frames[bus].get(number)
+            if frame is None:
+                continue
+            raws = values_of(frame, records)
+            for i, ref in picks:
+                out[ref] = raws[i]
+        return out
 
     def _decode_set(self, snap: RawSnapshot, kinds: tuple[mca.Kind, ...],
                     out: dict[EdgeRef, tuple[float, Value]],

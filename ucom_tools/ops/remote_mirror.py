@@ -200,6 +200,11 @@ class Mirror(Snapshots):
         writes with its ``origin``)."""
         return self._ask(("set", name, value, origin, network))
 
+    def drive(self, items: list[tuple[str, int]]) -> None:
+        """Set edges by robot-wide name to raw values on the loop's thread, no answer
+        (:class:`~ucom_tools.ops.remote_feed.DriveWrites`)."""
+        self._send(("drive", items))
+
     def stop(self, origin: str) -> Future[Applied]:
         """Stop every board and end the loop (a stop from the network, by ``origin``)."""
         return self._ask(("stop", origin))
