@@ -191,10 +191,25 @@ class Consumers:
             self._canopen.append((spec, buses.open_bus(spec)))
         return {"buses": [s.text for s in g["buses"]]}
 
+    def _gateway_log(self) -> None:
+        """The gateway's warnings (a master lost or back, frames not sent) on the terminal,
+        where no live view owns it (the run's --json has them in 'gateway' too)."""
+        import logging
+
+        log = logging.getLogger("ucom.gateway")
+        if self.config.get("view") or log.handlers:
+            return
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("gateway: %(message)s"))
+        log.addHandler(handler)
+        log.setLevel(logging.INFO)
+        log.propagate = False
+
     def _start_gateway(self) -> None:
         from ucom_tools.gateway.bridge import CanopenBus, Gateway
 
         g = self.config["gateway"]
+        self._gateway_log()
         image = self.mirror.image
         assert image is not None
         self.gateway = Gateway(g["joints"], image, self.mirror,
@@ -274,8 +289,8 @@ class Consumers:
         it where the run never started): (exit code, message, option)."""
         outcome: tuple[int, str, str | None] = (0, "", None)
         if self.gateway is not None:
-            self.gateway_stats = self.gateway.stats()
             self.gateway.close()
+            self.gateway_stats = self.gateway.stats()
         for _, bus in self._canopen:
             with contextlib.suppress(Exception):
                 bus.shutdown()

@@ -177,6 +177,7 @@ class JointDrive:
             if ref is not None:
                 self._refs_by_name[ref.unique] = ref
         self._sent: dict[str, int] = {}
+        self._defaults = {e.unique: e.default for e in joint.board.edges}
         self._manufacturer: dict[int, BoardEdge] = {
             dictionary.manufacturer_index(e): e for e in joint.board.edges}
         self._so_refs: dict[int, EdgeRef] = {}
@@ -219,6 +220,9 @@ class JointDrive:
         self.runtime = runtime
         node = runtime.node(self.node_id)
         node.local.add_read_callback(self._read)
+        serial = image.serials.get(self.board)
+        if serial is not None:  # the board's own, where the topology names none
+            runtime.set(self.node_id, 0x1018, 4, serial & 0xFFFFFFFF)
         self.objects = self._objects_from(node)
 
     def _objects_from(self, node: Any) -> ObjectValues:
@@ -299,6 +303,8 @@ class JointDrive:
                 continue
             raw = (values.ci.get(ref.bus, {}).get((ref.board, ref.index))
                    if ref.kind is mca.Kind.CI else values.par.get(ref))
+            if raw is None:  # a PAR the run wrote at the start: the tree's value
+                raw = self._defaults.get(name)
             if raw is not None:
                 self._sent[name] = raw
 
@@ -415,8 +421,10 @@ class Gateway:
             if mine:
                 group = [self._joint(j) for j in mine]
                 self._groups.append((b, group))
-        self.master_events: list[tuple[int, str, str]] = []
-        """(CANopen bus number, 'lost' or 'back', why) as the master watches said."""
+        self.master_events: list[tuple[float, str, str, str]] = []
+        """(seconds since the start, the CANopen bus, 'lost' or 'back', why) as the master
+        watches said."""
+        self._started = _now()
 
     def _joint(self, joint: Joint) -> JointDrive:
         jd = JointDrive(joint, self.image, self.source)
@@ -503,18 +511,28 @@ class Gateway:
                      else FaultCause.BUS_OFF if "bus" in reason.lower()
                      else FaultCause.MASTER_HEARTBEAT)
             self._bus_faults[number] = Fault(cause)
-            self.master_events.append((number, "lost", reason))
+            self._master_event(number, "lost", reason)
             now, snap = _now(), source.latest
             for jd in group:
                 jd.update(now, snap, self._bus_faults[number])
 
         def master_back(reason: str) -> None:
             self._bus_faults[number] = None
-            self.master_events.append((number, "back", reason))
+            self._master_event(number, "back", reason)
 
         return NodeCallbacks(on_write=on_write, on_state=on_state, on_sync=on_sync,
                              on_tick=on_tick, master_lost=master_lost,
                              master_back=master_back)
+
+    def _master_event(self, number: int, event: str, reason: str) -> None:
+        spec = self._groups[number][0].spec
+        self.master_events.append((round(_now() - self._started, 4), spec, event, reason))
+        if event == "lost":
+            log.warning("%s: the CANopen master is gone (%s): its joints off, their nodes in "
+                        "FAULT", spec, reason)
+        else:
+            log.info("%s: the CANopen master is back (%s); a fault reset clears FAULT", spec,
+                     reason)
 
     # ------------------------------------------------------------ reporting
     def states(self) -> dict[int, State402]:
@@ -541,7 +559,9 @@ class Gateway:
                           "statusword": None if last is None else last.statusword,
                           "error_code": None if last is None else last.error_code,
                           "nmt": runtime_state(self, node)})
-        return {"buses": out_buses, "nodes": nodes}
+        return {"buses": out_buses, "nodes": nodes,
+                "master": [{"time": t, "canopen": spec, "event": event, "reason": reason}
+                           for t, spec, event, reason in self.master_events]}
 
 
 def dictionaries(joints: Iterable[Joint]) -> dict[int, ObjectDictionary]:

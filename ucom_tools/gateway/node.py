@@ -368,11 +368,11 @@ class NodeRuntime:
         self._call(self.callbacks.on_state, change)
 
     def _lost(self, reason: str) -> None:
-        log.warning("CANopen master lost: %s", reason)
+        log.debug("CANopen master lost: %s", reason)
         self._call(self.callbacks.master_lost, reason)
 
     def _back(self, reason: str) -> None:
-        log.info("CANopen master back: %s", reason)
+        log.debug("CANopen master back: %s", reason)
         self._call(self.callbacks.master_back, reason)
 
     @staticmethod

@@ -113,6 +113,8 @@ class Rejoin:
     (what was done, or why not), :attr:`answered` (when it first answered REJOIN, on the
     bus clock)."""
 
+    is_rejoin = True  # (the loop steps PAR writes among its conversations too)
+
     def __init__(self, part: RejoinHost, bus: str, board: int, delay: float = 0.0) -> None:
         self.part = part
         self.bus = bus

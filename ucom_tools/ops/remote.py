@@ -118,6 +118,9 @@ class RemotePart(RemoteLoop):
             from ucom_tools.ops.rejoin import Rejoin
 
             self.rejoiner = lambda bus, n, delay: Rejoin(self, bus, n, delay)
+        from ucom_tools.ops.par_write import ParWrite
+
+        self.par_writer = lambda ref, raw: ParWrite(self, ref, raw)
         self._claimed = False
         self._owns_robot = False
         self.writes: list[WriteEvent] = []
@@ -126,6 +129,13 @@ class RemotePart(RemoteLoop):
         self.share: Any = None
         """The network share (:class:`ucom_tools.net.share.RobotShare`) when the part is
         shared (:func:`ucom_tools.net.share.share`); closed with the part."""
+
+    def _par_failed(self, ref: EdgeRef, raw: int, how: str) -> None:
+        """A PAR write the loop did not wait for was not acknowledged: kept in the run's
+        writes (its value is back to what it was)."""
+        self.writes.append(WriteEvent(round(self._clock() - self.stats.started_clock, 4),
+                                      ref.unique, str(ref.value(raw)), "not waited for",
+                                      f"failed: {how}"))
 
     @classmethod
     def open(cls, robot: str, *, virtual: bool = False, state_dir: str | Path | None = None,

@@ -174,8 +174,10 @@ class DriveWrites:
     :meth:`Mirror.drive <ucom_tools.ops.remote_mirror.Mirror.drive>`): applied on the
     loop's thread as a local ``--set`` is, without an answer each (the consumer reads the
     outcome in the snapshots) and without an entry in the run's writes (a joint's target
-    at every SYNC would fill them).  A write to a lost board, or a name or value the part
-    refuses, is counted (:attr:`refused`, the last reason in :attr:`reason`)."""
+    at every SYNC would fill them); a PAR's acknowledgement is not waited for (the loop
+    steps its write beside its cycles: :mod:`ucom_tools.ops.par_write`).  A write to a
+    lost board, or a name or value the part refuses, is counted (:attr:`refused`, the
+    last reason in :attr:`reason`)."""
 
     def __init__(self, part: Any) -> None:
         self.part = part
@@ -192,7 +194,7 @@ class DriveWrites:
                 if ref is None:
                     ref = refs[name] = part.names.resolve(
                         name, kinds=(mca.Kind.CI, mca.Kind.PAR))
-                part.set(ref, ref.value(raw))
+                part.set(ref, ref.value(raw), wait=False)  # a PAR: stepped by the loop
                 self.applied += 1
             except UcomError as err:  # lost board, out of range: the consumer sees it
                 self.refused += 1

@@ -56,6 +56,8 @@ class PartImage:
     report: CheckReport | None = None
     cyclic_edges: set[tuple[str, int, int, int]] = field(default_factory=set)
     """(bus, board, kind, index) of every edge that travels in a map."""
+    serials: dict[tuple[str, int], int] = field(default_factory=dict)
+    """(bus, board) -> the board's serial number, as its Init Ack gave it at the start."""
 
     @classmethod
     def of(cls, part: Any) -> PartImage:
@@ -84,7 +86,8 @@ class PartImage:
                    period_s=part.period_s, virtual=part.virtual,
                    bitrates={n: h.link.bitrate for n, h in part.robot.buses.items()},
                    edges=edges, plans={n: x.plan for n, x in part.exchanges.items()},
-                   boards=boards, report=part.report, cyclic_edges=cyclic)
+                   boards=boards, report=part.report, cyclic_edges=cyclic,
+                   serials=dict(getattr(part, "_serials", {})))
 
     # ------------------------------------------------------------------ rebuilt
     def __post_init__(self) -> None:

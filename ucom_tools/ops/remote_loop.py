@@ -43,6 +43,7 @@ import can
 
 from ucom_tools.errors import BusError, FrameError, InputError, UcomError
 from ucom_tools.native import mypyc_attr
+from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.exchange import BusExchange
 from ucom_tools.ops.realtime import (
     RealtimeScheduling,
@@ -241,6 +242,16 @@ class RemoteLoop(RemoteValues):
         self._newly: list[BoardFault] = []
         self._halt: BoardLost | None = None
         self._rejoins: list[Any] = []
+        """The conversations the loop steps after each cycle's drain: rejoins, and PAR
+        writes it does not wait for (:mod:`ucom_tools.ops.par_write`)."""
+        self.par_writer: Callable[[EdgeRef, int], Any] | None = None
+        """Starts a PAR write the loop steps (set by :class:`~ucom_tools.ops.remote.
+        RemotePart`): an object like a rejoin's, with ``is_rejoin`` False."""
+        self._par_next: dict[EdgeRef, tuple[int, int]] = {}
+        """Per PAR with a write under way: the next raw value asked for, and the value
+        before the write under way (put back where it fails)."""
+        self._par_busy: dict[EdgeRef, int] = {}
+        """Per PAR with a write under way: the value it had before."""
         self.period_s = period_s
         self.virtual = robot.virtual_time
         self.stats = LoopStats(self.period_s)
@@ -757,7 +768,7 @@ class RemoteLoop(RemoteValues):
         under way that has not reached it yet is called off."""
         key = (w.bus, w.board)
         for r in self._rejoins:
-            if (r.bus, r.board) == key:
+            if r.is_rejoin and (r.bus, r.board) == key:
                 if r.answered is not None:
                     return  # the rejoin reached it: it finishes the job
                 self._rejoins.remove(r)
@@ -806,11 +817,41 @@ class RemoteLoop(RemoteValues):
         for r in rejoins:
             if r.done:
                 self._rejoins.remove(r)
-                self._rejoin_ended(r)
+                if r.is_rejoin:
+                    self._rejoin_ended(r)
+                else:
+                    self._par_ended(r)
             # the run time's own client got a copy of every answer the conversation
             # had: dropped here, between its requests (kept, they piled up to the
             # dispatcher's limit: megabytes over a day of faults)
             self.exchanges[r.bus].mca.forget()
+
+    def _par_later(self, ref: EdgeRef, raw: int) -> bool:
+        if not self._running or self.par_writer is None:
+            return False
+        if ref in self._par_busy:  # one write of an edge at a time: the last one wins
+            self._par_next[ref] = (raw, 0)
+            return True
+        self._par_busy[ref] = self._par.get(ref, raw)
+        self._rejoins.append(self.par_writer(ref, raw))
+        return True
+
+    def _par_ended(self, w: Any) -> None:
+        """A PAR write ended: the next one of that edge, or the value put back where the
+        board did not acknowledge it (kept in the run's writes as failed)."""
+        ref: EdgeRef = w.ref
+        before = self._par_busy.pop(ref, w.raw)
+        queued = self._par_next.pop(ref, None)
+        if not w.ok:
+            self._par[ref] = before
+            self._par_failed(ref, w.raw, w.how)
+            return
+        if queued is not None and self.par_writer is not None and self._running:
+            self._par_busy[ref] = w.raw
+            self._rejoins.append(self.par_writer(ref, queued[0]))
+
+    def _par_failed(self, ref: EdgeRef, raw: int, how: str) -> None:
+        """Where a PAR write the loop did not wait for failed (the part keeps it)."""
 
     def _rejoin_ended(self, r: Any) -> None:
         key = (r.bus, r.board)

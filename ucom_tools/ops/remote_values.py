@@ -212,9 +212,12 @@ class RemoteValues:
     def __setitem__(self, name: str, value: object) -> None:
         self.set(name, value)
 
-    def set(self, name: str | EdgeRef, value: object, *, key: str | None = None) -> EdgeRef:
+    def set(self, name: str | EdgeRef, value: object, *, key: str | None = None,
+            wait: bool = True) -> EdgeRef:
         """Set a CI or PAR by name, in the edge's unit; range-checked before anything is
-        sent (InputError)."""
+        sent (InputError).  A PAR's write waits for the board's acknowledgement unless
+        ``wait`` is False: then, while the loop runs, the loop steps it beside its cycles
+        (:mod:`ucom_tools.ops.par_write`)."""
         ref = name if isinstance(name, EdgeRef) else self.names.resolve(
             name, key=key, kinds=(mca.Kind.CI, mca.Kind.PAR))
         if ref.kind is mca.Kind.SO:
@@ -229,13 +232,20 @@ class RemoteValues:
         x = self.exchanges[ref.bus]
         if ref.kind is mca.Kind.CI:
             x.set_ci(ref.board, ref.generic, raw)
-        else:
+        elif wait or not self._par_later(ref, raw):
             x.mca.write(seq(ref.board), mca.Kind.PAR, ref.index, [raw],
                         x.configured[ref.board].edges.par)
+            self._par[ref] = raw
+        else:
             self._par[ref] = raw
         if self.on_values is not None:  # stamped as the frames are (SO values, --record)
             self.on_values(x.link.dispatcher.stamp(), ref, ref.value(raw))
         return ref
+
+    def _par_later(self, ref: EdgeRef, raw: int) -> bool:
+        """Write a PAR without waiting for it; False where that cannot be (the loop does
+        not run): the caller writes it and waits."""
+        return False
 
     # ------------------------------------------------------------------ validity
     @property

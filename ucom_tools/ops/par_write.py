@@ -1,0 +1,110 @@
+"""A PAR written while the loop runs, without the loop waiting for its acknowledgement.
+
+:meth:`RemoteValues.set <ucom_tools.ops.remote_values.RemoteValues.set>` writes a PAR and
+waits for the board's acknowledgement (retries included) on the caller's thread: from the
+loop's thread (a ``--set`` from the live view, a write from the network) the loop misses
+its cycles meanwhile, a round trip at best, seconds where the board does not answer.  A
+consumer that writes PARs while it drives joints (the CANopen gateway: a profile velocity,
+a gain by SDO) asks with ``wait=False``: the same acknowledged write
+(:meth:`McaClient.write <ucom_tools.protocol.mca.McaClient.write>`) then runs as a
+:class:`~ucom_tools.protocol.stepped.Stepped` conversation that the loop steps after each
+cycle's drain, as it steps a rejoin, on a link and client of its own beside the run
+time's.  The value counts as the board's at once (what the PC holds, what a rejoin writes
+again); a write the board does not acknowledge puts the value back and is kept in the
+run's writes as failed.  Writes of one edge go one after the other, the last one asked
+for winning.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from typing import TYPE_CHECKING, Protocol
+
+from ucom_tools.errors import BoardError, BusError, UcomTimeoutError
+from ucom_tools.ops.realtime import short_slice
+from ucom_tools.protocol.link import Link
+from ucom_tools.protocol.mca import McaClient
+from ucom_tools.protocol.stepped import Stepped
+from ucom_tools.wire import mca
+from ucom_tools.wire.ids import seq
+
+if TYPE_CHECKING:
+    from ucom_tools.ops.edges import EdgeRef
+    from ucom_tools.ops.exchange import BusExchange
+    from ucom_tools.ops.realtime import RealtimeScheduling, ShortSlice
+    from ucom_tools.ops.robot import Robot
+
+
+class ParHost(Protocol):
+    """What a PAR write needs of the part (:class:`~ucom_tools.ops.remote.RemotePart`)."""
+
+    @property
+    def robot(self) -> Robot: ...
+    @property
+    def exchanges(self) -> dict[str, BusExchange]: ...
+    @property
+    def scheduling(self) -> RealtimeScheduling | None: ...
+    @property
+    def time_slice(self) -> ShortSlice: ...
+
+
+class ParWrite:
+    """One PAR's acknowledged write, stepped by the loop (see the module docstring); the
+    loop holds it among its conversations until :attr:`done`, then :attr:`ok` or
+    :attr:`how` (why not)."""
+
+    is_rejoin = False
+    answered: float | None = None  # (as a rejoin's: a write is never "reached")
+
+    def __init__(self, part: ParHost, ref: EdgeRef, raw: int) -> None:
+        self.part = part
+        self.ref = ref
+        self.bus = ref.bus
+        self.board = ref.board
+        self.raw = raw
+        self.ok = False
+        self.how = ""
+        self._stepped = Stepped(self._run, f"ucom-par-{ref.bus}-{ref.board}-{ref.index}")
+
+    @property
+    def done(self) -> bool:
+        return self._stepped.done
+
+    def busy(self) -> bool:
+        return self._stepped.busy()
+
+    def step(self, budget: float | None = None) -> None:
+        self._stepped.step(budget)
+        if self._stepped.done and not self.ok and not self.how:
+            err = self._stepped.error
+            self.how = str(err) if err is not None else "the run ended"
+
+    def cancel(self) -> None:
+        self._stepped.cancel()
+
+    def _run(self) -> None:
+        part, ref = self.part, self.ref
+        rt = part.scheduling
+        if rt is not None and rt.active:  # the loop waits for it while it runs
+            with contextlib.suppress(OSError, AttributeError):
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rt.priority))
+        elif part.time_slice.granted is not None:
+            short_slice()
+        h = part.robot.buses[ref.bus]
+        x = part.exchanges[ref.bus]
+        link = Link(h.link.bus, h.link.name, bitrate=h.link.bitrate, margin=h.link.margin,
+                    dispatcher=h.link.dispatcher)
+        client = McaClient(link, x.mca.timeouts, process_data=False)
+        try:
+            client.write(seq(ref.board), mca.Kind.PAR, ref.index, [self.raw],
+                         x.configured[ref.board].edges.par)
+            self.ok = True
+        except (BoardError, UcomTimeoutError, BusError) as err:
+            self.how = str(err)
+        finally:
+            client.close()
+            link.close()
+
+
+__all__ = ["ParHost", "ParWrite"]
