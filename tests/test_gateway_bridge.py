@@ -76,9 +76,12 @@ class Rig:
 def rig() -> Iterator[Rig]:
     fleet = programmed("armar3")
     robot = robot_of(fleet)
+    assert robot.topology is not None
     part = RemotePart(robot, bind(robot.topology), on_fault="hold")
     run = LocalRun(part, 500.0)
     part.start()
+    image = run.image
+    assert image is not None
     channel = f"gateway-bridge-{uuid.uuid4().hex}"
     bus, master, listener = (can.Bus(interface="virtual", channel=channel) for _ in range(3))
     net = canopen.Network(master)
@@ -92,7 +95,7 @@ def rig() -> Iterator[Rig]:
                 emcys.append((msg.arbitration_id - 0x80, int.from_bytes(msg.data[:2],
                                                                         "little")))
     notifier = can.Notifier(listener, [on_emcy], 0.05)
-    gateway = Gateway(joints.find(robot.topology).joints, run.image, run,
+    gateway = Gateway(joints.find(robot.topology).joints, image, run,
                       [CanopenBus(bus, "virtual")]).start()
     stop = threading.Event()
     paused = threading.Lock()
@@ -130,7 +133,7 @@ def test_every_node_boots_and_every_joint_is_off_until_enabled(rig: Rig) -> None
     assert {d.drive.state for d in rig.gateway.drives.values()} == {
         State402.SWITCH_ON_DISABLED}
     serial = eye.sdo[0x1018][4].raw
-    assert serial == rig.run.image.serials[EYES]  # the board's own, from the init chain
+    assert serial == rig.gateway.image.serials[EYES]  # the board's own, from the init chain
 
 
 def test_a_gain_written_by_sdo_reaches_the_board_without_the_loop_waiting(
