@@ -25,6 +25,7 @@ from tests.runtime_rig import programmed, robot_of
 from ucom_tools.config.attrtree.robot import bind
 from ucom_tools.config.scenario import FaultKind, InjectedFault
 from ucom_tools.edgelists.armar3 import Command
+from ucom_tools.errors import InputError
 from ucom_tools.gateway import dictionary, joints
 from ucom_tools.gateway.bridge import CanopenBus, Gateway
 from ucom_tools.gateway.cia402_objects import State402
@@ -174,3 +175,32 @@ def test_a_lost_board_puts_its_joints_in_fault_with_its_emcy(rig: Rig) -> None:
     assert eye.sdo[0x6041].raw & 0x004F == 0x0008
     neck = rig.node(2)  # another board's joint is not touched
     assert neck.sdo[0x6041].raw & 0x004F == 0x0040
+
+
+def test_the_python_face_serves_a_started_part_on_a_virtual_bus() -> None:
+    """``Gateway.serve(part, ["virtual:NAME"])``: the gateway in the program's own process,
+    its master on the same python-can virtual channel."""
+    fleet = programmed("armar3")
+    robot = robot_of(fleet)
+    assert robot.topology is not None
+    part = RemotePart(robot, bind(robot.topology), on_fault="hold")
+    channel = f"gateway-serve-{uuid.uuid4().hex}"
+    try:
+        with pytest.raises(InputError, match="start the part first"):
+            Gateway.serve(part, [f"virtual:{channel}"])
+        part.start()
+        with pytest.raises(InputError, match="no bus CAN9"):
+            Gateway.serve(part, [f"CAN9=virtual:{channel}"])
+        net = canopen.Network(can.Bus(interface="virtual", channel=channel))
+        net.connect()
+        with Gateway.serve(part, [f"virtual:{channel}"]) as gateway:
+            assert len(gateway.drives) == 27
+            eye = net.add_node(RIGHT_EYE, dictionary.to_canopen(
+                dictionary.build(gateway.drives[RIGHT_EYE].joint)))
+            for _ in range(20):
+                part.cycle()
+            assert eye.sdo["Manufacturer device name"].raw == "Right Eye"
+        net.disconnect()
+    finally:
+        part.close()
+        robot.close()

@@ -408,6 +408,8 @@ class Gateway:
         self._groups: list[tuple[CanopenBus, list[JointDrive]]] = []
         self.runtimes: list[NodeRuntime] = []
         self._bus_faults: dict[int, Fault | None] = {}
+        self._owned: list[Any] = []
+        """What :meth:`serve` opened, closed with the gateway (last first)."""
         self._dictionaries = dict(dictionaries or {})
         """Node ID -> its dictionary where already built (:func:`dictionaries`)."""
         joints = list(joints)
@@ -455,13 +457,59 @@ class Gateway:
         return self
 
     def close(self) -> None:
+        """Stop the nodes (they fall silent: a master's heartbeat consumer notices); what
+        :meth:`serve` opened is closed too."""
         for runtime in self.runtimes:
             runtime.close()
+        for closing in reversed(self._owned):
+            closing()
+        self._owned = []
 
-    def final(self, snap: LoopSnapshot | None) -> None:
-        """The run ended: every joint's last update (its FAULT and EMCY where its board
-        was lost) before the nodes fall silent."""
-        del snap  # each runtime thread runs its drives once more at its next tick
+    def __enter__(self) -> Gateway:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @classmethod
+    def serve(cls, part: Any, canopen: Iterable[str], *, rate_hz: float = 500.0,
+              cycle: float = 0.001) -> Gateway:
+        """The gateway of a started :class:`~ucom_tools.ops.remote.RemotePart` in this
+        process (the Python face of ``ucom gateway canopen``): ``canopen`` as
+        ``--canopen`` takes them (``virtual:co`` for a master in this process too), the
+        loop's snapshots at ``rate_hz``.  The part's loop must run (``part.run``,
+        ``part.cycle()``); :meth:`close` (or ``with``) stops the nodes and closes the
+        buses it opened."""
+        from ucom_tools.gateway import buses as buses_mod
+        from ucom_tools.gateway import joints as joints_mod
+        from ucom_tools.ops.remote_feed import LocalRun
+
+        topology = part.robot.topology
+        if topology is None:
+            raise InputError("the part's robot has no topology: the gateway finds its "
+                             "joints there")
+        specs = [buses_mod.parse(text) for text in canopen]
+        buses_mod.check(specs, list(part.robot.buses))
+        run = LocalRun(part, rate_hz)
+        image = run.image
+        if image is None:
+            run.close()
+            raise InputError("start the part first (part.start()): the gateway needs its "
+                             "boards' edges")
+        opened: list[tuple[buses_mod.CanopenSpec, can.BusABC]] = []
+        try:
+            for spec in specs:
+                opened.append((spec, buses_mod.open_bus(spec)))
+            gateway = cls(joints_mod.find(topology).joints, image, run,
+                          [CanopenBus(bus, spec.text, spec.ucom_buses)
+                           for spec, bus in opened], cycle=cycle)
+        except BaseException:
+            for _, bus in opened:
+                bus.shutdown()
+            run.close()
+            raise
+        gateway._owned = [run.close, *(bus.shutdown for _, bus in opened)]
+        return gateway.start()
 
     # ------------------------------------------------------------ callbacks
     def _callbacks(self, number: int, by_id: dict[int, JointDrive]) -> NodeCallbacks:
