@@ -27,8 +27,9 @@ from ucom_tools.config.scenario import FaultKind, InjectedFault
 from ucom_tools.edgelists.armar3 import Command
 from ucom_tools.errors import InputError
 from ucom_tools.gateway import dictionary, joints
-from ucom_tools.gateway.bridge import CanopenBus, Gateway
+from ucom_tools.gateway.bridge import CanopenBus, Gateway, SharedCommand
 from ucom_tools.gateway.cia402_objects import State402
+from ucom_tools.gateway.joints import Role
 from ucom_tools.ops.remote import RemotePart
 from ucom_tools.ops.remote_feed import LocalRun
 from ucom_tools.virtual.fleet import Fleet
@@ -201,6 +202,40 @@ def test_the_python_face_serves_a_started_part_on_a_virtual_bus() -> None:
                 part.cycle()
             assert eye.sdo["Manufacturer device name"].raw == "Right Eye"
         net.disconnect()
+    finally:
+        part.close()
+        robot.close()
+
+
+def test_a_shared_command_is_off_only_while_every_joint_asks_off() -> None:
+    """LAURON-IV's Leg Mode (0 off, 1 position, 2 velocity) is one edge for three joints."""
+    leg = SharedCommand(off=0)
+    assert [leg.want(n, 0) for n in (2, 3, 4)] == [0, 0, 0]
+    assert leg.want(3, 1) == 1  # one joint enabled: the leg runs
+    assert leg.want(2, 0) == 1 and leg.want(4, 0) == 1  # its neighbours' off does not stop it
+    assert leg.want(4, 2) == 2  # the latest mode asked for wins
+    assert leg.want(4, 0) == 1  # back to the one still enabled
+    assert leg.want(3, 0) == 0
+
+
+def test_lauron4s_legs_are_joints_by_their_boards_own_names() -> None:
+    """Each leg has an "Alpha": the gateway finds a joint's edges on its own board."""
+    fleet = programmed("lauron4")
+    robot = robot_of(fleet)
+    assert robot.topology is not None
+    part = RemotePart(robot, bind(robot.topology), on_fault="hold")
+    channel = f"gateway-lauron-{uuid.uuid4().hex}"
+    try:
+        part.start()
+        with Gateway.serve(part, [f"virtual:{channel}"]) as gateway:
+            by_leg: dict[int, list[int]] = {}
+            for jd in gateway.drives.values():
+                if jd.shared is not None:
+                    by_leg.setdefault(id(jd.shared), []).append(jd.board[1])
+            assert len(by_leg) == 6  # one Leg Mode per leg, shared by its three joints
+            assert all(len(b) == 3 and len(set(b)) == 1 for b in by_leg.values())
+            names = {jd._out_names[Role.TARGET] for jd in gateway.drives.values()}
+            assert len(names) == len(gateway.drives)  # every joint its own target edge
     finally:
         part.close()
         robot.close()

@@ -168,23 +168,23 @@ class JointDrive:
                           Command.VELOCITY: model.command_velocity,
                           Command.HOMING: model.command_homing}
         self._vscale = model.velocity_scale
-        self._out_names = {role: joint.unique(role) for role in (
+        self._out_names = {role: self._qualified_role(role) for role in (
             Role.COMMAND, Role.TARGET, Role.TARGET_VEL, Role.RESET_OFFSET, Role.RESET_PWM,
             Role.MAX_VELOCITY)}
         self._refs_by_name: dict[str, EdgeRef] = {}
         for role in self._out_names:
             ref = self._ref(names, role)
             if ref is not None:
-                self._refs_by_name[ref.unique] = ref
+                self._refs_by_name[ref.qualified] = ref
         self._sent: dict[str, int] = {}
-        self._defaults = {e.unique: e.default for e in joint.board.edges}
+        self._defaults = {self._qualified(e.unique): e.default for e in joint.board.edges}
         self._manufacturer: dict[int, BoardEdge] = {
             dictionary.manufacturer_index(e): e for e in joint.board.edges}
         self._so_refs: dict[int, EdgeRef] = {}
         for index, e in self._manufacturer.items():
             if e.kind is EdgeKind.SO:
                 try:
-                    self._so_refs[index] = names.resolve(e.unique)
+                    self._so_refs[index] = names.resolve(self._qualified(e.unique))
                 except UcomError:  # an edge the running part does not name
                     continue
         self.objects = self.config.defaults()
@@ -200,12 +200,22 @@ class JointDrive:
         self._event_faults: list[Fault] = []
         self._master: Fault | None = None
         self.last: DriveOutputs | None = None
-        self.lost_for_writes = False
+        self.shared: SharedCommand | None = None
+        """The board's Command edge where all its joints share it (LAURON-IV)."""
+
+    def _qualified(self, unique: str) -> str:
+        """``Prefix/unique``: the part's name of an edge of this joint's board, one board
+        whatever other boards call their edges (each LAURON-IV leg has an "Alpha")."""
+        return f"{self.joint.board.prefix}/{unique}"
+
+    def _qualified_role(self, role: Role) -> str | None:
+        unique = self.joint.unique(role)
+        return None if unique is None else self._qualified(unique)
 
     def _ref(self, names: Any, role: Role) -> EdgeRef | None:
         """The running part's edge in ``role`` (None where the program has none or the
         part does not name it)."""
-        name = self.joint.unique(role)
+        name = self._qualified_role(role)
         if name is None:
             return None
         try:
@@ -257,8 +267,9 @@ class JointDrive:
             return False
         if snap is not None and snap.stale(*self.board):
             raise SdoAbortedError(SdoAbort.DEVICE_STATE)
-        self._send([(edge.unique, int(value))])
-        self._sent[edge.unique] = int(value)
+        name = self._qualified(edge.unique)
+        self._send([(name, int(value))])
+        self._sent[name] = int(value)
         return False
 
     def _read(self, index: int, subindex: int, od: Any) -> int | None:
@@ -307,6 +318,8 @@ class JointDrive:
                 raw = self._defaults.get(name)
             if raw is not None:
                 self._sent[name] = raw
+                if self.shared is not None and name == self._out_names.get(Role.COMMAND):
+                    self.shared.sent = raw
 
     def due(self, now: float) -> bool:
         """Is an update due: something changed, or the state has time-based rules and
@@ -386,12 +399,43 @@ class JointDrive:
                   (Role.MAX_VELOCITY, out.max_velocity * 1000 // self._vscale))
         for role, value in wanted:
             name = names.get(role)
-            if name is None or value is None or self._sent.get(name) == value:
+            if name is None or value is None:
                 continue
-            items.append((name, value))
-            self._sent[name] = value
+            if role is Role.COMMAND and self.shared is not None:
+                value = self.shared.want(self.node_id, value)
+                sent = self.shared.sent
+                self.shared.sent = value
+            else:
+                sent = self._sent.get(name)
+                self._sent[name] = value
+            if sent != value:
+                items.append((name, value))
         if items:
             self._send(items)
+
+
+class SharedCommand:
+    """A board's one Command edge for all its joints (LAURON-IV's ``Leg Mode``): off only
+    while every joint of the board asks for off, else the mode the joint that last asked
+    for one (other than off) wants: an enabled joint is never switched off by its
+    neighbour's drive, and the leg runs one mode at a time."""
+
+    def __init__(self, off: int) -> None:
+        self.off = off
+        self.sent: int | None = None
+        """What the board has (as the gateway last sent it, or seeded)."""
+        self._wants: dict[int, int] = {}
+        self._last: int | None = None
+
+    def want(self, node: int, value: int) -> int:
+        """Node ``node`` asks for ``value``; the value the edge is to have."""
+        if value != self.off and self._wants.get(node) != value:
+            self._last = node
+        self._wants[node] = value
+        on = [n for n, v in self._wants.items() if v != self.off]
+        if not on:
+            return self.off
+        return self._wants[self._last if self._last in on else on[-1]]
 
 
 class Gateway:
@@ -408,6 +452,7 @@ class Gateway:
         self._groups: list[tuple[CanopenBus, list[JointDrive]]] = []
         self.runtimes: list[NodeRuntime] = []
         self._bus_faults: dict[int, Fault | None] = {}
+        self._shared: dict[tuple[str, int], SharedCommand] = {}
         self._owned: list[Any] = []
         """What :meth:`serve` opened, closed with the gateway (last first)."""
         self._dictionaries = dict(dictionaries or {})
@@ -430,6 +475,13 @@ class Gateway:
 
     def _joint(self, joint: Joint) -> JointDrive:
         jd = JointDrive(joint, self.image, self.source)
+        command = joint.edge(Role.COMMAND)
+        if command is not None and command.shared:
+            shared = self._shared.get(jd.board)
+            if shared is None:
+                shared = self._shared[jd.board] = SharedCommand(
+                    joint.board.model.command_off)
+            jd.shared = shared
         self.drives[joint.node_id] = jd
         return jd
 
@@ -627,5 +679,6 @@ def _now() -> float:
     return time.monotonic()
 
 
-__all__ = ["IDLE_S", "OBJECT_FIELDS", "CanopenBus", "Gateway", "JointDrive", "Source",
+__all__ = ["IDLE_S", "OBJECT_FIELDS", "CanopenBus", "Gateway", "JointDrive", "SharedCommand",
+           "Source",
            "dictionaries", "drive_config"]
