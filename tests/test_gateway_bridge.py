@@ -239,3 +239,24 @@ def test_lauron4s_legs_are_joints_by_their_boards_own_names() -> None:
     finally:
         part.close()
         robot.close()
+
+
+def test_a_mode_the_joint_lacks_is_refused_and_a_lost_board_sends_one_emcy(rig: Rig) -> None:
+    eye = rig.node(RIGHT_EYE)
+    with pytest.raises(SdoAbortedError) as err:
+        eye.sdo[0x6060].raw = 7  # interpolated position: not a mode of the gateway's
+    assert err.value.code == 0x06090030
+    eye.sdo[0x6060].raw = 8
+    rig.until(lambda: eye.sdo[0x6061].raw == 8, "CSP not taken")
+    rig.fleet.inject(InjectedFault(FaultKind("power-off"), *EYES, for_s=30.0))
+    rig.until(lambda: eye.sdo[0x6041].raw & 0x004F == 0x0008, "no FAULT")
+    syncs = rig.gateway.runtimes[0].stats().syncs
+    def cycles_on(n: int) -> Callable[[], bool]:
+        start = rig.part.stats.cycles
+        return lambda: rig.part.stats.cycles > start + n
+    for _ in range(5):  # each SYNC runs every drive of the bus
+        rig.until(cycles_on(20), "the loop stopped")
+        rig.net.sync.transmit()
+    rig.until(lambda: rig.gateway.runtimes[0].stats().syncs == syncs + 5, "SYNCs not seen")
+    with rig.lock:  # the drives ran many times while it stayed lost: one EMCY each
+        assert rig.emcys.count((RIGHT_EYE, 0xFF01)) == 1, rig.emcys

@@ -353,10 +353,21 @@ def main(argv: list[str]) -> int:
         return 1
     mirror.send_ready(info)
     mirror.start()
+    failure: tuple[int, str, str | None] | None = None
     try:
         consumers.run()
+    except InputError as err:  # the gateway could not start: the run ends with its error
+        failure = (3, err.reason, err.key)
+    except BusError as err:
+        failure = (4, str(err), None)
+    except UcomError as err:
+        failure = (1, str(err), None)
+    except Exception as err:  # a fault of this process's own: the run must not go on
+        failure = (1, f"the consumers' process failed: {err!r}", None)
     finally:
         code, message, key = consumers.close()
+        if failure is not None and not code:
+            code, message, key = failure
         mirror.finished(code, message, key, consumers.stats())
     return code
 

@@ -168,6 +168,10 @@ class JointDrive:
                           Command.VELOCITY: model.command_velocity,
                           Command.HOMING: model.command_homing}
         self._vscale = model.velocity_scale
+        modes = int(dictionary.supported_modes(joint))
+        self._modes = frozenset(m for bit, m in ((0x01, 1), (0x04, 3), (0x20, 6), (0x80, 8))
+                                if modes & bit) | {0}
+        """0x6060's values this joint takes (0x6502's modes, and no mode)."""
         self._out_names = {role: self._qualified_role(role) for role in (
             Role.COMMAND, Role.TARGET, Role.TARGET_VEL, Role.RESET_OFFSET, Role.RESET_PWM,
             Role.MAX_VELOCITY)}
@@ -259,6 +263,8 @@ class JointDrive:
         Raises ``SdoAbortedError`` to refuse it (SDO only)."""
         field = OBJECT_FIELDS.get((index, subindex))
         if field is not None:
+            if index == 0x6060 and int(value) not in self._modes:
+                raise SdoAbortedError(SdoAbort.VALUE_RANGE)  # (an RPDO's: not taken)
             self.objects = replace(self.objects, **{field: int(value)})
             self._dirty = True
             return True
@@ -336,8 +342,8 @@ class JointDrive:
             return out
         lost = snap.lost.get(self.board)
         self._stale = lost is not None
-        if lost is not None:
-            ms = max(0, int((snap.clock - snap.figures.started_clock - lost.since) * 1000))
+        if lost is not None:  # detail: when it was lost (ms into the exchange), one
+            ms = max(0, int(lost.since * 1000))  # value for the whole loss: one EMCY
             out.append(Fault(FaultCause.BOARD_LOST, detail=min(ms, 0xFFFFFFFF)))
         if snap.events_total != self._events_seen:
             for event in LoopSnapshot.newer(snap.events, snap.events_total,
@@ -459,6 +465,8 @@ class Gateway:
         """Node ID -> its dictionary where already built (:func:`dictionaries`)."""
         joints = list(joints)
         buses = list(buses)
+        running = set(image.bitrates)  # (--bus NAME: only that bus's joints)
+        joints = [j for j in joints if j.bus in running]
         assigned: set[str] = set()
         for b in buses:
             assigned.update(b.ucom_buses)

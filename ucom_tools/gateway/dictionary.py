@@ -39,6 +39,7 @@ from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVari
 
 from ucom_tools.edgelists.model import EdgeKind, EdgeSpec
 from ucom_tools.errors import InputError
+from ucom_tools.gateway.cia402_objects import ObjectValues
 from ucom_tools.gateway.joints import BoardEdge, Joint, Role
 
 DEVICE_TYPE = 0x00020192
@@ -57,9 +58,12 @@ POSITION_WINDOW = 5
 """0x6067 default [counts]: the armar3 program's Settled tolerance."""
 POSITION_WINDOW_MS = 20
 """0x6068 default [ms]: how long the armar3 program's Settled waits."""
+_DRIVE = ObjectValues()
+"""The drive's own defaults of the objects a master may change (its windows)."""
 HOMING_METHOD = -1
-"""0x6098: the program's own homing (drive at Reset PWM to the end stop, then the counter
-takes Reset Offset), a manufacturer-specific method; the only one."""
+"""0x6098's default: the program's own homing (drive at Reset PWM to the end stop, then the
+counter takes Reset Offset), a manufacturer-specific method; -3 and -4 do the same towards
+the negative or positive end stop (:func:`~ucom_tools.gateway.cia402_modes.reset_pwm_for`)."""
 MANUFACTURER_BASE = {EdgeKind.PAR: 0x2000, EdgeKind.CI: 0x3000, EdgeKind.SO: 0x4000}
 """Index of edge 0 of each kind; edge i is at base + i."""
 MAX_EDGES = 0x1000
@@ -328,10 +332,17 @@ def _cia402(joint: Joint) -> list[Object]:
         _var(0x605A, "Quick stop option code", i16, rw, 2, low=0, high=8),
         _var(0x6060, "Modes of operation", i8, rw, 0, pdo=True),
         _var(0x6061, "Modes of operation display", i8, ro, 0, pdo=True),
+        _var(0x605E, "Fault reaction option code", i16, rw, 0, low=0, high=0),
         _var(0x6064, "Position actual value", i32, ro, 0, pdo=True),
+        _var(0x6065, "Following error window", u32, rw, _DRIVE.following_error_window),
+        _var(0x6066, "Following error time out", u16, rw, _DRIVE.following_error_time_out),
         _var(0x6067, "Position window", u32, rw, POSITION_WINDOW),
         _var(0x6068, "Position window time", u16, rw, POSITION_WINDOW_MS),
         _var(0x606C, "Velocity actual value", i32, ro, 0, pdo=True),
+        _var(0x606D, "Velocity window", u16, rw, _DRIVE.velocity_window),
+        _var(0x606E, "Velocity window time", u16, rw, _DRIVE.velocity_window_time),
+        _var(0x606F, "Velocity threshold", u16, rw, _DRIVE.velocity_threshold),
+        _var(0x6070, "Velocity threshold time", u16, rw, _DRIVE.velocity_threshold_time),
         _var(0x607A, "Target position", i32, rw, 0, low=target.minimum,
              high=target.maximum, pdo=True),
         limits,
@@ -348,7 +359,10 @@ def _cia402(joint: Joint) -> list[Object]:
         _var(0x6502, "Supported drive modes", u32, ro, int(modes)),
     ]
     if SupportedModes.HM in modes:
-        out += [_var(0x6098, "Homing method", i8, rw, HOMING_METHOD, low=HOMING_METHOD,
+        offset = _edge(joint, Role.RESET_OFFSET)
+        out += [_var(0x607C, "Home offset", DataType.INTEGER32, rw, offset.default,
+                     low=offset.spec.minimum, high=offset.spec.maximum),
+                _var(0x6098, "Homing method", i8, rw, HOMING_METHOD, low=-4,
                      high=HOMING_METHOD),
                 _compound(0x6099, "Homing speeds", ObjectType.ARRAY, ro, [
                     (1, "Speed during search for switch", u32, rw, 0),
