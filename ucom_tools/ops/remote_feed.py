@@ -175,28 +175,53 @@ class DriveWrites:
     loop's thread as a local ``--set`` is, without an answer each (the consumer reads the
     outcome in the snapshots) and without an entry in the run's writes (a joint's target
     at every SYNC would fill them).  A write to a lost board, or a name or value the part
-    refuses, is counted (:attr:`refused`, the last reason in :attr:`reason`)."""
+    refuses, is counted (:attr:`refused`, the last reason in :attr:`reason`).
+
+    In order, but at most one write a cycle that waits for the board's acknowledgement
+    (a PAR, a CI outside the CI maps such as a joint's Command: a round trip of a few
+    milliseconds over socketcand); the rest waits for the next cycles (:meth:`on_cycle`).
+    Applied all at once, the gateway's first Command to each of ARMAR-III's 27 joints
+    kept the loop from its cycles for over 50 ms, and the boards' watchdogs stopped
+    them."""
 
     def __init__(self, part: Any) -> None:
         self.part = part
         self._refs: dict[str, EdgeRef] = {}
+        self._acked: dict[EdgeRef, bool] = {}
+        self._queue: deque[tuple[str, int]] = deque()
         self.applied = 0
         self.refused = 0
         self.reason = ""
 
+    @property
+    def queued(self) -> int:
+        """Writes waiting for a later cycle."""
+        return len(self._queue)
+
     def apply(self, items: DriveItems) -> None:
-        part, refs = self.part, self._refs
-        for name, raw in items:
+        """Queue ``items`` (the loop's next :meth:`on_cycle` applies them)."""
+        self._queue.extend(items)
+
+    def on_cycle(self) -> None:
+        """Apply the writes waiting, in order, up to the first acknowledged one."""
+        part, refs, acked, queue = self.part, self._refs, self._acked, self._queue
+        while queue:
+            name, raw = queue.popleft()
+            waits = True
             try:
                 ref = refs.get(name)
                 if ref is None:
                     ref = refs[name] = part.names.resolve(
                         name, kinds=(mca.Kind.CI, mca.Kind.PAR))
+                    acked[ref] = not part.cyclic(ref)
+                waits = acked[ref]
                 part.set(ref, ref.value(raw))
                 self.applied += 1
             except UcomError as err:  # lost board, out of range: the consumer sees it
                 self.refused += 1
                 self.reason = f"{name}: {err}"
+            if waits:
+                return
 
 
 def stop_event(part: Any, origin: str) -> WriteEvent:
@@ -381,6 +406,8 @@ class LoopFeed:
         if self._requests_in <= 0:
             self._requests_in = self._requests_every
             self._read_requests()
+        if self.drive.queued:
+            self.drive.on_cycle()
         self._flush_in -= 1
         if self._flush_in <= 0:
             self._flush_in = self._flush_every
@@ -663,6 +690,8 @@ class LocalRun:
                 _, future, name, value, origin, network = r
                 future.set_result(apply_write(self.part, name, value, origin,
                                               network=network))
+        if self.drives.queued:
+            self.drives.on_cycle()
         if self._poll is not None:
             self._poll.on_cycle()
 
