@@ -58,6 +58,7 @@ import bisect
 import contextlib
 import itertools
 import json
+import logging
 import math
 import os
 import signal
@@ -330,6 +331,7 @@ class Master:
                 "worst": round(sum(worst_frame_bits(len(d)) for _, d in frames) / n, 1)}
 
     def main(self) -> int:
+        logging.getLogger("can").setLevel(logging.ERROR)  # its socketcand client's chatter
         sys.setswitchinterval(5e-4)  # the SYNC thread waits for no other thread long
         threading.Thread(target=self.receive, daemon=True).start()
         try:
@@ -392,10 +394,11 @@ def connection(port: int, realtime: bool) -> list[str]:
             "--on-fault", "hold", *(["--realtime"] if realtime else [])]
 
 
-def loop_figures(doc: dict[str, Any]) -> dict[str, Any]:
+def loop_figures(doc: dict[str, Any], stderr: str) -> dict[str, Any]:
+    """The loop's figures of a run's ``--json``; where it has none, why (its stderr)."""
     run = doc.get("run", {})
     return {"p99_ms": run.get("jitter_ms", {}).get("p99"), "missed": run.get("missed"),
-            "cycles": run.get("cycles"),
+            "cycles": run.get("cycles"), "error": None if run else stderr[-800:],
             "watchdog_stops": sum(bool(e.get("stopped_motors"))
                                   for e in doc.get("events", []))}
 
@@ -406,7 +409,7 @@ def run_baseline(port: int, seconds: float, realtime: bool) -> dict[str, Any]:
                                f"{seconds:g}", "--json"), capture_output=True, text=True,
                           start_new_session=True, timeout=START_S + seconds + 60)
     try:
-        return loop_figures(json.loads(proc.stdout))
+        return loop_figures(json.loads(proc.stdout), proc.stderr)
     except ValueError:
         raise SystemExit(f"remote run failed ({proc.returncode}): {proc.stderr[-2000:]}"
                          ) from None
@@ -467,7 +470,7 @@ def run_gateway(port: int, rate: float, seconds: float, plan: list[dict[str, Any
     except ValueError:
         raise SystemExit(f"gateway canopen failed ({gw.returncode}): {err[-2000:]}"
                          ) from None
-    return {"loop": loop_figures(doc), "gateway": doc.get("gateway") or {},
+    return {"loop": loop_figures(doc, err), "gateway": doc.get("gateway") or {},
             "masters": results}
 
 
@@ -475,7 +478,10 @@ def rate_figures(rate: float, got: dict[str, Any], base: dict[str, Any],
                  plan: list[dict[str, Any]]) -> dict[str, Any]:
     """One rate's figures (see the module docstring) from its run and its baseline."""
     masters = got["masters"]
-    errors = [m["error"] for m in masters if "error" in m]
+    errors = [m["error"] for m in masters if "error" in m] + [
+        f"{what}: {run['error']}" for what, run in (("remote run", base),
+                                                    ("gateway canopen", got["loop"]))
+        if run["error"]]
     ok = [m for m in masters if "error" not in m]
     lat = [x for m in ok for x in m["sync_tpdo_s"]]
     arrival = [x for m in ok for x in m["sync_tpdo_arrival_s"]]
@@ -573,7 +579,7 @@ def report(figures: dict[str, Any], targets: dict[str, bool]) -> None:
                   f"{b['load_worst_pct']} %; configured PDOs at most "
                   f"{b['configured_worst_pct']} %)")
         for e in r["errors"]:
-            print(f"    a master failed: {e.strip()[-600:]}")
+            print(f"    failed: {e.strip()[-600:]}")
     print(f"  load average {figures['load_average']}")
     for name, ok in targets.items():
         print(f"  target {name}: {'MET' if ok else 'NOT MET'}")
