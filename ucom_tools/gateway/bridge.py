@@ -2,10 +2,11 @@
 drive on a CANopen bus, between the run time's hand-over and the CANopen node runtime.
 
 One :class:`~ucom_tools.gateway.joint_drive.JointDrive` per joint joins its node
-(:mod:`ucom_tools.gateway.node`, on canopen's ``LocalNode``) to its drive (:class:`~ucom_tools.gateway.cia402.Drive402`) and
-to its board's edges in the run (:class:`Source`: the loop's snapshots and its
-:meth:`~Source.drive` writes; in the loop's process a ``LocalRun``, in the consumers'
-process a ``Mirror``).  :class:`Gateway` makes one node runtime per CANopen bus, each
+(:mod:`ucom_tools.gateway.node`, on canopen's ``LocalNode``) to its drive
+(:class:`~ucom_tools.gateway.cia402.Drive402`) and to its board's edges in the run
+(:class:`Source`: the loop's snapshots and its :meth:`~Source.drive` writes; in the loop's
+process a ``LocalRun``, in the consumers' process a ``Mirror``). :class:`Gateway` makes one
+node runtime per CANopen bus, each
 with its own thread; a joint's drive runs only on its bus's thread:
 
 - a master's write of a drive object (SDO or RPDO) updates the joint's
