@@ -189,7 +189,22 @@ class Consumers:
         self._dictionaries = dictionaries(g["joints"])
         for spec in g["buses"]:
             self._canopen.append((spec, buses.open_bus(spec)))
-        return {"buses": [s.text for s in g["buses"]]}
+        return {"buses": [s.text for s in g["buses"]],
+                "fits_hz": {s.text: fits for s, fits in self._fits(g).items()}}
+
+    def _fits(self, g: dict[str, Any]) -> dict[Any, float]:
+        """Per CANopen bus, the SYNC rate its nodes' default PDOs fit."""
+        from ucom_tools.gateway.load import fitting_rate
+
+        specs = g["buses"]
+        named = {b: s for s in specs for b in s.ucom_buses}
+        rest = next((s for s in specs if not s.ucom_buses), None)
+        out = {}
+        for spec in specs:
+            ods = [self._dictionaries[j.node_id] for j in g["joints"]
+                   if named.get(j.bus, rest) is spec]
+            out[spec] = fitting_rate(ods)
+        return out
 
     def _gateway_log(self) -> None:
         """The gateway's warnings (a master lost or back, frames not sent) on the terminal,

@@ -53,11 +53,15 @@ from ucom_tools.gateway.cia402_objects import (
 from ucom_tools.gateway.codes import NmtCommand, NmtState, StateChange
 from ucom_tools.gateway.joint_drive import JointDrive, SharedCommand, Source
 from ucom_tools.gateway.joints import Joint, Role
+from ucom_tools.gateway.load import CANOPEN_BITRATE, WARN_SHARE, pdo_load
 from ucom_tools.gateway.node import NodeCallbacks, NodeRuntime
 from ucom_tools.ops.remote_image import PartImage
 from ucom_tools.ops.remote_publish import LoopSnapshot
 
 log = logging.getLogger("ucom.gateway")
+
+LOAD_SYNCS = 50
+"""SYNCs over which the master's SYNC rate is measured for the bus load warning."""
 
 
 @dataclass(frozen=True)
@@ -102,6 +106,7 @@ class Gateway:
             if mine:
                 group = [self._joint(j) for j in mine]
                 self._groups.append((b, group))
+        self._load_warned: set[int] = set()
         self.master_events: list[tuple[float, str, str, str]] = []
         """(seconds since the start, the CANopen bus, 'lost' or 'back', why) as the master
         watches said."""
@@ -229,7 +234,32 @@ class Gateway:
                     jd.observe(snap, raws)
             return snap
 
+        syncs: list[float] = []
+
+        def check_rate(now: float) -> None:
+            """Once the master's SYNC rate is known: warn where the PDOs it configured
+            need more of the bus than it has (once a bus)."""
+            syncs.append(now)
+            if len(syncs) < LOAD_SYNCS:
+                return
+            rate = (len(syncs) - 1) / (syncs[-1] - syncs[0]) if syncs[-1] > syncs[0] else 0.0
+            syncs.clear()
+            if rate <= 0 or number in self._load_warned:
+                return
+            runtime = self.runtimes[number]
+            load = pdo_load([runtime.node(jd.node_id) for jd in group
+                             if runtime.state(jd.node_id) is NmtState.OPERATIONAL], rate)
+            share = load.worst_bits_per_s / CANOPEN_BITRATE
+            if share > WARN_SHARE:
+                self._load_warned.add(number)
+                log.warning("%s: SYNC at %.0f Hz with these PDOs needs %.0f%% of a 1 Mbit/s "
+                            "bus (every stuff bit counted): TPDOs will come late or not at "
+                            "all; map fewer objects, put fewer joints on this bus or SYNC "
+                            "less often", self._groups[number][0].spec, rate, share * 100)
+
         def on_sync(counter: int | None) -> None:
+            if number not in self._load_warned:
+                check_rate(_now())
             snap, now, fault = observe(), _now(), self._bus_faults[number]
             for jd in group:
                 jd.update(now, snap, fault, sync=True)

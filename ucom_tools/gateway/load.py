@@ -1,6 +1,7 @@
 """The CANopen bus load of a group of gateway nodes' PDOs and the SYNC, counted as
 ``remote`` counts a UCoM bus's (:mod:`ucom_tools.wire.canbits`): what ``gateway canopen``
-warns about when a master's SYNC rate asks more of the bus than it has."""
+says at its start (the SYNC rate each bus's PDOs fit) and warns about when a master's SYNC
+rate, once measured, asks more of the bus than it has."""
 
 from __future__ import annotations
 
@@ -39,9 +40,24 @@ def pdo_load(nodes: Iterable[ObjectDictionary | SlaveNode], rate_hz: float, *,
                 rate_hz * sum(k * worst_frame_bits(size) for size, k in frames))
 
 
+CANOPEN_BITRATE = 1_000_000
+"""The bit rate the gateway's warnings assume of a CANopen bus (python-can does not say a
+bus's bit rate; ros2_canopen's and most robots' CANopen buses run at 1 Mbit/s)."""
+WARN_SHARE = 1.0
+"""A configuration whose worst case needs more than this share of the bus is warned of."""
+
+
+def fitting_rate(nodes: Iterable[ObjectDictionary | SlaveNode],
+                 bitrate: int = CANOPEN_BITRATE) -> float:
+    """The highest SYNC rate [Hz] at which the nodes' PDOs fit the bus, every stuff bit
+    counted (``inf``: none is configured)."""
+    per_sync = pdo_load(nodes, 1.0).worst_bits_per_s
+    return float("inf") if per_sync <= 0 else bitrate / per_sync
+
+
 def _stored(od: ObjectDictionary, index: int, subindex: int) -> int:
     var = find(od, index, subindex)
     return int((var.value if var.value is not None else var.default) or 0)
 
 
-__all__ = ["pdo_load"]
+__all__ = ["CANOPEN_BITRATE", "WARN_SHARE", "fitting_rate", "pdo_load"]
