@@ -132,8 +132,8 @@ def test_every_node_boots_and_every_joint_is_off_until_enabled(rig: Rig) -> None
     assert eye.sdo[0x6041].raw & 0x0210 == 0x0210  # voltage enabled (its board runs), remote
     command = rig.part.names.resolve("Right Eye Command")
     rig.until(lambda: rig.part.raw(command) == Command.OFF, "the joint was not switched off")
-    assert {d.drive.state for d in rig.gateway.drives.values()} == {
-        State402.SWITCH_ON_DISABLED}
+    rig.until(lambda: {d.drive.state for d in rig.gateway.drives.values()} == {
+        State402.SWITCH_ON_DISABLED}, "not every joint SWITCH ON DISABLED")
     serial = eye.sdo[0x1018][4].raw
     assert serial == rig.gateway.image.serials[EYES]  # the board's own, from the init chain
 
