@@ -212,16 +212,16 @@ class LogError(WriteError):
     partial file was removed and a file it would have replaced keeps its content."""
 
 
-def check_log(path: str | os.PathLike[str]) -> str:
-    """Check ``--log FILE`` before anything is opened: a format python-can writes, in a
-    directory that exists, not a directory itself.  Returns the extension."""
-    ext = log_extension(path, key="--log")
+def check_log(path: str | os.PathLike[str], key: str = "--log") -> str:
+    """Check ``--log FILE`` (or ``key``'s) before anything is opened: a format ucom
+    writes, in a directory that exists, not a directory itself.  Returns the extension."""
+    ext = log_extension(path, key=key)
     p = Path(path)
     if not p.parent.is_dir():
         raise InputError(f"{os.fspath(p)}: directory {os.fspath(p.parent)} does not exist",
-                         key="--log")
+                         key=key)
     if p.is_dir():
-        raise InputError(f"{os.fspath(p)} is a directory", key="--log")
+        raise InputError(f"{os.fspath(p)} is a directory", key=key)
     return ext
 
 

@@ -39,6 +39,7 @@ from typing import Any, Protocol
 from ucom_tools import __version__
 from ucom_tools.errors import InputError, WriteError
 from ucom_tools.fileio import reason
+from ucom_tools.protocol.dispatch import ERROR, EXTENDED, REMOTE, SENT
 from ucom_tools.trace.logs import LogError
 from ucom_tools.trace.mcapfile import (
     EVENTS_TOPIC,
@@ -61,9 +62,6 @@ VALUES_SCHEMA_PREFIX = "ucom.Values."
 """A board's values schema is named this and its topic's name (``ucom.Values.Eyes``)."""
 RESERVED = ("time", "valid")
 """The fields of a board's values message that are not edges."""
-EXTENDED, REMOTE, ERROR, SENT = 1, 2, 4, 8
-"""The flags of a frame as the loop hands it over
-(:data:`ucom_tools.protocol.dispatch.SinkEntry`)."""
 
 
 class RunSource(Protocol):

@@ -347,7 +347,6 @@ class McapFrameWriter:
 # ---------------------------------------------------------------------- reading
 def _reader_of(file: str) -> Iterator[tuple[Any, Any, Any]]:
     """Every message of the MCAP ``file`` in log-time order, CRCs checked."""
-    from mcap.exceptions import McapError
     from mcap.reader import make_reader
 
     binary = fileio.open_input(file, limit=MCAP_LIMIT, what="an MCAP file",
@@ -355,9 +354,19 @@ def _reader_of(file: str) -> Iterator[tuple[Any, Any, Any]]:
     with binary:
         try:
             reader = make_reader(binary, validate_crcs=True)
-            yield from reader.iter_messages(log_time_order=True)
-        except (McapError, ValueError, EOFError, binascii.Error) as err:
-            raise InputError(f"not a complete MCAP file: {err}", file=file) from None
+            messages = reader.iter_messages(log_time_order=True)
+            while True:
+                try:
+                    item = next(messages)
+                except StopIteration:
+                    return
+                yield item
+        except InputError:
+            raise
+        except Exception as err:  # the reader raises anything from McapError to struct.error
+            text = str(err).strip().splitlines()
+            raise InputError("not a complete MCAP file (or a damaged one): "
+                             f"{text[0] if text else type(err).__name__}", file=file) from None
 
 
 def read_frames(path: str | os.PathLike[str]) -> list[can.Message]:
