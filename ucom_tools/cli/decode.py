@@ -21,13 +21,13 @@ _RULES = "; ".join(f"{name}: {text}" for name, text in RULES.items())
 HELP = ("""Decode a CAN TRACE into the UCoM conversation it carries, per bus and board.
 
 TRACE is any log python-can reads, by its extension: .asc, .blf, .log (candump -l),
-.csv, .trc, .db, .mf4 ... (e.g. one written with --log), or an MCAP file ucom
-wrote (--log FILE.mcap, remote run --record FILE.mcap: its /<bus>/frames
-channels).  One bus per channel; frames without a channel (.csv, .db) are bus CAN.
-Each message shows its time (seconds from the trace's first frame), direction (PC>
-from the PC, <B from a board), function and content; multi-frame answers are assembled (Info records, texts, edge records),
-programming is shown as blocks, data frames and resends, and cyclic frames (SO and CI
-maps, MCA Alive) as one summary per map.
+.csv, .trc, .db, .mf4 ...  (e.g.  one written with --log), or an MCAP file ucom wrote
+(--log FILE.mcap, remote run --record FILE.mcap: its /<bus>/frames channels).  One bus
+per channel; frames without a channel (.csv, .db) are bus CAN.  Each message shows its
+time (seconds from the trace's first frame), direction (PC> from the PC, <B from a
+board), function and content; multi-frame answers are assembled (Info records, texts,
+edge records), programming is shown as blocks, data frames and resends, and cyclic
+frames (SO and CI maps, MCA Alive) as one summary per map.
 
 Then the protocol violations, each with the frame's index in the trace and its time.
 Rules: """ + _RULES + """.  Answer deadlines: ucom-protocol(7), TIMEOUTS.
