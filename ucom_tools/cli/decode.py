@@ -21,7 +21,7 @@ _RULES = "; ".join(f"{name}: {text}" for name, text in RULES.items())
 HELP = ("""Decode a CAN TRACE into the UCoM conversation it carries, per bus and board.
 
 TRACE is any log python-can reads, by its extension: .asc, .blf, .log (candump -l),
-.csv, .trc, .db, .mf4 ...  (e.g.  one written with --log), or an MCAP file ucom wrote
+.csv, .trc, .db, .mf4 ... (e.g. one written with --log), or an MCAP file ucom wrote
 (--log FILE.mcap, remote run --record FILE.mcap: its /<bus>/frames channels).  One bus
 per channel; frames without a channel (.csv, .db) are bus CAN.  Each message shows its
 time (seconds from the trace's first frame), direction (PC> from the PC, <B from a
