@@ -155,7 +155,13 @@ class Consumers:
         """The recording's files and the Zenoh session; what the loop's process prints."""
         c = self.config
         info: dict[str, Any] = {}
-        if c.get("record"):
+        if c.get("record") and c["record"].lower().endswith(".mcap"):
+            from ucom_tools.trace.mcap_record import McapRecorder
+
+            self.recorder = McapRecorder(c["record"], rate_hz=c.get("record_hz"),
+                                         loop_hz=c["loop_hz"])
+            self.recorder.attach(self.mirror)
+        elif c.get("record"):
             from ucom_tools.trace.record import RunRecorder
 
             self.recorder = RunRecorder(c["record"])
