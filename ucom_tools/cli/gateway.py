@@ -10,6 +10,7 @@ node table.  The logic is :mod:`ucom_tools.gateway` (joints, dictionary, eds, br
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -174,6 +175,10 @@ def canopen_cmd(ctx: click.Context, robot_name: str | None, canopen_specs: tuple
                          "--virtual ROBOT", key="ROBOT")
     robot = joints.load(name)
     bus_names = [b.name for b in topo.load(name).buses]
+    only = options.get("bus_name")
+    if only in bus_names:  # --bus: the run opens that bus alone, the gateway its joints
+        robot = replace(robot, joints=tuple(j for j in robot.joints if j.bus == only))
+        bus_names = [only]
     buses.check(specs, bus_names)
     for skipped in robot.skipped:
         stderr().print(f"[yellow]gateway: {escape(skipped.where)} has no joints: "
