@@ -19,6 +19,9 @@ from canopen.profiles.p402 import BaseNode402
 from canopen.sdo import SdoAbortedError
 
 HOST, PORT, CHANNEL = sys.argv[1], int(sys.argv[2]), sys.argv[3]
+SDO_TIMEOUT_S = 1.0
+"""canopen's default is 0.3 s: the gateway answers in milliseconds, but on a machine as
+busy as a CI runner its process (niceness 10) now and then waits longer than that."""
 net = canopen.Network()
 net.connect(interface="socketcand", host=HOST, port=PORT, channel=CHANNEL)
 nodes: dict[int, BaseNode402] = {}
@@ -39,6 +42,7 @@ def sdo_var(node, k):
 
 def add(node_id, eds):
     node = BaseNode402(node_id, eds)
+    node.sdo.RESPONSE_TIMEOUT = SDO_TIMEOUT_S
     net.add_node(node)
     node.emcy.add_callback(lambda e, n=node_id: emcys.append((n, e.code, e.timestamp)))
     nodes[node_id] = node

@@ -124,7 +124,8 @@ python-can interface (socketcan:vcan0, pcan:PCAN_USBBUS1) or socketcand:CHANNEL@
 (a bus 'ucom fleet serve ROBOT --extra-bus CHANNEL' serves); with UCoM buses in front,
 only their joints (CAN0=socketcan:vcan0 --canopen CAN1=socketcan:vcan1 ...).
 
-One node per joint, node IDs as 'ucom gateway eds' writes them (printed at the start).
+One node per joint, node IDs as 'ucom gateway eds' writes them (printed at the start);
+with --bus NAME (the run opens that bus alone) the joints of that bus.
 Each sends its boot-up and a heartbeat every 100 ms (0x1017); CiA 402 modes profile
 position, profile velocity, homing and cyclic synchronous position; every edge of the
 board by SDO as a manufacturer object.  A joint whose board is lost, latched by its
