@@ -227,6 +227,7 @@ class Master:
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
         assert self._answer(START_S) == {"ok": "ready"}
+        self.syncing = False
         self.call("produce_heartbeat", period=HEARTBEAT_S)
 
     def _read(self) -> None:
@@ -262,13 +263,18 @@ class Master:
               consumer_ms: int = CONSUMER_MS) -> None:
         """As a master takes a drive into service: its heartbeat heard, the master's
         heartbeat consumed (0x1016, ``consumer_ms``), the PDOs read
-        (BaseNode402.setup_402_state_machine), NMT start, then OPERATION ENABLED (a
-        FAULT that a master before left is reset on the way), in ``mode``."""
+        (BaseNode402.setup_402_state_machine), NMT start, the SYNC running (from the
+        first drive on: its TPDOs carry the statusword BaseNode402 waits for), then
+        OPERATION ENABLED (a FAULT that a master before left is reset on the way), in
+        ``mode``."""
         self.call("add", node_id=node, eds=eds)
         self.call("heartbeat", node_id=node, within=WAIT_S)
         self.call("write", node_id=node, k=[0x1016, 1], value=MASTER_NODE << 16 | consumer_ms)
         self.call("setup", node_id=node)
         self.call("nmt", node_id=node, state="OPERATIONAL")
+        if not self.syncing:
+            self.call("sync", period=SYNC_S)
+            self.syncing = True
         try:
             self.call("state", node_id=node, target="OPERATION ENABLED", within=WAIT_S)
         except MasterError as err:

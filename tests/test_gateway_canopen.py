@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import itertools
 import json
 import os
 import socket
@@ -122,18 +123,17 @@ def shared(fleet: Fleet) -> Iterator[Shared]:
 
 # ---------------------------------------------------------------------- helpers of the cases
 def steady(read: Callable[[], tuple[int, int, int]], what: str) -> int:
-    """Read (0x6064, the other value, 0x6064) until the joint stood still over the three
-    reads; then the other value must be 0x6064's."""
+    """Read (0x6064, the other value, 0x6064) until all three agree: the joint stood
+    still over the reads (its sensor may move by a count), and the other way gives what
+    0x6064 does (a value that differs every time: the deadline, with every read)."""
     got: list[tuple[int, int, int]] = []
 
-    def still() -> bool:
+    def agree() -> bool:
         got.append(read())
-        return got[-1][0] == got[-1][2]
+        return len(set(got[-1])) == 1
 
-    until(still, what=f"{what}: the joint standing still over three reads")
-    first, other, _ = got[-1]
-    assert other == first, f"{what}: 0x6064 {first}, {other} by the other way ({got})"
-    return first
+    until(agree, what=f"{what}: 0x6064 and the other way alike ({got})")
+    return got[-1][0]
 
 
 def lag_periods(samples: list[list[int | None]]) -> list[int]:
@@ -160,9 +160,10 @@ def object_limits(eds: str, name: str) -> tuple[int, int, int]:
 
 # ---------------------------------------------------------------------- the shared run
 class TestSharedRun:
-    """The cases that share one gateway run, in this order.  Each master that leaves
-    takes the bus's nodes to FAULT (its heartbeat no longer heard): the next one resets
-    the FAULT on its way to OPERATION ENABLED, as BaseNode402 does."""
+    """The cases that share one gateway run, in this order.  A master that leaves takes
+    the bus's nodes to FAULT once its heartbeat is missed (0x1016, 1 s) where no other
+    master's comes first: the next one resets the FAULT on its way to OPERATION ENABLED,
+    as BaseNode402 does."""
 
     def test_profile_position_reaches_its_target_and_0x6064_is_the_joint_sensor(
             self, shared: Shared) -> None:
@@ -170,11 +171,11 @@ class TestSharedRun:
         object, named by the tree ("Right Eye Joint Sensor", looked up by canopen in the
         EDS): a way apart from the drive's (the gateway's read callback of that SO edge,
         found by its index, against the drive's joint report, found by its role), both
-        the loop's latest values; and the run's --json, the loop's own values in its own
-        process, must end with the same reading (the joint stays where it stood)."""
+        the loop's latest values as its snapshots bring them; and the run's --json, the
+        loop's own values in its own process, must end with that reading give or take the
+        position window (0x6067: its motor is off once its master left)."""
         node = 7  # Right Eye
         with master(shared.fleet) as m:
-            m.call("sync", period=SYNC_S)
             m.drive(node, shared.fleet.eds_of(node), "PROFILED POSITION")
             start = m.call("read", node_id=node, k=0x6064)
             window = m.call("read", node_id=node, k=0x6067)
@@ -196,7 +197,6 @@ class TestSharedRun:
     def test_cyclic_synchronous_position_follows_a_ramp_by_rpdo(self, shared: Shared) -> None:
         node, step, count = 8, 4, 100  # Left Eye: 400 counts/s for 1 s
         with master(shared.fleet) as m:
-            m.call("sync", period=SYNC_S)
             m.drive(node, shared.fleet.eds_of(node), "CYCLIC SYNCHRONOUS POSITION")
             start = m.call("read", node_id=node, k=0x6064)
             samples = m.call("csp_ramp", node_id=node, start=start, step=step, count=count,
@@ -210,7 +210,8 @@ class TestSharedRun:
         lags = lag_periods(samples)
         positions = [p for _, p in samples if p is not None]
         assert len(positions) >= count * 0.9, samples
-        assert positions == sorted(positions), samples  # it follows, never back
+        assert all(b >= a - 1 for a, b in itertools.pairwise(positions)), \
+            samples  # it follows, never back (but by the sensor's last count)
         assert positions[-1] - start >= (count - MAX_LAG) * step, samples
         assert max(lags) <= MAX_LAG, (lags, samples)
 
@@ -249,7 +250,6 @@ class TestSharedRun:
         (Neck Roll's SDO: the stopped node answers none)."""
         node, other, sensor = 2, 3, "Neck Pitch Joint Sensor"
         with master(shared.fleet) as m:
-            m.call("sync", period=SYNC_S)
             m.drive(node, shared.fleet.eds_of(node), "PROFILED VELOCITY")
             m.call("add", node_id=other, eds=shared.fleet.eds_of(other))
             m.call("write", node_id=node, k=0x60FF, value=2000)
@@ -279,8 +279,9 @@ class TestSharedRun:
             self, shared: Shared) -> None:
         """Eyes Tilt's .bin from Lely's dcfgen (bus.yml of ``ucom gateway eds``), written
         as ros2_canopen's master writes it at boot, over a PDO layout another master
-        left: its remapped PDOs arrive, its RPDOs drive the node, its heartbeat consumer
-        (0x1016) watches the master.  Reset node at the end: the defaults again."""
+        left: its remapped TPDOs arrive, its RPDO1 carries BaseNode402's controlwords to
+        OPERATION ENABLED, its heartbeat consumer (0x1016) watches the master.  Reset
+        node at the end: the defaults again."""
         node = 6
         binary = shared.fleet.dcf / f"{NODES[node]}.bin"
         entries = concise(binary.read_bytes())
@@ -354,7 +355,6 @@ def test_a_master_killed_switches_every_joint_off_by_the_heartbeat_consumer(
     consumer, record = 0.300, tmp_path / "run.blf"
     with own_run(fleet, "--on-fault", "hold", "--record", str(record)) as (run, listener), \
             master(fleet) as m:
-        m.call("sync", period=SYNC_S)
         for node in NODES:
             m.drive(node, fleet.eds_of(node), "PROFILED POSITION",
                     consumer_ms=round(consumer * 1000))
@@ -409,7 +409,6 @@ def test_a_board_lost_faults_its_joints_until_it_rejoins_and_a_fault_reset(
     eyes = (7, 8)
     with own_run(fleet, "--on-fault", "hold", "--rejoin") as (run, listener), \
             master(fleet) as m:
-        m.call("sync", period=SYNC_S)
         for node in eyes:
             m.drive(node, fleet.eds_of(node), "PROFILED POSITION")
         mark = listener.mark()

@@ -64,10 +64,11 @@ def nmt(node_id, state):
 
 
 def sync(period):
+    """The master's SYNC every ``period`` s (canopen's producer, started once); 0 stops
+    it."""
+    net.sync.stop()
     if period:
         net.sync.start(period)
-    else:
-        net.sync.stop()
     return period
 
 
@@ -182,7 +183,7 @@ def csp_ramp(node_id, start, step, count, period, within):
         net.sync.transmit()
         due += period
         time.sleep(max(0.0, due - time.monotonic()))  # the master's clock
-    net.sync.start(period)
+    sync(period)
     return out
 
 
