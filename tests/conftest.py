@@ -145,7 +145,8 @@ def pytest_configure_node(node) -> None:
 
 
 _LONGEST_FIRST = (
-    "test_deploy.py", "test_zenoh.py", "test_conformance_restore.py", "test_dbc_interop.py",
+    "test_deploy.py", "test_gateway_canopen.py", "test_zenoh.py", "test_mcap.py",
+    "test_conformance_restore.py", "test_dbc_interop.py",
     "test_dbc.py", "test_runtime.py", "test_zenoh_config.py", "test_shared_bus.py",
     "test_remote.py", "test_multiserve.py", "test_network.py", "test_files.py",
     "test_socketcand.py", "test_remote_network.py", "test_browse_tty.py", "test_signals.py",

@@ -10,6 +10,7 @@ node table.  The logic is :mod:`ucom_tools.gateway` (joints, dictionary, eds, br
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -123,7 +124,8 @@ python-can interface (socketcan:vcan0, pcan:PCAN_USBBUS1) or socketcand:CHANNEL@
 (a bus 'ucom fleet serve ROBOT --extra-bus CHANNEL' serves); with UCoM buses in front,
 only their joints (CAN0=socketcan:vcan0 --canopen CAN1=socketcan:vcan1 ...).
 
-One node per joint, node IDs as 'ucom gateway eds' writes them (printed at the start).
+One node per joint, node IDs as 'ucom gateway eds' writes them (printed at the start);
+with --bus NAME (the run opens that bus alone) the joints of that bus.
 Each sends its boot-up and a heartbeat every 100 ms (0x1017); CiA 402 modes profile
 position, profile velocity, homing and cyclic synchronous position; every edge of the
 board by SDO as a manufacturer object.  A joint whose board is lost, latched by its
@@ -178,6 +180,10 @@ def canopen_cmd(ctx: click.Context, robot_name: str | None, canopen_specs: tuple
                          "--virtual ROBOT", key="ROBOT")
     robot = joints.load(name)
     bus_names = [b.name for b in topo.load(name).buses]
+    only = options.get("bus_name")
+    if only in bus_names:  # --bus: the run opens that bus alone, the gateway its joints
+        robot = replace(robot, joints=tuple(j for j in robot.joints if j.bus == only))
+        bus_names = [only]
     buses.check(specs, bus_names)
     for skipped in robot.skipped:
         stderr().print(f"[yellow]gateway: {escape(skipped.where)} has no joints: "
