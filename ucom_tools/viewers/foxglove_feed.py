@@ -237,6 +237,8 @@ class BrowseFoxglove:
         self._joints = (s.channel(fm.JOINTS_TOPIC, fm.JOINT_STATES_SCHEMA)
                         if self._joint_list else None)
         self._latest: dict[str, Any] = {}
+        self._joints_period = 1.0 / float(client.structure.get("publish_hz") or 100.0)
+        self._joints_t = float("-inf")
         s.writer = self._write
         s.reader = self._read
         self._subs = [client.on_values(self._values), client.on_events(self._event),
@@ -266,7 +268,8 @@ class BrowseFoxglove:
                 "t": t, "valid": doc.get("valid", True) is not False, "values": named},
                 ensure_ascii=False, separators=(",", ":")))
         if self._joints is not None and board in self._joint_boards \
-                and s.wants(self._joints):
+                and t - self._joints_t >= self._joints_period * 0.9 and s.wants(self._joints):
+            self._joints_t = t  # once a publishing period, not once a board
             s.send(self._joints, ns, fm.joint_states_of(
                 self._latest, self._joint_list, self.client.names, ns))
 
@@ -275,8 +278,9 @@ class BrowseFoxglove:
         if not s.wants(s.events):
             return
         kind = doc.get("kind")
-        t = doc.get("t")
-        ns = s.clock.ns(float(t)) if isinstance(t, int | float) else fm.now_ns()
+        t = doc.get("t")  # on the values' time base only for a fault
+        ns = s.clock.ns(float(t)) if kind == "fault" and isinstance(t, int | float) \
+            else fm.now_ns()
         if kind == "board":
             level, text = fm.LOG_ERROR if doc.get("stopped_motors") else fm.LOG_WARNING, \
                 f"{doc.get('where')}: {doc.get('error')}: {doc.get('text')}"
