@@ -118,10 +118,11 @@ def parse_address(text: str, key: str = "--foxglove") -> tuple[str, int]:
     """``HOST:PORT`` (``[::1]:8765`` for IPv6) as (host, port); InputError naming
     ``key`` otherwise.  Port 0 takes any free one."""
     host, sep, port = text.rpartition(":")
-    if host.startswith("[") and host.endswith("]"):
+    bracketed = host.startswith("[") and host.endswith("]")
+    if bracketed:
         host = host[1:-1]
     if not sep or not host or not port.isdigit() or int(port) > 65535 or any(
-            c.isspace() for c in host):
+            c.isspace() for c in host) or (":" in host and not bracketed):
         raise InputError(f"{text!r} is not HOST:PORT (a host name or address, a port "
                          f"0..65535; e.g. {DEFAULT_ADDRESS})", key=key)
     return host, int(port)
