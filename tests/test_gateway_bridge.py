@@ -132,8 +132,8 @@ def test_every_node_boots_and_every_joint_is_off_until_enabled(rig: Rig) -> None
     assert eye.sdo[0x6041].raw & 0x0210 == 0x0210  # voltage enabled (its board runs), remote
     command = rig.part.names.resolve("Right Eye Command")
     rig.until(lambda: rig.part.raw(command) == Command.OFF, "the joint was not switched off")
-    assert {d.drive.state for d in rig.gateway.drives.values()} == {
-        State402.SWITCH_ON_DISABLED}
+    rig.until(lambda: {d.drive.state for d in rig.gateway.drives.values()} == {
+        State402.SWITCH_ON_DISABLED}, "not every joint SWITCH ON DISABLED")
     serial = eye.sdo[0x1018][4].raw
     assert serial == rig.gateway.image.serials[EYES]  # the board's own, from the init chain
 
@@ -260,3 +260,18 @@ def test_a_mode_the_joint_lacks_is_refused_and_a_lost_board_sends_one_emcy(rig: 
     rig.until(lambda: rig.gateway.runtimes[0].stats().syncs == syncs + 5, "SYNCs not seen")
     with rig.lock:  # the drives ran many times while it stayed lost: one EMCY each
         assert rig.emcys.count((RIGHT_EYE, 0xFF01)) == 1, rig.emcys
+
+
+def test_a_sync_rate_the_pdos_cannot_fit_is_warned_of_once(
+        rig: Rig, caplog: pytest.LogCaptureFixture) -> None:
+    """Every node OPERATIONAL (27 joints' TPDOs on one bus) and SYNC far faster than
+    1 Mbit/s carries: the gateway says so once, naming the rate and the share."""
+    rig.node(RIGHT_EYE).nmt.wait_for_heartbeat(DEADLINE_S)
+    rig.net.send_message(0x000, bytes((0x01, 0)))  # NMT start, every node
+    with caplog.at_level("WARNING", logger="ucom.gateway"):
+        for _ in range(120):  # back to back: a rate of thousands of Hz
+            rig.net.sync.transmit()
+        rig.until(lambda: any("needs" in r.getMessage() for r in caplog.records),
+                  "no warning")
+        warned = [r.getMessage() for r in caplog.records if "needs" in r.getMessage()]
+    assert len(warned) == 1 and "% of a 1 Mbit/s bus" in warned[0], warned

@@ -164,7 +164,13 @@ class Consumers:
                                         allow_writes=f["allow_writes"],
                                         rate_hz=f["publish_hz"])
             info["foxglove"] = {"url": self.foxglove.server.url}
-        if c.get("record"):
+        if c.get("record") and c["record"].lower().endswith(".mcap"):
+            from ucom_tools.trace.mcap_record import McapRecorder
+
+            self.recorder = McapRecorder(c["record"], rate_hz=c.get("record_hz"),
+                                         loop_hz=c["loop_hz"])
+            self.recorder.attach(self.mirror)
+        elif c.get("record"):
             from ucom_tools.trace.record import RunRecorder
 
             self.recorder = RunRecorder(c["record"])
@@ -198,7 +204,22 @@ class Consumers:
         self._dictionaries = dictionaries(g["joints"])
         for spec in g["buses"]:
             self._canopen.append((spec, buses.open_bus(spec)))
-        return {"buses": [s.text for s in g["buses"]]}
+        return {"buses": [s.text for s in g["buses"]],
+                "fits_hz": {s.text: fits for s, fits in self._fits(g).items()}}
+
+    def _fits(self, g: dict[str, Any]) -> dict[Any, float]:
+        """Per CANopen bus, the SYNC rate its nodes' default PDOs fit."""
+        from ucom_tools.gateway.load import fitting_rate
+
+        specs = g["buses"]
+        named = {b: s for s in specs for b in s.ucom_buses}
+        rest = next((s for s in specs if not s.ucom_buses), None)
+        out = {}
+        for spec in specs:
+            ods = [self._dictionaries[j.node_id] for j in g["joints"]
+                   if named.get(j.bus, rest) is spec]
+            out[spec] = fitting_rate(ods)
+        return out
 
     def _gateway_log(self) -> None:
         """The gateway's warnings (a master lost or back, frames not sent) on the terminal,

@@ -139,12 +139,16 @@ def _announce(robot: RobotJoints, specs: list[buses.CanopenSpec]) -> Any:
         out = stderr()
         by_bus = {b: s for s in specs for b in s.ucom_buses}
         rest = next((s for s in specs if not s.ucom_buses), None)
+        fits = (ready or {}).get("fits_hz", {})
         for spec in specs:
             mine = [j for j in robot.joints
                     if by_bus.get(j.bus, rest) is spec]
             nodes = ", ".join(f"{j.node_id} {escape(j.name)}" for j in mine)
-            out.print(f"[dim]gateway: {escape(spec.where)}: {len(mine)} nodes: {nodes}[/]",
-                      soft_wrap=True)
+            fit = fits.get(spec.text)
+            rate = (f"; their PDOs fit SYNC up to {fit:.0f} Hz at 1 Mbit/s" if fit
+                    and fit != float("inf") else "")
+            out.print(f"[dim]gateway: {escape(spec.where)}: {len(mine)} nodes{rate}: "
+                      f"{nodes}[/]", soft_wrap=True)
     return show
 
 
@@ -166,8 +170,8 @@ def canopen_cmd(ctx: click.Context, robot_name: str | None, canopen_specs: tuple
             raise InputError(f"'{s.text}': python-can's virtual buses live in one process, "
                              "and the gateway runs in a process of its own: use "
                              "socketcand:CHANNEL@HOST:PORT over 'ucom fleet serve ROBOT "
-                             "--extra-bus CHANNEL' (or ucom_tools.gateway.bridge.Gateway "
-                             "from Python)", key="--canopen")
+                             "--extra-bus CHANNEL' (in one Python program: "
+                             "ucom_tools.gateway.bridge.Gateway.serve)", key="--canopen")
     name = robot_name or spec.virtual or spec.topology
     if not name:
         raise InputError("which robot? give it (e.g. 'armar3'), --topology FILE or "

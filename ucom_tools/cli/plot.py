@@ -1,6 +1,7 @@
 """``ucom remote plot``: the values a run recorded (``ucom remote run --record FILE``
-writes ``FILE.values.csv``) drawn over time: a PNG (matplotlib, Agg), a text plot in the
-terminal (plotext), or the series as JSON.
+writes ``FILE.values.csv``, or its values channels where FILE is ``.mcap``) drawn over
+time: a PNG (matplotlib, Agg), a text plot in the terminal (plotext), or the series as
+JSON.
 
 The plotting libraries are the optional ``plot`` extra and imported only when drawing;
 without them a drawing ends as bad input (exit 3) that says how to install them.
@@ -223,7 +224,8 @@ def draw_text(values: Values, chosen: Sequence[Series], *, color: bool) -> str:
                    "seconds from the first row.")
 def plot(values_csv: str, names: tuple[str, ...], out: str | None, as_json: bool) -> None:
     """Plot recorded values over time: VALUES_CSV is the FILE.values.csv that
-    `remote run --record FILE` writes, NAME a signal as Prefix/Unique name (e.g.
+    `remote run --record FILE` writes (or FILE itself where it is an MCAP recording,
+    FILE.mcap), NAME a signal as Prefix/Unique name (e.g.
     "Eyes/Right Eye Joint Sensor") or its bare unique name when one prefix only has it.
 
     A step plot (a value holds until it changes), x in seconds from the first row: in

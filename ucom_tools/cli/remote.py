@@ -325,7 +325,13 @@ _RUN_OPTIONS = [
                   help="The boards stop their motors when no MCA Alive came for this long."),
     click.option("--record", "record", type=click.Path(), metavar="FILE",
                   help="Record every frame (format by extension: .asc .blf .log .trc; .csv "
-                       ".db for one bus) and every value change to FILE.values.csv."),
+                       ".db for one bus) and every value change to FILE.values.csv; or, as "
+                       "FILE.mcap, frames, values per board, joints, events and the robot's "
+                       "structure in one MCAP file (Foxglove, Lichtblick; ucom(1), MCAP "
+                       "RECORDINGS)."),
+    click.option("--record-rate", "record_hz", type=Finite(0, min_open=True), metavar="HZ",
+                  help="Values per second per board in an MCAP --record (default: the "
+                       "loop's rate; at most that)."),
     click.option("--period", "periods", multiple=True, metavar="EDGE=CYCLES",
                   help="Exchange a program edge (its generic name, on every board that runs "
                        "the program) every CYCLES cycles instead of its default (0: not "
@@ -396,7 +402,7 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], **options: Any) -> 
 
 def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[str, ...],
               seconds: float | None, rate: float, alive_ms: int, record: str | None,
-              periods: tuple[str, ...], force: bool, realtime: bool,
+              record_hz: float | None, periods: tuple[str, ...], force: bool, realtime: bool,
               zenoh_endpoint: str | None, zenoh_config: str | None, allow_writes: bool,
               publish_hz: float, on_fault: str, rejoin: bool, spec: ConnectSpec,
               bus_name: str | None, as_json: bool, extra: ExtraConsumer | None = None,
@@ -419,10 +425,12 @@ def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[s
     how = ""
     consumer_error: UcomError | None = None  # what ended the consumers' process
     consumers: ConsumerProcess | None = None
+    recorded: dict[str, int] = {}  # --record: the frames each bus saw while recording
     with ExitStack() as stack:
         spec = _one_bus(spec, bus_name)
         if record is not None:  # checked up front; the file is written by the consumers
             log_extension(record, key="--record")
+        _check_record_rate(record, record_hz, rate)
         with _part(robot_or_trees, spec, rate_hz=rate, alive_ms=alive_ms,
                    periods=cycles or None, realtime=realtime, on_fault=on_fault,
                    rejoin=rejoin) as part:
@@ -440,6 +448,7 @@ def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[s
                 # (ops/remote_feed.py)
                 config = _consumers_config(part, record, view, zenoh_endpoint, zenoh_config,
                                            allow_writes, publish_hz, force)
+                config["record_hz"] = record_hz
                 if extra is not None:
                     config[extra.name] = extra.config
                 if fox is not None:
@@ -451,8 +460,11 @@ def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[s
                 feed = consumers.feed(
                     part, frames=record is not None or fox is not None, rate_hz=max(
                         (publish_hz if sharing or fox else 0.0), (10.0 if view else 0.0),
-                        1.0, extra.rate_hz if extra is not None else 0.0))
+                        1.0,
+                        MCAP_EVENTS_HZ if record and record.lower().endswith(".mcap") else 0.0,
+                        extra.rate_hz if extra is not None else 0.0))
                 feed.attach_frames()  # from the check on, as a recording always did
+                recorded = _frames_seen(part)
                 ready = consumers.wait_ready(feed)  # exit 3 or 4 before the buses
                 if extra is not None and extra.announce is not None and not as_json:
                     extra.announce(ready.get(extra.name))
@@ -523,6 +535,7 @@ def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[s
             network = None
             if feed is not None and consumers is not None:
                 feed.end()
+                recorded = {n: c - recorded.get(n, 0) for n, c in _frames_seen(part).items()}
                 got = feed.wait_for("ended", END_S)  # the recording committed, the
                 if got is not None:  # terminal given back
                     network = feed.stats.get("network")
@@ -557,6 +570,8 @@ def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[s
                            "network": network,
                            **({"foxglove": feed.stats.get("foxglove") if feed else None}
                               if fox is not None else {}),
+                           **({"record": {"file": record, "frames": recorded}}
+                              if record is not None else {}),
                            **({extra.name: _extra_json(feed, extra.name)}
                               if extra is not None else {}),
                            "writes": [_write_json(w) for w in part.writes]})
@@ -578,6 +593,29 @@ def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[s
         ctx.exit(EXIT_BUS)
     if stopped or still_lost:
         ctx.exit(EXIT_FAILED)
+
+
+MCAP_EVENTS_HZ = 10.0
+"""Snapshots a second an MCAP --record asks for: its events and lost boards are placed
+among the values this often (the values themselves come with every change)."""
+
+
+def _frames_seen(part: RemotePart) -> dict[str, int]:
+    """Frames each bus received and sent so far (what a --record holds of it)."""
+    return {n: h.link.dispatcher.received + h.link.dispatcher.sent
+            for n, h in part.robot.buses.items()}
+
+
+def _check_record_rate(record: str | None, record_hz: float | None, rate: float) -> None:
+    """InputError for a --record-rate that does not apply or does not fit."""
+    if record_hz is None:
+        return
+    if record is None or not record.lower().endswith(".mcap"):
+        raise InputError("records values at a rate in an MCAP recording only (--record "
+                         "FILE.mcap); FILE.values.csv has every change", key="--record-rate")
+    if not 0 < record_hz <= rate * 1.0001:
+        raise InputError(f"must be more than 0 and at most the loop's rate ({rate:g} Hz), "
+                         f"not {record_hz:g}", key="--record-rate")
 
 
 def _extra_json(feed: LoopFeed | None, name: str) -> dict[str, Any] | None:

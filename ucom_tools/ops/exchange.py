@@ -461,6 +461,10 @@ class BusExchange:
         """Look the edges' indices up again (:meth:`index`): a board was configured anew."""
         self._indices.clear()
 
+    def ci_mapped(self, n: int, index: int) -> bool:
+        """Does CI edge ``index`` of board ``n`` travel in a CI map (sent every cycle)?"""
+        return (n, index) in self._mapped
+
     def set_ci(self, n: int, name: str, raw: int) -> None:
         """The raw value CI edge ``name`` (generic) of board ``n`` gets from now on: in its
         CI map if it has one, else written with acknowledgement now."""

@@ -1,11 +1,15 @@
-"""A PAR written while the loop runs, without the loop waiting for its acknowledgement.
+"""A PAR (or a CI outside the CI maps, such as an axis's Command) written while the loop
+runs, without the loop waiting for its acknowledgement.
 
-:meth:`RemoteValues.set <ucom_tools.ops.remote_values.RemoteValues.set>` writes a PAR and
-waits for the board's acknowledgement (retries included) on the caller's thread: from the
+:meth:`RemoteValues.set <ucom_tools.ops.remote_values.RemoteValues.set>` writes a PAR, or
+a CI that no CI map carries, and waits for the board's acknowledgement (retries
+included) on the caller's thread: from the
 loop's thread (a ``--set`` from the live view, a write from the network) the loop misses
 its cycles meanwhile, a round trip at best, seconds where the board does not answer.  A
-consumer that writes PARs while it drives joints (the CANopen gateway: a profile velocity,
-a gain by SDO) asks with ``wait=False``: the same acknowledged write
+consumer that writes such edges while it drives joints (the CANopen gateway: a joint's
+Command, a profile velocity, a gain by SDO; switching ARMAR-III's 27 joints off at its
+start waited 2-7 ms a write over socketcand, past the boards' 50 ms watchdog) asks with
+``wait=False``: the same acknowledged write
 (:meth:`McaClient.write <ucom_tools.protocol.mca.McaClient.write>`) then runs as a
 :class:`~ucom_tools.protocol.stepped.Stepped` conversation that the loop steps after each
 cycle's drain, as it steps a rejoin, on a link and client of its own beside the run
@@ -50,9 +54,9 @@ class ParHost(Protocol):
 
 
 class ParWrite:
-    """One PAR's acknowledged write, stepped by the loop (see the module docstring); the
-    loop holds it among its conversations until :attr:`done`, then :attr:`ok` or
-    :attr:`how` (why not)."""
+    """One edge's acknowledged write (a PAR, or a CI outside the maps), stepped by the
+    loop (see the module docstring); the loop holds it among its conversations until
+    :attr:`done`, then :attr:`ok` or :attr:`how` (why not)."""
 
     is_rejoin = False
     answered: float | None = None  # (as a rejoin's: a write is never "reached")
@@ -96,9 +100,10 @@ class ParWrite:
         link = Link(h.link.bus, h.link.name, bitrate=h.link.bitrate, margin=h.link.margin,
                     dispatcher=h.link.dispatcher)
         client = McaClient(link, x.mca.timeouts, process_data=False)
+        edges = x.configured[ref.board].edges
         try:
-            client.write(seq(ref.board), mca.Kind.PAR, ref.index, [self.raw],
-                         x.configured[ref.board].edges.par)
+            client.write(seq(ref.board), ref.kind, ref.index, [self.raw],
+                         edges.ci if ref.kind is mca.Kind.CI else edges.par)
             self.ok = True
         except (BoardError, UcomTimeoutError, BusError) as err:
             self.how = str(err)

@@ -245,13 +245,14 @@ class RemoteLoop(RemoteValues):
         """The conversations the loop steps after each cycle's drain: rejoins, and PAR
         writes it does not wait for (:mod:`ucom_tools.ops.par_write`)."""
         self.par_writer: Callable[[EdgeRef, int], Any] | None = None
-        """Starts a PAR write the loop steps (set by :class:`~ucom_tools.ops.remote.
-        RemotePart`): an object like a rejoin's, with ``is_rejoin`` False."""
+        """Starts a write (a PAR, a CI outside the maps) the loop steps (set by
+        :class:`~ucom_tools.ops.remote.RemotePart`): an object like a rejoin's, with
+        ``is_rejoin`` False."""
         self._par_next: dict[EdgeRef, tuple[int, int]] = {}
-        """Per PAR with a write under way: the next raw value asked for, and the value
-        before the write under way (put back where it fails)."""
+        """Per edge with a write under way: the next raw value asked for."""
         self._par_busy: dict[EdgeRef, int] = {}
-        """Per PAR with a write under way: the value it had before."""
+        """Per edge with a write under way: the value it had before (put back where the
+        write fails)."""
         self.period_s = period_s
         self.virtual = robot.virtual_time
         self.stats = LoopStats(self.period_s)
@@ -826,24 +827,26 @@ class RemoteLoop(RemoteValues):
             # dispatcher's limit: megabytes over a day of faults)
             self.exchanges[r.bus].mca.forget()
 
-    def _par_later(self, ref: EdgeRef, raw: int) -> bool:
+    def _write_later(self, ref: EdgeRef, raw: int) -> bool:
         if not self._running or self.par_writer is None:
             return False
         if ref in self._par_busy:  # one write of an edge at a time: the last one wins
             self._par_next[ref] = (raw, 0)
             return True
-        self._par_busy[ref] = self._par.get(ref, raw)
+        held = self._held(ref)
+        self._par_busy[ref] = raw if held is None else held
         self._rejoins.append(self.par_writer(ref, raw))
         return True
 
     def _par_ended(self, w: Any) -> None:
-        """A PAR write ended: the next one of that edge, or the value put back where the
-        board did not acknowledge it (kept in the run's writes as failed)."""
+        """A write the loop did not wait for ended: the next one of that edge, or the
+        value put back where the board did not acknowledge it (kept in the run's writes
+        as failed)."""
         ref: EdgeRef = w.ref
         before = self._par_busy.pop(ref, w.raw)
         queued = self._par_next.pop(ref, None)
         if not w.ok:
-            self._par[ref] = before
+            self._hold(ref, before)
             self._par_failed(ref, w.raw, w.how)
             return
         if queued is not None and self.par_writer is not None and self._running:

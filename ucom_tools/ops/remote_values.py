@@ -215,9 +215,9 @@ class RemoteValues:
     def set(self, name: str | EdgeRef, value: object, *, key: str | None = None,
             wait: bool = True) -> EdgeRef:
         """Set a CI or PAR by name, in the edge's unit; range-checked before anything is
-        sent (InputError).  A PAR's write waits for the board's acknowledgement unless
-        ``wait`` is False: then, while the loop runs, the loop steps it beside its cycles
-        (:mod:`ucom_tools.ops.par_write`)."""
+        sent (InputError).  The write of a PAR, or of a CI outside the CI maps, waits for
+        the board's acknowledgement unless ``wait`` is False: then, while the loop runs,
+        the loop steps it beside its cycles (:mod:`ucom_tools.ops.par_write`)."""
         ref = name if isinstance(name, EdgeRef) else self.names.resolve(
             name, key=key, kinds=(mca.Kind.CI, mca.Kind.PAR))
         if ref.kind is mca.Kind.SO:
@@ -231,8 +231,11 @@ class RemoteValues:
                                  "refused until it rejoins", key=key)
         x = self.exchanges[ref.bus]
         if ref.kind is mca.Kind.CI:
-            x.set_ci(ref.board, ref.generic, raw)
-        elif wait or not self._par_later(ref, raw):
+            if wait or x.ci_mapped(ref.board, ref.index) or not self._write_later(ref, raw):
+                x.set_ci(ref.board, ref.generic, raw)
+            else:  # a CI outside the maps (a Command): acknowledged, stepped by the loop
+                x.ci[(ref.board, ref.index)] = raw
+        elif wait or not self._write_later(ref, raw):
             x.mca.write(seq(ref.board), mca.Kind.PAR, ref.index, [raw],
                         x.configured[ref.board].edges.par)
             self._par[ref] = raw
@@ -242,10 +245,23 @@ class RemoteValues:
             self.on_values(x.link.dispatcher.stamp(), ref, ref.value(raw))
         return ref
 
-    def _par_later(self, ref: EdgeRef, raw: int) -> bool:
-        """Write a PAR without waiting for it; False where that cannot be (the loop does
-        not run): the caller writes it and waits."""
+    def _write_later(self, ref: EdgeRef, raw: int) -> bool:
+        """Write a PAR, or a CI outside the CI maps, without waiting for its
+        acknowledgement; False where that cannot be (the loop does not run): the caller
+        writes it and waits."""
         return False
+
+    def _held(self, ref: EdgeRef) -> int | None:
+        """What the PC holds of a CI or PAR (what it sends or wrote)."""
+        if ref.kind is mca.Kind.CI:
+            return self.exchanges[ref.bus].ci.get((ref.board, ref.index))
+        return self._par.get(ref)
+
+    def _hold(self, ref: EdgeRef, raw: int) -> None:
+        if ref.kind is mca.Kind.CI:
+            self.exchanges[ref.bus].ci[(ref.board, ref.index)] = raw
+        else:
+            self._par[ref] = raw
 
     # ------------------------------------------------------------------ validity
     @property

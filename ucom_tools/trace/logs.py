@@ -44,6 +44,10 @@ ONE_BUS = frozenset({".csv", ".db", ".csv.gz"})
 """Formats without a channel (or direction) column: refused for a recording of several
 buses, whose frames they could not tell apart."""
 
+MCAP = ".mcap"
+"""MCAP (:mod:`ucom_tools.trace.mcapfile`): every bus on a channel of its own, written and
+read by ucom itself (python-can has no MCAP writer)."""
+
 NOT_READABLE = {".txt": "python-can writes .txt but cannot read it back; use .log "
                         "(candump -l text) instead"}
 """Formats python-can writes that no reader takes (ucom writes only what it reads)."""
@@ -77,7 +81,13 @@ def channel_number(channels: dict[str, int], name: str) -> int:
 def log_writer(out: Output) -> MessageWriter:
     """python-can's writer for the log ``out`` (the format by its extension), writing to
     its temporary file but naming the final one where the format records its own name
-    (a PEAK trace's header)."""
+    (a PEAK trace's header); an MCAP file's is :class:`~ucom_tools.trace.mcapfile.
+    McapFrameWriter`."""
+    if out.target.lower().endswith(MCAP):
+        from ucom_tools.trace.mcapfile import McapFile, McapFrameWriter
+
+        mcap = McapFrameWriter(McapFile(out.name, out.option or "--log", out))
+        return mcap  # type: ignore[return-value]  # what FrameWriter calls of one
     writer: MessageWriter = can.Logger(out.write_path)
     if isinstance(writer, can.TRCWriter) and out.kind != "stdout":
         writer.filepath = os.path.abspath(out.target)
@@ -132,7 +142,7 @@ def channel_names(channels: Iterable[Any], buses: Sequence[str] = ()) -> dict[An
 
 def supported_extensions() -> list[str]:
     """Every extension :class:`RunRecorder` accepts, as shown in messages."""
-    exts = list(FORMATS)
+    exts = [*FORMATS, MCAP]
     if importlib.util.find_spec("asammdf") is not None:
         exts.append(".mf4")
     return sorted(exts) + sorted(f"{e}.gz" for e in _GZIP_OK)
@@ -166,6 +176,10 @@ def read_trace(path: str | Path) -> list[can.Message]:
     if not Path(file).is_file():
         raise InputError("no such file" if not Path(file).exists() else "not a file",
                          file=file)
+    if file.lower().endswith(MCAP):
+        from ucom_tools.trace.mcapfile import read_frames
+
+        return read_frames(file)
     try:
         with can.LogReader(file) as reader:
             frames = list(reader)
@@ -198,16 +212,16 @@ class LogError(WriteError):
     partial file was removed and a file it would have replaced keeps its content."""
 
 
-def check_log(path: str | os.PathLike[str]) -> str:
-    """Check ``--log FILE`` before anything is opened: a format python-can writes, in a
-    directory that exists, not a directory itself.  Returns the extension."""
-    ext = log_extension(path, key="--log")
+def check_log(path: str | os.PathLike[str], key: str = "--log") -> str:
+    """Check ``--log FILE`` (or ``key``'s) before anything is opened: a format ucom
+    writes, in a directory that exists, not a directory itself.  Returns the extension."""
+    ext = log_extension(path, key=key)
     p = Path(path)
     if not p.parent.is_dir():
         raise InputError(f"{os.fspath(p)}: directory {os.fspath(p.parent)} does not exist",
-                         key="--log")
+                         key=key)
     if p.is_dir():
-        raise InputError(f"{os.fspath(p)} is a directory", key="--log")
+        raise InputError(f"{os.fspath(p)} is a directory", key=key)
     return ext
 
 
