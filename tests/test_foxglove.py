@@ -25,6 +25,7 @@ import pytest
 from tests.helpers import terminate
 from ucom_tools.errors import InputError
 from ucom_tools.protocol.dispatch import EXTENDED, SENT
+from ucom_tools.trace import mcapfile
 from ucom_tools.viewers import foxglove_msgs as fm
 
 from .test_zenoh import DEADLINE_S, _free_port, flashed  # noqa: F401
@@ -134,7 +135,7 @@ def test_a_foxglove_client_plots_the_joints_and_frames_and_sets_the_right_eye(
     try:
         run.wait_listening()
         lines = _client(node_modules, run.url, 5, "/joints", "/CAN0/frames",
-                        "/CAN0/3/values", "/events", "--set", "Right Eye Target=1000")
+                        "/Eyes/values", "/events", "--set", "Right Eye Target=1000")
     except BaseException:
         terminate(run.proc)
         raise
@@ -143,8 +144,11 @@ def test_a_foxglove_client_plots_the_joints_and_frames_and_sets_the_right_eye(
     assert ads["/joints"]["schemaName"] == "foxglove.JointStates"
     assert ads["/events"]["schemaName"] == "foxglove.Log"
     assert ads["/CAN0/frames"]["schemaName"] == "ucom.CanFrame"
-    assert json.loads(ads["/CAN0/frames"]["schema"]) == fm.FRAME_SCHEMA
-    assert {"/CAN1/frames", "/CAN3/frames", "/CAN2/2/values"} <= set(ads)
+    # the schemas and topics of a recording (--record run.mcap): one layout for both
+    assert json.loads(ads["/CAN0/frames"]["schema"]) == mcapfile.FRAME_SCHEMA
+    assert json.loads(ads["/joints"]["schema"]) == mcapfile.JOINTS_SCHEMA
+    assert ads["/Eyes/values"]["schemaName"] == "ucom.Values.Eyes"
+    assert {"/CAN1/frames", "/CAN3/frames", "/LeftWrist/values", "/Torso/values"} <= set(ads)
 
     # the frames: whole, stamped, both ways
     frames = _messages(lines, "/CAN0/frames")
@@ -152,14 +156,16 @@ def test_a_foxglove_client_plots_the_joints_and_frames_and_sets_the_right_eye(
     directions = set()
     for f in frames:
         m = f["message"]
-        t = m["timestamp"]
-        assert int(f["log_time"]) == t["sec"] * 10**9 + t["nsec"]
-        assert m["bus"] == "CAN0" and len(base64.b64decode(m["data"])) == m["dlc"]
+        assert set(m) == set(mcapfile.FRAME_SCHEMA["required"])
+        assert len(base64.b64decode(m["data"])) == m["dlc"]
         assert 0 <= m["id"] < 2**11 and not m["extended"] and not m["error"]
         directions.add(m["direction"])
     assert directions == {"rx", "tx"}
-    times = [m["message"]["bus_time"] for m in frames]
+    times = [m["message"]["time"] for m in frames]
     assert times == sorted(times)
+    # one mapping of the bus time to the wall clock for every frame
+    offsets = {int(f["log_time"]) - round(f["message"]["time"] * 1e9) for f in frames}
+    assert max(offsets) - min(offsets) <= 1000
 
     # the joints follow the target the client set, as the run's own values say
     joints = [{j["name"]: j for j in m["message"]["joints"]}
@@ -167,11 +173,11 @@ def test_a_foxglove_client_plots_the_joints_and_frames_and_sets_the_right_eye(
     assert len(joints[-1]) == 27 and "Right Eye" in joints[-1]
     assert abs(joints[-1]["Right Eye"]["position"] - 1000) <= 2
     assert joints[0]["Right Eye"]["position"] == 0
-    values = [m["message"] for m in _messages(lines, "/CAN0/3/values")]
-    assert all(v["bus"] == "CAN0" and v["board"] == 3 and v["valid"] for v in values)
-    assert {"Right Eye Target", "Right Eye Joint Sensor"} <= set(values[-1]["values"])
-    assert values[-1]["values"]["Right Eye Target"] == 1000
-    seen = {v["values"]["Right Eye Joint Sensor"] for v in values}
+    values = [m["message"] for m in _messages(lines, "/Eyes/values")]
+    assert all(v["valid"] for v in values)
+    assert {"time", "Right_Eye_Target", "Right_Eye_Joint_Sensor"} <= set(values[-1])
+    assert values[-1]["Right_Eye_Target"] == 1000
+    seen = {v["Right_Eye_Joint_Sensor"] for v in values}
     assert joints[-1]["Right Eye"]["position"] in seen
     final = {e["name"]: e["value"] for b in doc["boards"] for e in b["edges"]}
     assert final["Right Eye Target"] == 1000
@@ -187,7 +193,7 @@ def test_a_foxglove_client_plots_the_joints_and_frames_and_sets_the_right_eye(
 
     # only what the client subscribed to was encoded, and its sockets had TCP_NODELAY
     served = doc["foxglove"]
-    assert set(served["encoded"]) == {"/joints", "/CAN0/frames", "/CAN0/3/values",
+    assert set(served["encoded"]) == {"/joints", "/CAN0/frames", "/Eyes/values",
                                       "/events"}
     assert served["encoded"]["/CAN0/frames"] >= len(frames)
     assert served["writes_applied"] == 1 and served["writes_refused"] == 0
@@ -199,7 +205,7 @@ def test_without_allow_writes_a_clients_write_is_refused_and_said(
     run = _run(flashed, tmp, "--for", "8")
     try:
         run.wait_listening()
-        lines = _client(node_modules, run.url, 3, "/CAN0/3/values", "/events",
+        lines = _client(node_modules, run.url, 3, "/Eyes/values", "/events",
                         "--set", "Right Eye Target=1000", "--param", "Left Eye Target=50")
     except BaseException:
         terminate(run.proc)
@@ -212,10 +218,10 @@ def test_without_allow_writes_a_clients_write_is_refused_and_said(
     assert any("refused" in e["message"] and e["level"] == fm.LOG_WARNING for e in events)
     assert [p for d in lines if "parameterValues" in d for p in d["parameterValues"]] == \
         [{"name": "Left Eye Target", "value": 0}]  # as it is: not set
-    values = [m["message"]["values"] for m in _messages(lines, "/CAN0/3/values")]
-    assert values[-1]["Right Eye Target"] == 0
+    values = [m["message"] for m in _messages(lines, "/Eyes/values")]
+    assert values[-1]["Right_Eye_Target"] == 0
     assert doc["foxglove"]["writes_refused"] == 2
-    assert set(doc["foxglove"]["encoded"]) <= {"/CAN0/3/values", "/events"}
+    assert set(doc["foxglove"]["encoded"]) <= {"/Eyes/values", "/events"}
 
 
 def test_browse_serves_a_shared_robot_to_foxglove(
@@ -229,7 +235,7 @@ def test_browse_serves_a_shared_robot_to_foxglove(
                         "--allow-writes", "--json")
         try:
             browse.wait_listening()
-            lines = _client(node_modules, browse.url, 4, "/joints", "/CAN0/3/values",
+            lines = _client(node_modules, browse.url, 4, "/joints", "/Eyes/values",
                             "--set", "Right Eye Target=800")
         except BaseException:
             terminate(browse.proc)
@@ -240,8 +246,8 @@ def test_browse_serves_a_shared_robot_to_foxglove(
     joints = [{j["name"]: j for j in m["message"]["joints"]}
               for m in _messages(lines, "/joints")]
     assert abs(joints[-1]["Right Eye"]["position"] - 800) <= 2
-    values = [m["message"]["values"] for m in _messages(lines, "/CAN0/3/values")]
-    assert values[-1]["Right Eye Target"] == 800
+    values = [m["message"] for m in _messages(lines, "/Eyes/values")]
+    assert values[-1]["Right_Eye_Target"] == 800
     assert doc["foxglove"]["writes_applied"] == 1
     ads = {d["advertise"]["topic"] for d in lines if "advertise" in d}
     assert "/CAN0/frames" not in ads  # the frames stay on the robot's host
@@ -293,12 +299,9 @@ def test_addresses_parse() -> None:
 
 
 def test_a_frame_message_is_the_json_of_its_schema() -> None:
-    ns = 1_700_000_000_123_456_789
-    text = fm.frame_json('"CAN1"', (0x1A5, b"\x01\x02\xff", 12.5, SENT | EXTENDED), ns)
-    doc = json.loads(text)
-    assert doc == {"timestamp": {"sec": 1_700_000_000, "nsec": 123_456_789},
-                   "bus_time": 12.5, "bus": "CAN1", "id": 0x1A5, "extended": True,
-                   "remote": False, "error": False, "direction": "tx", "dlc": 3,
+    doc = json.loads(fm.frame_json((0x1A5, b"\x01\x02\xff", 12.5, SENT | EXTENDED)))
+    assert doc == {"time": 12.5, "id": 0x1A5, "extended": True, "remote": False,
+                   "error": False, "direction": "tx", "dlc": 3,
                    "data": base64.b64encode(b"\x01\x02\xff").decode()}
     assert set(doc) == set(fm.FRAME_SCHEMA["properties"])
 
@@ -311,3 +314,6 @@ def test_the_bus_time_is_mapped_once_to_the_wall_clock() -> None:
     clock.anchor(5000.0)  # only the first counts
     assert before * 1e9 - 1e6 <= clock.ns(100.0) <= after * 1e9 + 1e6
     assert clock.ns(101.5) - clock.ns(100.0) == pytest.approx(1.5e9, abs=1e3)
+    wall = fm.WallClock()  # a bus time base that is the wall clock already: kept as it is
+    wall.anchor(time.time() - 0.2)
+    assert wall.ns(1_700_000_000.5) == 1_700_000_000_500_000_000

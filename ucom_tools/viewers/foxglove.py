@@ -140,9 +140,9 @@ class FoxgloveServer:
         self.encoded.setdefault(topic, 0)
         return ch
 
-    def send(self, ch: Any, ns: int, text: str) -> None:
+    def send(self, ch: Any, ns: int, text: str | bytes) -> None:
         """Log ``text`` on ``ch`` at ``ns`` (the caller asked :meth:`wants` first)."""
-        ch.log(text.encode(), log_time=ns)
+        ch.log(text.encode() if isinstance(text, str) else text, log_time=ns)
         self.encoded[ch.topic()] += 1
 
     @staticmethod

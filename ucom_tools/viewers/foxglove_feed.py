@@ -27,7 +27,7 @@ from ucom_tools.errors import BusError, InputError, UcomError
 from ucom_tools.net.keys import number
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.remote_feed import Applied
-from ucom_tools.ops.remote_image import PartImage, boards_of
+from ucom_tools.ops.remote_image import PartImage
 from ucom_tools.ops.remote_mirror import Mirror
 from ucom_tools.ops.remote_publish import Doorbell, LoopSnapshot
 from ucom_tools.protocol.dispatch import SinkEntry
@@ -58,7 +58,7 @@ class RunFoxglove:
         self._image: PartImage | None = None
         self._boards: list[tuple[fm.BoardValues, Any]] = []
         self._joints: tuple[fm.JointStates, Any] | None = None
-        self._frame_channels: dict[str, tuple[Any, str]] = {}
+        self._frame_channels: dict[str, Any] = {}
         self._frames: deque[tuple[str, list[SinkEntry]]] = deque()
         self._frames_rung = False
         self._last: dict[str, str] = {}
@@ -76,8 +76,8 @@ class RunFoxglove:
     # ------------------------------------------------------------------ the mirror's thread
     def _take_frames(self, bus: str, entries: list[SinkEntry]) -> None:
         """A batch of a bus's frames: kept only where a client subscribes to the bus."""
-        got = self._frame_channels.get(bus)
-        if got is None or not got[0].has_sinks():
+        ch = self._frame_channels.get(bus)
+        if ch is None or not ch.has_sinks():
             return
         if len(self._frames) >= FRAME_BACKLOG:
             self.frames_dropped += len(self._frames.popleft()[1])
@@ -112,15 +112,16 @@ class RunFoxglove:
         """The channels, once the boards run (their names known)."""
         s = self.server
         s.clock.anchor(snap.stamp, snap.taken)
-        for (bus, board), refs in boards_of(image.refs).items():
-            enc = fm.BoardValues(image, bus, board, refs)
-            self._boards.append((enc, s.channel(enc.topic, fm.VALUES_SCHEMA)))
-        joints = fm.find_joints(image.refs)
+        boards = fm.layout(image.refs)
+        for b in boards:
+            enc = fm.BoardValues(image, b)
+            self._boards.append((enc, s.channel(enc.topic, enc.schema)))
+        joints = fm.find_joints(boards)
         if joints:
             self._joints = (fm.JointStates(joints),
-                            s.channel(fm.JOINTS_TOPIC, fm.JOINT_STATES_SCHEMA))
-        self._frame_channels = {bus: (s.channel(fm.frames_topic(bus), fm.FRAME_SCHEMA),
-                                      json.dumps(bus)) for bus in image.bitrates}
+                            s.channel(fm.JOINTS_TOPIC, fm.JOINTS_SCHEMA))
+        self._frame_channels = {bus: s.channel(fm.frames_topic(bus), fm.FRAME_SCHEMA)
+                                for bus in image.bitrates}
         self._image = image
 
     def _snapshot(self, snap: LoopSnapshot) -> None:
@@ -158,10 +159,9 @@ class RunFoxglove:
         s, frames = self.server, self._frames
         while frames:
             bus, entries = frames.popleft()
-            ch, bus_json = self._frame_channels[bus]
+            ch = self._frame_channels[bus]
             for entry in entries:
-                ns = s.clock.ns(entry[2])
-                s.send(ch, ns, fm.frame_json(bus_json, entry, ns))
+                s.send(ch, s.clock.ns(entry[2]), fm.frame_json(entry))
 
     # ------------------------------------------------------------------ writes (SDK threads)
     def _write(self, name: str, value: object, origin: str) -> Applied:
@@ -226,17 +226,16 @@ class BrowseFoxglove:
         self.client = client
         s = self.server = FoxgloveServer(host, port, name=f"ucom {client.robot} (browse)",
                                          allow_writes=allow_writes)
-        names = client.names
-        self._boards: dict[tuple[str, int], tuple[Any, dict[str, str]]] = {}
-        for (bus, board), refs in boards_of(list(names)).items():
-            self._boards[(bus, board)] = (
-                s.channel(fm.values_topic(bus, board), fm.VALUES_SCHEMA),
-                {r.unique: names.name_of(r) for r in refs})
-        self._joint_list = fm.find_joints(list(names))
-        self._joint_boards = {(j.target.bus, j.target.board) for j in self._joint_list}
-        self._joints = (s.channel(fm.JOINTS_TOPIC, fm.JOINT_STATES_SCHEMA)
+        boards = fm.layout(list(client.names))
+        self._boards: dict[tuple[str, int], tuple[Any, dict[str, str]]] = {
+            (b.bus, b.board): (s.channel(b.topic, fm.values_schema(b)),
+                               {r.unique: k for k, r in zip(b.keys, b.edges, strict=True)})
+            for b in boards}
+        self._joint_list = fm.find_joints(boards)
+        self._joint_boards = {(j.position.bus, j.position.board) for j in self._joint_list}
+        self._joints = (s.channel(fm.JOINTS_TOPIC, fm.JOINTS_SCHEMA)
                         if self._joint_list else None)
-        self._latest: dict[str, Any] = {}
+        self._latest: dict[tuple[tuple[str, int], str], Any] = {}
         self._joints_period = 1.0 / float(client.structure.get("publish_hz") or 100.0)
         self._joints_t = float("-inf")
         s.writer = self._write
@@ -254,24 +253,21 @@ class BrowseFoxglove:
         got = self._boards.get(board)
         if got is None:
             return
-        ch, by_unique = got
+        ch, keys = got
         s = self.server
         s.clock.anchor(t)
-        named = {by_unique[u]: v for u, v in values.items() if u in by_unique}
         if board in self._joint_boards:
-            self._latest.update(named)
+            self._latest.update({(board, u): v for u, v in values.items()})
         ns = s.clock.ns(t)
         if s.wants(ch):
             s.send(ch, ns, json.dumps({
-                "bus": board[0], "board": board[1],
-                "timestamp": {"sec": ns // 1_000_000_000, "nsec": ns % 1_000_000_000},
-                "t": t, "valid": doc.get("valid", True) is not False, "values": named},
-                ensure_ascii=False, separators=(",", ":")))
+                "time": t, "valid": doc.get("valid", True) is not False,
+                **{keys[u]: v for u, v in values.items() if u in keys}},
+                separators=(",", ":")))
         if self._joints is not None and board in self._joint_boards \
                 and t - self._joints_t >= self._joints_period * 0.9 and s.wants(self._joints):
             self._joints_t = t  # once a publishing period, not once a board
-            s.send(self._joints, ns, fm.joint_states_of(
-                self._latest, self._joint_list, self.client.names, ns))
+            s.send(self._joints, ns, fm.joint_states_of(self._latest, self._joint_list, ns))
 
     def _event(self, doc: dict[str, Any]) -> None:
         s = self.server
