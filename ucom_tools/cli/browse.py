@@ -15,6 +15,8 @@ from ucom_tools.cli.options import Finite, json_option, parse_sets
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.errors import InputError
 from ucom_tools.net.keys import DEFAULT_ENDPOINT
+from ucom_tools.viewers.foxglove_msgs import DEFAULT_ADDRESS as FOXGLOVE_ADDRESS
+from ucom_tools.viewers.foxglove_msgs import parse_address
 
 if TYPE_CHECKING:
     from ucom_tools.net.client import Reading
@@ -59,13 +61,23 @@ def _value_json(reading: Reading) -> dict[str, Any]:
 @click.option("--stop", "stop", is_flag=True,
               help="Stop the robot's boards (motors off) and its loop (needs "
                    "--allow-writes there); starting is never done from here.")
+@click.option("--foxglove", "foxglove", is_flag=False, flag_value=FOXGLOVE_ADDRESS,
+              default=None, metavar="[HOST:PORT]",
+              help="Serve the robot to the Foxglove app or Lichtblick on HOST:PORT (alone: "
+                   f"{FOXGLOVE_ADDRESS}, this host only) until Ctrl-C or --for: each board's "
+                   "values, the joints, the events (not the frames: they stay on the "
+                   "robot's host).")
+@click.option("--allow-writes", is_flag=True,
+              help="With --foxglove: pass the Foxglove clients' writes on to the robot "
+                   "(which takes them only where its loop runs with --allow-writes).")
 @click.option("--timeout", type=Finite(0, min_open=True), default=5.0, show_default=True,
               metavar="SECONDS", help="How long to wait for the robot to be found and to "
               "answer.")
 @json_option
 def browse(robot: str | None, endpoint: str, config_file: str | None, gets: tuple[str, ...],
            sets: tuple[str, ...], watches: tuple[str, ...], seconds: float | None,
-           stop: bool, timeout: float, as_json: bool) -> None:
+           stop: bool, foxglove: str | None, allow_writes: bool, timeout: float,
+           as_json: bool) -> None:
     """A running robot's edges from this host, over Zenoh.
 
     ROBOT is the robot's name in the keys (its topology's file name: armar3); not needed
@@ -79,18 +91,30 @@ def browse(robot: str | None, endpoint: str, config_file: str | None, gets: tupl
     completes the name; NAME=VALUE or the name, Enter, then the value; the robot's answer
     is shown), x stop the boards (y confirms), arrows, PgUp, PgDn, Home, End scroll, q
     quits (exit 0).  Off a terminal (standard input or output a pipe or a file) it prints
-    the structure and every value once (--json: as one document).  Exit 4 where no robot
-    answers on the endpoint within --timeout.  See ucom-network(7)."""
+    the structure and every value once (--json: as one document).  --foxglove serves
+    the robot over the Foxglove WebSocket protocol instead, as 'remote run --foxglove'
+    does on the robot's host (exit 4 where the address is in use).  Exit 4 where no
+    robot answers on the endpoint within --timeout.  See ucom-network(7)."""
     from ucom_tools.cli import browse_tty
     from ucom_tools.cli.browse_tty import interactive
     from ucom_tools.net.client import RobotClient
 
     wanted = parse_sets(sets)
-    if seconds is not None and not watches:
-        raise InputError("--for is the length of a --watch", key="--for")
+    fox = parse_address(foxglove) if foxglove is not None else None
+    if fox is not None and (wanted or gets or watches or stop):
+        raise InputError("--foxglove serves the robot: give --get, --set, --watch and "
+                         "--stop without it", key="--foxglove")
+    if allow_writes and fox is None:
+        raise InputError("--allow-writes is for the writes of --foxglove's clients",
+                         key="--allow-writes")
+    if seconds is not None and not watches and fox is None:
+        raise InputError("--for is the length of a --watch (or of --foxglove)", key="--for")
     where = endpoint if config_file is None or endpoint != DEFAULT_ENDPOINT else None
     with RobotClient.connect(where, robot=robot, config_file=config_file,
                              timeout=timeout) as client:
+        if fox is not None:
+            _serve_foxglove(client, fox, allow_writes, seconds, as_json)
+            return
         if not (wanted or gets or stop or watches or as_json) and interactive(sys.stdin,
                                                                              sys.stdout):
             name = client.robot
@@ -165,3 +189,26 @@ def _print_tree(structure: dict[str, Any], values: dict[str, Reading],
                                soft_wrap=True)
     if not values:
         stderr().print("[dim]no values yet (the robot is starting)[/]")
+
+
+def _serve_foxglove(client: Any, address: tuple[str, int], allow_writes: bool,
+                    seconds: float | None, as_json: bool) -> None:
+    """``--foxglove``: serve until Ctrl-C or ``seconds`` (exit 4 where it cannot)."""
+    import threading
+
+    from ucom_tools.viewers.foxglove_feed import BrowseFoxglove, serve_until
+
+    served = BrowseFoxglove(client, *address, allow_writes=allow_writes)
+    try:
+        if not as_json:
+            stderr().print(f"[dim]foxglove: robot {escape(client.robot)} on "
+                           f"{escape(served.server.url)}, writes "
+                           + ("passed on" if allow_writes else "refused")
+                           + (f", for {seconds:g} s" if seconds else ", until Ctrl-C") + "[/]",
+                           soft_wrap=True)
+        serve_until(threading.Event(), seconds)
+    finally:
+        served.close()
+    if as_json:
+        emit_json({"robot": client.robot, "endpoint": client.where,
+                   "foxglove": served.stats()})

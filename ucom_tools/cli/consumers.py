@@ -145,6 +145,7 @@ class Consumers:
         self.share: Any = None
         self.view: Any = None
         self.gateway: Any = None
+        self.foxglove: Any = None
         self._canopen: list[Any] = []
         """The gateway's CANopen buses, opened in :meth:`open`."""
         self._stale: dict[tuple[str, int], tuple[float, bool]] = {}
@@ -155,6 +156,14 @@ class Consumers:
         """The recording's files and the Zenoh session; what the loop's process prints."""
         c = self.config
         info: dict[str, Any] = {}
+        if c.get("foxglove"):  # first: a port in use ends the run before any file
+            from ucom_tools.viewers.foxglove_feed import RunFoxglove
+
+            f = c["foxglove"]
+            self.foxglove = RunFoxglove(self.mirror, f["host"], f["port"], robot=c["robot"],
+                                        allow_writes=f["allow_writes"],
+                                        rate_hz=f["publish_hz"])
+            info["foxglove"] = {"url": self.foxglove.server.url}
         if c.get("record") and c["record"].lower().endswith(".mcap"):
             from ucom_tools.trace.mcap_record import McapRecorder
 
@@ -315,6 +324,9 @@ class Consumers:
         for _, bus in self._canopen:
             with contextlib.suppress(Exception):
                 bus.shutdown()
+        if self.foxglove is not None:
+            self.foxglove.close()
+            self.foxglove_stats = self.foxglove.stats()
         if self.share is not None:
             try:
                 self.share.close()
@@ -347,7 +359,8 @@ class Consumers:
 
     def stats(self) -> dict[str, Any]:
         return {"network": None if self.share is None else self.share.stats(),
-                "gateway": getattr(self, "gateway_stats", None)}
+                "gateway": getattr(self, "gateway_stats", None),
+                "foxglove": getattr(self, "foxglove_stats", None)}
 
 
 def main(argv: list[str]) -> int:

@@ -52,6 +52,8 @@ from ucom_tools.ops.remote_publish import LoopHandover, LoopSnapshot
 from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.signals import Terminated, interrupt_exit_code
 from ucom_tools.trace.logs import check_buses, log_extension
+from ucom_tools.viewers.foxglove_msgs import DEFAULT_ADDRESS as FOXGLOVE_ADDRESS
+from ucom_tools.viewers.foxglove_msgs import parse_address
 from ucom_tools.wire import mca
 from ucom_tools.wire.codes import ErrorCode
 
@@ -352,9 +354,17 @@ _RUN_OPTIONS = [
                   metavar="FILE", help="Share it with this Zenoh JSON5 configuration (TLS, "
                        "authentication, access control, routers); --zenoh replaces its listen "
                        "endpoints."),
+    click.option("--foxglove", "foxglove", is_flag=False, flag_value=FOXGLOVE_ADDRESS,
+                  default=None, metavar="[HOST:PORT]",
+                  help="Serve the running robot to the Foxglove app or Lichtblick (the "
+                       "Foxglove WebSocket protocol) on HOST:PORT (alone: "
+                       f"{FOXGLOVE_ADDRESS}, this host only): each board's values, the "
+                       "joints, every bus's frames, the run's events; only what a client "
+                       "subscribes to is encoded (ucom(1), FOXGLOVE)."),
     click.option("--allow-writes", is_flag=True,
-                  help="Take writes (CI, PAR) and a stop from the network, checked as a local "
-                       "--set; without it they are refused.  Starting is never taken."),
+                  help="Take writes (CI, PAR) and a stop from the network (--zenoh; "
+                       "--foxglove: writes only), checked as a local --set; without it they "
+                       "are refused.  Starting is never taken."),
     click.option("--publish-rate", "publish_hz", type=Finite(0, min_open=True), default=100.0,
                   show_default=True, metavar="HZ",
                   help="How often the shared values go out (at most the loop's rate)."),
@@ -396,7 +406,7 @@ def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[s
               zenoh_endpoint: str | None, zenoh_config: str | None, allow_writes: bool,
               publish_hz: float, on_fault: str, rejoin: bool, spec: ConnectSpec,
               bus_name: str | None, as_json: bool, extra: ExtraConsumer | None = None,
-              ) -> None:
+              foxglove: str | None = None) -> None:
     """``remote run``'s work; ``extra`` adds a consumer to the consumers' process (the
     CANopen gateway of ``gateway canopen``)."""
     if rejoin and on_fault != HOLD:
@@ -405,9 +415,10 @@ def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[s
     wanted = parse_sets(sets)
     cycles = _parse_periods(periods)
     sharing = zenoh_endpoint is not None or zenoh_config is not None
-    if allow_writes and not sharing:
-        raise InputError("writes from the network need the network: give --zenoh",
-                         key="--allow-writes")
+    fox = parse_address(foxglove) if foxglove is not None else None  # exit 3 at once
+    if allow_writes and not sharing and fox is None:
+        raise InputError("writes from the network need the network: give --zenoh or "
+                         "--foxglove", key="--allow-writes")
     view = seconds is None and sys.stdout.isatty() and not as_json
     summary = Summary()
     interrupted = 0  # the exit code of an interrupt
@@ -423,7 +434,7 @@ def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[s
         with _part(robot_or_trees, spec, rate_hz=rate, alive_ms=alive_ms,
                    periods=cycles or None, realtime=realtime, on_fault=on_fault,
                    rejoin=rejoin) as part:
-            if sharing:
+            if sharing or fox is not None:
                 check_rate(publish_hz, 1.0 / part.period_s)
             if record is not None:  # exit 3 before the exchange starts
                 check_buses(log_extension(record, key="--record"), part.robot.buses,
@@ -431,7 +442,7 @@ def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[s
             if not as_json:
                 _plan_notes(part)
             feed: LoopFeed | None = None
-            if record is not None or sharing or view or extra is not None:
+            if record is not None or sharing or view or extra is not None or fox:
                 # the view, the recording, the share and the gateway in a process of their
                 # own: none of them holds the lock this process's loop needs
                 # (ops/remote_feed.py)
@@ -440,17 +451,29 @@ def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[s
                 config["record_hz"] = record_hz
                 if extra is not None:
                     config[extra.name] = extra.config
+                if fox is not None:
+                    config["foxglove"] = {"host": fox[0], "port": fox[1],
+                                          "allow_writes": allow_writes,
+                                          "publish_hz": publish_hz}
                 consumers = ConsumerProcess(config)
                 stack.callback(consumers.close)
-                feed = consumers.feed(part, frames=record is not None, rate_hz=max(
-                    (publish_hz if sharing else 0.0), (10.0 if view else 0.0), 1.0,
-                    MCAP_EVENTS_HZ if record and record.lower().endswith(".mcap") else 0.0,
-                    extra.rate_hz if extra is not None else 0.0))
+                feed = consumers.feed(
+                    part, frames=record is not None or fox is not None, rate_hz=max(
+                        (publish_hz if sharing or fox else 0.0), (10.0 if view else 0.0),
+                        1.0,
+                        MCAP_EVENTS_HZ if record and record.lower().endswith(".mcap") else 0.0,
+                        extra.rate_hz if extra is not None else 0.0))
                 feed.attach_frames()  # from the check on, as a recording always did
                 recorded = _frames_seen(part)
                 ready = consumers.wait_ready(feed)  # exit 3 or 4 before the buses
                 if extra is not None and extra.announce is not None and not as_json:
                     extra.announce(ready.get(extra.name))
+                served = ready.get("foxglove")
+                if served and not as_json:
+                    stderr().print(f"[dim]foxglove: {escape(served['url'])}, values at "
+                                   f"{publish_hz:g} Hz, writes "
+                                   + ("allowed" if allow_writes else "refused") + "[/]",
+                                   soft_wrap=True)
                 net = ready.get("zenoh")
                 if net and not as_json:
                     stderr().print(f"[dim]zenoh: robot {escape(net['robot'])} "
@@ -545,6 +568,8 @@ def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], sets: tuple[s
                                      "since": b.since, "seen": b.seen, "status": b.status}
                                     for b in still_lost],
                            "network": network,
+                           **({"foxglove": feed.stats.get("foxglove") if feed else None}
+                              if fox is not None else {}),
                            **({"record": {"file": record, "frames": recorded}}
                               if record is not None else {}),
                            **({extra.name: _extra_json(feed, extra.name)}

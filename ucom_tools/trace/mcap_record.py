@@ -142,6 +142,22 @@ def layout(refs: Iterable[Any]) -> list[Board]:
     return list(by_board.values())
 
 
+def values_schema(b: Board) -> dict[str, Any]:
+    """The JSON Schema of a board's values messages (``ucom.Values.<topic>``; also what
+    ``--foxglove`` serves live)."""
+    props = {k: {"type": "number", "title": ref.unique,
+                 "description": f"{ref.kind.name}"
+                                + (f", {ref.spec.unit}" if ref.spec.unit else "")}
+             for k, ref in zip(b.keys, b.edges, strict=True)}
+    return {"title": VALUES_SCHEMA_PREFIX + b.topic.strip("/").removesuffix(
+        "/values").replace("/", "."), "type": "object",
+        "description": f"the values of {b.where} by robot-wide name",
+        "properties": {"time": {"type": "number", "description": "bus time, s"},
+                       "valid": {"type": "boolean",
+                                 "description": "false while the board is lost"},
+                       **props}}
+
+
 def joints_of(boards: list[Board]) -> list[JointSlots]:
     """The joints among the boards' edges: an axis whose Target edge the tree names
     (its unique name is not the program's generic one), as ``ucom gateway`` finds them
@@ -287,18 +303,7 @@ class McapRecorder:
         image = self._source.image
         self._boards = layout(image.refs if image is not None else ())
         for b in self._boards:
-            props = {k: {"type": "number", "title": ref.unique,
-                         "description": f"{ref.kind.name}"
-                                        + (f", {ref.spec.unit}" if ref.spec.unit else "")}
-                     for k, ref in zip(b.keys, b.edges, strict=True)}
-            schema = {"title": VALUES_SCHEMA_PREFIX + b.topic.strip("/").removesuffix(
-                "/values").replace("/", "."), "type": "object",
-                "description": f"the values of {b.where} by robot-wide name",
-                "properties": {"time": {"type": "number", "description": "bus time, s"},
-                               "valid": {"type": "boolean",
-                                         "description": "false while the board is lost"},
-                               **props}}
-            b.channel = self.file.channel(b.topic, schema, {
+            b.channel = self.file.channel(b.topic, values_schema(b), {
                 "bus": b.bus, "board": str(b.board), "where": b.where, "prefix": b.prefix,
                 "edges": json.dumps([[k, r.unique, r.kind.name, r.spec.unit]
                                      for k, r in zip(b.keys, b.edges, strict=True)])})
