@@ -28,10 +28,11 @@ from ucom_tools.gateway import buses, eds, joints
 from ucom_tools.gateway.joints import RobotJoints
 from ucom_tools.ops.robot import ConnectSpec
 
-VALUES_HZ = 500.0
-"""How often the loop hands its snapshot to the gateway (a joint's 0x6064 is at most
-2 ms older than the board's latest frame)."""
-CYCLE_S = 0.001
+VALUES_HZ = 250.0
+"""How often the loop hands its snapshot to the gateway (a joint's 0x6064 is at most 4 ms
+older than the board's latest frame; each snapshot costs the loop ~0.1 ms, so at 500 Hz
+the loop paid for its consumers 5 % of its time)."""
+CYCLE_S = 0.002
 """The CANopen node runtime's cycle (its longest wait for a frame)."""
 
 
@@ -117,7 +118,7 @@ ROBOT is the robot's topology (a bundled name such as armar3, or a topology file
 needed with --virtual or --topology).  The UCoM side is 'ucom remote run' with every
 one of its options (start, tree check, 1 kHz loop, watchdog, --on-fault, --rejoin,
 --record, --zenoh); the gateway runs apart from the loop, in the consumers' process,
-and reads the loop's snapshots (500 Hz) and hands it the joints' commands.
+and reads the loop's snapshots (250 Hz) and hands it the joints' commands.
 
 --canopen [UCOM_BUS[,UCOM_BUS]=]INTERFACE:CHANNEL (repeatable): the CANopen bus, any
 python-can interface (socketcan:vcan0, pcan:PCAN_USBBUS1) or socketcand:CHANNEL@HOST:PORT
