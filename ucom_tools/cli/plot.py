@@ -232,7 +232,12 @@ def plot(values_csv: str, names: tuple[str, ...], out: str | None, as_json: bool
     the terminal (plotext; 100x30 when not a terminal), or with -o into a PNG
     (matplotlib).  Needs the plot extra: pip install 'ucom-tools[plot]'.
     """
-    values = read_values(values_csv)
+    if str(values_csv).lower().endswith(".mcap"):
+        from ucom_tools.trace.mcap_values import read_mcap_values
+
+        values = read_mcap_values(values_csv)
+    else:
+        values = read_values(values_csv)
     chosen = select(values, names)
     if out is not None:
         draw_png(values, chosen, out)

@@ -23,6 +23,7 @@ from typing import Any
 
 from ucom_tools import fileio
 from ucom_tools.config import mutants
+from ucom_tools.edgelists.axes import AXIS_LETTERS
 from ucom_tools.errors import TopologyError
 from ucom_tools.plugons import PLUG_ON_BOARDS
 from ucom_tools.wire.fpga import FpgaVersion
@@ -56,8 +57,6 @@ MAX_BOARDS = 31
 """Boards one bus can hold: the protocol addresses seq IDs 1-31 (``ucom-protocol(7)``)."""
 CANOPEN_NODES = range(1, 128)
 """The node IDs a CANopen device can have (CiA 301)."""
-AXIS_LETTERS = "ABCDEFGHIJKLMNOPQRSTUVWXYZ"
-"""How ``canopen_node`` names the axes of a board: A is its program's first axis."""
 MAX_BUSES = 16
 """Buses one topology can have (ARMAR-III has 4; a PC rarely carries more than 16 CAN
 channels): a larger file is a mistake, and each bus costs a thread or a process."""

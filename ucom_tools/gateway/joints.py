@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from enum import StrEnum
 from pathlib import Path
 
 from ucom_tools.config import attrtree
@@ -33,6 +32,7 @@ from ucom_tools.config import topology as topology_mod
 from ucom_tools.config.attrtree import BoundBoard, Kind
 from ucom_tools.config.attrtree.match import program_of
 from ucom_tools.config.topology import AXIS_LETTERS, CANOPEN_NODES, Topology
+from ucom_tools.edgelists.axes import MODELS, AxisModel, Role
 from ucom_tools.edgelists.model import EdgeKind, EdgeSpec, ProgramSpec
 from ucom_tools.errors import InputError, TopologyError, TreeError
 from ucom_tools.image.formats import load_image
@@ -41,78 +41,6 @@ FIRST_AUTO_NODE = 2
 """The lowest node ID given to a joint the topology numbers not: 1 is left to the master
 (``bus.yml``'s ``master: node_id: 1``)."""
 
-
-class Role(StrEnum):
-    """What an edge is to its axis (the gateway's name for it)."""
-
-    COMMAND = "Command"
-    TARGET = "Target"
-    TARGET_VEL = "TargetVel"
-    RESET_OFFSET = "Reset Offset"
-    RESET_PWM = "Reset PWM"
-    MAX_VELOCITY = "Max Velocity"
-    MIN_POSITION = "Min Position"
-    MAX_POSITION = "Max Position"
-    JOINT_SENSOR = "Joint Sensor"
-    VELOCITY = "Velocity"
-    RESET_ANSWER = "Reset Answer"
-    SETTLED = "Settled"
-
-
-@dataclass(frozen=True)
-class AxisModel:
-    """How one program names the edges of its axis k: each role's generic name, a pattern
-    with ``{a}`` the axis letter (A, B, C), ``{n}`` its number from 1 and ``{j}`` its
-    joint counter (2k); and what its Command values mean."""
-
-    program: str
-    """The program's name (:attr:`ProgramSpec.name`)."""
-    axes: int
-    patterns: tuple[tuple[Role, str], ...]
-    name_suffix: str
-    """What the Target's unique name has after the joint's name (" Target")."""
-    velocity_scale: int
-    """Counts/s (or 0.01 deg/s) per raw unit of the Max Velocity edge."""
-    command_off: int
-    command_position: int
-    command_velocity: int
-    command_homing: int | None
-    """None: no homing per axis."""
-
-    def generic(self, role: Role, axis: int) -> str | None:
-        """The generic name of axis ``axis``'s (0-based) edge in ``role``; None if the
-        program has none."""
-        for r, pattern in self.patterns:
-            if r is role:
-                return pattern.format(a=AXIS_LETTERS[axis], n=axis + 1, j=2 * axis)
-        return None
-
-
-ARMAR3 = AxisModel(
-    "armar3 cascaded PID", 3,
-    ((Role.COMMAND, "Motor{a} Command"), (Role.TARGET, "Motor{a} Target"),
-     (Role.TARGET_VEL, "Motor{a} TargetVel"), (Role.RESET_OFFSET, "Motor{a} Reset Offset"),
-     (Role.RESET_PWM, "Reset {a} PWM"), (Role.MAX_VELOCITY, "Motor{a} Max Velocity (x1000)"),
-     (Role.MIN_POSITION, "Motor{a} Min Position"), (Role.MAX_POSITION, "Motor{a} Max Position"),
-     (Role.JOINT_SENSOR, "Encoder {j}"), (Role.VELOCITY, "Velocity {a}"),
-     (Role.RESET_ANSWER, "Motor{a} Reset Answer"), (Role.SETTLED, "Motor {a} Settled")),
-    " Target", 1000, command_off=3, command_position=0, command_velocity=1, command_homing=2)
-"""``armar3.fl.S`` (:mod:`ucom_tools.edgelists.armar3`, its ``Command``)."""
-
-LAURON4 = AxisModel(
-    "lauron4 leg", 3,
-    ((Role.COMMAND, "Leg Mode"), (Role.TARGET, "Axis{n} Position Setpoint"),
-     (Role.TARGET_VEL, "Axis{n} Velocity Setpoint"),
-     (Role.RESET_OFFSET, "Axis{n} Reference Offset"),
-     (Role.MAX_VELOCITY, "Axis{n} Velocity Limit"), (Role.MIN_POSITION, "Axis{n} Lower Limit"),
-     (Role.MAX_POSITION, "Axis{n} Upper Limit"), (Role.JOINT_SENSOR, "Axis{n} Position"),
-     (Role.VELOCITY, "Axis{n} Velocity")),
-    " Position Setpoint", 1, command_off=0, command_position=1, command_velocity=2,
-    command_homing=None)
-"""``lauron4.fl.S`` (:mod:`ucom_tools.edgelists.lauron4`, its ``LegMode``)."""
-
-MODELS = {m.program: m for m in (ARMAR3, LAURON4)}
-"""The programs whose axes can be joints, by program name."""
 
 _EDGE_KIND = {Kind.CI: EdgeKind.CI, Kind.SO: EdgeKind.SO, Kind.PAR: EdgeKind.PAR}
 

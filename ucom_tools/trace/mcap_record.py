@@ -161,9 +161,10 @@ def values_schema(b: Board) -> dict[str, Any]:
 def joints_of(boards: list[Board]) -> list[JointSlots]:
     """The joints among the boards' edges: an axis whose Target edge the tree names
     (its unique name is not the program's generic one), as ``ucom gateway`` finds them
-    (:mod:`ucom_tools.gateway.joints`), with its joint sensor as position and its
+    (:mod:`ucom_tools.gateway.joints`, by the programs' :mod:`~ucom_tools.edgelists.axes`),
+    with its joint sensor as position and its
     velocity edge as velocity."""
-    from ucom_tools.gateway.joints import MODELS, Role
+    from ucom_tools.edgelists.axes import MODELS, Role
 
     found: list[tuple[str, Board, JointSlots]] = []
     for b in boards:

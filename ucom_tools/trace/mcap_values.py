@@ -14,7 +14,7 @@ from typing import Any
 
 from ucom_tools.errors import InputError
 from ucom_tools.trace.mcap_record import VALUES_SCHEMA_PREFIX
-from ucom_tools.trace.mcapfile import _reader_of
+from ucom_tools.trace.mcapfile import messages_of
 from ucom_tools.trace.record import Series, Values
 
 
@@ -37,7 +37,7 @@ def read_mcap_values(path: str | os.PathLike[str]) -> Values:
     since: dict[str, float] = {}
     start: float | None = None
     end: float | None = None
-    for schema, channel, message in _reader_of(file):
+    for schema, channel, message in messages_of(file):
         if schema is None or not schema.name.startswith(VALUES_SCHEMA_PREFIX):
             continue
         slots = keys.get(channel.id)

@@ -345,7 +345,7 @@ class McapFrameWriter:
 
 
 # ---------------------------------------------------------------------- reading
-def _reader_of(file: str) -> Iterator[tuple[Any, Any, Any]]:
+def messages_of(file: str) -> Iterator[tuple[Any, Any, Any]]:
     """Every message of the MCAP ``file`` in log-time order, CRCs checked."""
     from mcap.reader import make_reader
 
@@ -376,7 +376,7 @@ def read_frames(path: str | os.PathLike[str]) -> list[can.Message]:
     file = os.fspath(path)
     out: list[can.Message] = []
     try:
-        for schema, channel, message in _reader_of(file):
+        for schema, channel, message in messages_of(file):
             if schema is None or schema.name != FRAME_SCHEMA_NAME:
                 continue
             bus = channel.metadata.get("bus") or channel.topic.strip("/").removesuffix(
@@ -400,7 +400,7 @@ def read_json_messages(path: str | os.PathLike[str], schema_name: str,
     """(channel, log time, message) of every message of schema ``schema_name``, in log
     time order, numbers as :class:`~decimal.Decimal` (exact)."""
     file = os.fspath(path)
-    for schema, channel, message in _reader_of(file):
+    for schema, channel, message in messages_of(file):
         if schema is not None and schema.name == schema_name:
             try:
                 body = json.loads(message.data, parse_float=Decimal)
@@ -412,5 +412,5 @@ def read_json_messages(path: str | os.PathLike[str], schema_name: str,
 
 __all__ = ["EVENTS_TOPIC", "EXTENSION", "FRAME_SCHEMA", "FRAME_SCHEMA_NAME", "JOINTS_SCHEMA",
            "JOINTS_TOPIC", "LOG_LEVELS", "LOG_SCHEMA", "ROBOT_METADATA", "McapFile",
-           "McapFrameWriter", "frame_json", "frames_topic", "is_mcap", "read_frames",
-           "read_json_messages", "stamp_json", "wall_offset"]
+           "McapFrameWriter", "frame_json", "frames_topic", "is_mcap", "messages_of",
+           "read_frames", "read_json_messages", "stamp_json", "wall_offset"]

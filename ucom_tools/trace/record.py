@@ -352,12 +352,8 @@ VALUES_LIMIT = 1 << 30
 def read_values(path: str | os.PathLike[str]) -> Values:
     """Read a values file written by :class:`RunRecorder`; InputError naming FILE:LINE
     when it is not one (missing header column, bad number or kind, short row).  An MCAP
-    recording (``.mcap``) is read by :func:`~ucom_tools.trace.mcap_values.read_mcap_values`."""
+    recording's values: :func:`~ucom_tools.trace.mcap_values.read_mcap_values`."""
     file = os.fspath(path)
-    if file.lower().endswith(".mcap"):
-        from ucom_tools.trace.mcap_values import read_mcap_values
-
-        return read_mcap_values(file)
     series: dict[str, Series] = {}
     rows_of: dict[str, list[tuple[float, Decimal, bool]]] = {}
     start: float | None = None
