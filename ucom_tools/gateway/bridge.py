@@ -10,7 +10,10 @@ node runtime per CANopen bus, each
 with its own thread; a joint's drive runs only on its bus's thread:
 
 - a master's write of a drive object (SDO or RPDO) updates the joint's
-  :class:`~ucom_tools.gateway.cia402_objects.ObjectValues` and runs the drive at once;
+  :class:`~ucom_tools.gateway.cia402_objects.ObjectValues`; an SDO's, and a new
+  controlword by RPDO, run the drive at once (the effect is in 0x6041 when the SDO's
+  confirmation goes; no edge of the controlword is lost), other RPDO values at the SYNC
+  that applies them (synchronous) or at the next turn of the cycle;
 - a SYNC runs every drive of the bus (CSP takes 0x607A) before the TPDOs are built;
 - once a cycle, a drive runs again where a newer snapshot came, a write is pending or
   its time-based rules (windows, homing, the quick stop's brake) may have moved on
@@ -211,7 +214,16 @@ class Gateway:
 
         def on_write(node_id: int, index: int, subindex: int, value: Any) -> None:
             jd = by_id.get(node_id)
-            if jd is not None and jd.on_write(index, subindex, value, source.latest):
+            if jd is None:
+                return
+            now = jd.on_write(index, subindex, value, source.latest)
+            if now is None:
+                return
+            if now or not self.runtimes[number].node(node_id).applying:
+                # an SDO's at once (its effect in 0x6041 by its confirmation), a new
+                # controlword's at once (no edge lost); other RPDO values at the SYNC
+                # that applies them or the next turn (CSP's 0x607A every SYNC ran each
+                # drive twice a SYNC)
                 jd.update(_now(), source.latest, self._bus_faults[number])
 
         def on_state(change: StateChange) -> None:

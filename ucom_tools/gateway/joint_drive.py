@@ -215,25 +215,29 @@ class JointDrive:
 
     # ------------------------------------------------------------ the master's writes
     def on_write(self, index: int, subindex: int, value: Any, snap: LoopSnapshot | None
-                 ) -> bool:
-        """A master's write of an application object; True when the drive should run now.
-        Raises ``SdoAbortedError`` to refuse it (SDO only)."""
+                 ) -> bool | None:
+        """A master's write of an application object: None where it is not the drive's;
+        else the drive is due, and True where it must run before the next write can come
+        (a new controlword: each of its edges counts, a fault reset's above all), False
+        where its next turn will do.  Raises ``SdoAbortedError`` to refuse it (SDO
+        only)."""
         field = OBJECT_FIELDS.get((index, subindex))
         if field is not None:
             if index == 0x6060 and int(value) not in self._modes:
                 raise SdoAbortedError(SdoAbort.VALUE_RANGE)  # (an RPDO's: not taken)
+            changed = index == 0x6040 and int(value) != self.objects.controlword
             self.objects = replace(self.objects, **{field: int(value)})
             self._dirty = True
-            return True
+            return changed
         edge = self._manufacturer.get(index)
         if edge is None or edge.kind is EdgeKind.SO or subindex:
-            return False
+            return None
         if snap is not None and snap.stale(*self.board):
             raise SdoAbortedError(SdoAbort.DEVICE_STATE)
         name = self._qualified(edge.unique)
         self._send([(name, int(value))])
         self._sent[name] = int(value)
-        return False
+        return None
 
     def _read(self, index: int, subindex: int, od: Any) -> int | None:
         """canopen's read callback: an SO edge from the latest snapshot."""

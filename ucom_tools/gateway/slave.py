@@ -107,6 +107,9 @@ class SlaveNode:
         self.dirty_pdo = self.dirty_comm = False
         self.next_due = INF
         self.rpdo_errors = 0  # RPDOs too short or with a value out of the limits
+        self.applying = False
+        """True while an RPDO's values go to the application (its ``on_write`` is an
+        RPDO's, not an SDO's)."""
         self._objects: dict[tuple[int, int], _Object] = {}
 
     # ------------------------------------------------------------ configuration
@@ -329,7 +332,15 @@ class SlaveNode:
             self.apply(rpdo, data)
 
     def apply(self, rpdo: Rpdo, data: bytes) -> None:
-        """An RPDO's values into the dictionary and to the application, in map order."""
+        """An RPDO's values into the dictionary and to the application, in map order
+        (:attr:`applying` meanwhile)."""
+        self.applying = True
+        try:
+            self._apply(rpdo, data)
+        finally:
+            self.applying = False
+
+    def _apply(self, rpdo: Rpdo, data: bytes) -> None:
         values = rpdo.struct.unpack_from(data)
         app = self._on_write
         for position, offset, size, store, entry in rpdo.slots:
