@@ -92,11 +92,12 @@ def ucom(*args: str) -> list[str]:
 
 
 @contextlib.contextmanager
-def served_armar3() -> Iterator[int]:
+def served_armar3(*serve_args: str) -> Iterator[int]:
     """ARMAR-III with armar3.fl.S flashed, served by ``ucom fleet serve`` (a process per
-    bus) in a session of its own: the fleet stands for the robot's boards, which have
-    processors of their own; it must not share its session's processor time with this
-    process.  Its port; stopped afterwards (SIGINT, then killed)."""
+    bus; ``serve_args`` added, e.g. ``--extra-bus CO0``) in a session of its own: the fleet
+    stands for the robot's boards, which have processors of their own; it must not share
+    its session's processor time with this process.  Its port; stopped afterwards
+    (SIGINT, then killed)."""
     with tempfile.TemporaryDirectory() as tmp:
         state = Path(tmp) / "state"
         flash = subprocess.run(ucom("flash", str(IMAGE), "--virtual", "armar3", "--state",
@@ -104,7 +105,8 @@ def served_armar3() -> Iterator[int]:
         if flash.returncode:
             raise SystemExit(f"flash failed: {flash.stderr}")
         proc = subprocess.Popen(ucom("fleet", "serve", "armar3", "--state", str(state),
-                                     "--port", "0"), text=True, stdout=subprocess.PIPE,
+                                     "--port", "0", *serve_args), text=True,
+                                stdout=subprocess.PIPE,
                                 stderr=subprocess.PIPE, start_new_session=True)
         try:
             assert proc.stdout is not None

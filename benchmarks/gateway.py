@@ -65,7 +65,6 @@ import signal
 import struct
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 from collections.abc import Iterator
@@ -78,7 +77,8 @@ import can
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.runtime import IMAGE, percentile  # noqa: E402
+from benchmarks.consumers import served_armar3  # noqa: E402
+from benchmarks.runtime import percentile  # noqa: E402
 from ucom_tools import compiled  # noqa: E402
 from ucom_tools.gateway import dictionary, joints  # noqa: E402
 from ucom_tools.gateway.load import pdo_load  # noqa: E402
@@ -353,27 +353,10 @@ def ucom(*args: str) -> list[str]:
 @contextlib.contextmanager
 def served() -> Iterator[int]:
     """ARMAR-III with armar3.fl.S flashed and the CANopen buses CO0-CO3, served by ``ucom
-    fleet serve`` in a session of its own; its port.  Stopped afterwards."""
-    with tempfile.TemporaryDirectory() as tmp:
-        state = Path(tmp) / "state"
-        flash = subprocess.run(ucom("flash", str(IMAGE), "--virtual", "armar3", "--state",
-                                    str(state)), capture_output=True, text=True)
-        if flash.returncode:
-            raise SystemExit(f"flash failed: {flash.stderr}")
-        extra = [a for n in range(len(BUSES)) for a in ("--extra-bus", f"CO{n}")]
-        proc = subprocess.Popen(ucom("fleet", "serve", "armar3", "--state", str(state),
-                                     "--port", "0", *extra), text=True,
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                start_new_session=True)
-        try:
-            assert proc.stdout is not None
-            line = proc.stdout.readline()
-            if not line.startswith("listening on"):
-                raise SystemExit(f"fleet serve did not start: {line}"
-                                 + (proc.stderr.read() if proc.stderr else ""))
-            yield int(line.rsplit(":", 1)[1])
-        finally:
-            stop(proc)
+    fleet serve`` in a session of its own (``benchmarks/consumers.py``); its port."""
+    extra = [a for n in range(len(BUSES)) for a in ("--extra-bus", f"CO{n}")]
+    with served_armar3(*extra) as port:
+        yield port
 
 
 def stop(proc: subprocess.Popen[Any], timeout: float = 10.0) -> None:

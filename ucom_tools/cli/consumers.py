@@ -209,17 +209,12 @@ class Consumers:
 
     def _fits(self, g: dict[str, Any]) -> dict[Any, float]:
         """Per CANopen bus, the SYNC rate its nodes' default PDOs fit."""
+        from ucom_tools.gateway.buses import by_bus
         from ucom_tools.gateway.load import fitting_rate
 
         specs = g["buses"]
-        named = {b: s for s in specs for b in s.ucom_buses}
-        rest = next((s for s in specs if not s.ucom_buses), None)
-        out = {}
-        for spec in specs:
-            ods = [self._dictionaries[j.node_id] for j in g["joints"]
-                   if named.get(j.bus, rest) is spec]
-            out[spec] = fitting_rate(ods)
-        return out
+        return {specs[i]: fitting_rate([self._dictionaries[j.node_id] for j in mine])
+                for i, mine in by_bus(specs, g["joints"], lambda j: j.bus).items()}
 
     def _gateway_log(self) -> None:
         """The gateway's warnings (a master lost or back, frames not sent) on the terminal,

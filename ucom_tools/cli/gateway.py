@@ -140,12 +140,9 @@ state at the end."""
 def _announce(robot: RobotJoints, specs: list[buses.CanopenSpec]) -> Any:
     def show(ready: Any) -> None:
         out = stderr()
-        by_bus = {b: s for s in specs for b in s.ucom_buses}
-        rest = next((s for s in specs if not s.ucom_buses), None)
         fits = (ready or {}).get("fits_hz", {})
-        for spec in specs:
-            mine = [j for j in robot.joints
-                    if by_bus.get(j.bus, rest) is spec]
+        for i, mine in buses.by_bus(specs, robot.joints, lambda j: j.bus).items():
+            spec = specs[i]
             nodes = ", ".join(f"{j.node_id} {escape(j.name)}" for j in mine)
             fit = fits.get(spec.text)
             rate = (f"; their PDOs fit SYNC up to {fit:.0f} Hz at 1 Mbit/s" if fit

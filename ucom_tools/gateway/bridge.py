@@ -39,6 +39,7 @@ holds.
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -48,6 +49,7 @@ from canopen import ObjectDictionary
 
 from ucom_tools.errors import InputError
 from ucom_tools.gateway import dictionary
+from ucom_tools.gateway.buses import by_bus
 from ucom_tools.gateway.cia402_objects import (
     Fault,
     FaultCause,
@@ -62,6 +64,7 @@ from ucom_tools.ops.remote_image import PartImage
 from ucom_tools.ops.remote_publish import LoopSnapshot
 
 log = logging.getLogger("ucom.gateway")
+_now = time.monotonic
 
 LOAD_SYNCS = 50
 """SYNCs over which the master's SYNC rate is measured for the bus load warning."""
@@ -100,15 +103,9 @@ class Gateway:
         buses = list(buses)
         running = set(image.bitrates)  # (--bus NAME: only that bus's joints)
         joints = [j for j in joints if j.bus in running]
-        assigned: set[str] = set()
-        for b in buses:
-            assigned.update(b.ucom_buses)
-        for b in buses:
-            mine = [j for j in joints if (j.bus in b.ucom_buses if b.ucom_buses
-                                          else j.bus not in assigned)]
+        for i, mine in by_bus(buses, joints, lambda j: j.bus).items():
             if mine:
-                group = [self._joint(j) for j in mine]
-                self._groups.append((b, group))
+                self._groups.append((buses[i], [self._joint(j) for j in mine]))
         self._load_warned: set[int] = set()
         self.master_events: list[tuple[float, str, str, str]] = []
         """(seconds since the start, the CANopen bus, 'lost' or 'back', why) as the master
@@ -348,11 +345,6 @@ def dictionaries(joints: Iterable[Joint]) -> dict[int, ObjectDictionary]:
 def runtime_state(gateway: Gateway, node: int) -> str | None:
     runtime = gateway.drives[node].runtime
     return None if runtime is None else runtime.state(node).name
-
-
-def _now() -> float:
-    import time
-    return time.monotonic()
 
 
 __all__ = ["CanopenBus", "Gateway", "JointDrive", "SharedCommand", "Source", "dictionaries"]

@@ -10,8 +10,9 @@ their joints on this bus; a spec without them takes every joint no other spec na
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
+from typing import Protocol, TypeVar
 
 import can
 
@@ -96,6 +97,31 @@ def check(specs: Sequence[CanopenSpec], ucom_buses: Sequence[str], *,
                              "UCoM buses for the rest", key=key)
 
 
+class Carries(Protocol):
+    """A CANopen bus as far as which joints it carries: its UCoM buses (none: the rest)."""
+
+    @property
+    def ucom_buses(self) -> tuple[str, ...]: ...
+
+
+B = TypeVar("B", bound=Carries)
+J = TypeVar("J")
+
+
+def by_bus(specs: Sequence[B], joints: Iterable[J], ucom_bus_of: Callable[[J], str]
+           ) -> dict[int, list[J]]:
+    """Which joints each CANopen bus carries (index in ``specs`` -> joints, in order): the
+    bus that names a joint's UCoM bus, else the one that names none."""
+    named = {b: i for i, s in enumerate(specs) for b in s.ucom_buses}
+    rest = next((i for i, s in enumerate(specs) if not s.ucom_buses), None)
+    out: dict[int, list[J]] = {i: [] for i in range(len(specs))}
+    for j in joints:
+        i = named.get(ucom_bus_of(j), rest)
+        if i is not None:
+            out[i].append(j)
+    return out
+
+
 def open_bus(spec: CanopenSpec, *, connect_timeout: float = 5.0) -> can.BusABC:
     """The python-can bus of ``spec``; BusError saying why it cannot be opened."""
     try:
@@ -112,4 +138,4 @@ def open_bus(spec: CanopenSpec, *, connect_timeout: float = 5.0) -> can.BusABC:
         raise BusError(f"--canopen {spec.text}: cannot open the bus: {err}") from err
 
 
-__all__ = ["CanopenSpec", "check", "open_bus", "parse"]
+__all__ = ["CanopenSpec", "Carries", "by_bus", "check", "open_bus", "parse"]

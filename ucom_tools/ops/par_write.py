@@ -21,13 +21,10 @@ for winning.
 
 from __future__ import annotations
 
-import contextlib
-import os
 from typing import TYPE_CHECKING, Protocol
 
 from ucom_tools.errors import BoardError, BusError, UcomTimeoutError
-from ucom_tools.ops.realtime import short_slice
-from ucom_tools.protocol.link import Link
+from ucom_tools.ops.realtime import like_the_loop
 from ucom_tools.protocol.mca import McaClient
 from ucom_tools.protocol.stepped import Stepped
 from ucom_tools.wire import mca
@@ -89,16 +86,9 @@ class ParWrite:
 
     def _run(self) -> None:
         part, ref = self.part, self.ref
-        rt = part.scheduling
-        if rt is not None and rt.active:  # the loop waits for it while it runs
-            with contextlib.suppress(OSError, AttributeError):
-                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rt.priority))
-        elif part.time_slice.granted is not None:
-            short_slice()
-        h = part.robot.buses[ref.bus]
+        like_the_loop(part.scheduling, part.time_slice)  # the loop waits for it meanwhile
         x = part.exchanges[ref.bus]
-        link = Link(h.link.bus, h.link.name, bitrate=h.link.bitrate, margin=h.link.margin,
-                    dispatcher=h.link.dispatcher)
+        link = part.robot.buses[ref.bus].side_link()
         client = McaClient(link, x.mca.timeouts, process_data=False)
         edges = x.configured[ref.board].edges
         try:

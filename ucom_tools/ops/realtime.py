@@ -166,6 +166,17 @@ def let_signals_in() -> None:
     :data:`ucom_tools.compiled.MODULES`.)"""
 
 
+def like_the_loop(scheduling: RealtimeScheduling | None, time_slice: ShortSlice) -> None:
+    """Schedule the calling thread as the loop's (SCHED_FIFO where the loop has it, else
+    its short time slice): a conversation the loop steps (a rejoin, a write it does not
+    wait for) runs while the loop waits for it, so it must not wait for others."""
+    if scheduling is not None and scheduling.active:
+        with contextlib.suppress(OSError, AttributeError):
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(scheduling.priority))
+    elif time_slice.granted is not None:
+        short_slice()
+
+
 @dataclass
 class RealtimeScheduling:
     """The calling thread's switch to ``SCHED_FIFO`` and back (:meth:`enter`,

@@ -32,8 +32,6 @@ two boards rejoining on one bus do not take each other's answers).
 
 from __future__ import annotations
 
-import contextlib
-import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Final, Protocol
@@ -42,11 +40,10 @@ from ucom_tools.config.attrtree.match import program_of
 from ucom_tools.edgelists.model import ProgramSpec, Seed
 from ucom_tools.errors import BoardError, BusError, UcomError, UcomTimeoutError
 from ucom_tools.ops.exchange import Configured, configure, write_runs
-from ucom_tools.ops.realtime import short_slice
+from ucom_tools.ops.realtime import like_the_loop
 from ucom_tools.ops.remote_check import tree_file
 from ucom_tools.ops.remote_faults import REJOIN_EVERY_S
 from ucom_tools.protocol.bootloader import BootloaderClient
-from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import BoardEdges, McaClient
 from ucom_tools.protocol.stepped import Stepped
 from ucom_tools.wire import mca
@@ -149,24 +146,11 @@ class Rejoin:
     def _status(self, text: str) -> None:
         self.part._set_lost_status(self.bus, self.board, text)
 
-    def _like_the_loop(self) -> None:
-        """The worker thread scheduled as the loop's (SCHED_FIFO, or the short time
-        slice): the loop waits for it while it runs, so it must not wait for others."""
-        part = self.part
-        rt = part.scheduling
-        if rt is not None and rt.active:
-            with contextlib.suppress(OSError, AttributeError):
-                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rt.priority))
-        elif part.time_slice.granted is not None:
-            short_slice()
-
     def _run(self) -> None:
-        self._like_the_loop()
         part, n = self.part, self.board
-        h = part.robot.buses[self.bus]
+        like_the_loop(part.scheduling, part.time_slice)
         x = part.exchanges[self.bus]
-        link = Link(h.link.bus, h.link.name, bitrate=h.link.bitrate, margin=h.link.margin,
-                    dispatcher=h.link.dispatcher)
+        link = part.robot.buses[self.bus].side_link()
         boot = BootloaderClient(link, x.mca.timeouts)
         client = McaClient(link, x.mca.timeouts, process_data=False)
         serial = part.serial(self.bus, n)

@@ -112,6 +112,13 @@ class BusHandle:
     expected: BusSpec | None
     virtual: bool
 
+    def side_link(self) -> Link:
+        """A link of its own on this bus's dispatcher, for a conversation beside the run
+        time's own (its own subscriptions: answers are not taken from each other)."""
+        h = self.link
+        return Link(h.bus, h.name, bitrate=h.bitrate, margin=h.margin,
+                    dispatcher=h.dispatcher)
+
 
 @dataclass
 class Robot:
