@@ -29,9 +29,9 @@ from ucom_tools.ops.flash import flash  # noqa: E402
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot  # noqa: E402
 from ucom_tools.protocol.bootloader import BootloaderClient  # noqa: E402
 from ucom_tools.protocol.link import Link  # noqa: E402
+from ucom_tools.virtual.bus.loss import LossyBus  # noqa: E402
 from ucom_tools.virtual.canbus import VirtualUcomBus  # noqa: E402
 from ucom_tools.virtual.fleet import Fleet  # noqa: E402
-from ucom_tools.virtual.loss import LossyBus  # noqa: E402
 from ucom_tools.wire.canbits import payload_rate  # noqa: E402
 
 LIMIT = payload_rate(8) / 1e6

@@ -16,7 +16,7 @@ from ucom_tools.protocol.link import Link
 from ucom_tools.virtual import fleet as fleet_mod
 from ucom_tools.virtual.canbus import VirtualUcomBus
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.socketcand import FleetServer
+from ucom_tools.virtual.serve.socketcand import FleetServer
 
 
 @pytest.fixture

@@ -18,7 +18,7 @@ import can
 import pytest
 
 from ucom_tools.protocol.programmer import Programmer, TransferResult
-from ucom_tools.virtual.loss import LossyBus
+from ucom_tools.virtual.bus.loss import LossyBus
 from ucom_tools.wire.codes import Space, StatusOp, Target
 from ucom_tools.wire.ids import ALL, Address
 from ucom_tools.wire.transfer import TransferPlan
@@ -65,7 +65,7 @@ def served_in_process(topology: str, state: Path | None = None,
     """``topology`` (with the flash in ``state``), paced and served over socketcand from
     this process on 127.0.0.1: (the fleet, its port); closed afterwards."""
     from ucom_tools.virtual.fleet import Fleet
-    from ucom_tools.virtual.socketcand import FleetServer
+    from ucom_tools.virtual.serve.socketcand import FleetServer
     fleet = Fleet.load(topology, state_dir=state, realtime=True)
     server = FleetServer(fleet, "127.0.0.1", 0)
     thread = threading.Thread(target=server.serve_forever, args=(0.05,), daemon=True)

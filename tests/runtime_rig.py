@@ -15,10 +15,10 @@ from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.plan import BusPlan
-from ucom_tools.virtual.board import VirtualBoard
+from ucom_tools.virtual.board.runtime import McaRuntime
+from ucom_tools.virtual.board.ucom import VirtualBoard
 from ucom_tools.virtual.canbus import VirtualUcomBus
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.runtime import McaRuntime
 from ucom_tools.wire import mca
 
 IMAGES = {"armar3": "firmware_images/armar3.fl.S", "lauron4": "firmware_images/lauron4.fl.S"}

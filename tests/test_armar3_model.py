@@ -28,8 +28,8 @@ import ucom_tools.virtual.programs.armar3_axis as armar3_axis
 from ucom_tools.config.attrtree import Board, Value, load
 from ucom_tools.edgelists.armar3 import SPEC, Command
 from ucom_tools.edgelists.model import EdgeKind, EdgeSpec
-from ucom_tools.virtual.fpga import VirtualFpga
-from ucom_tools.virtual.plant import (
+from ucom_tools.virtual.hardware.fpga import VirtualFpga
+from ucom_tools.virtual.hardware.plant import (
     CURRENT_LIMIT_A,
     EYE_AXIS,
     EYES_BOARD,

@@ -26,9 +26,9 @@ def test_a_bootloader_command_does_not_import_the_others() -> None:
                          check=True)
     loaded = set(run.stdout.split())
     assert "ucom_tools.cli.commands" in loaded
-    for heavy in ("zenoh", "ucom_tools.virtual.socketcand", "ucom_tools.virtual.multiserve",
-                  "ucom_tools.trace.decode", "ucom_tools.cli.conformance",
-                  "ucom_tools.cli.browse"):
+    for heavy in ("zenoh", "ucom_tools.virtual.serve.socketcand",
+                  "ucom_tools.virtual.serve.multiserve", "ucom_tools.trace.decode",
+                  "ucom_tools.cli.conformance", "ucom_tools.cli.browse"):
         assert heavy not in loaded, heavy
 
 

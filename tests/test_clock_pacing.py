@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from ucom_tools.virtual.clock import LAG_WARN_US, FleetClock, RealtimeDriver
-from ucom_tools.virtual.simbus import SimBus
+from ucom_tools.virtual.bus.clock import LAG_WARN_US, FleetClock, RealtimeDriver
+from ucom_tools.virtual.bus.simbus import SimBus
 
 DEADLINE_S = 10.0
 
@@ -200,7 +200,7 @@ def test_a_slow_step_is_caught_up_at_twice_the_wall_clocks_pace(head) -> None:
     (running through the lag at once, they got none for 150 ms and stopped)."""
     from tests.helpers import served_in_process
     from ucom_tools.ops.remote import RemotePart
-    from ucom_tools.virtual.clock import CATCH_UP_RATE
+    from ucom_tools.virtual.bus.clock import CATCH_UP_RATE
     topology, state = head
     alive = _AliveTimes()
     with served_in_process(topology, state) as (fleet, port):

@@ -84,23 +84,23 @@ def test_a_changed_source_is_named_and_the_sources_run(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
     table = digests()
-    table["ucom_tools.virtual.simbus"] = "0" * 64  # as if built from another simbus.py
+    table["ucom_tools.virtual.bus.simbus"] = "0" * 64  # as if built from another simbus.py
     manifest(tmp_path, monkeypatch, table)
     status = compiled._decide()
     assert not status.compiled
-    assert status.reason == "pure Python (ucom_tools/virtual/simbus.py changed since the build)"
+    assert status.reason == "pure Python (ucom_tools/virtual/bus/simbus.py changed since the build)"
     err = capsys.readouterr().err
-    assert "ucom_tools/virtual/simbus.py" in err and "make compiled" in err
+    assert "ucom_tools/virtual/bus/simbus.py" in err and "make compiled" in err
 
 
 def test_a_module_the_build_did_not_compile_means_the_sources_run(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
         capsys: pytest.CaptureFixture[str]) -> None:
     table = digests()
-    del table["ucom_tools.virtual.clock"]  # an older build, before clock.py was listed
+    del table["ucom_tools.virtual.bus.clock"]  # an older build, before clock.py was listed
     manifest(tmp_path, monkeypatch, table)
     assert not compiled._decide().compiled
-    assert "ucom_tools/virtual/clock.py" in capsys.readouterr().err
+    assert "ucom_tools/virtual/bus/clock.py" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(("text", "reason"), [

@@ -1,5 +1,5 @@
 """The conformance suite is proven: run against boards with each documented fault
-(ucom_tools.virtual.mutants), it fails, and in the case named for that fault; against
+(ucom_tools.virtual.board.mutants), it fails, and in the case named for that fault; against
 conforming boards it passes (tests/test_conformance.py: ten times in a row).  The
 mutation score is printed at the end of the test run."""
 
@@ -12,7 +12,7 @@ import pytest
 from tests.runtime_rig import robot_of
 from ucom_tools.config.topology import load
 from ucom_tools.conformance.runner import run_suite, select
-from ucom_tools.virtual import mutants
+from ucom_tools.virtual.board import mutants
 from ucom_tools.virtual.fleet import Fleet
 
 CATCHES = {

@@ -39,7 +39,7 @@ from ucom_tools.ops import leave
 from ucom_tools.ops.flash import FlashInterrupted, FlashResult, flash
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot, open_robot
 from ucom_tools.signals import Terminated, interrupt_exit_code, stop_signal
-from ucom_tools.virtual.board import VirtualBoard
+from ucom_tools.virtual.board.ucom import VirtualBoard
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import BoardState
 

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from tests.conftest import chain_topology
 from ucom_tools.errors import FrameError
 from ucom_tools.memory import is_fpga_address
-from ucom_tools.virtual.fpga import ExternalMemory, QuadratureDecoder, VirtualFpga
+from ucom_tools.virtual.hardware.fpga import ExternalMemory, QuadratureDecoder, VirtualFpga
 from ucom_tools.wire.codes import Space
 from ucom_tools.wire.descriptor import DESCRIPTOR_ADDRESS, ImageDescriptor
 from ucom_tools.wire.fpga import FpgaVersion, Reg

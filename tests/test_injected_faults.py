@@ -26,10 +26,10 @@ from ucom_tools.errors import InputError
 from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
-from ucom_tools.virtual.board import VirtualBoard
+from ucom_tools.virtual.board.ucom import VirtualBoard
 from ucom_tools.virtual.canbus import VirtualUcomBus
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.fpga import QuadratureDecoder
+from ucom_tools.virtual.hardware.fpga import QuadratureDecoder
 from ucom_tools.virtual.programs.armar3 import Armar3Model
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m

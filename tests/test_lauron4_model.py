@@ -30,8 +30,8 @@ from ucom_tools.edgelists import by_name
 from ucom_tools.edgelists.lauron4 import NAME, SPEC, LegMode, Status
 from ucom_tools.edgelists.model import EdgeKind, EdgeSpec
 from ucom_tools.image.srec import load_image
-from ucom_tools.virtual.fpga import VirtualFpga
-from ucom_tools.virtual.plant import AxisParams
+from ucom_tools.virtual.hardware.fpga import VirtualFpga
+from ucom_tools.virtual.hardware.plant import AxisParams
 from ucom_tools.virtual.programs.base import Plant, ProgramModel
 from ucom_tools.virtual.programs.lauron4 import (
     GROUND_Z,

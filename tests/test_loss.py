@@ -17,9 +17,9 @@ from ucom_tools.ops.flash import flash
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
+from ucom_tools.virtual.bus.loss import DropRule, LossyBus
 from ucom_tools.virtual.canbus import VirtualUcomBus
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.loss import DropRule, LossyBus
 from ucom_tools.wire.codes import ReadyReason, Space, StatusOp
 from ucom_tools.wire.ids import ALL, Function, seq
 

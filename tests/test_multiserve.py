@@ -35,7 +35,7 @@ from ucom_tools.config import topology as topo
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.transport.socketcand import SocketcandBus
-from ucom_tools.virtual.multiserve import bus_groups
+from ucom_tools.virtual.serve.multiserve import bus_groups
 from ucom_tools.wire import socketcand as socketcand_wire
 from ucom_tools.wire.ids import seq
 from ucom_tools.wire.socketcand import ElementError, element_words, parse_send, plain_send
@@ -538,7 +538,7 @@ def test_an_unknown_fault_is_refused_before_anything_is_served() -> None:
 
 
 def test_fleet_faults_lists_the_catalogue_as_text_and_json() -> None:
-    from ucom_tools.virtual import mutants
+    from ucom_tools.virtual.board import mutants
     text = CliRunner().invoke(cli, ["fleet", "faults"], terminal_width=200)
     assert text.exit_code == 0
     assert [line.split()[0] for line in text.output.splitlines()[1:]] == list(mutants.NAMES)

@@ -1,4 +1,4 @@
-"""Mutant boards (``ucom_tools.virtual.mutants``): every fault of the catalogue, shown
+"""Mutant boards (``ucom_tools.virtual.board.mutants``): every fault of the catalogue, shown
 through real frames by the real host clients (BootloaderClient, Programmer, McaClient).
 
 Each fault has one test, run twice: on a board with the fault (the symptom the catalogue
@@ -26,8 +26,8 @@ from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import McaClient
 from ucom_tools.protocol.timeouts import DEFAULT
-from ucom_tools.virtual import mutants
-from ucom_tools.virtual.board import VirtualBoard
+from ucom_tools.virtual.board import mutants
+from ucom_tools.virtual.board.ucom import VirtualBoard
 from ucom_tools.virtual.canbus import VirtualUcomBus
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.wire import mca

@@ -23,9 +23,9 @@ from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.transport.socketcand import SocketcandBus
+from ucom_tools.virtual.bus.loss import LossyBus
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.loss import LossyBus
-from ucom_tools.virtual.socketcand import FleetServer
+from ucom_tools.virtual.serve.socketcand import FleetServer
 
 BIG = "firmware_images/bench64k.fl.S"  # 64 KiB
 TOPOLOGY = "tests/data/armar3_can0.toml"

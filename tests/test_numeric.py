@@ -1,4 +1,4 @@
-"""ucom_tools.virtual.numeric: the models' compiled stand-ins for builtins give the
+"""ucom_tools.virtual.hardware.numeric: the models' compiled stand-ins for builtins give the
 builtin's value for every float (the fidelity of the fleet depends on it)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import struct
 
 import pytest
 
-from ucom_tools.virtual.numeric import round_half_even
+from ucom_tools.virtual.hardware.numeric import round_half_even
 
 EDGES = [0.0, -0.0, 0.5, -0.5, 1.5, -1.5, 2.5, -2.5, 3.5, 0.49999999999999994,
          -0.49999999999999994, 0.5000000000000001, -0.5000000000000001, 1e-300, -1e-300,

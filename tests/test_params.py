@@ -26,8 +26,8 @@ from ucom_tools.ops.edges import spec_of
 from ucom_tools.ops.params import value_text
 from ucom_tools.ops.remote import RemotePart
 from ucom_tools.ops.robot import ConnectSpec, open_robot
+from ucom_tools.virtual.board.runtime import McaRuntime
 from ucom_tools.virtual.fleet import release_shared, shared_fleet
-from ucom_tools.virtual.runtime import McaRuntime
 from ucom_tools.wire import mca
 from ucom_tools.wire.ids import seq
 

@@ -17,7 +17,7 @@ from tests.test_loss import IMAGE, flash_holds_image, lossy_robot, once
 from ucom_tools.ops.flash import flash
 from ucom_tools.protocol import programmer
 from ucom_tools.protocol.programmer import PROGRESS_WINDOW, Programmer
-from ucom_tools.virtual.loss import DropRule, LossyBus
+from ucom_tools.virtual.bus.loss import DropRule, LossyBus
 from ucom_tools.wire.codes import StatusOp
 from ucom_tools.wire.ids import ALL, Function, seq
 

@@ -21,7 +21,7 @@ from ucom_tools.edgelists.model import MAX_NAME, EdgeKind, ProgramSpec
 from ucom_tools.image import load_image
 from ucom_tools.ops.flash import flash
 from ucom_tools.ops.robot import ConnectSpec, open_robot
-from ucom_tools.virtual import application, runtime
+from ucom_tools.virtual.board import application, runtime
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import ErrorCode, ReportChannel

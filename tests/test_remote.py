@@ -23,7 +23,7 @@ from ucom_tools.edgelists.armar3 import SPEC
 from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.errors import InputError, UcomError
 from ucom_tools.ops.remote import MappingError, RemotePart
-from ucom_tools.virtual.loss import LossyBus
+from ucom_tools.virtual.bus.loss import LossyBus
 from ucom_tools.wire import mca
 from ucom_tools.wire.fpga import Reg
 from ucom_tools.wire.ids import Function, decode_id, seq

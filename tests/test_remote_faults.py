@@ -27,8 +27,8 @@ from ucom_tools.errors import InputError
 from ucom_tools.ops.remote import BoardFault, BoardLost, LostBoardWrite, RemotePart
 from ucom_tools.ops.remote_faults import lost_after
 from ucom_tools.ops.remote_loop import QUIET_MIN_S
+from ucom_tools.virtual.bus.loss import LossyBus
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.loss import LossyBus
 from ucom_tools.wire import mca
 from ucom_tools.wire.ids import Function
 

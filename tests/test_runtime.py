@@ -17,8 +17,8 @@ from ucom_tools.edgelists import armar3, lauron4
 from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.errors import BoardError, InputError
 from ucom_tools.ops.exchange import ExchangeError, configure
+from ucom_tools.virtual.board.runtime import CAN_ERROR_FLASH_US, FRAME_COST_US, OVERRUN_FLASH_US
 from ucom_tools.virtual.programs import armar3 as armar3_model
-from ucom_tools.virtual.runtime import CAN_ERROR_FLASH_US, FRAME_COST_US, OVERRUN_FLASH_US
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import BoardState, ErrorCode

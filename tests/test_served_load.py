@@ -15,9 +15,9 @@ from tests.helpers import served_in_process
 from ucom_tools.image import load_image
 from ucom_tools.ops.flash import flash
 from ucom_tools.ops.robot import ConnectSpec, open_robot
-from ucom_tools.virtual import clock as clock_mod
+from ucom_tools.virtual.bus import clock as clock_mod
+from ucom_tools.virtual.bus.simbus import TX_QUEUE
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.simbus import TX_QUEUE
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -54,7 +54,7 @@ def test_a_served_round_trip_holds_the_drivers_step_latency_not_the_raw_mode_swi
     that long; a prompt one keeps it far below the server's 20 ms switch to raw mode,
     which only the first echo waits for."""
     from ucom_tools.transport.socketcand import SocketcandBus
-    from ucom_tools.virtual.serve_connection import RAWMODE_SETTLE_S
+    from ucom_tools.virtual.serve.connection import RAWMODE_SETTLE_S
 
     def round_trip(port: int) -> float:
         bus = SocketcandBus("CAN0", "127.0.0.1", port)

@@ -11,7 +11,7 @@ import can
 import pytest
 
 from tests.helpers import served_in_process
-from ucom_tools.virtual.board import VirtualBoard
+from ucom_tools.virtual.board.ucom import VirtualBoard
 from ucom_tools.wire import messages
 from ucom_tools.wire import requests as rq
 from ucom_tools.wire.codes import InitOp

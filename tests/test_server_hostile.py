@@ -23,7 +23,7 @@ import can
 import pytest
 
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.socketcand import FleetServer
+from ucom_tools.virtual.serve.socketcand import FleetServer
 from ucom_tools.wire.socketcand import (
     MAX_ELEMENT,
     ElementError,

@@ -6,8 +6,8 @@ import heapq
 import random
 from collections.abc import Callable
 
-from ucom_tools.virtual.clock import FleetClock
-from ucom_tools.virtual.simbus import SimBus
+from ucom_tools.virtual.bus.clock import FleetClock
+from ucom_tools.virtual.bus.simbus import SimBus
 from ucom_tools.wire.canbits import frame_bits
 
 

@@ -42,13 +42,13 @@ from ucom_tools.ops.robot import transport_margin
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.transport.socketcand import SocketcandBus
-from ucom_tools.virtual import multiserve
+from ucom_tools.virtual.bus.simbus import SimBus
 from ucom_tools.virtual.canbus import VirtualUcomBus
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.multiserve import MultiServer, auto_processes, usable_cores
-from ucom_tools.virtual.serve_outbox import encode_line, encode_lines
-from ucom_tools.virtual.simbus import SimBus
-from ucom_tools.virtual.socketcand import FleetServer
+from ucom_tools.virtual.serve import multiserve
+from ucom_tools.virtual.serve.multiserve import MultiServer, auto_processes, usable_cores
+from ucom_tools.virtual.serve.outbox import encode_line, encode_lines
+from ucom_tools.virtual.serve.socketcand import FleetServer
 from ucom_tools.wire import canbits
 from ucom_tools.wire.ids import seq
 from ucom_tools.wire.socketcand import (

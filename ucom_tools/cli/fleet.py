@@ -23,14 +23,14 @@ from ucom_tools.config.topology import BUNDLED, BusSpec, Topology
 from ucom_tools.errors import BusError, InputError
 from ucom_tools.plugons import board_name
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.multiserve import (
+from ucom_tools.virtual.serve.multiserve import (
     LOG_FORMAT,
     MultiServer,
     auto_processes,
     sigterm_interrupts,
     usable_cores,
 )
-from ucom_tools.virtual.socketcand import (
+from ucom_tools.virtual.serve.socketcand import (
     DEFAULT_PORT,
     MAX_CLIENTS,
     FleetServer,
@@ -268,7 +268,7 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
 def _process_count(robot: Topology, asked: int | None) -> int:
     """How many processes serve ``robot``: ``--processes N`` as asked (a usage error when
     N exceeds the buses: a bus is never split), ``auto`` (None) one per bus up to the
-    cores there are (:func:`~ucom_tools.virtual.multiserve.auto_processes`)."""
+    cores there are (:func:`~ucom_tools.virtual.serve.multiserve.auto_processes`)."""
     buses = len(robot.buses)
     if asked is None:
         return auto_processes(robot)

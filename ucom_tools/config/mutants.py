@@ -6,7 +6,7 @@ Each :class:`Fault` has a one-line title, the section of the page it violates an
 symptom a host observes on the bus.  A board gets a fault from its topology
 (``fault = "NAME"``, checked here by the topology parser) or from its fleet
 (``ucom fleet serve --fault NAME``); the virtual boards carry the faults out
-(:mod:`ucom_tools.virtual.mutants`: their figures and the hooks' helpers).
+(:mod:`ucom_tools.virtual.board.mutants`: their figures and the hooks' helpers).
 """
 
 from __future__ import annotations

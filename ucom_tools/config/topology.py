@@ -4,7 +4,7 @@ TOML, bundled ones are package data (``armar3``, ``lauron4``, ``kairo2``, ``odet
 ``puma200``, ``rosi``).  Every mistake is reported with file, line and key.  A topology
 can describe wiring faults: ``init_link = "broken"`` (the init line into this board is
 cut), ``powered = false``, and two boards with the same ``fixed_id``; and mutant boards,
-``fault = "NAME"``, a documented protocol fault of :mod:`ucom_tools.virtual.mutants`.
+``fault = "NAME"``, a documented protocol fault of :mod:`ucom_tools.virtual.board.mutants`.
 ``canopen_node = { A = 10, B = 11 }`` gives axes of a board their CANopen node IDs for
 ``ucom gateway`` (1..127, unique in the topology; :mod:`ucom_tools.gateway.joints`).
 """
@@ -105,7 +105,7 @@ class BoardSpec:
     """Which ``DSP{ <n>{ }<n> }DSP`` block of :attr:`tree` is this board's; None = the
     file's only block."""
     fault: str | None = None
-    """The documented fault of a mutant board (:mod:`ucom_tools.virtual.mutants`); None =
+    """The documented fault of a mutant board (:mod:`ucom_tools.virtual.board.mutants`); None =
     the board conforms (or takes its fleet's fault)."""
     image: Path | None = None
     """The image this board should run (the manifest ``ucom deploy`` brings the robot to,

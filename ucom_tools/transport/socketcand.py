@@ -1,7 +1,8 @@
 """A socketcand client (raw mode) in which every wait has a deadline.
 
 socketcand (https://github.com/linux-can/socketcand) serves SocketCAN buses over TCP, and
-``ucom fleet serve`` serves the virtual fleet the same way (:mod:`ucom_tools.virtual.socketcand`).
+``ucom fleet serve`` serves the virtual fleet the same way
+(:mod:`ucom_tools.virtual.serve.socketcand`).
 python-can 4.6 has a client, ``can.interfaces.socketcand.SocketCanDaemonBus``, that a robot
 tool cannot use because it waits forever, or far too long:
 

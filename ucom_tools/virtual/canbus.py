@@ -28,8 +28,8 @@ import can
 from ucom_tools.errors import UcomError
 from ucom_tools.protocol.frames import DataFrame, data_frame, received_message
 from ucom_tools.signals import deferred
+from ucom_tools.virtual.bus.simbus import TX_QUEUE, SimBus
 from ucom_tools.virtual.fleet import Fleet, release_shared, shared_fleet
-from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
 from ucom_tools.wire.canbits import MAX_EXTENDED_ID
 
 INF: Final = float("inf")
@@ -42,7 +42,7 @@ class HostPort:
         self.sim = sim
         self.fleet = fleet
         """Its ``epoch`` stamps the frames (read per frame: a paced fleet's epoch moves on
-        after a pause, :data:`~ucom_tools.virtual.clock.SLIP_US`)."""
+        after a pause, :data:`~ucom_tools.virtual.bus.clock.SLIP_US`)."""
         self.channel = channel
         self.realtime = realtime
         self.inbox: deque[can.Message | DataFrame] = deque()

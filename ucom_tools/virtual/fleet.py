@@ -3,7 +3,7 @@
 ``state_dir`` keeps each board's non-volatile memory (flash, bootloader record with the
 AutoStart flag) across restarts, like power cycles of the real robot.  ``fault`` makes
 every board that does not name its own fault in the topology a mutant board
-(:mod:`~ucom_tools.virtual.mutants`).  ``scenario`` times injected faults (a power loss, a
+(:mod:`~ucom_tools.virtual.board.mutants`).  ``scenario`` times injected faults (a power loss, a
 reset, bus-off, a cut cable, the emergency stop: :mod:`ucom_tools.config.scenario`) from
 each bus's first MCA Alive; :meth:`Fleet.inject` applies one at once
 (:mod:`~ucom_tools.virtual.injected`).
@@ -27,11 +27,11 @@ from ucom_tools.config.scenario import InjectedFault, Scenario
 from ucom_tools.config.topology import BoardSpec, Topology
 from ucom_tools.errors import BusError, InputError, TopologyError, UcomError
 from ucom_tools.plugons import PLUG_ON_BOARDS
-from ucom_tools.virtual import mutants
-from ucom_tools.virtual.board import Identity, VirtualBoard
-from ucom_tools.virtual.clock import FleetClock, RealtimeDriver
+from ucom_tools.virtual.board import mutants
+from ucom_tools.virtual.board.ucom import Identity, VirtualBoard
+from ucom_tools.virtual.bus.clock import FleetClock, RealtimeDriver
+from ucom_tools.virtual.bus.simbus import TX_QUEUE, SimBus
 from ucom_tools.virtual.injected import Injector
-from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
 from ucom_tools.wire.transfer import TransferPlan
 
 HOST_AHEAD_US = 2000.0
@@ -172,7 +172,7 @@ class Fleet:
                             + ", ".join(self.buses)) from None
 
     def _slipped(self, pause_us: float) -> None:
-        """The driver's time base moved on by a pause (:data:`~ucom_tools.virtual.clock.
+        """The driver's time base moved on by a pause (:data:`~ucom_tools.virtual.bus.clock.
         SLIP_US`): so does the epoch, so that frames are stamped with the wall clock's
         time at which they are on the simulated bus."""
         self.epoch += pause_us / 1e6
@@ -232,7 +232,7 @@ class Fleet:
         """A frame from a host of a paced fleet (a socketcand client, ``--pace``), ready
         now: handed to the driver thread, which queues it at its next step, so a busy
         fleet never keeps the host waiting for its lock.  Blocks while the host has
-        :data:`~ucom_tools.virtual.simbus.TX_QUEUE` frames waiting (its transmit queue);
+        :data:`~ucom_tools.virtual.bus.simbus.TX_QUEUE` frames waiting (its transmit queue);
         ``can.CanOperationError`` after ``timeout`` seconds of that, or when ``alive()``
         turns false.  ``extended``: a 29-bit identifier (:meth:`SimBus.send`)."""
 

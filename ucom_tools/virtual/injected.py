@@ -2,9 +2,9 @@
 ``Fleet.inject`` and ``ucom fleet fault`` do) or timed by a scenario (:meth:`Injector.arm`).
 
 The faults themselves are defined in :mod:`ucom_tools.config.scenario`; each is carried
-out as the hardware does it, by the board (:meth:`~ucom_tools.virtual.board.VirtualBoard.
-lose_power`, :meth:`~ucom_tools.virtual.board.VirtualBoard.enter_bus_off`, ...) and the
-bus (:meth:`~ucom_tools.virtual.simbus.SimBus.cut_cable`).  Faults that overlap add up: a
+out as the hardware does it, by the board (:meth:`~ucom_tools.virtual.board.ucom.VirtualBoard.
+lose_power`, :meth:`~ucom_tools.virtual.board.ucom.VirtualBoard.enter_bus_off`, ...) and the
+bus (:meth:`~ucom_tools.virtual.bus.simbus.SimBus.cut_cable`).  Faults that overlap add up: a
 board is powered while no power fault holds it off (an emergency stop during a board's
 own power-off ends the later of the two), and so for bus-off and a cut cable.  A board
 its topology leaves unpowered stays so.
@@ -25,9 +25,9 @@ from typing import Any, Final
 
 from ucom_tools.config.scenario import FaultKind, InjectedFault, Scenario
 from ucom_tools.config.topology import Topology
-from ucom_tools.virtual.board import VirtualBoard
-from ucom_tools.virtual.clock import FleetClock
-from ucom_tools.virtual.simbus import SimBus
+from ucom_tools.virtual.board.ucom import VirtualBoard
+from ucom_tools.virtual.bus.clock import FleetClock
+from ucom_tools.virtual.bus.simbus import SimBus
 from ucom_tools.wire.ids import Function
 
 log = logging.getLogger("ucom.fleet")

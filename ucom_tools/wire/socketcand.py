@@ -2,7 +2,7 @@
 ``< ... >``, and writing and reading the ``< frame ... >`` and ``< send ... >`` elements.
 
 One copy for both ends: the client (:mod:`ucom_tools.transport.socketcand`) and the server
-of ``ucom fleet serve`` (:mod:`ucom_tools.virtual.socketcand`).  The rules are those of
+of ``ucom fleet serve`` (:mod:`ucom_tools.virtual.serve.socketcand`).  The rules are those of
 ``ucom-protocol(7)``, SOCKETCAND (and socketcand's own ``doc/protocol.md``):
 
 - an element is ``<`` ... ``>``, at most :data:`MAX_ELEMENT` bytes with both brackets;
@@ -41,7 +41,7 @@ CAN_SFF_MASK = 0x7FF
 FRAME_STD_HEAD = b"< frame %03X "
 """``< frame ID `` of a standard frame, ``%`` with its identifier (:data:`FRAME_STD`'s
 head: the serving path puts elements together from it, :mod:`~ucom_tools.virtual.
-serve_outbox`)."""
+serve.outbox`)."""
 FRAME_EXT_HEAD = b"< frame %08X "
 """The same for an extended frame (the identifier without :data:`CAN_EFF_FLAG`)."""
 FRAME_STD = FRAME_STD_HEAD + b"%.6f %s >"
@@ -201,7 +201,7 @@ def error_element(text: str, raw: bool = False) -> str:
     """A server's answer to a malformed element: ``< error TEXT >``, in raw mode
     ``< error TEXT>``: there ``< error CLASS SEC.USEC >`` is an error frame, and
     python-can's client (4.6) fails on any other text in that form (see
-    :mod:`ucom_tools.virtual.socketcand`)."""
+    :mod:`ucom_tools.virtual.serve.socketcand`)."""
     return f"< error {text}>" if raw else f"< error {text} >"
 
 
@@ -242,7 +242,7 @@ def frame_element(can_id: int, seconds: float, data: bytes) -> bytes:
     """``< frame ID SEC.USEC DATA >`` as socketcand writes it; ``can_id`` with
     :data:`CAN_EFF_FLAG` for an extended frame (the server's per-frame path puts the
     same bytes together from :data:`FRAME_STD_HEAD` and :data:`FRAME_EXT_HEAD`:
-    :func:`~ucom_tools.virtual.serve_outbox.encode_lines`)."""
+    :func:`~ucom_tools.virtual.serve.outbox.encode_lines`)."""
     if can_id & CAN_EFF_FLAG:
         return FRAME_EXT % (can_id & CAN_EFF_MASK, seconds, binascii.hexlify(data).upper())
     return FRAME_STD % (can_id, seconds, binascii.hexlify(data).upper())

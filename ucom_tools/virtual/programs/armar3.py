@@ -79,7 +79,7 @@ from typing import Final
 
 from ucom_tools.edgelists.armar3 import AXES, SPEC
 from ucom_tools.edgelists.model import EdgeKind, ProgramSpec
-from ucom_tools.virtual.plant import (
+from ucom_tools.virtual.hardware.plant import (
     ANALOG_INPUTS_V,
     ARMAR3_BOARD,
     MAX_AXES,
@@ -313,7 +313,7 @@ class Armar3Model:
 
 def make(hardware: Hardware, placement: str = "", plant: Plant | None = None, *,
          params: tuple[AxisParams, ...] = ARMAR3_BOARD) -> tuple[Armar3Model, ThreeAxisPlant]:
-    """The program on ``hardware`` with its plant (:data:`~ucom_tools.virtual.plant.
+    """The program on ``hardware`` with its plant (:data:`~ucom_tools.virtual.hardware.plant.
     ARMAR3_BOARD` unless given: every ARMAR-III board drives the same kind of joints in
     this model, whatever its ``placement``).  ``plant``: the board's plant from a program
     before, kept when it is made of the same (the caller resumes it)."""

@@ -14,8 +14,8 @@ from typing import Final
 
 from ucom_tools.edgelists.armar3 import AXES, SPEC, Command
 from ucom_tools.edgelists.model import EdgeKind
-from ucom_tools.virtual.fpga import QuadratureDecoder
-from ucom_tools.virtual.numeric import round_half_even
+from ucom_tools.virtual.hardware.fpga import QuadratureDecoder
+from ucom_tools.virtual.hardware.numeric import round_half_even
 from ucom_tools.virtual.programs.base import Hardware
 from ucom_tools.wire.fpga import Reg
 

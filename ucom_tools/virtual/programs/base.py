@@ -1,6 +1,6 @@
 """The contract between a virtual board's run-time and the DSP program model it runs.
 
-The run-time (:mod:`ucom_tools.virtual.runtime`) owns the CAN side: it decodes MCA
+The run-time (:mod:`ucom_tools.virtual.board.runtime`) owns the CAN side: it decodes MCA
 messages, range-checks values, keeps the process-data maps, the watchdog and the LEDs.
 A program model owns the control: the edges' raw values (per kind, in the order of its
 :class:`~ucom_tools.edgelists.model.ProgramSpec`), one control cycle at a time, and the
@@ -13,7 +13,7 @@ from __future__ import annotations
 from typing import Protocol
 
 from ucom_tools.edgelists.model import ProgramSpec
-from ucom_tools.virtual.fpga import VirtualFpga
+from ucom_tools.virtual.hardware.fpga import VirtualFpga
 
 
 class Hardware(Protocol):

@@ -1,7 +1,7 @@
 """Model of ``lauron4.fl.S``, the LAURON-IV leg program (dissertation 5.5.1; design in
 ``attribute_trees/lauron4/README.md``), for :data:`ucom_tools.edgelists.lauron4.SPEC`, and
 :func:`make`, which puts it on a board with :class:`LegPlant`, the leg (or camera head) it
-drives (:mod:`ucom_tools.virtual.programs.lauron4_leg`, with the drive's constants).
+drives (:mod:`ucom_tools.virtual.hardware.lauron4_leg`, with the drive's constants).
 
 The dissertation names only "the velocity cascade of every leg and of the head"; all
 figures below are ours.
@@ -75,10 +75,7 @@ from typing import Final
 
 from ucom_tools.edgelists.lauron4 import AXES, PWM_FULL, SPEC, LegMode, Status
 from ucom_tools.edgelists.model import EdgeKind, ProgramSpec
-from ucom_tools.virtual.motor import SUPPLY_V
-from ucom_tools.virtual.numeric import round_half_even
-from ucom_tools.virtual.programs.base import Hardware, Plant
-from ucom_tools.virtual.programs.lauron4_leg import (  # the board's constants re-exported
+from ucom_tools.virtual.hardware.lauron4_leg import (  # the board's constants re-exported
     ADC_FORCE,
     ADC_MID,
     ADC_SUPPLY,
@@ -106,6 +103,9 @@ from ucom_tools.virtual.programs.lauron4_leg import (  # the board's constants r
     _clamp,
     _signed16,
 )
+from ucom_tools.virtual.hardware.motor import SUPPLY_V
+from ucom_tools.virtual.hardware.numeric import round_half_even
+from ucom_tools.virtual.programs.base import Hardware, Plant
 from ucom_tools.wire.fpga import Reg
 
 __all__ = [  # the program's names and, as before, the board's and the leg's

@@ -1,6 +1,6 @@
 """What the parts of a virtual board (programming, the started DSP program) may use of it.
 
-A :class:`~ucom_tools.virtual.board.VirtualBoard` composes its parts and hands itself to
+A :class:`~ucom_tools.virtual.board.ucom.VirtualBoard` composes its parts and hands itself to
 them as a :class:`BoardPort`; the parts depend on this protocol only, never on the board
 module, so the dependencies point one way.
 """
@@ -11,7 +11,7 @@ from collections.abc import Callable
 from typing import Protocol
 
 from ucom_tools.config.topology import Timing
-from ucom_tools.virtual.fpga import ExternalMemory, VirtualFpga
+from ucom_tools.virtual.hardware.fpga import ExternalMemory, VirtualFpga
 from ucom_tools.virtual.programs.base import Plant
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
@@ -50,7 +50,7 @@ class BoardPort(Protocol):
 
     def filters_changed(self) -> None:
         """The CI maps the board's program takes changed (its CAN controller's acceptance
-        filter, :meth:`~ucom_tools.virtual.simbus.SimBus.filters_changed`)."""
+        filter, :meth:`~ucom_tools.virtual.bus.simbus.SimBus.filters_changed`)."""
 
 
 class ProgramHost(BoardPort, Protocol):

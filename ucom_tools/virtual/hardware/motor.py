@@ -1,9 +1,9 @@
 """One brushed DC motor with its gear and joint: parameters, the integration rule, sensor edges.
 
-The one copy of the motor model both board plants use (:class:`~ucom_tools.virtual.plant.
+The one copy of the motor model both board plants use (:class:`~ucom_tools.virtual.hardware.plant.
 ThreeAxisPlant`, the ARMAR-III three-motor board, and the LAURON-IV leg of
-:mod:`ucom_tools.virtual.programs.lauron4_leg`); the physics and the figures are described
-in :mod:`ucom_tools.virtual.plant`.
+:mod:`ucom_tools.virtual.hardware.lauron4_leg`); the physics and the figures are described
+in :mod:`ucom_tools.virtual.hardware.plant`.
 
 Integration: a fixed substep of :data:`SUBSTEP_US` = 100 us (the plant shortens the last
 one of a call to what remains), semi-implicit in the damping terms (stable for any dt,
@@ -18,7 +18,7 @@ import math
 from dataclasses import dataclass
 from typing import Final
 
-from ucom_tools.virtual.fpga import QuadratureDecoder
+from ucom_tools.virtual.hardware.fpga import QuadratureDecoder
 
 SUPPLY_V: Final = 24.0
 """Motor supply [V] (Tab. 4.3)."""
@@ -81,7 +81,7 @@ class AxisParams:
 
 class MotorAxis:
     """State of one motor, gear and joint, and the rule that moves it (both boards' plants:
-    :class:`~ucom_tools.virtual.plant.ThreeAxisPlant`, and the LAURON-IV leg, whose joints
+    :class:`~ucom_tools.virtual.hardware.plant.ThreeAxisPlant`, and the LAURON-IV leg, whose joints
     add a torque from outside)."""
 
     def __init__(self, p: AxisParams) -> None:

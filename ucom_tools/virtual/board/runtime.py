@@ -23,8 +23,8 @@ from typing import Final
 
 from ucom_tools.edgelists.model import EdgeKind, EdgeSpec, ProgramSpec
 from ucom_tools.errors import FrameError
-from ucom_tools.virtual import mutants
-from ucom_tools.virtual.port import BoardPort
+from ucom_tools.virtual.board import mutants
+from ucom_tools.virtual.board.port import BoardPort
 from ucom_tools.virtual.programs.base import Plant, ProgramModel
 from ucom_tools.wire import mca
 from ucom_tools.wire.answers import AppReport
@@ -120,7 +120,7 @@ class McaRuntime:
                  plant: Plant | None, t: float, *, fault: str | None = None) -> None:
         self.port = port
         self.fault = fault
-        """The board's fault (:mod:`~ucom_tools.virtual.mutants`), None if it conforms."""
+        """The board's fault (:mod:`~ucom_tools.virtual.board.mutants`), None if it conforms."""
         self._watchdog = fault != mutants.IGNORE_ALIVE
         self._range_check = fault != mutants.NO_RANGE_CHECK
         self._refuse_latched = fault != mutants.CI_WHILE_LATCHED

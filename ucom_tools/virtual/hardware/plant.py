@@ -60,7 +60,7 @@ position loop's P = 50 /s: a well-damped cascade.  The eyes' Max Velocity of 500
 is 2 degrees/s; the joint's no-load speed is 4.7 rad/s (270 degrees/s, 68 000 counts/s);
 homing at a duty of 7000 runs at about 29 000 counts/s and stalls at 2.6 A.
 
-Integration (:meth:`ucom_tools.virtual.motor.MotorAxis.integrate`, the rule the LAURON-IV
+Integration (:meth:`ucom_tools.virtual.hardware.motor.MotorAxis.integrate`, the rule the LAURON-IV
 leg uses too): a fixed substep of :data:`SUBSTEP_US` = 100 us, the last one of a call
 shortened to what remains, semi-implicit in the damping terms (stable for any dt, same
 result for the same calls).  A motor at rest before and after a substep (sticking, or
@@ -71,7 +71,7 @@ The plant is the board's hardware, not its program's: a program that starts agai
 plant it left (:meth:`ThreeAxisPlant.resume`), which coasted meanwhile (output stages off)
 and, after a power loss, is bound to the board's new FPGA: its motor encoders count from 0
 again (incremental), its joint sensors read the joint's position (absolute: a potentiometer
-over SSI, dissertation 5.2.1, :attr:`~ucom_tools.virtual.fpga.QuadratureDecoder.absolute`),
+over SSI, dissertation 5.2.1, :attr:`~ucom_tools.virtual.hardware.fpga.QuadratureDecoder.absolute`),
 from the start angle's reading of the first power-on.
 """
 
@@ -82,8 +82,8 @@ from collections.abc import Sequence
 from typing import Final, Protocol
 
 from ucom_tools.edgelists.armar3 import PWM_FULL
-from ucom_tools.virtual.fpga import VirtualFpga
-from ucom_tools.virtual.motor import (
+from ucom_tools.virtual.hardware.fpga import VirtualFpga
+from ucom_tools.virtual.hardware.motor import (
     _SUBSTEP_S,
     CURRENT_LIMIT_A,  # noqa: F401 - re-exported, as it was defined here
     JOINT_SENSOR_EDGES,
@@ -93,7 +93,7 @@ from ucom_tools.virtual.motor import (
     AxisParams,
     MotorAxis,
 )
-from ucom_tools.virtual.numeric import round_half_even
+from ucom_tools.virtual.hardware.numeric import round_half_even
 from ucom_tools.wire.fpga import Reg
 
 CURRENT_SENSE_V_PER_A: Final = 0.5

@@ -23,11 +23,11 @@ wire withdrawn (:meth:`SimBus.withdraw`), and a cable cut between the PC and the
 the boards still hear each other; a host then finds its frames acknowledged by nobody
 (:meth:`SimBus.acknowledged`).
 
-Every bus of a fleet runs on the fleet's :class:`~ucom_tools.virtual.clock.FleetClock`:
+Every bus of a fleet runs on the fleet's :class:`~ucom_tools.virtual.bus.clock.FleetClock`:
 a frame becomes ready, the bus arbitrates among the ready frames when it falls idle (after
 every frame ready at that instant), the winner ends ``bits / bitrate`` later and is then
 delivered.  The clock is driven by the host (virtual time, as fast as the CPU allows) or
-paced to the wall clock (:class:`~ucom_tools.virtual.clock.RealtimeDriver`).
+paced to the wall clock (:class:`~ucom_tools.virtual.bus.clock.RealtimeDriver`).
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Final, Protocol
 
-from ucom_tools.virtual.clock import FleetClock
+from ucom_tools.virtual.bus.clock import FleetClock
 from ucom_tools.wire.canbits import MAX_EXTENDED_ID, arbitration_key, frame_bits
 from ucom_tools.wire.ids import Direction, Function
 

@@ -12,7 +12,8 @@ the image descriptor it was built with (P:7DE0):
 
 An image without a descriptor runs with a warning that nothing was checked.  A program
 that passed runs its model (found by the descriptor's program name, see
-:mod:`ucom_tools.virtual.programs`) under an :class:`~ucom_tools.virtual.runtime.McaRuntime`:
+:mod:`ucom_tools.virtual.programs.catalogue`) under an
+:class:`~ucom_tools.virtual.board.runtime.McaRuntime`:
 it announces itself with MCA Ready and serves the run-time protocol.
 """
 
@@ -22,9 +23,9 @@ from typing import Final
 
 from ucom_tools.errors import FrameError
 from ucom_tools.plugons import board_name
-from ucom_tools.virtual.port import ProgramHost
-from ucom_tools.virtual.programs import make as make_model
-from ucom_tools.virtual.runtime import McaRuntime
+from ucom_tools.virtual.board.port import ProgramHost
+from ucom_tools.virtual.board.runtime import McaRuntime
+from ucom_tools.virtual.programs.catalogue import make as make_model
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import CheckField, ErrorCode, Target
 from ucom_tools.wire.descriptor import ImageDescriptor
@@ -45,7 +46,7 @@ class DspProgram:
         self.name = name
         self.progid = progid
         self.fault = fault
-        """The board's fault (:mod:`~ucom_tools.virtual.mutants`), handed to the run time."""
+        """The board's fault (:mod:`~ucom_tools.virtual.board.mutants`), handed to the run time."""
         self.runtime: McaRuntime | None = None
 
     def start(self, t: float) -> None:

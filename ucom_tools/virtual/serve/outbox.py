@@ -4,7 +4,7 @@ replies and frames (:class:`Outbox`), and a frame written as socketcand's
 
 The bus thread fills the queue without ever waiting; a writer thread per client, or the
 paced driver after its step (:meth:`Outbox.flush`), empties it.  Part of the socketcand
-server, :mod:`ucom_tools.virtual.socketcand`.
+server, :mod:`ucom_tools.virtual.serve.socketcand`.
 """
 
 from __future__ import annotations

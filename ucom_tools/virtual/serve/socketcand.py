@@ -13,7 +13,7 @@ bus in real time, every frame on the bus goes to every other client of that bus:
 8 (0..1FFFFFFF, an extended frame, as socketcand decides), a DLC of one hex digit 0..8
 and exactly DLC data bytes of 1-2 hex digits each (python-can sends them unpadded).
 Extended frames go onto the simulated bus like any other (their own length and
-arbitration, :mod:`~ucom_tools.virtual.simbus`); the boards ignore them, the other
+arbitration, :mod:`~ucom_tools.virtual.bus.simbus`); the boards ignore them, the other
 clients of the bus get them as ``< frame 1ABCDEF0 SEC.USEC DATA >`` (8 hex digits).
 Whatever else a client sends - a malformed or unknown element, non-ASCII bytes, a
 command before ``open``, a second ``open`` - is answered with ``< error ... >`` and the
@@ -36,11 +36,11 @@ No client can stop the bus or another client:
   ``< error element too long >`` and the client is closed.  Bytes outside elements, and
   an unfinished element that a new ``<`` interrupts, are skipped.
 * Output goes through a bounded queue per client
-  (:class:`~ucom_tools.virtual.serve_outbox.Outbox`) that the bus fills
+  (:class:`~ucom_tools.virtual.serve.outbox.Outbox`) that the bus fills
   without ever waiting, and a writer thread per client empties it outside the bus lock.
   A client that stops reading until its queue overflows is dropped.
 * Back-pressure: a client's frames wait in a transmit queue of
-  :data:`~ucom_tools.virtual.simbus.TX_QUEUE` frames, like a CAN adapter's.  While it is
+  :data:`~ucom_tools.virtual.bus.simbus.TX_QUEUE` frames, like a CAN adapter's.  While it is
   full the server does not read that client's socket, so TCP slows a client that sends
   faster than the bus carries frames; the wait releases the bus lock, and a client that
   disconnects meanwhile is noticed and cleaned up.
@@ -50,23 +50,23 @@ No client can stop the bus or another client:
 python-can's client reads ``< hi >`` and each ``< ok >`` with a single ``recv(256)``
 and fails if anything arrives glued to them.  So after the rawmode ``< ok >`` the server
 waits until it is written, then
-:data:`~ucom_tools.virtual.serve_connection.RAWMODE_SETTLE_S` (20 ms), and only then
+:data:`~ucom_tools.virtual.serve.connection.RAWMODE_SETTLE_S` (20 ms), and only then
 attaches the client to the bus.  From then on ``< echo >`` is answered after the fleet's
 next step (behind the frames of that step), as the answer to a frame would come: the
 client's measured round trip holds the server's step latency.
 
-A connection can also start in another process: :mod:`ucom_tools.virtual.multiserve`
+A connection can also start in another process: :mod:`ucom_tools.virtual.serve.multiserve`
 greets the client and reads its ``< open BUS >`` with
 :class:`~ucom_tools.wire.socketcand.ElementSplitter` and
-:func:`~ucom_tools.virtual.serve_connection.check_open`, then hands the socket to the
+:func:`~ucom_tools.virtual.serve.connection.check_open`, then hands the socket to the
 process of that bus, which goes on with :meth:`Connection.resume`; the answers are the
 same as :meth:`Connection.run` gives.
 
 The server is in modules by job: this one accepts connections (:class:`ClientServer`,
-:class:`FleetServer`); :mod:`~ucom_tools.virtual.serve_connection` serves one client
-(:class:`~ucom_tools.virtual.serve_connection.Connection`);
-:mod:`~ucom_tools.virtual.serve_outbox` queues what is written to it;
-:class:`~ucom_tools.virtual.loss.FrameLoss` loses frames for ``--loss``; the elements
+:class:`FleetServer`); :mod:`~ucom_tools.virtual.serve.connection` serves one client
+(:class:`~ucom_tools.virtual.serve.connection.Connection`);
+:mod:`~ucom_tools.virtual.serve.outbox` queues what is written to it;
+:class:`~ucom_tools.virtual.bus.loss.FrameLoss` loses frames for ``--loss``; the elements
 themselves are :mod:`ucom_tools.wire.socketcand`, shared with the client.
 
 Binds to 127.0.0.1 by default; every accepted connection has TCP_NODELAY set.  The
@@ -84,8 +84,8 @@ import threading
 from typing import Any
 
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.serve_connection import Connection, peer_name
-from ucom_tools.virtual.serve_outbox import MAX_QUEUED_FRAMES
+from ucom_tools.virtual.serve.connection import Connection, peer_name
+from ucom_tools.virtual.serve.outbox import MAX_QUEUED_FRAMES
 
 log = logging.getLogger("ucom.serve")
 

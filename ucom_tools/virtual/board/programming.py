@@ -3,7 +3,7 @@
 BEGIN clears the program-valid and AutoStart flags (non-volatile) before anything is
 erased; PREPARE checks that the preamble is complete, erases the listed pages one after
 the other and answers Ready(ERASED) (a repeated PREPARE asks again); data frames go
-through the flow-controlled receive ring of :class:`~ucom_tools.virtual.receiver.Reception`
+through the flow-controlled receive ring of :class:`~ucom_tools.virtual.board.receiver.Reception`
 (Ready PAUSE/RESUME) into the block their slot names; END verifies the stored words
 against the ProgID and answers Program Finished with what is missing, committing the
 program only when it verified.  ABORT, or ProgEnable cleared, ends a transfer at any step;
@@ -17,10 +17,10 @@ from collections.abc import Callable
 from dataclasses import replace
 from typing import Final
 
-from ucom_tools.virtual import mutants
-from ucom_tools.virtual.nvmem import ExtRamProgram, NonVolatile, external_ram
-from ucom_tools.virtual.port import BoardPort
-from ucom_tools.virtual.receiver import BlockState, Reception, RejectedBlock
+from ucom_tools.virtual.board import mutants
+from ucom_tools.virtual.board.nvmem import ExtRamProgram, NonVolatile, external_ram
+from ucom_tools.virtual.board.port import BoardPort
+from ucom_tools.virtual.board.receiver import BlockState, Reception, RejectedBlock
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import (
     BoardState,
@@ -46,7 +46,7 @@ class BoardProgramming:
         self.port = port
         self.nv = nv
         self.fault = fault
-        """The board's fault (:mod:`~ucom_tools.virtual.mutants`), None if it conforms."""
+        """The board's fault (:mod:`~ucom_tools.virtual.board.mutants`), None if it conforms."""
         self.enabled = False
         """ProgEnable (SetStatus): broadcast Program frames are taken only when set."""
         self.reception: Reception | None = None

@@ -2,7 +2,7 @@
 ``--processes auto`` for a topology with more than one bus).
 
 Why: a served fleet is paced to the wall clock by one driver thread per process
-(:class:`~ucom_tools.virtual.clock.RealtimeDriver`), and Python runs one thread at a time
+(:class:`~ucom_tools.virtual.bus.clock.RealtimeDriver`), and Python runs one thread at a time
 per process.  ARMAR-III has 11 boards on 4 buses, each board running its exchange at
 1 kHz; in one process that is more than one core's work, the fleet falls behind real time
 and the boards' watchdogs fire.  Served from one process per bus, the buses run on as
@@ -35,15 +35,15 @@ The main process hands the connected socket itself over (``SCM_RIGHTS`` on a Uni
 ``SOCK_SEQPACKET`` pair, one long-lived control channel per process, one message per
 connection together with the bytes the client sent after its open), so frames go
 straight between client and bus process.  Elements before the open get the same answers
-as from one process (:func:`~ucom_tools.virtual.serve_connection.check_open` and the
-texts of :mod:`~ucom_tools.virtual.serve_connection`); ``--max-clients`` counts the
+as from one process (:func:`~ucom_tools.virtual.serve.connection.check_open` and the
+texts of :mod:`~ucom_tools.virtual.serve.connection`); ``--max-clients`` counts the
 connections of every bus: a slot is taken at accept and freed when the client leaves
 before opening, or when its bus process reports the connection ended.
 
 In modules by job: this one starts and stops the whole (:class:`MultiServer`) and
 chooses the processes (:func:`bus_groups`, :func:`auto_processes`);
-:mod:`~ucom_tools.virtual.multiserve_dispatch` is the main process's server up to a
-client's open; :mod:`~ucom_tools.virtual.multiserve_bus` is a bus process and the main
+:mod:`~ucom_tools.virtual.serve.multiserve_dispatch` is the main process's server up to a
+client's open; :mod:`~ucom_tools.virtual.serve.multiserve_bus` is a bus process and the main
 process's handle of it.
 
 The processes are started with ``spawn`` (never ``fork`` after threads exist), with SIGINT
@@ -70,10 +70,10 @@ from typing import Any
 
 from ucom_tools.config.topology import Topology
 from ucom_tools.errors import BusError
-from ucom_tools.virtual.multiserve_bus import LOG_FORMAT, BusConfig, BusProcess
-from ucom_tools.virtual.multiserve_dispatch import Dispatcher
-from ucom_tools.virtual.serve_outbox import MAX_QUEUED_FRAMES
-from ucom_tools.virtual.socketcand import MAX_CLIENTS
+from ucom_tools.virtual.serve.multiserve_bus import LOG_FORMAT, BusConfig, BusProcess
+from ucom_tools.virtual.serve.multiserve_dispatch import Dispatcher
+from ucom_tools.virtual.serve.outbox import MAX_QUEUED_FRAMES
+from ucom_tools.virtual.serve.socketcand import MAX_CLIENTS
 
 __all__ = ["LOG_FORMAT", "START_TIMEOUT_S", "STOP_TIMEOUT_S", "MultiServer", "auto_processes",
            "bus_groups", "sigterm_interrupts", "usable_cores"]

@@ -19,7 +19,7 @@ from typing import Final
 
 from ucom_tools.config.topology import Timing
 from ucom_tools.memory import PROTECTED_KINDS, Kind, first_unprogrammable, page_refusal
-from ucom_tools.virtual.nvmem import Memory
+from ucom_tools.virtual.board.nvmem import Memory
 from ucom_tools.wire.answers import MAX_REPORTS
 from ucom_tools.wire.codes import ErrorCode, MetaField, ResultStatus, Space, Target
 from ucom_tools.wire.messages import (

@@ -3,7 +3,7 @@ handover to its end: reading and executing its elements (:class:`Connection`), a
 attachment to a simulated bus (:class:`ClientPort`).
 
 The protocol, and what no client can do to the others, is described in
-:mod:`ucom_tools.virtual.socketcand`, which accepts the connections; the elements are
+:mod:`ucom_tools.virtual.serve.socketcand`, which accepts the connections; the elements are
 cut and read by :mod:`ucom_tools.wire.socketcand`.  A client's handler thread reads its
 socket until raw mode begins on a paced fleet; from then on the fleet's driver thread
 reads it (:meth:`Connection._read_by_driver`) and the handler thread waits.
@@ -30,10 +30,10 @@ import can
 
 from ucom_tools.config.scenario import injected
 from ucom_tools.errors import InputError, UcomError
+from ucom_tools.virtual.bus.loss import FrameLoss
+from ucom_tools.virtual.bus.simbus import TX_QUEUE, SimBus
 from ucom_tools.virtual.fleet import HOST_AHEAD_US, Fleet
-from ucom_tools.virtual.loss import FrameLoss
-from ucom_tools.virtual.serve_outbox import MAX_QUEUED_FRAMES, Outbox, encode_lines
-from ucom_tools.virtual.simbus import TX_QUEUE, SimBus
+from ucom_tools.virtual.serve.outbox import MAX_QUEUED_FRAMES, Outbox, encode_lines
 from ucom_tools.wire import socketcand_fault
 from ucom_tools.wire.socketcand import (
     CAN_EFF_FLAG,
@@ -206,7 +206,7 @@ class Connection:
 
     def resume(self, bus: str, pending: bytes = b"") -> None:
         """Serve a client that another process greeted and that sent ``< open BUS >``
-        there (:mod:`ucom_tools.virtual.multiserve`): answer that open as :meth:`run`
+        there (:mod:`ucom_tools.virtual.serve.multiserve`): answer that open as :meth:`run`
         would, go on with ``pending`` (what the client sent after it), then the socket."""
         def start() -> None:
             self._execute(b"open " + bus.encode("ascii", "replace"))

@@ -8,10 +8,10 @@
   is never seen.
 - :class:`FrameLoss` is ``ucom fleet serve --loss``: frames lost at random between one
   socketcand client and its bus, each client with its own seeded generator
-  (:class:`~ucom_tools.virtual.serve_connection.Connection` asks it for every frame).
+  (:class:`~ucom_tools.virtual.serve.connection.Connection` asks it for every frame).
 
 (A *fault*, in ucom-tools, is something else: a mutant board's documented deviation
-from the protocol, :mod:`ucom_tools.virtual.mutants`.)
+from the protocol, :mod:`ucom_tools.virtual.board.mutants`.)
 """
 
 from __future__ import annotations

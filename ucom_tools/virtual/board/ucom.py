@@ -1,14 +1,14 @@
 """A virtual UCoM: the bootloader state machine of ``man/ucom-protocol.7`` as a bus node.
 
-The board reacts to frames on its :class:`~ucom_tools.virtual.simbus.SimBus` and answers
+The board reacts to frames on its :class:`~ucom_tools.virtual.bus.simbus.SimBus` and answers
 with real frames; it never shares state with the host.  Init pins, LEDs, flash timing,
 AutoStart in non-volatile memory and volatile ExtRAM behave as in the dissertation
 (B.2.2, B.2.3, B.3.1).
 
 The board is composed of its memory (flash and bootloader record, the FPGA behind the X:
-window), its programming part (:mod:`~ucom_tools.virtual.programming`) and the program it
-runs (:mod:`~ucom_tools.virtual.application`); it hands itself to those parts as a
-:class:`~ucom_tools.virtual.port.BoardPort`, so they never import this module.  The
+window), its programming part (:mod:`~ucom_tools.virtual.board.programming`) and the program it
+runs (:mod:`~ucom_tools.virtual.board.application`); it hands itself to those parts as a
+:class:`~ucom_tools.virtual.board.port.BoardPort`, so they never import this module.  The
 plant behind the board (motors, joints, sensors) is its hardware too: a program that
 starts again drives the plant the last one left (:meth:`VirtualBoard.bind_plant`).
 
@@ -29,13 +29,13 @@ from typing import ClassVar, Final
 from ucom_tools.config.topology import Timing
 from ucom_tools.errors import FrameError
 from ucom_tools.plugons import PLUG_ON_BOARDS
-from ucom_tools.virtual import mutants
-from ucom_tools.virtual.application import DspProgram
-from ucom_tools.virtual.fpga import ExternalMemory, VirtualFpga
-from ucom_tools.virtual.nvmem import NonVolatile
-from ucom_tools.virtual.programming import BoardProgramming
+from ucom_tools.virtual.board import mutants
+from ucom_tools.virtual.board.application import DspProgram
+from ucom_tools.virtual.board.nvmem import NonVolatile
+from ucom_tools.virtual.board.programming import BoardProgramming
+from ucom_tools.virtual.bus.simbus import SimBus
+from ucom_tools.virtual.hardware.fpga import ExternalMemory, VirtualFpga
 from ucom_tools.virtual.programs.base import Plant
-from ucom_tools.virtual.simbus import SimBus
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import (
@@ -82,12 +82,12 @@ class Identity:
 class VirtualBoard:
     """One UCoM with its bootloader, on one bus, at one position of the init chain.
 
-    ``fault`` makes it a mutant board: a fault of :mod:`~ucom_tools.virtual.mutants`
+    ``fault`` makes it a mutant board: a fault of :mod:`~ucom_tools.virtual.board.mutants`
     (InputError for an unknown name), fixed for the board's life."""
 
     takes_board_frames: ClassVar[bool] = False
-    """The bus offers a board no frame another board sent (:class:`~ucom_tools.virtual.
-    simbus.Node`): :meth:`on_frame` ignores each of them."""
+    """The bus offers a board no frame another board sent
+    (:class:`~ucom_tools.virtual.bus.simbus.Node`): :meth:`on_frame` ignores each of them."""
 
     def __init__(self, bus: SimBus, identity: Identity, *, timing: Timing | None = None,
                  powered: bool = True, state_file: Path | None = None,
@@ -287,7 +287,7 @@ class VirtualBoard:
 
     def takes_ci_map(self, number: int) -> bool:
         """Whether the board's CAN controller passes CI map ``number`` on to its software
-        (:class:`~ucom_tools.virtual.simbus.Node`): while it is powered and its program's
+        (:class:`~ucom_tools.virtual.bus.simbus.Node`): while it is powered and its program's
         run time defined that map (and it is not bus-off).  :meth:`on_frame` would ignore
         every other CI map frame,
         at no cost to the program's load."""

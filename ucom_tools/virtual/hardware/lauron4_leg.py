@@ -1,6 +1,6 @@
 """The LAURON-IV leg (or camera head) behind a UCoM@3M, which ``lauron4.fl.S``
 (:mod:`ucom_tools.virtual.programs.lauron4`) drives: the drive's and the board's
-constants, three joints moved by :class:`~ucom_tools.virtual.motor.MotorAxis`, the leg's
+constants, three joints moved by :class:`~ucom_tools.virtual.hardware.motor.MotorAxis`, the leg's
 kinematics, the ground contact and the sensors (:class:`LegPlant`)."""
 
 from __future__ import annotations
@@ -11,10 +11,10 @@ from dataclasses import replace
 from typing import Final
 
 from ucom_tools.edgelists.lauron4 import AXES, PWM_FULL
-from ucom_tools.virtual.fpga import VirtualFpga
-from ucom_tools.virtual.motor import SUBSTEP_S as _SUBSTEP_S
-from ucom_tools.virtual.numeric import round_half_even
-from ucom_tools.virtual.plant import (
+from ucom_tools.virtual.hardware.fpga import VirtualFpga
+from ucom_tools.virtual.hardware.motor import SUBSTEP_S as _SUBSTEP_S
+from ucom_tools.virtual.hardware.numeric import round_half_even
+from ucom_tools.virtual.hardware.plant import (
     ADC_FULL_SCALE_V,
     ADC_MAX,
     CURRENT_SENSE_V_PER_A,
@@ -116,7 +116,7 @@ class LegPlant:
     foot's three-axis force sensor and the ground; implements
     :class:`~ucom_tools.virtual.programs.base.Plant`.
 
-    The drives follow :class:`~ucom_tools.virtual.plant.ThreeAxisPlant` (PWM0+k signed
+    The drives follow :class:`~ucom_tools.virtual.hardware.plant.ThreeAxisPlant` (PWM0+k signed
     duty of 16000, OUTPUT_ENABLE, 5 A stages, current sense |i| x 0.5 V/A on ADC k,
     joint sensor 2k, motor encoder 2k+1) with :data:`LEG_JOINTS` or :data:`HEAD_JOINTS`.
     The foot is at the end of :data:`COXA`, :data:`FEMUR`, :data:`TIBIA`: alpha turns the
@@ -130,7 +130,7 @@ class LegPlant:
     switch k on digital input k, closed while joint k is at or above ``marks[k]`` [rad]
     (None: no switch).
 
-    Integration as :class:`~ucom_tools.virtual.plant.ThreeAxisPlant`, 100 us substeps with
+    Integration as :class:`~ucom_tools.virtual.hardware.plant.ThreeAxisPlant`, 100 us substeps with
     the ground's forces from the start of each; while the foot is off the ground the joints
     do not act on each other, and each is integrated over a whole call on its own (the same
     result, bit for bit).
@@ -176,7 +176,7 @@ class LegPlant:
     def resume(self, fpga: VirtualFpga, adc: list[int], dead_us: float) -> None:
         """The board's program starts again: the joints coast over the dead time (the
         ground still acts), then, after a power loss, the leg is bound to the new FPGA
-        with its joint sensors absolute (:func:`~ucom_tools.virtual.plant.resume_motors`,
+        with its joint sensors absolute (:func:`~ucom_tools.virtual.hardware.plant.resume_motors`,
         the rule of the three-axis plant)."""
         if resume_motors(self, self.joints, fpga, adc, dead_us):
             self._write_sensors()

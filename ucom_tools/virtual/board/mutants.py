@@ -9,8 +9,8 @@ every board that does not name its own); :func:`faults` lists the catalogue.
 
 A fault changes only what its title says; everything else the board does stays as the
 page specifies.  Without a fault a board behaves exactly as before: the hooks in
-:mod:`~ucom_tools.virtual.board`, :mod:`~ucom_tools.virtual.programming` and
-:mod:`~ucom_tools.virtual.runtime` compare the board's fault with the names here and
+:mod:`~ucom_tools.virtual.board.ucom`, :mod:`~ucom_tools.virtual.board.programming` and
+:mod:`~ucom_tools.virtual.board.runtime` compare the board's fault with the names here and
 fall through to the conforming code when it is not theirs.
 
 The catalogue itself (names, titles, sections, symptoms) is

@@ -1,5 +1,5 @@
 """One bus process of a multi-process ``ucom fleet serve``
-(:mod:`ucom_tools.virtual.multiserve`, which says why and how): what it is given
+(:mod:`ucom_tools.virtual.serve.multiserve`, which says why and how): what it is given
 (:class:`BusConfig`), the main process's handle that starts, feeds and stops it
 (:class:`BusProcess`), and the process itself (:func:`bus_process_main`,
 :class:`BusServer`), which serves the clients handed over to it from their open on.
@@ -28,8 +28,8 @@ from ucom_tools.config.scenario import InjectedFault, Scenario
 from ucom_tools.config.topology import Topology
 from ucom_tools.errors import BusError, InputError, UcomError
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.serve_connection import FLUSH_S, Connection
-from ucom_tools.virtual.serve_outbox import MAX_QUEUED_FRAMES
+from ucom_tools.virtual.serve.connection import FLUSH_S, Connection
+from ucom_tools.virtual.serve.outbox import MAX_QUEUED_FRAMES
 
 log = logging.getLogger("ucom.serve")
 
@@ -271,7 +271,7 @@ def bus_process_main(channel: socket.socket, config: BusConfig) -> None:
 class BusServer:
     """The buses of a fleet in their process: a fleet of those buses, paced, and the
     clients the main process hands over, each served by a
-    :class:`~ucom_tools.virtual.serve_connection.Connection` from its open on."""
+    :class:`~ucom_tools.virtual.serve.connection.Connection` from its open on."""
 
     def __init__(self, channel: socket.socket, config: BusConfig) -> None:
         self.channel = channel

@@ -1,5 +1,5 @@
 """The main process of a multi-process ``ucom fleet serve``
-(:mod:`ucom_tools.virtual.multiserve`): its TCP server (:class:`Dispatcher`) greets each
+(:mod:`ucom_tools.virtual.serve.multiserve`): its TCP server (:class:`Dispatcher`) greets each
 client, answers its elements up to ``< open BUS >`` as one process would
 (:class:`Reception`), then hands the connection to the process of that bus.  A fault a
 client asks for (``< ucom_fault ... >``, before any open) goes to the process of its bus,
@@ -17,14 +17,14 @@ from typing import TYPE_CHECKING, Any
 
 from ucom_tools.config.scenario import InjectedFault
 from ucom_tools.config.topology import Topology
-from ucom_tools.virtual.serve_connection import (
+from ucom_tools.virtual.serve.connection import (
     NO_BUS_OPEN,
     check_open,
     inject_element,
     peer_name,
     unsupported,
 )
-from ucom_tools.virtual.socketcand import MAX_CLIENTS, ClientServer
+from ucom_tools.virtual.serve.socketcand import MAX_CLIENTS, ClientServer
 from ucom_tools.wire import socketcand_fault
 from ucom_tools.wire.socketcand import (
     MAX_ELEMENT,
@@ -36,7 +36,7 @@ from ucom_tools.wire.socketcand import (
 )
 
 if TYPE_CHECKING:
-    from ucom_tools.virtual.multiserve_bus import BusProcess
+    from ucom_tools.virtual.serve.multiserve_bus import BusProcess
 
 log = logging.getLogger("ucom.serve")
 
@@ -54,7 +54,7 @@ class _Dropped(Exception):
 
 class Reception:
     """A client of the main process from its greeting to its ``< open BUS >``: answers the
-    elements before (as :class:`~ucom_tools.virtual.serve_connection.Connection` does) and
+    elements before (as :class:`~ucom_tools.virtual.serve.connection.Connection` does) and
     returns the bus to open and the bytes the client sent after the open."""
 
     def __init__(self, sock: socket.socket, address: Any, buses: dict[str, BusProcess],
