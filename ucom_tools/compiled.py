@@ -49,6 +49,7 @@ MODULES: tuple[str, ...] = (
     "ucom_tools.signals",
     "ucom_tools.transport.socketcand",
     "ucom_tools.virtual.board.application",
+    "ucom_tools.virtual.board.bootloader",
     "ucom_tools.virtual.board.nvmem",
     "ucom_tools.virtual.board.port",
     "ucom_tools.virtual.board.programming",

@@ -28,7 +28,8 @@ from ucom_tools.config.topology import BoardSpec, Topology
 from ucom_tools.errors import BusError, InputError, TopologyError, UcomError
 from ucom_tools.plugons import PLUG_ON_BOARDS
 from ucom_tools.virtual.board import mutants
-from ucom_tools.virtual.board.ucom import Identity, VirtualBoard
+from ucom_tools.virtual.board.port import Identity
+from ucom_tools.virtual.board.ucom import VirtualBoard
 from ucom_tools.virtual.bus.clock import FleetClock, RealtimeDriver
 from ucom_tools.virtual.bus.simbus import TX_QUEUE, SimBus
 from ucom_tools.virtual.injected import Injector

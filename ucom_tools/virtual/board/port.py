@@ -1,22 +1,41 @@
-"""What the parts of a virtual board (programming, the started DSP program) may use of it.
+"""What the parts of a virtual board (programming, the bootloader's services, the started
+DSP program) may use of it, and what a board is (:class:`Identity`).
 
-A :class:`~ucom_tools.virtual.board.ucom.VirtualBoard` composes its parts and hands itself to
-them as a :class:`BoardPort`; the parts depend on this protocol only, never on the board
-module, so the dependencies point one way.
+A :class:`~ucom_tools.virtual.board.ucom.VirtualBoard` composes its parts and hands itself
+to them as a :class:`BoardPort` (or one of its extensions); the parts depend on these
+protocols only, never on the board module, so the dependencies point one way.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Protocol
 
 from ucom_tools.config.topology import Timing
+from ucom_tools.virtual.bus.simbus import SimBus
 from ucom_tools.virtual.hardware.fpga import ExternalMemory, VirtualFpga
 from ucom_tools.virtual.programs.base import Plant
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
-from ucom_tools.wire.codes import ErrorCode, Target
+from ucom_tools.wire.answers import AppReport
+from ucom_tools.wire.codes import BoardState, ErrorCode, Space, Target
 from ucom_tools.wire.descriptor import ImageDescriptor
+from ucom_tools.wire.fpga import FpgaVersion
+from ucom_tools.wire.ids import Address
+
+
+@dataclass(frozen=True)
+class Identity:
+    """What a board is, as the topology describes it."""
+
+    position: int
+    placement: str
+    board: str
+    serial: int
+    fixed_id: int = 0
+    fpga: FpgaVersion | None = None
+    """The FPGA configuration; None = the one made for the plug-on board."""
 
 
 class BoardPort(Protocol):
@@ -83,3 +102,45 @@ class ProgramHost(BoardPort, Protocol):
 
     def end_program(self, t: float, *, reset: bool) -> None:
         """The program ends (back to the bootloader), with a reset if ``reset``."""
+
+
+class BootloaderHost(BoardPort, Protocol):
+    """What the bootloader's services (:mod:`~ucom_tools.virtual.board.bootloader`) see of
+    their board: its identity, bus and init pins, its seq ID, and what it shows."""
+
+    identity: Identity
+    bus: SimBus
+    seq_id: int
+    in_drive: bool
+    """The board sets its init input (the line from the board before it)."""
+    out_drive: bool
+    """The board sets its init output (the line to the board after it)."""
+    stagger_us: float
+    """How long after its decision the board's Init Ack goes out (from its serial number:
+    boards that answer together do not all queue at once)."""
+    fpga: VirtualFpga
+    can_errors: int
+
+    @property
+    def state(self) -> BoardState: ...
+
+    @property
+    def runs_program(self) -> bool:
+        """A DSP program runs (what only the bootloader may do is refused)."""
+
+    def send(self, t: float, msg: m.BootMessage | mca.McaMessage, *, via_fixed: bool = False,
+             address: Address | None = None) -> None:
+        """Send ``msg`` at ``t``, from ``address`` if given, else from the board's own."""
+
+    def reply_address(self, via_fixed: bool = False) -> Address | None: ...
+
+    def application_report(self) -> AppReport | None:
+        """The running program's report (channel APPLICATION); None without one."""
+
+    def read_memory(self, space: Space, address: int, count: int) -> list[int] | None: ...
+
+    def descriptor(self, target: Target) -> ImageDescriptor | None: ...
+
+    def pins(self) -> dict[str, bool]: ...
+
+    def leds(self) -> dict[str, str]: ...

@@ -1,16 +1,19 @@
 """A virtual UCoM: the bootloader state machine of ``man/ucom-protocol.7`` as a bus node.
 
-The board reacts to frames on its :class:`~ucom_tools.virtual.bus.simbus.SimBus` and answers
-with real frames; it never shares state with the host.  Init pins, LEDs, flash timing,
-AutoStart in non-volatile memory and volatile ExtRAM behave as in the dissertation
+The board reacts to frames on its :class:`~ucom_tools.virtual.bus.simbus.SimBus` and
+answers with real frames; it never shares state with the host.  Init pins, LEDs, flash
+timing, AutoStart in non-volatile memory and volatile ExtRAM behave as in the dissertation
 (B.2.2, B.2.3, B.3.1).
 
 The board is composed of its memory (flash and bootloader record, the FPGA behind the X:
-window), its programming part (:mod:`~ucom_tools.virtual.board.programming`) and the program it
-runs (:mod:`~ucom_tools.virtual.board.application`); it hands itself to those parts as a
-:class:`~ucom_tools.virtual.board.port.BoardPort`, so they never import this module.  The
-plant behind the board (motors, joints, sensors) is its hardware too: a program that
-starts again drives the plant the last one left (:meth:`VirtualBoard.bind_plant`).
+window), its bootloader's services (:mod:`~ucom_tools.virtual.board.bootloader`: the init
+chain, Set Status, Info, the reports), its programming part
+(:mod:`~ucom_tools.virtual.board.programming`) and the program it runs
+(:mod:`~ucom_tools.virtual.board.application`); it hands itself to those parts as a
+:class:`~ucom_tools.virtual.board.port.BoardPort`, so they never import this module.  This
+module keeps power and reset, receiving and sending frames, and Start.  The plant behind
+the board (motors, joints, sensors) is its hardware too: a program that starts again
+drives the plant the last one left (:meth:`VirtualBoard.bind_plant`).
 
 Injected faults (:mod:`~ucom_tools.virtual.injected` times them) act through
 :meth:`VirtualBoard.lose_power` / :meth:`VirtualBoard.regain_power` (a power loss, a reset
@@ -22,7 +25,6 @@ Init Request REJOIN (INIT CHAIN, Rejoin).
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import ClassVar, Final
 
@@ -31,32 +33,28 @@ from ucom_tools.errors import FrameError
 from ucom_tools.plugons import PLUG_ON_BOARDS
 from ucom_tools.virtual.board import mutants
 from ucom_tools.virtual.board.application import DspProgram
+from ucom_tools.virtual.board.bootloader import Bootloader
 from ucom_tools.virtual.board.nvmem import NonVolatile
+from ucom_tools.virtual.board.port import Identity
 from ucom_tools.virtual.board.programming import BoardProgramming
 from ucom_tools.virtual.bus.simbus import SimBus
 from ucom_tools.virtual.hardware.fpga import ExternalMemory, VirtualFpga
 from ucom_tools.virtual.programs.base import Plant
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
+from ucom_tools.wire.answers import AppReport
 from ucom_tools.wire.codes import (
     BoardState,
     ErrorCode,
-    InitAckKind,
-    InitOp,
     ProgramOp,
     ReadyReason,
-    ReportChannel,
     Space,
-    StatusOp,
     Target,
 )
 from ucom_tools.wire.descriptor import DESCRIPTOR_ADDRESS, DESCRIPTOR_WORDS, ImageDescriptor
-from ucom_tools.wire.fpga import FpgaVersion, Reg
+from ucom_tools.wire.fpga import FpgaVersion
 from ucom_tools.wire.ids import Address, Direction, Function, IdType, encode_id
-from ucom_tools.wire.info import BoardInfo
-from ucom_tools.wire.transfer import decode_date
 
-BOOTLOADER_VERSION: Final = (1, 0)
 _FROM_BOARD: Final = frozenset(f.value for f in Function if f.direction is Direction.BOARD_TO_HOST)
 _MCA_FROM_HOST: Final = frozenset(f.value for f in Function
                                    if f.direction is Direction.HOST_TO_BOARD
@@ -64,19 +62,6 @@ _MCA_FROM_HOST: Final = frozenset(f.value for f in Function
 _PROGRAM: Final = int(Function.PROGRAM)
 _MCA_CI: Final = int(Function.MCA_CONTROLLER_INPUT)
 _SET_STATUS: Final = int(Function.SET_STATUS)
-
-
-@dataclass(frozen=True)
-class Identity:
-    """What a board is, as the topology describes it."""
-
-    position: int
-    placement: str
-    board: str
-    serial: int
-    fixed_id: int = 0
-    fpga: FpgaVersion | None = None
-    """The FPGA configuration; None = the one made for the plug-on board."""
 
 
 class VirtualBoard:
@@ -96,8 +81,6 @@ class VirtualBoard:
         self.identity = identity
         self.fault = mutants.check(fault)
         """The documented fault this board has (None: it conforms)."""
-        self._claimed = False
-        """seq-from-zero: the board took a number in this chain (its seq ID is one less)."""
         self.timing = timing or Timing()
         self.nv = NonVolatile()
         self.state_file = state_file
@@ -122,17 +105,17 @@ class VirtualBoard:
         self.in_drive = False
         self.out_drive = False
         self.seq_id = 0
-        self.chain_active = False
         self.programming = BoardProgramming(self, self.nv, fault=self.fault)
+        self.bootloader = Bootloader(self, self.nv, self.programming, fault=self.fault)
         self.application: DspProgram | None = None
         self.stagger_us = (identity.serial & 0x3F) * bus.us_per_bit
         plug = PLUG_ON_BOARDS[identity.board].board_id
         self.fpga = VirtualFpga(identity.fpga or FpgaVersion(plug, 1, 1, 0), plug)
         self.xmem = ExternalMemory(self.fpga)
         self.adc = [0] * 8
+        """The DSP's 8 ADC channels (12 bit), set by the plant of a running program."""
         self.can_errors = 0
         """Error frames this board's CAN controller saw."""
-        """The DSP's 8 ADC channels (12 bit), set by the plant of a running program."""
         self._suppress_autostart = False
         if powered:
             self.power_on(bus.now)
@@ -157,6 +140,16 @@ class VirtualBoard:
         return self.programming.state() or BoardState.BOOTLOADER
 
     @property
+    def runs_program(self) -> bool:
+        """A DSP program runs (the bootloader refuses what it may do only without one)."""
+        return self.application is not None
+
+    def application_report(self) -> AppReport | None:
+        """The running program's report (channel APPLICATION); None without one."""
+        app = self.application
+        return app.runtime.report() if app is not None and app.runtime is not None else None
+
+    @property
     def prog_enable(self) -> bool:
         return self.programming.enabled
 
@@ -173,7 +166,7 @@ class VirtualBoard:
         self._powered = True
         self._rx = self._tx = not self.bus_off
         self.seq_id = 0
-        self._claimed = False
+        self.bootloader.claimed = False
         if self.fault == mutants.AUTOSTART_LOST and self.nv.record.autostart:
             self.nv.record.autostart = False  # the flag did not survive the power cycle
             self.persist(record_only=True)
@@ -192,7 +185,7 @@ class VirtualBoard:
         """What a reset or a power loss takes away (the seq ID survives a reset)."""
         self.programming.drop(self.bus.now)
         self._end_application()
-        self.chain_active = False
+        self.bootloader.chain_active = False
 
     def _boot(self, t: float) -> None:
         self._drop_volatile()
@@ -256,7 +249,7 @@ class VirtualBoard:
         self._suppress_autostart = False
         self.power_off()
         self.seq_id = 0
-        self._claimed = False
+        self.bootloader.claimed = False
 
     def regain_power(self, t: float, *, announce: bool = False) -> None:
         """Power returns at ``t``: the board comes up as at power-on (:meth:`power_on`:
@@ -429,19 +422,13 @@ class VirtualBoard:
             case m.XReset():
                 self._reset(t, clear_autostart=True)
             case m.InitRequest():
-                self._init(msg, t)
+                self.bootloader.init(msg, t)
             case m.InfoRequest():
-                info = self.info()
-                if self.fault == mutants.INFO_SWAPPED:
-                    info = replace(info, serial=info.progid, progid=info.serial)
-                if self.fault == mutants.LATE_ANSWER:
-                    reply_t += mutants.LATE_US
-                for frame in info.to_frames():
-                    self.send(reply_t, frame, via_fixed=via_fixed)
+                self.bootloader.answer_info(reply_t, via_fixed)
             case m.ReportRequest():
-                self._report(msg, reply_t, via_fixed)
+                self.bootloader.report(msg, reply_t, via_fixed)
             case m.SetStatus():
-                self._set_status(msg, t, via_fixed)
+                self.bootloader.set_status(msg, t, via_fixed)
             case m.Start():
                 self._start_cmd(msg.target, t, via_fixed)
             case _ if msg.FUNCTION is Function.PROGRAM:
@@ -452,133 +439,7 @@ class VirtualBoard:
                     self.programming.handle(msg, t, addressed=not broadcast,
                                             via_fixed=via_fixed)
 
-    # ================================================================= init chain
-    def _init(self, msg: m.InitRequest, t: float) -> None:
-        settle = t + self.timing.settle_us
-        if msg.op is InitOp.BEGIN:
-            self.seq_id = 0
-            self._claimed = False
-            self.chain_active = True
-            self.in_drive = False
-            self.out_drive = True
-            self.bus.at(settle, self._claim_if_first(1))
-        elif msg.op is InitOp.NEXT:
-            held = self._chain_number()
-            if held == msg.number - 1 and self.chain_active:
-                self.out_drive = False
-            if self.chain_active and held == msg.number:
-                self._init_ack(InitAckKind.ASSIGNED, settle)  # asked again: its ack was lost
-            if self.chain_active and not held:
-                self.bus.at(settle, self._claim_if_first(msg.number))
-        elif msg.op is InitOp.END:
-            self.chain_active = False
-            self.in_drive = self.out_drive = False
-        elif msg.op in (InitOp.PROBE_FIRST, InitOp.PROBE_LAST):
-            first = msg.op is InitOp.PROBE_FIRST
-            saved = (self.in_drive, self.out_drive)
-            # first: drive the output, look at the input; last: the other way round
-            self.in_drive, self.out_drive = not first, first
-            self.bus.at(settle, self._probe(InitAckKind.FIRST if first else InitAckKind.LAST))
-            self.bus.at(settle + 1.0, self._restore_pins(saved))
-        elif msg.op is InitOp.REJOIN and msg.serial == self.identity.serial:
-            # only the board it names takes it, in any state; no pin moves
-            self.seq_id = msg.number
-            self._claimed = False
-            ack = m.InitAck(InitAckKind.ASSIGNED, msg.number, self.identity.fixed_id,
-                            BOOTLOADER_VERSION[0] << 4 | BOOTLOADER_VERSION[1],
-                            self.identity.serial)
-            self.send(t + self.timing.reply_us, ack)
-
-    def _claim_if_first(self, number: int) -> Callable[[float], None]:
-        def sample(t: float) -> None:
-            if not self._powered or not self.chain_active or self._chain_number():
-                return
-            if self.bus.init_in_set(self.identity.position):
-                return
-            self.seq_id = number
-            if self.fault == mutants.SEQ_FROM_ZERO:
-                self.seq_id, self._claimed = number - 1, True
-            self._init_ack(InitAckKind.ASSIGNED, t)
-        return sample
-
-    def _chain_number(self) -> int:
-        """The number this board holds in the init chain: its seq ID (seq-from-zero:
-        one more, once it has claimed one)."""
-        if self.fault == mutants.SEQ_FROM_ZERO and self._claimed:
-            return self.seq_id + 1
-        return self.seq_id
-
-    def _probe(self, kind: InitAckKind) -> Callable[[float], None]:
-        def sample(t: float) -> None:
-            if not self._powered:
-                return
-            pos = self.identity.position
-            free = (not self.bus.init_in_set(pos) if kind is InitAckKind.FIRST
-                    else not self.bus.init_out_set(pos))
-            if free:
-                self._init_ack(kind, t)
-        return sample
-
-    def _restore_pins(self, saved: tuple[bool, bool]) -> Callable[[float], None]:
-        def restore(t: float) -> None:
-            self.in_drive, self.out_drive = saved
-        return restore
-
-    def _init_ack(self, kind: InitAckKind, t: float) -> None:
-        ack = m.InitAck(kind, self.seq_id, self.identity.fixed_id, BOOTLOADER_VERSION[0] << 4
-                        | BOOTLOADER_VERSION[1], self.identity.serial)
-        addr = self.reply_address() or Address(IdType.SEQUENTIAL, 0)
-        self.send(t + self.stagger_us, ack, address=addr)
-        if self.fault == mutants.INIT_TWICE and kind is InitAckKind.ASSIGNED:
-            self.send(t + self.stagger_us, ack, address=addr)
-
-    # ================================================================= status & reports
-    def _set_status(self, msg: m.SetStatus, t: float, via_fixed: bool) -> None:
-        op, value = msg.op, msg.value
-        now = t
-        if self.fault == mutants.LATE_ANSWER:
-            t += mutants.LATE_US  # done at once, answered late (t only times the answers)
-        if op is StatusOp.PROG_ENABLE:
-            if self.application is not None:
-                self.error(t, ErrorCode.RUNNING, Function.SET_STATUS, op, via_fixed)
-                return
-            if not value:
-                self.programming.abort(now)  # cleared: a transfer under way ends as by ABORT
-            self.programming.enabled = bool(value)
-        elif op is StatusOp.AUTOSTART:
-            if value and not self.nv.record.flash_valid:
-                self.error(t, ErrorCode.NO_PROGRAM, Function.SET_STATUS, op, via_fixed)
-                return
-            self.nv.record.autostart = bool(value)
-            self.persist(record_only=True)
-        elif op is StatusOp.INIT_IN:
-            self.in_drive = bool(value)
-        elif op is StatusOp.INIT_OUT:
-            if self.fault != mutants.IGNORE_INITOUT:
-                self.out_drive = bool(value)
-        elif op is StatusOp.SEQ_ID:
-            self.seq_id = value
-        self.send(t + self.timing.reply_us, m.Ready(ReadyReason.STATUS, self.state,
-                                                    (op << 8) | value), via_fixed=via_fixed)
-
-    def _report(self, msg: m.ReportRequest, t: float, via_fixed: bool) -> None:
-        if msg.channel is ReportChannel.STATUS:
-            self.send(t, self.status_report(), via_fixed=via_fixed)
-        elif msg.channel is ReportChannel.APPLICATION and self.application is not None \
-                and self.application.runtime is not None:
-            self.send(t, self.application.runtime.report(), via_fixed=via_fixed)
-        elif msg.channel is ReportChannel.MEMORY:
-            words = self.read_memory(msg.space, msg.address, msg.count)
-            if words is None:
-                self.error(t, ErrorCode.UNMAPPED_ADDRESS, Function.REPORT_REQUEST,
-                           (msg.space << 16) | msg.address, via_fixed)
-                return
-            for i in range(0, len(words), 3):
-                self.send(t, m.MemoryReport(msg.address + i, tuple(words[i:i + 3])),
-                          via_fixed=via_fixed)
-        else:
-            self.error(t, ErrorCode.BAD_VALUE, Function.REPORT_REQUEST, msg.channel, via_fixed)
-
+    # ================================================================= memory, pins, LEDs
     def read_memory(self, space: Space, address: int, count: int) -> list[int] | None:
         """Words for a memory report: program or data flash, or X: external memory (with
         the FPGA registers at X:4000-403F); None if not readable."""
@@ -630,43 +491,6 @@ class VirtualBoard:
         return {"red": on[pins["in_driven"]], "yellow": on[pins["out_driven"]],
                 "green": on[pins["in_set"]]}
 
-    def status_report(self) -> m.StatusReport:
-        pins = self.pins()
-        leds = self.leds()
-        pin_bits = (pins["in_driven"] | pins["in_set"] << 1 | pins["out_driven"] << 2
-                    | pins["out_set"] << 3)
-        led_bits = ((leds["red"] == "on") | (leds["yellow"] == "on") << 1
-                    | (leds["green"] != "off") << 2 | (leds["green"] == "blink") << 3)
-        return m.StatusReport(self.state, pin_bits, led_bits, 0, min(self.can_errors, 0xFF),
-                              self.seq_id,
-                              min(self.overruns, 0xFFFF))
-
-    def info(self) -> BoardInfo:
-        rec = self.nv.record
-        ext = self.programming.extram
-        # the running program, else a loaded ExtRAM program, else the flash program
-        if ext is not None and self.state is not BoardState.RUNNING_FLASH:
-            progid, size, name, entry, date = (ext.progid, ext.size_words, ext.name, ext.entry,
-                                               ext.date)
-            target = Target.EXTRAM
-        else:
-            progid, size, name, entry, date = (rec.progid, rec.size_words, rec.name, rec.entry,
-                                               rec.date)
-            target = Target.FLASH
-        try:
-            desc, corrupt = self.descriptor(target), False
-        except FrameError:
-            desc, corrupt = None, True
-        if desc is not None:
-            desc = replace(desc, name="")  # the name does not travel in Info
-        fpga = self.fpga
-        return BoardInfo(self.state, rec.autostart, self.prog_enable, rec.flash_valid,
-                         ext is not None, self.seq_id, self.identity.fixed_id,
-                         BOOTLOADER_VERSION, progid, size, decode_date(date) if date else None,
-                         self.identity.serial, entry, target, name,
-                         fpga.read(Reg.VERSION1), fpga.read(Reg.VERSION2),
-                         fpga.read(Reg.BOARD_ID), fpga.neutral, desc, corrupt)
-
     # ================================================================= start
     def _start_cmd(self, target: Target, t: float, via_fixed: bool) -> None:
         if self.application is not None and self.application.target is target:
@@ -686,7 +510,7 @@ class VirtualBoard:
 
     def _start_program(self, target: Target, t: float, *, announce: bool,
                        via_fixed: bool = False) -> None:
-        self.chain_active = False
+        self.bootloader.chain_active = False
         self.in_drive = self.out_drive = False
         self.programming.enabled = False
         if target is Target.FLASH:
