@@ -10,7 +10,8 @@ reads it (:meth:`Connection._read_by_driver`) and the handler thread waits.
 
 Before ``< open >`` a client may also ask for an injected fault (``< ucom_fault TARGET KIND
 [SECONDS] >``, :mod:`ucom_tools.wire.socketcand_fault`: ``ucom fleet fault``), which
-:func:`inject_element` applies to the fleet and answers.
+:func:`~ucom_tools.virtual.serve.elements.inject_element` applies to the fleet and
+answers.
 """
 
 from __future__ import annotations
@@ -23,16 +24,21 @@ import socket
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Collection
+from collections.abc import Callable
 from typing import Any
 
 import can
 
-from ucom_tools.config.scenario import injected
-from ucom_tools.errors import InputError, UcomError
 from ucom_tools.virtual.bus.loss import FrameLoss
 from ucom_tools.virtual.bus.simbus import TX_QUEUE, SimBus
 from ucom_tools.virtual.fleet import HOST_AHEAD_US, Fleet
+from ucom_tools.virtual.serve.elements import (
+    NO_BUS_OPEN,
+    check_open,
+    inject_element,
+    peer_name,
+    unsupported,
+)
 from ucom_tools.virtual.serve.outbox import MAX_QUEUED_FRAMES, Outbox, encode_lines
 from ucom_tools.wire import socketcand_fault
 from ucom_tools.wire.socketcand import (
@@ -48,7 +54,6 @@ from ucom_tools.wire.socketcand import (
     error_frame_element,
     parse_send,
     plain_send,
-    quote,
 )
 
 log = logging.getLogger("ucom.serve")
@@ -56,57 +61,13 @@ log = logging.getLogger("ucom.serve")
 RAWMODE_SETTLE_S = 0.02
 """Pause between the rawmode ``< ok >`` and the first frame (python-can compatibility)."""
 ROOM_POLL_S = 0.1
+"""How often a client waiting for room in its transmit queue is checked for liveness."""
 UNACKED_EVERY_US = 1000.0
 """At most one error frame a millisecond for a client's frames nobody acknowledges."""
-"""How often a client waiting for room in its transmit queue is checked for liveness."""
 FLUSH_S = 1.0
 """How long the server waits for a last reply to be written before closing a client."""
 _RECV_SIZE = 4096
 _DONTWAIT = getattr(socket, "MSG_DONTWAIT", 0)
-NO_BUS_OPEN = "no bus open: send < open BUS > first"
-"""The answer to ``rawmode`` and ``send`` before a bus is open."""
-
-
-def check_open(args: list[str], buses: Collection[str], fleet_name: str,
-               already_open: str | None = None) -> str:
-    """The bus that ``< open BUS >`` (the words after ``open``) names; ElementError with
-    the server's answer when it is malformed, a bus is open already, or no such bus."""
-    if len(args) != 1:
-        raise ElementError("usage: open BUS")
-    if already_open is not None:
-        raise ElementError(f"bus {already_open} is already open")
-    if args[0] not in buses:
-        raise ElementError(f"no bus {quote(args[0])} in {fleet_name}")
-    return args[0]
-
-
-def inject_element(args: list[str], inject: Callable[..., str]) -> str:
-    """Apply ``< ucom_fault TARGET KIND [SECONDS] >`` (the words after the command) with
-    ``inject(fault)`` (:meth:`Fleet.inject`, or a multi-process server's routing) and
-    return the answer ``< ok TEXT >``; ElementError with the refusal or failure."""
-    target, kind, seconds = socketcand_fault.parse_fault(args)
-    try:
-        text = inject(injected(kind, target, seconds))
-    except InputError as err:
-        raise ElementError(socketcand_fault.refusal(str(err))) from None
-    except UcomError as err:
-        raise ElementError(socketcand_fault.refusal(str(err), failed=True)) from None
-    return socketcand_fault.ok_element(text)
-
-
-def unsupported(verb: str) -> ElementError:
-    """The answer to an element with an unknown command word."""
-    return ElementError(f"unsupported command {quote(verb)}")
-
-
-
-def peer_name(address: Any) -> str:
-    """A client's address as people write it: ``127.0.0.1:40000``, ``[::1]:40000``."""
-    if isinstance(address, tuple) and len(address) >= 2:
-        host = str(address[0])
-        return f"[{host}]:{address[1]}" if ":" in host else f"{host}:{address[1]}"
-    return str(address)
-
 
 
 _CLIENT_NUMBERS = itertools.count()

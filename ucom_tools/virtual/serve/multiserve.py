@@ -35,7 +35,7 @@ The main process hands the connected socket itself over (``SCM_RIGHTS`` on a Uni
 ``SOCK_SEQPACKET`` pair, one long-lived control channel per process, one message per
 connection together with the bytes the client sent after its open), so frames go
 straight between client and bus process.  Elements before the open get the same answers
-as from one process (:func:`~ucom_tools.virtual.serve.connection.check_open` and the
+as from one process (:func:`~ucom_tools.virtual.serve.elements.check_open` and the
 texts of :mod:`~ucom_tools.virtual.serve.connection`); ``--max-clients`` counts the
 connections of every bus: a slot is taken at accept and freed when the client leaves
 before opening, or when its bus process reports the connection ended.

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 from ucom_tools.config.scenario import InjectedFault
 from ucom_tools.config.topology import Topology
-from ucom_tools.virtual.serve.connection import (
+from ucom_tools.virtual.serve.elements import (
     NO_BUS_OPEN,
     check_open,
     inject_element,

@@ -58,7 +58,7 @@ client's measured round trip holds the server's step latency.
 A connection can also start in another process: :mod:`ucom_tools.virtual.serve.multiserve`
 greets the client and reads its ``< open BUS >`` with
 :class:`~ucom_tools.wire.socketcand.ElementSplitter` and
-:func:`~ucom_tools.virtual.serve.connection.check_open`, then hands the socket to the
+:func:`~ucom_tools.virtual.serve.elements.check_open`, then hands the socket to the
 process of that bus, which goes on with :meth:`Connection.resume`; the answers are the
 same as :meth:`Connection.run` gives.
 
@@ -84,7 +84,8 @@ import threading
 from typing import Any
 
 from ucom_tools.virtual.fleet import Fleet
-from ucom_tools.virtual.serve.connection import Connection, peer_name
+from ucom_tools.virtual.serve.connection import Connection
+from ucom_tools.virtual.serve.elements import peer_name
 from ucom_tools.virtual.serve.outbox import MAX_QUEUED_FRAMES
 
 log = logging.getLogger("ucom.serve")
