@@ -1,5 +1,5 @@
 """The armar3 program's quiet check compares an axis's state before and after a cycle
-(``_Axis.state``): every field of ``_STATE`` must take part, by its exact value (a
+(``Axis.state``): every field of ``_STATE`` must take part, by its exact value (a
 float by its bits), and the two clocks left out must not."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from ucom_tools.virtual.programs import armar3_axis
-from ucom_tools.virtual.programs.armar3_axis import _STATE, _Axis
+from ucom_tools.virtual.programs.armar3_axis import _STATE, Axis
 
 _OPTIONAL_FLOATS = {"pos_previous", "vel_previous"}
 
@@ -31,17 +31,17 @@ def test_the_state_lists_every_field_but_the_two_clocks_and_the_slot_tables() ->
 
 @pytest.mark.parametrize("name", _STATE)
 def test_a_change_of_any_compared_field_changes_the_state(name: str) -> None:
-    axis = _Axis(1)
+    axis = Axis(1)
     before = axis.state()
     setattr(axis, name, _other(name, getattr(axis, name)))
     assert axis.state() != before
-    assert _Axis(1).state() == before  # the same fields, the same state
+    assert Axis(1).state() == before  # the same fields, the same state
 
 
 @pytest.mark.parametrize("name", sorted(
-    n for n in _STATE if isinstance(getattr(_Axis(0), n), float) or n in _OPTIONAL_FLOATS))
+    n for n in _STATE if isinstance(getattr(Axis(0), n), float) or n in _OPTIONAL_FLOATS))
 def test_a_float_is_compared_by_its_bits(name: str) -> None:
-    axis = _Axis(0)
+    axis = Axis(0)
     setattr(axis, name, 0.0)
     zero = axis.state()
     setattr(axis, name, -0.0)
@@ -52,7 +52,7 @@ def test_a_float_is_compared_by_its_bits(name: str) -> None:
 
 
 def test_the_clocks_left_out_do_not_change_the_state() -> None:
-    axis = _Axis(2)
+    axis = Axis(2)
     before = axis.state()
     axis.since_us += 250.0
     axis.settled_us += 250.0

@@ -13,7 +13,7 @@ from typing import Final
 from ucom_tools.edgelists.lauron4 import AXES, PWM_FULL
 from ucom_tools.virtual.hardware.fpga import VirtualFpga
 from ucom_tools.virtual.hardware.motor import SUBSTEP_S as _SUBSTEP_S
-from ucom_tools.virtual.hardware.numeric import round_half_even
+from ucom_tools.virtual.hardware.numeric import clamp, round_half_even, signed16
 from ucom_tools.virtual.hardware.plant import (
     ADC_FULL_SCALE_V,
     ADC_MAX,
@@ -49,19 +49,7 @@ CURRENT_MA_PER_LSB: Final = ADC_FULL_SCALE_V / ADC_MAX / CURRENT_SENSE_V_PER_A *
 ADC_FORCE: Final = (3, 4, 5)
 ADC_SUPPLY: Final = 6
 
-
 _PWM0: Final = int(Reg.PWM0)
-
-
-def _signed16(value: int) -> int:
-    value &= 0xFFFF
-    return value - 0x10000 if value & 0x8000 else value
-
-
-def _clamp(value: float, low: float, high: float) -> float:
-    return low if value < low else high if value > high else value
-
-
 
 # ---------------------------------------------------------------- the leg
 COXA: Final = 0.10
@@ -108,7 +96,7 @@ def _foot_z(beta: float, gamma: float) -> float:
 
 
 def _adc(volts: float) -> int:
-    return round_half_even(_clamp(volts, 0.0, ADC_FULL_SCALE_V) / ADC_FULL_SCALE_V * ADC_MAX)
+    return round_half_even(clamp(volts, 0.0, ADC_FULL_SCALE_V) / ADC_FULL_SCALE_V * ADC_MAX)
 
 
 class LegPlant:
@@ -190,7 +178,7 @@ class LegPlant:
         volts: list[float | None] = []
         for k, joint in enumerate(self.joints):
             if enabled >> k & 1:
-                duty = _clamp(_signed16(fpga.registers[_PWM0 + k]) / PWM_FULL, -1.0, 1.0)
+                duty = clamp(signed16(fpga.registers[_PWM0 + k]) / PWM_FULL, -1.0, 1.0)
                 volts.append(joint.p.motor_polarity * duty * self.supply_v)
             else:
                 volts.append(None)
@@ -296,8 +284,8 @@ class LegPlant:
             adc[k] = _adc(abs(joint.current) * CURRENT_SENSE_V_PER_A)
         for channel, f in zip(ADC_FORCE, self.force, strict=True):
             reading = ADC_MID + round_half_even(f * 10 / FORCE_DECI_N_PER_LSB)
-            adc[channel] = int(_clamp(reading, 0, ADC_MAX)) if self.foot_sensor else 0
-        adc[ADC_SUPPLY] = int(_clamp(round_half_even(self.supply_v * 1000 / SUPPLY_MV_PER_LSB),
+            adc[channel] = int(clamp(reading, 0, ADC_MAX)) if self.foot_sensor else 0
+        adc[ADC_SUPPLY] = int(clamp(round_half_even(self.supply_v * 1000 / SUPPLY_MV_PER_LSB),
                                      0, ADC_MAX))
         inputs = 0
         for k, (joint, mark) in enumerate(zip(self.joints, self.marks, strict=True)):

@@ -147,80 +147,91 @@ class MotorAxis:
         The two models were written with these two rules, and with the limited drive's
         h Kt i + h T / N rounded in two orders ((h Kt) i without a torque, h (Kt i + T / N)
         with one); both are kept so that the recorded traces stay the same bit for bit."""
+        terms = self._substep_terms if h == _SUBSTEP_S else self._terms(h)
+        if volts is None:
+            self._coast(h, steps, terms, torque, angles)
+        else:
+            self._drive(volts, h, steps, terms, torque, angles)
+
+    # the hot spot, the two loops below: abs() and math.copysign() are written out as
+    # comparisons, the products of loop invariants computed once (the same operations on
+    # the same operands: the same result), the driven and the undriven substep apart
+
+    def _coast(self, h: float, steps: int, terms: tuple[float, float, float, float, float],
+               torque: float | None, angles: list[float] | None) -> None:
+        """:meth:`integrate` without a stage: only b, T_c and the outside torque act."""
+        inertia, _, _, gear, low, high = self._fixed
+        _, _, free, free_coulomb, _ = terms
+        push = h * (0.0 if torque is None else torque / gear)
+        angle, speed = self.angle, self.speed
+        for i in range(steps):
+            base = inertia * speed
+            speed = (base + push) / free
+            if -free_coulomb <= speed <= free_coulomb:
+                speed = 0.0  # sticks
+            else:
+                speed = speed - free_coulomb if speed > 0.0 else speed + free_coulomb
+            angle += h * speed / gear
+            if angle <= low:
+                angle, speed = low, max(speed, 0.0)
+            elif angle >= high:
+                angle, speed = high, min(speed, 0.0)
+            if angles is not None:
+                angles.append(angle)
+            if speed == 0.0 and base == 0.0:
+                # at rest before and after (sticking, or stalled at an end stop), so the
+                # angle did not change either: the remaining substeps repeat this one
+                # exactly
+                if angles is not None:
+                    angles.extend([angle] * (steps - 1 - i))
+                break
+        self.angle, self.speed = angle, speed
+        self.current = 0.0
+
+    def _drive(self, volts: float, h: float, steps: int,
+               terms: tuple[float, float, float, float, float], torque: float | None,
+               angles: list[float] | None) -> None:
+        """:meth:`integrate` with ``volts`` at the terminals, and the current after it."""
         inertia, kt, resistance, gear, low, high = self._fixed
-        damped, damped_coulomb, free, free_coulomb, limited_push = (
-            self._substep_terms if h == _SUBSTEP_S else self._terms(h))
+        damped, damped_coulomb, free, free_coulomb, limited_push = terms
         limit = CURRENT_LIMIT_A
         if torque is None:
-            outside = 0.0
+            push = h * (kt * volts / resistance)
             push_high, push_low = limited_push * limit, limited_push * -limit
         else:
             outside = torque / gear
-            push_high, push_low = h * (kt * limit + outside), h * (kt * -limit + outside)
-        if volts is None:
-            push, damped, damped_coulomb = h * outside, free, free_coulomb
-        elif torque is None:
-            push = h * (kt * volts / resistance)
-        else:
             push = h * (outside + kt * volts / resistance)
+            push_high, push_low = h * (kt * limit + outside), h * (kt * -limit + outside)
         angle, speed, current = self.angle, self.speed, 0.0
-        # the hot spot: abs() and math.copysign() are written out as comparisons, the
-        # products of loop invariants computed once (the same operations on the same
-        # operands: the same result), the driven and the undriven substep apart
-        if volts is None:
-            for i in range(steps):
-                base = inertia * speed
-                speed = (base + push) / damped
-                if -damped_coulomb <= speed <= damped_coulomb:
-                    speed = 0.0  # sticks
-                else:
-                    speed = speed - damped_coulomb if speed > 0.0 else speed + damped_coulomb
-                angle += h * speed / gear
-                if angle <= low:
-                    angle, speed = low, max(speed, 0.0)
-                elif angle >= high:
-                    angle, speed = high, min(speed, 0.0)
+        low_limit = -limit
+        for i in range(steps):
+            base = inertia * speed
+            speed = (base + push) / damped
+            coulomb = damped_coulomb
+            current = (volts - kt * speed) / resistance
+            if current > limit:  # the stage limits; no back-EMF damping
+                speed = (base + push_high) / free
+                coulomb = free_coulomb
+            elif current < low_limit:
+                speed = (base + push_low) / free
+                coulomb = free_coulomb
+            if -coulomb <= speed <= coulomb:
+                speed = 0.0  # sticks
+            else:
+                speed = speed - coulomb if speed > 0.0 else speed + coulomb
+            angle += h * speed / gear
+            if angle <= low:
+                angle, speed = low, max(speed, 0.0)
+            elif angle >= high:
+                angle, speed = high, min(speed, 0.0)
+            if angles is not None:
+                angles.append(angle)
+            if speed == 0.0 and base == 0.0:  # as in _coast
                 if angles is not None:
-                    angles.append(angle)
-                if speed == 0.0 and base == 0.0:
-                    # at rest before and after (sticking, or stalled at an end stop), so
-                    # the angle did not change either: the remaining substeps repeat this
-                    # one exactly
-                    if angles is not None:
-                        angles.extend([angle] * (steps - 1 - i))
-                    break
-        else:
-            low_limit = -limit
-            for i in range(steps):
-                base = inertia * speed
-                speed = (base + push) / damped
-                coulomb = damped_coulomb
-                current = (volts - kt * speed) / resistance
-                if current > limit:  # the stage limits; no back-EMF damping
-                    speed = (base + push_high) / free
-                    coulomb = free_coulomb
-                elif current < low_limit:
-                    speed = (base + push_low) / free
-                    coulomb = free_coulomb
-                if -coulomb <= speed <= coulomb:
-                    speed = 0.0  # sticks
-                else:
-                    speed = speed - coulomb if speed > 0.0 else speed + coulomb
-                angle += h * speed / gear
-                if angle <= low:
-                    angle, speed = low, max(speed, 0.0)
-                elif angle >= high:
-                    angle, speed = high, min(speed, 0.0)
-                if angles is not None:
-                    angles.append(angle)
-                if speed == 0.0 and base == 0.0:  # as above
-                    if angles is not None:
-                        angles.extend([angle] * (steps - 1 - i))
-                    break
+                    angles.extend([angle] * (steps - 1 - i))
+                break
         self.angle, self.speed = angle, speed
-        if volts is None:
-            self.current = 0.0
-        elif torque is None:
+        if torque is None:
             self.current = max(-limit, min(limit, (volts - kt * speed) / resistance))
         elif current >= limit:  # the last substep's current, before the stage limited it
             self.current = limit

@@ -1,7 +1,9 @@
-"""Numeric helpers of the board models that the compiled run time calls in its inner
-loops, each the same value as the builtin it stands for, for every float.
+"""Numeric helpers the board models (programs and plants) share in their inner loops: a
+16-bit register's value as a signed number (:func:`signed16`), a value bounded to a range
+(:func:`clamp`), and :func:`round_half_even`, the same value as the builtin ``round`` for
+every float.
 
-Why: mypyc compiles ``round(x)`` into a call of the builtin through the interpreter,
+Why not ``round``: mypyc compiles ``round(x)`` into a call of the builtin through the interpreter,
 which looks up ``float.__round__`` and builds a bound method each time (some 600
 instructions; ARMAR-III's axes round about 120 times a virtual millisecond);
 :func:`round_half_even` is a few compiled comparisons.  ``tests/test_numeric.py`` holds
@@ -31,3 +33,14 @@ def round_half_even(x: float) -> int:
     if frac == -0.5:
         return i - 1 if i & 1 else i
     return i
+
+
+def signed16(value: int) -> int:
+    """The low 16 bits of ``value`` as a signed (two's complement) number."""
+    value &= 0xFFFF
+    return value - 0x10000 if value & 0x8000 else value
+
+
+def clamp(value: float, low: float, high: float) -> float:
+    """``value`` bounded to ``low .. high`` (a NaN as it is)."""
+    return low if value < low else high if value > high else value

@@ -77,7 +77,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Final
 
-from ucom_tools.edgelists.armar3 import AXES, SPEC
+from ucom_tools.edgelists.armar3 import AXES, SPEC, Command
 from ucom_tools.edgelists.model import EdgeKind, ProgramSpec
 from ucom_tools.virtual.hardware.plant import (
     ANALOG_INPUTS_V,
@@ -87,13 +87,6 @@ from ucom_tools.virtual.hardware.plant import (
     ThreeAxisPlant,
 )
 from ucom_tools.virtual.programs.armar3_axis import (  # the constants re-exported
-    _AD_CHANNEL6,
-    _AD_CHANNEL7,
-    _CMD_OFF,
-    _OUTPUT_ENABLE,
-    _PAR,
-    _PWM0,
-    _QUAD_PRESCALE0,
     AXIS_US,
     BASE_US,
     HOMED,
@@ -102,18 +95,21 @@ from ucom_tools.virtual.programs.armar3_axis import (  # the constants re-export
     HOMING_TIMEOUT_US,
     LIMIT_APPROACH_PER_S,
     NEVER_HOMED,
+    PAR_INDEX,
     SETTLED_COUNTS,
     SETTLED_SPEED,
     SETTLED_US,
+    SO_INDEX,
     STALL_COUNTS,
     STALL_CURRENT_MV,
     STALL_US,
     STANDSTILL_US,
     VELOCITY_FILTER_US,
-    _Axis,
-    _Config,
+    Axis,
+    AxisConfig,
 )
 from ucom_tools.virtual.programs.base import Hardware, Plant
+from ucom_tools.wire.fpga import Reg
 
 __all__ = ["AXIS_US", "BASE_US", "HOMED", "HOMING", "HOMING_FAILED", "HOMING_TIMEOUT_US",
            "LIMIT_APPROACH_PER_S", "NEVER_HOMED", "SETTLED_COUNTS", "SETTLED_SPEED",
@@ -121,6 +117,13 @@ __all__ = ["AXIS_US", "BASE_US", "HOMED", "HOMING", "HOMING_FAILED", "HOMING_TIM
            "STANDSTILL_US", "VELOCITY_FILTER_US", "Armar3Model", "make"]
 
 _N_AXES: Final = len(AXES)
+_AD_CHANNEL6: Final = SO_INDEX["AD Channel 6"]
+_AD_CHANNEL7: Final = SO_INDEX["AD Channel 7"]
+_CMD_OFF: Final = int(Command.OFF)
+# the registers as plain ints (an IntEnum member costs a lookup on every use)
+_PWM0: Final = int(Reg.PWM0)
+_OUTPUT_ENABLE: Final = int(Reg.OUTPUT_ENABLE)
+_QUAD_PRESCALE0: Final = int(Reg.QUAD_PRESCALE0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -132,7 +135,7 @@ class _Quiet:
     dt, stopped or not; PAR through the configuration).  With the same inputs again the
     next cycle repeats it exactly, because neither clock can change a branch here:
     ``since_us`` only matters once the count moves or while a velocity is left (there is
-    none: :meth:`_Axis.at_rest`), and ``settled_us`` only while it has not reached
+    none: :meth:`Axis.at_rest`), and ``settled_us`` only while it has not reached
     :data:`SETTLED_US` (so it is 0, or Settled is 1 already).  So such a cycle only adds
     dt to the clocks that the full one adds it to, and writes the same PWM, output
     enables and SO values (as they are)."""
@@ -161,11 +164,11 @@ class Armar3Model:
         self.ci = [e.default for e in SPEC.of(EdgeKind.CI)]
         self.so = [e.default for e in SPEC.of(EdgeKind.SO)]
         self.par = [e.default for e in SPEC.of(EdgeKind.PAR)]
-        self.axes = [_Axis(k) for k in range(len(AXES))]
+        self.axes = [Axis(k) for k in range(len(AXES))]
         self._prescalers: list[int | None] = [None] * len(AXES)
         self._par_seen: list[int] | None = None
         """The PAR values the configuration was derived from."""
-        self._configs: list[_Config] = []
+        self._configs: list[AxisConfig] = []
         self._stopped = False
         self._resumed = False
         self._quiet: _Quiet | None = None
@@ -173,7 +176,7 @@ class Armar3Model:
 
     # ------------------------------------------------------------------ ProgramModel
     def loop_us(self) -> float:
-        return float(self.par[_PAR["LoopTime(ms)"]])  # exponent -3 ms: raw = us
+        return float(self.par[PAR_INDEX["LoopTime(ms)"]])  # exponent -3 ms: raw = us
 
     def step(self, dt_us: float) -> float:
         if self.par != self._par_seen:
@@ -268,35 +271,35 @@ class Armar3Model:
 
     # ------------------------------------------------------------------ one cycle
     def _configure(self) -> None:
-        """Derive every axis's :class:`_Config` from PAR and set the prescalers (in the
+        """Derive every axis's :class:`AxisConfig` from PAR and set the prescalers (in the
         first cycle and whenever a PAR value differs from the last cycle's)."""
         self._quiet = None
         self._par_seen = list(self.par)
         self._configs = [self._config(name, k) for k, name in enumerate(AXES)]
         self._write_prescalers()
 
-    def _config(self, name: str, k: int) -> _Config:
+    def _config(self, name: str, k: int) -> AxisConfig:
         par = self.par
 
         def gain(edge: str) -> float:
-            return par[_PAR[edge]] * 1e-6
+            return par[PAR_INDEX[edge]] * 1e-6
 
-        revert = par[_PAR["Revert Encoder CountDir(BitMask)"]]
-        return _Config(
+        revert = par[PAR_INDEX["Revert Encoder CountDir(BitMask)"]]
+        return AxisConfig(
             p=gain(f"Motor{name} P"), i=gain(f"Motor{name} I"), d=gain(f"Motor{name} D"),
             feedforward=gain(f"Motor{name} feedforward gain"),
             vp=gain(f"Motor{name} Velocity P"), vi=gain(f"Motor{name} Velocity I"),
             vd=gain(f"Motor{name} Velocity D"),
-            v_max=par[_PAR[f"Motor{name} Max Velocity (x1000)"]] * 1000.0,
-            max_position=par[_PAR[f"Motor{name} Max Position"]],
-            min_position=par[_PAR[f"Motor{name} Min Position"]],
-            reset_pwm=par[_PAR[f"Reset {name} PWM"]],
-            max_pwm=float(par[_PAR["Max PWM"]]),
-            invert_pwm=bool(par[_PAR["Set Joint Moving Direction(BitMask)"]] >> k & 1),
+            v_max=par[PAR_INDEX[f"Motor{name} Max Velocity (x1000)"]] * 1000.0,
+            max_position=par[PAR_INDEX[f"Motor{name} Max Position"]],
+            min_position=par[PAR_INDEX[f"Motor{name} Min Position"]],
+            reset_pwm=par[PAR_INDEX[f"Reset {name} PWM"]],
+            max_pwm=float(par[PAR_INDEX["Max PWM"]]),
+            invert_pwm=bool(par[PAR_INDEX["Set Joint Moving Direction(BitMask)"]] >> k & 1),
             invert_joint=bool(revert >> 2 * k & 1), invert_motor=bool(revert >> 2 * k + 1 & 1))
 
     def _write_prescalers(self) -> None:
-        mask = self.par[_PAR["Encoder Prescaler(BitMask)"]]
+        mask = self.par[PAR_INDEX["Encoder Prescaler(BitMask)"]]
         for k in range(len(AXES)):
             field = mask >> 4 * k & 0xF
             if field != self._prescalers[k]:

@@ -1,6 +1,6 @@
 """The per-axis controller of ``armar3.fl.S`` (:mod:`ucom_tools.virtual.programs.armar3`,
 whose docstring defines it): its constants, the edge indices it reads and writes, one
-axis's configuration from PAR (:class:`_Config`) and its state and cycle (:class:`_Axis`:
+axis's configuration from PAR (:class:`AxisConfig`) and its state and cycle (:class:`Axis`:
 sensing, the position/velocity cascade, homing, Settled).  The program around it (all
 three axes, CI/SO/PAR, the load, the quiet-cycle shortcut) is
 :class:`~ucom_tools.virtual.programs.armar3.Armar3Model`."""
@@ -15,7 +15,7 @@ from typing import Final
 from ucom_tools.edgelists.armar3 import AXES, SPEC, Command
 from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.virtual.hardware.fpga import QuadratureDecoder
-from ucom_tools.virtual.hardware.numeric import round_half_even
+from ucom_tools.virtual.hardware.numeric import clamp, round_half_even, signed16
 from ucom_tools.virtual.programs.base import Hardware
 from ucom_tools.wire.fpga import Reg
 
@@ -56,9 +56,10 @@ def _indices(kind: EdgeKind) -> dict[str, int]:
     return {e.name: i for i, e in enumerate(SPEC.of(kind))}
 
 
-_CI: Final = _indices(EdgeKind.CI)
-_SO: Final = _indices(EdgeKind.SO)
-_PAR: Final = _indices(EdgeKind.PAR)
+CI_INDEX: Final = _indices(EdgeKind.CI)
+SO_INDEX: Final = _indices(EdgeKind.SO)
+PAR_INDEX: Final = _indices(EdgeKind.PAR)
+"""Each edge's index in its kind's values, by name."""
 
 
 def _per_axis(table: dict[str, int], pattern: str) -> tuple[int, ...]:
@@ -67,18 +68,16 @@ def _per_axis(table: dict[str, int], pattern: str) -> tuple[int, ...]:
     return tuple(table[pattern.format(a=a, j=2 * k, m=2 * k + 1)] for k, a in enumerate(AXES))
 
 
-_COMMAND: Final = _per_axis(_CI, "Motor{a} Command")
-_TARGET: Final = _per_axis(_CI, "Motor{a} Target")
-_TARGET_VEL: Final = _per_axis(_CI, "Motor{a} TargetVel")
-_RESET_OFFSET: Final = _per_axis(_CI, "Motor{a} Reset Offset")
-_JOINT_ENCODER: Final = _per_axis(_SO, "Encoder {j}")
-_MOTOR_ENCODER: Final = _per_axis(_SO, "Encoder {m}")
-_VOLTAGE: Final = _per_axis(_SO, "Voltage {a}")
-_RESET_ANSWER: Final = _per_axis(_SO, "Motor{a} Reset Answer")
-_VELOCITY: Final = _per_axis(_SO, "Velocity {a}")
-_SETTLED: Final = _per_axis(_SO, "Motor {a} Settled")
-_AD_CHANNEL6: Final = _SO["AD Channel 6"]
-_AD_CHANNEL7: Final = _SO["AD Channel 7"]
+_COMMAND: Final = _per_axis(CI_INDEX, "Motor{a} Command")
+_TARGET: Final = _per_axis(CI_INDEX, "Motor{a} Target")
+_TARGET_VEL: Final = _per_axis(CI_INDEX, "Motor{a} TargetVel")
+_RESET_OFFSET: Final = _per_axis(CI_INDEX, "Motor{a} Reset Offset")
+_JOINT_ENCODER: Final = _per_axis(SO_INDEX, "Encoder {j}")
+_MOTOR_ENCODER: Final = _per_axis(SO_INDEX, "Encoder {m}")
+_VOLTAGE: Final = _per_axis(SO_INDEX, "Voltage {a}")
+_RESET_ANSWER: Final = _per_axis(SO_INDEX, "Motor{a} Reset Answer")
+_VELOCITY: Final = _per_axis(SO_INDEX, "Velocity {a}")
+_SETTLED: Final = _per_axis(SO_INDEX, "Motor {a} Settled")
 
 _CMD_OFF: Final = int(Command.OFF)
 _CMD_POSITION: Final = int(Command.POSITION)
@@ -88,22 +87,10 @@ _CMD_HOMING: Final = int(Command.HOMING)
 _CONTROLLED: Final = (_CMD_POSITION, _CMD_VELOCITY, _CMD_HOMING)
 """The Commands that run a controller (any other value is OFF)."""
 _QUAD_COUNT0: Final = int(Reg.QUAD_COUNT0)
-_QUAD_PRESCALE0: Final = int(Reg.QUAD_PRESCALE0)
-_PWM0: Final = int(Reg.PWM0)
-_OUTPUT_ENABLE: Final = int(Reg.OUTPUT_ENABLE)
-
-
-def _signed16(value: int) -> int:
-    value &= 0xFFFF
-    return value - 0x10000 if value & 0x8000 else value
-
-
-def _clamp(value: float, low: float, high: float) -> float:
-    return low if value < low else high if value > high else value
 
 
 @dataclass(frozen=True, slots=True)
-class _Config:
+class AxisConfig:
     """One axis's parameters in controller units, derived from PAR (anew whenever a PAR
     value changes)."""
 
@@ -135,7 +122,7 @@ _AXIS_SLOTS: Final = ("active", "anchor", "ci_slots", "command", "hold", "homing
                "stall_anchor", "stall_us", "value", "vel_previous", "vel_sum")
 
 
-class _Axis:
+class Axis:
     """Motor k's controller: counters, velocity estimate, mode, loops, homing, Settled.
 
     One :meth:`cycle` a control cycle does what the model's parts do in turn (every
@@ -233,15 +220,24 @@ class _Axis:
     def set_joint(self, hw: Hardware, invert: bool, value: int) -> None:
         """Load the joint counter (FPGA channel 2k) with ``value``."""
         hw.fpga.write(_QUAD_COUNT0 + self.joint_channel, -value if invert else value)
-        self.joint_view = _signed16(value)
+        self.joint_view = signed16(value)
         self.joint_position = value
 
-    def cycle(self, hw: Hardware, counters: list[QuadratureDecoder], c: _Config,
+    def cycle(self, hw: Hardware, counters: list[QuadratureDecoder], c: AxisConfig,
               ci: list[int], so: list[int], adc: list[int], dt_us: float, control: bool,
               resumed: bool) -> int:
         """Sense, control (if ``control``: else only sense and report) and report one
         cycle; returns the PWM register's value (before the 16-bit mask)."""
-        # ---- the counters
+        position = self._sense(counters, c)
+        value = self._estimate_velocity(position, dt_us)
+        if control:
+            self._control(hw, c, ci, position, value, dt_us, resumed)
+        self._report(so, adc)
+        return round_half_even(-self.pwm if c.invert_pwm else self.pwm)
+
+    def _sense(self, counters: list[QuadratureDecoder], c: AxisConfig) -> int:
+        """Read the joint and motor counters (direction bits, the signed 16-bit views) and
+        extend them by the wrapped difference; returns the joint position."""
         raw_count = counters[self.joint_channel].count
         view = (-raw_count if c.invert_joint else raw_count) & 0xFFFF
         if view & 0x8000:
@@ -261,94 +257,97 @@ class _Axis:
             self.reset_velocity(position)
             self.sensed = True
         self.joint_view, self.joint_position, self.motor_view = view, position, mview
-        # ---- the velocity estimate
+        return position
+
+    def _estimate_velocity(self, position: int, dt_us: float) -> float:
+        """The count difference over the time since the count last changed, low-passed;
+        returns the filtered velocity [counts/s]."""
         since = self.since_us + dt_us
         self.since_us = since
-        if not since <= 0:  # (as written, for a nan as well)
-            raw = self.raw
-            anchor = self.anchor
-            if position != anchor:
-                self.raw = raw = (position - anchor) * 1e6 / since
-                self.anchor, self.since_us = position, 0.0
-            elif since >= STANDSTILL_US:
-                self.raw = raw = 0.0
-            elif (raw if raw >= 0 else -raw) * since > 1e6:  # slower than one count since
-                self.raw = raw = math.copysign(1e6 / since, raw)
-            value = self.value
-            self.value = value = value + dt_us / (VELOCITY_FILTER_US + dt_us) * (raw - value)
+        if since <= 0:  # (as written: a nan goes on below)
+            return self.value
+        raw = self.raw
+        anchor = self.anchor
+        if position != anchor:
+            self.raw = raw = (position - anchor) * 1e6 / since
+            self.anchor, self.since_us = position, 0.0
+        elif since >= STANDSTILL_US:
+            self.raw = raw = 0.0
+        elif (raw if raw >= 0 else -raw) * since > 1e6:  # slower than one count since
+            self.raw = raw = math.copysign(1e6 / since, raw)
+        value = self.value
+        self.value = value = value + dt_us / (VELOCITY_FILTER_US + dt_us) * (raw - value)
+        return value
+
+    def _control(self, hw: Hardware, c: AxisConfig, ci: list[int], position: int,
+                 value: float, dt_us: float, resumed: bool) -> None:
+        """The mode's controller (the Command from CI), the PWM, and Settled."""
+        command_slot, target_slot, target_vel_slot, reset_offset_slot = self.ci_slots
+        command = ci[command_slot]
+        if command not in _CONTROLLED:
+            command = _CMD_OFF
+        if command != self.command or resumed:
+            self._enter(command, resumed)
+            self.command = command
+        self.active = command != _CMD_OFF
+        goal: int | None = None
+        if command == _CMD_OFF:
+            pwm = 0.0
+        elif command == _CMD_HOMING and self.hold is None:
+            self._home(hw, c, ci[reset_offset_slot], dt_us)
+            pwm = self.pwm
+        elif command == _CMD_VELOCITY:
+            pwm = self._velocity_mode(c, ci[target_vel_slot], position, value)
         else:
-            value = self.value
-        # ---- control
-        if control:
-            command_slot, target_slot, target_vel_slot, reset_offset_slot = self.ci_slots
-            command = ci[command_slot]
-            if command not in _CONTROLLED:
-                command = _CMD_OFF
-            if command != self.command or resumed:
-                self._enter(command, resumed)
-                self.command = command
-            self.active = command != _CMD_OFF
-            goal: int | None = None
-            if command == _CMD_OFF:
-                pwm = 0.0
-            elif command == _CMD_HOMING and self.hold is None:
-                self._home(hw, c, ci[reset_offset_slot], dt_us)
-                pwm = self.pwm
-            elif command == _CMD_VELOCITY:
-                target_vel = ci[target_vel_slot]
-                v_cmd = _clamp(target_vel, -c.v_max, c.v_max)
-                if c.p > 0:
-                    gain = min(c.p, LIMIT_APPROACH_PER_S)
-                    high = max(0.0, gain * (c.max_position - position))
-                    low = min(0.0, gain * (c.min_position - position))
-                else:
-                    high = math.inf if position < c.max_position else 0.0
-                    low = -math.inf if position > c.min_position else 0.0
-                pwm = self._velocity_loop(_clamp(v_cmd, low, high) - value, c)
+            hold = self.hold
+            if hold is not None:
+                goal, feedforward = hold, 0.0
             else:
-                hold = self.hold
-                if hold is not None:
-                    goal, feedforward = hold, 0.0
-                else:
-                    target, low_p, high_p = ci[target_slot], c.min_position, c.max_position
-                    goal = int(low_p if target < low_p else high_p if target > high_p
-                               else target)
-                    feedforward = c.feedforward * ci[target_vel_slot]
-                # the position loop (a discrete PID, see _velocity_loop)
-                error = goal - position
-                p, i, d, limit = c.p, c.i, c.d, c.v_max
-                previous = self.pos_previous
-                difference = 0.0 if previous is None else error - previous
-                self.pos_previous = error
-                total = self.pos_sum + error if i else 0.0
-                out = feedforward + p * error + i * total + d * difference
-                if (out if out >= 0 else -out) > limit and (out > 0) == (error > 0):
-                    total = self.pos_sum if i else 0.0  # anti-windup: hold the sum
-                    out = feedforward + p * error + i * total + d * difference
-                self.pos_sum = total
-                v_cmd = -limit if out < -limit else limit if out > limit else out
-                # the velocity loop (_velocity_loop, inline: it runs every cycle)
-                error_v = v_cmd - value
-                p, i, d, limit = c.vp, c.vi, c.vd, c.max_pwm
-                previous_v = self.vel_previous
-                difference = 0.0 if previous_v is None else error_v - previous_v
-                self.vel_previous = error_v
-                total = self.vel_sum + error_v if i else 0.0
-                out = 0.0 + p * error_v + i * total + d * difference
-                if (out if out >= 0 else -out) > limit and (out > 0) == (error_v > 0):
-                    total = self.vel_sum if i else 0.0
-                    out = 0.0 + p * error_v + i * total + d * difference
-                self.vel_sum = total
-                pwm = -limit if out < -limit else limit if out > limit else out
-            self.pwm = pwm
-            # ---- Settled
-            if goal is not None and abs(goal - self.joint_position) <= SETTLED_COUNTS \
-                    and abs(self.value) <= SETTLED_SPEED:
-                self.settled_us += dt_us
-            else:
-                self.settled_us = 0.0
-            self.settled = self.settled_us >= SETTLED_US
-        # ---- the SO values
+                target, low_p, high_p = ci[target_slot], c.min_position, c.max_position
+                goal = int(low_p if target < low_p else high_p if target > high_p
+                           else target)
+                feedforward = c.feedforward * ci[target_vel_slot]
+            pwm = self._velocity_loop(self._position_loop(goal - position, feedforward, c)
+                                      - value, c)
+        self.pwm = pwm
+        if goal is not None and abs(goal - self.joint_position) <= SETTLED_COUNTS \
+                and abs(self.value) <= SETTLED_SPEED:
+            self.settled_us += dt_us
+        else:
+            self.settled_us = 0.0
+        self.settled = self.settled_us >= SETTLED_US
+
+    def _velocity_mode(self, c: AxisConfig, target_vel: int, position: int,
+                       value: float) -> float:
+        """VELOCITY: the target velocity, slowed towards a position limit, through the
+        velocity loop; returns the PWM."""
+        v_cmd = clamp(target_vel, -c.v_max, c.v_max)
+        if c.p > 0:
+            gain = min(c.p, LIMIT_APPROACH_PER_S)
+            high = max(0.0, gain * (c.max_position - position))
+            low = min(0.0, gain * (c.min_position - position))
+        else:
+            high = math.inf if position < c.max_position else 0.0
+            low = -math.inf if position > c.min_position else 0.0
+        return self._velocity_loop(clamp(v_cmd, low, high) - value, c)
+
+    def _position_loop(self, error: int, feedforward: float, c: AxisConfig) -> float:
+        """The outer loop: a discrete PID as :meth:`_velocity_loop`, with the target
+        velocity's feedforward; returns the velocity command, bounded to the maximum."""
+        p, i, d, limit = c.p, c.i, c.d, c.v_max
+        previous = self.pos_previous
+        difference = 0.0 if previous is None else error - previous
+        self.pos_previous = error
+        total = self.pos_sum + error if i else 0.0
+        out = feedforward + p * error + i * total + d * difference
+        if (out if out >= 0 else -out) > limit and (out > 0) == (error > 0):
+            total = self.pos_sum if i else 0.0  # anti-windup: hold the sum
+            out = feedforward + p * error + i * total + d * difference
+        self.pos_sum = total
+        return -limit if out < -limit else limit if out > limit else out
+
+    def _report(self, so: list[int], adc: list[int]) -> None:
+        """The axis's SO values."""
         joint_so, motor_so, voltage_so, answer_so, velocity_so, settled_so = self.so_slots
         so[joint_so] = self.joint_view
         so[motor_so] = self.motor_view
@@ -358,9 +357,8 @@ class _Axis:
         so[velocity_so] = -32768 if velocity < -32768 else 32767 if velocity > 32767 \
             else velocity
         so[settled_so] = int(self.settled)
-        return round_half_even(-self.pwm if c.invert_pwm else self.pwm)
 
-    def _velocity_loop(self, error: float, c: _Config) -> float:
+    def _velocity_loop(self, error: float, c: AxisConfig) -> float:
         """The inner loop: a discrete PID ``u = P e + I sum(e) + D (e - e_prev)`` whose sum
         does not grow while the output saturates in the error's direction (with I = 0 the
         sum is held at 0)."""
@@ -398,7 +396,7 @@ class _Axis:
                 self.homing_us = 0.0
                 self.stall_anchor, self.stall_us = self.joint_position, 0.0
 
-    def _home(self, hw: Hardware, c: _Config, offset: int, dt_us: float) -> None:
+    def _home(self, hw: Hardware, c: AxisConfig, offset: int, dt_us: float) -> None:
         position = self.joint_position
         self.homing_us += dt_us
         if abs(position - self.stall_anchor) > STALL_COUNTS:
@@ -416,11 +414,11 @@ class _Axis:
             self.reset_answer, self.hold = HOMED, offset
             self.pwm = 0.0
         else:
-            self.pwm = _clamp(c.reset_pwm, -c.max_pwm, c.max_pwm)
+            self.pwm = clamp(c.reset_pwm, -c.max_pwm, c.max_pwm)
 
 
 _STATE: Final = tuple(sorted(set(_AXIS_SLOTS) - {"since_us", "settled_us", "so_slots",
                                                 "ci_slots"}))
-"""What :meth:`_Axis.state` compares."""
+"""What :meth:`Axis.state` compares."""
 _FLOAT_BITS: Final = struct.Struct("<9d")
-"""The float part of :meth:`_Axis.state`, by its bits."""
+"""The float part of :meth:`Axis.state`, by its bits."""

@@ -100,11 +100,9 @@ from ucom_tools.virtual.hardware.lauron4_leg import (  # the board's constants r
     TIBIA,
     UNIT_RAD,
     LegPlant,
-    _clamp,
-    _signed16,
 )
 from ucom_tools.virtual.hardware.motor import SUPPLY_V
-from ucom_tools.virtual.hardware.numeric import round_half_even
+from ucom_tools.virtual.hardware.numeric import clamp, round_half_even, signed16
 from ucom_tools.virtual.programs.base import Hardware, Plant
 from ucom_tools.wire.fpga import Reg
 
@@ -302,9 +300,9 @@ class Lauron4Model:
         for a in self.axes:
             joint, motor = 2 * a.k, 2 * a.k + 1
             count = counters[joint].count
-            a.position = _signed16(-count if direction >> joint & 1 else count)
+            a.position = signed16(-count if direction >> joint & 1 else count)
             count = counters[motor].count
-            moved = _signed16(count - a.motor_count)
+            moved = signed16(count - a.motor_count)
             a.motor_count = count
             if dt_us > 0:
                 sign = -1 if direction >> motor & 1 else 1
@@ -395,7 +393,7 @@ class Lauron4Model:
                     v_cmd = float(ci[_VEL_SETPOINT[k]])
                 else:
                     setpoint = ci[_SETPOINT[k]]
-                    target = _clamp(setpoint, lower, upper)
+                    target = clamp(setpoint, lower, upper)
                     a.limit_hit |= target != setpoint
                     v_cmd = kp * (target - a.position) + ci[_VEL_SETPOINT[k]]
                 if kp > 0:
@@ -403,12 +401,12 @@ class Lauron4Model:
                 else:  # no position loop: stop at a limit
                     low = -math.inf if a.position > lower else 0.0
                     high = math.inf if a.position < upper else 0.0
-                bounded = _clamp(v_cmd, low, high)
+                bounded = clamp(v_cmd, low, high)
                 a.limit_hit |= bounded != v_cmd
                 v_cmd = bounded
             elif a.homing == _Homing.DONE:
                 target = a.hold
-            v_cmd = _clamp(v_cmd, -v_max, v_max)
+            v_cmd = clamp(v_cmd, -v_max, v_max)
             error = v_cmd - a.velocity
             compliant = mode == _COMPLIANT and a.homing == _Homing.IDLE
             a.command = self._current(a, error, i_max, compliant, par)
@@ -416,7 +414,7 @@ class Lauron4Model:
             self._settle(a, target, error, dt_us)
             w_motor = a.velocity * UNIT_RAD * GEAR_RATIO
             volts = MOTOR_RESISTANCE * a.command / 1000.0 + MOTOR_KE * w_motor
-            pwm = round_half_even(_clamp(volts / supply * PWM_FULL, -pwm_limit, pwm_limit))
+            pwm = round_half_even(clamp(volts / supply * PWM_FULL, -pwm_limit, pwm_limit))
             if motor_direction >> k & 1:
                 pwm = -pwm
             registers[_PWM0 + k] = pwm & 0xFFFF
@@ -428,14 +426,14 @@ class Lauron4Model:
         vkp, vki = par[_VKP[a.k]] * 1e-3, par[_VKI[a.k]] * 1e-4
         if compliant or not vki:
             a.integral = 0.0
-            return _clamp(vkp * error, -i_max, i_max)
+            return clamp(vkp * error, -i_max, i_max)
         integral = a.integral + vki * error
         out = vkp * error + integral
         if abs(out) > i_max and (out > 0) == (error > 0):
             integral = a.integral  # anti-windup: hold the sum
             out = vkp * error + integral
-        a.integral = _clamp(integral, -i_max, i_max)
-        return _clamp(out, -i_max, i_max)
+        a.integral = clamp(integral, -i_max, i_max)
+        return clamp(out, -i_max, i_max)
 
     def _settle(self, a: _Axis, target: float | None, error: float, dt_us: float) -> None:
         if a.homing in _SEARCHING:
@@ -461,8 +459,8 @@ class Lauron4Model:
         for a in self.axes:
             k = a.k
             so[_POSITION[k]] = a.position
-            so[_VELOCITY[k]] = int(_clamp(round_half_even(a.velocity), -32768, 32767))
-            so[_CURRENT[k]] = int(_clamp(a.current, -10000, 10000))
+            so[_VELOCITY[k]] = int(clamp(round_half_even(a.velocity), -32768, 32767))
+            so[_CURRENT[k]] = int(clamp(a.current, -10000, 10000))
             limit = par[_ILIMIT[k]]
             flags = ((_REFERENCED if a.referenced else 0)
                      | (_SETTLED if a.settled and a.driven else 0)
@@ -471,7 +469,7 @@ class Lauron4Model:
             status |= flags << 4 * k
         threshold = par[_CONTACT_THRESHOLD]
         for i, index in enumerate(_FORCE):
-            so[index] = (int(_clamp(round_half_even(self.forces[i]), -5000, 5000))
+            so[index] = (int(clamp(round_half_even(self.forces[i]), -5000, 5000))
                          if threshold else 0)
         so[_GROUND_CONTACT] = int(bool(threshold) and self.forces[2] > threshold)
         so[_LEG_STATUS] = status
