@@ -56,7 +56,7 @@ from ucom_tools.gateway.cia402_objects import (
     State402,
 )
 from ucom_tools.gateway.codes import NmtCommand, NmtState, StateChange
-from ucom_tools.gateway.joint_drive import JointDrive, SharedCommand, Source
+from ucom_tools.gateway.joint_drive import IDLE_S, JointDrive, SharedCommand, Source
 from ucom_tools.gateway.joints import Joint, Role
 from ucom_tools.gateway.load import CANOPEN_BITRATE, WARN_SHARE, pdo_load
 from ucom_tools.gateway.node import NodeCallbacks, NodeRuntime
@@ -68,6 +68,11 @@ _now = time.monotonic
 
 LOAD_SYNCS = 50
 """SYNCs over which the master's SYNC rate is measured for the bus load warning."""
+INF = float("inf")
+SYNCED_GAP_S = 2 * IDLE_S
+"""SYNCs at most this far apart run a bus's drives: a joint that moved waits for the
+next SYNC (its TPDOs carry it then) instead of running its drive at every snapshot (250
+a second: three times the drive's work of 100 SYNCs a second, all for nothing)."""
 
 
 @dataclass(frozen=True)
@@ -270,6 +275,8 @@ class _BusCallbacks:
         self.wanted = frozenset().union(*(jd.so_wanted for jd in self.group))
         self.seen = -1  # the snapshot last observed
         self.syncs: list[float] = []  # SYNC times, for the rate's check
+        self.last_sync = -INF  # the latest SYNC ...
+        self.sync_gap = INF  # ... and the time since the one before
 
     def callbacks(self) -> NodeCallbacks:
         return NodeCallbacks(on_write=self.on_write, on_state=self.on_state,
@@ -338,17 +345,25 @@ class _BusCallbacks:
                         "fewer objects, put fewer joints on this bus or SYNC less often",
                         gateway._groups[number][0].spec, rate, share * 100)
 
+    def synced(self, now: float) -> bool:
+        """Do the master's SYNCs run the drives at least every :data:`IDLE_S` (a joint
+        that moved waits for the next, as a CiA 402 drive samples at SYNC); not once one
+        is overdue."""
+        return self.sync_gap <= SYNCED_GAP_S and now - self.last_sync <= 1.5 * self.sync_gap
+
     def on_sync(self, counter: int | None) -> None:
+        now = _now()
+        self.sync_gap, self.last_sync = now - self.last_sync, now
         if self.number not in self.gateway._load_warned:
-            self.check_rate(_now())
+            self.check_rate(now)
         snap, now, fault = self.observe(), _now(), self.fault
         for jd in self.group:
             jd.update(now, snap, fault, sync=True)
 
     def on_tick(self, now: float) -> None:
-        snap, fault = self.observe(), self.fault
+        snap, fault, synced = self.observe(), self.fault, self.synced(now)
         for jd in self.group:
-            if jd.due(now):
+            if jd.due(now, synced):
                 jd.update(now, snap, fault)
 
     def master_lost(self, reason: str) -> None:
