@@ -4,15 +4,18 @@ boards against their trees, ``run`` the cyclic exchange (a live view on a termin
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import click
+from rich.markup import escape
 
 from ucom_tools.cli import run_summary as say
 from ucom_tools.cli.exitcodes import EXIT_FAILED
 from ucom_tools.cli.options import Finite, connection_json, connection_options, json_option
-from ucom_tools.cli.output import emit_json
+from ucom_tools.cli.output import emit_json, stderr
 from ucom_tools.cli.remote_run import one_bus, part_of, run_robot
+from ucom_tools.errors import InputError
 from ucom_tools.net.keys import DEFAULT_ENDPOINT
 from ucom_tools.ops.remote import POLICIES, STOP
 from ucom_tools.ops.robot import ConnectSpec
@@ -174,6 +177,43 @@ def run(ctx: click.Context, robot_or_trees: tuple[str, ...], **options: Any) -> 
     run_robot(ctx, robot_or_trees, **options)
 
 
+
+
+LAYOUT_HELP = """Write a layout for the Foxglove app or Lichtblick that shows ROBOT.
+
+ROBOT is a bundled topology (armar3, lauron4, ...) or a topology file whose boards name
+their attribute trees.  A tab per board with joints: a plot of each joint's sensor
+against its target and one of its velocity against its velocity target (the values
+topics of 'remote run --foxglove' and of a '--record FILE.mcap', which are the same);
+a last tab with the run's events (/events) and each bus's latest frame (/<bus>/frames).
+Import it in the app (Layouts, Import from file), then open ws://127.0.0.1:8765 or the
+recording.  --for lichtblick writes the format of Foxglove Studio 1.x, which Lichtblick
+reads.  The file is written whole or not at all; an existing one only with --force
+(else exit code 3)."""
+
+
+@remote.command("layout", help=LAYOUT_HELP)
+@click.argument("robot")
+@click.option("-o", "--output", required=True, metavar="FILE",
+              help="The layout file to write (JSON; '-': standard output).")
+@click.option("--for", "form", type=click.Choice(("foxglove", "lichtblick")),
+              default="foxglove", show_default=True,
+              help="The app the layout is for.")
+@click.option("--force", is_flag=True, help="Replace an existing FILE.")
+def layout(robot: str, output: str, form: str, force: bool) -> None:
+    from ucom_tools.fileio import STDOUT, write_text
+    from ucom_tools.gateway import joints
+    from ucom_tools.viewers.foxglove_layout import layout_json
+
+    found = joints.load(robot)
+    text = layout_json(found, form)
+    if output != STDOUT and Path(output).is_file() and not force:
+        raise InputError(f"{output} exists; --force replaces it", key="--output")
+    write_text(output, text + "\n", option="--output", allow_stdout=True)
+    if output != STDOUT:
+        stderr().print(f"wrote {escape(output)}: a layout for {escape(form)}, "
+                       f"{len(found.joints)} joints of {escape(found.topology.name)}",
+                       highlight=False)
 
 
 try:
