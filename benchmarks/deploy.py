@@ -36,7 +36,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from ucom_tools.config import topology as topo_mod  # noqa: E402
-from ucom_tools.image import load_image  # noqa: E402
+from ucom_tools.image.formats import load_image  # noqa: E402
 from ucom_tools.ops import deploy as ops  # noqa: E402
 from ucom_tools.ops import params_keep  # noqa: E402
 from ucom_tools.ops.enumerate import enumerate_bus  # noqa: E402

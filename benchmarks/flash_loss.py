@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from ucom_tools.config.topology import load  # noqa: E402
-from ucom_tools.image import load_image  # noqa: E402
+from ucom_tools.image.formats import load_image  # noqa: E402
 from ucom_tools.ops.flash import flash  # noqa: E402
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot  # noqa: E402
 from ucom_tools.protocol.bootloader import BootloaderClient  # noqa: E402

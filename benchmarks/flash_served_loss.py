@@ -38,7 +38,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from ucom_tools.image import load_image  # noqa: E402
+from ucom_tools.image.formats import load_image  # noqa: E402
 from ucom_tools.ops.flash import flash, listen_first  # noqa: E402
 from ucom_tools.ops.robot import ConnectSpec, open_robot  # noqa: E402
 from ucom_tools.signals import stop_signals  # noqa: E402

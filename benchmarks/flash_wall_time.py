@@ -19,7 +19,7 @@ from canopen.objectdictionary import DOMAIN, ObjectDictionary, ODVariable
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from ucom_tools.image import load_image  # noqa: E402
+from ucom_tools.image.formats import load_image  # noqa: E402
 from ucom_tools.ops.flash import flash  # noqa: E402
 from ucom_tools.ops.robot import ConnectSpec, open_robot  # noqa: E402
 

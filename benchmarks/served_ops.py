@@ -51,7 +51,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from runtime import served_armar3  # noqa: E402
 
-from ucom_tools.image import load_image  # noqa: E402
+from ucom_tools.image.formats import load_image  # noqa: E402
 from ucom_tools.ops.enumerate import enumerate_bus  # noqa: E402
 from ucom_tools.ops.flash import flash  # noqa: E402
 from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot  # noqa: E402

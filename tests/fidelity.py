@@ -18,7 +18,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from ucom_tools.image.srec import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.ops.flash import flash
 from ucom_tools.ops.remote import RemotePart
 from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot

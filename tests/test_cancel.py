@@ -7,7 +7,7 @@ import threading
 
 import pytest
 
-from ucom_tools.image import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.ops.flash import FlashInterrupted, flash
 from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.wire.codes import BoardState

@@ -9,7 +9,7 @@ from pathlib import Path
 from click.testing import CliRunner, Result
 
 from ucom_tools.cli.main import cli
-from ucom_tools.image import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.ops.flash import Selection, flash
 from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.wire.codes import BoardState, ErrorCode, StatusOp

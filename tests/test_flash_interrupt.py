@@ -33,7 +33,7 @@ import pytest
 
 from tests.helpers import ROOT, head_topology, served_in_process
 from ucom_tools.config import topology as topo_mod
-from ucom_tools.image import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.ops import deploy as deploy_ops
 from ucom_tools.ops import leave
 from ucom_tools.ops.flash import FlashInterrupted, FlashResult, flash

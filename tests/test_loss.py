@@ -12,7 +12,7 @@ import pytest
 
 from tests.helpers import image_words, plan_of
 from ucom_tools.config.topology import load
-from ucom_tools.image import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.ops.flash import flash
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot
 from ucom_tools.protocol.bootloader import BootloaderClient

@@ -17,7 +17,7 @@ from click.testing import CliRunner, Result
 
 from ucom_tools.cli.main import cli
 from ucom_tools.config.topology import load
-from ucom_tools.image import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.ops.flash import flash
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot
 from ucom_tools.protocol.bootloader import BootloaderClient

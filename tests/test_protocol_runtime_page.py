@@ -18,7 +18,7 @@ import pytest
 from ucom_tools import compiled
 from ucom_tools.edgelists import armar3, lauron4
 from ucom_tools.edgelists.model import MAX_NAME, EdgeKind, ProgramSpec
-from ucom_tools.image import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.ops.flash import flash
 from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.virtual import application, runtime

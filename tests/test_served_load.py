@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from tests.helpers import served_in_process
-from ucom_tools.image import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.ops.flash import flash
 from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.virtual import clock as clock_mod

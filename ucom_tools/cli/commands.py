@@ -35,7 +35,8 @@ from ucom_tools.cli.options import (
 )
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.errors import InputError, UcomError
-from ucom_tools.image import Image, load_image
+from ucom_tools.image.formats import load_image
+from ucom_tools.image.model import Image
 from ucom_tools.ops import options as ops
 from ucom_tools.ops import params_keep
 from ucom_tools.ops.enumerate import enumerate_bus

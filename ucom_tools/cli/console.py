@@ -26,7 +26,8 @@ from ucom_tools.cli.menu import OPTIONS, MenuOption, label, parse_flag, parse_le
 from ucom_tools.cli.options import connection_options
 from ucom_tools.cli.output import stderr, stdout
 from ucom_tools.errors import InputError, UcomError
-from ucom_tools.image import Image, load_image
+from ucom_tools.image.formats import load_image
+from ucom_tools.image.model import Image
 from ucom_tools.ops import options as ops
 from ucom_tools.ops.enumerate import enumerate_bus
 from ucom_tools.ops.flash import FlashInterrupted, Selection

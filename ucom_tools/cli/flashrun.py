@@ -25,7 +25,7 @@ from dataclasses import replace
 from typing import Any, TypeVar
 
 from ucom_tools.cli.output import stderr
-from ucom_tools.image import Image
+from ucom_tools.image.model import Image
 from ucom_tools.ops.flash import FINISHED, FlashInterrupted, FlashResult, ProgressFn, flash
 from ucom_tools.ops.robot import Robot
 from ucom_tools.signals import STOP_SIGNALS

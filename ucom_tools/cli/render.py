@@ -13,7 +13,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from ucom_tools.image import Image
+from ucom_tools.image.model import Image
 from ucom_tools.ops.compat import CheckRow
 from ucom_tools.ops.enumerate import BusEnumeration
 from ucom_tools.ops.flash import FlashResult, at_phase

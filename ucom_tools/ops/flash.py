@@ -27,7 +27,7 @@ from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import dataclass, field, replace
 
 from ucom_tools.errors import InputError, UcomError, UcomTimeoutError
-from ucom_tools.image import Image
+from ucom_tools.image.model import Image
 from ucom_tools.ops import leave
 from ucom_tools.ops.compat import compare
 from ucom_tools.ops.enumerate import (
