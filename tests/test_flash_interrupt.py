@@ -36,7 +36,8 @@ from ucom_tools.config import topology as topo_mod
 from ucom_tools.image.formats import load_image
 from ucom_tools.ops import deploy as deploy_ops
 from ucom_tools.ops import leave
-from ucom_tools.ops.flash import FlashInterrupted, FlashResult, flash
+from ucom_tools.ops.flash import flash
+from ucom_tools.ops.flash_types import FlashInterrupted, FlashRequest, FlashResult
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot, open_robot
 from ucom_tools.signals import Terminated, interrupt_exit_code, stop_signal
 from ucom_tools.virtual.board import VirtualBoard
@@ -185,7 +186,7 @@ def head() -> Iterator[Robot]:
     """ARMAR-III's head bus in process, its boards running armar3.fl.S with AutoStart."""
     r = open_robot(ConnectSpec(virtual=HEAD))
     try:
-        assert flash(r, OLD, autostart=True, start=True).all_verified
+        assert flash(r, FlashRequest(OLD, autostart=True, start=True)).all_verified
         yield r
     finally:
         r.close()
@@ -222,7 +223,7 @@ def test_a_flash_interrupted_in_any_phase_leaves_each_board_as_it_says(
     trap = Interrupter(head.buses["CAN0"], mode, when, stop)
     try:
         with pytest.raises(FlashInterrupted) as caught:
-            flash(head, NEW, autostart=True, start=True, cancel=trap.cancel)
+            flash(head, FlashRequest(NEW, autostart=True, start=True), cancel=trap.cancel)
     finally:
         trap.close()
     assert trap.fired, f"the {phase} never came"
@@ -248,7 +249,7 @@ def test_a_flash_interrupted_in_any_phase_leaves_each_board_as_it_says(
     else:
         assert interrupt_exit_code(caught.value) == 130
     if phase in ("erase", "transfer"):  # the bus is usable at once: a flash verifies
-        assert flash(head, NEW).all_verified
+        assert flash(head, FlashRequest(NEW)).all_verified
 
 
 def test_a_resend_round_interrupted_leaves_the_verified_boards_verified(head: Robot) -> None:
@@ -268,7 +269,7 @@ def test_a_resend_round_interrupted_leaves_the_verified_boards_verified(head: Ro
     trap = Interrupter(h, "raise", frame(0x103, 0, 1))  # its RESULT: MISSING
     try:
         with pytest.raises(FlashInterrupted) as caught:
-            flash(head, NEW, cancel=trap.cancel)
+            flash(head, FlashRequest(NEW), cancel=trap.cancel)
     finally:
         trap.close()
         h.bus.sim.drop = None  # type: ignore[attr-defined]
@@ -297,7 +298,7 @@ def test_a_board_that_does_not_answer_the_undo_is_named_unreachable(head: Robot)
     trap.on_frame = power_off_then_interrupt  # type: ignore[method-assign]
     try:
         with pytest.raises(FlashInterrupted) as caught:
-            flash(head, NEW, cancel=trap.cancel)
+            flash(head, FlashRequest(NEW), cancel=trap.cancel)
     finally:
         trap.close()
     result = caught.value.result
@@ -317,11 +318,11 @@ def test_an_interrupted_bus_is_put_back_the_one_done_says_so_the_others_not_begu
     others never begun, their boards keeping their program."""
     r = open_robot(ConnectSpec(virtual="armar3"))
     try:
-        assert flash(r, OLD).all_verified
+        assert flash(r, FlashRequest(OLD)).all_verified
         first, second, *others = r.buses
         trap = Interrupter(r.buses[second], "raise", frame(0x2C0, 4))
         with pytest.raises(FlashInterrupted) as caught:
-            flash(r, NEW, cancel=trap.cancel)
+            flash(r, FlashRequest(NEW), cancel=trap.cancel)
         trap.close()
         result = caught.value.result
         assert {b.bus: b.interrupted for b in result.buses} == {

@@ -60,7 +60,8 @@ from ucom_tools.ops.enumerate import (
     enumerate_bus,
     missing_expected,
 )
-from ucom_tools.ops.flash import ProgressFn, Selection, flash, listen_first
+from ucom_tools.ops.flash import flash, listen_first
+from ucom_tools.ops.flash_types import FlashRequest, ProgressFn, Selection
 from ucom_tools.ops.journal import (
     PARAMS_DIR,
     Journal,
@@ -406,9 +407,9 @@ def _program_bus(h: BusHandle, part: Robot, manifest: Manifest, journal: Journal
         journal.save()
         events(f"{h.name}: programming {path.name} into "
                f"{', '.join(map(str, numbers))}")
-        result = flash(part, w.image, selection=Selection("list", numbers), bus=h.name,
-                       init=False, verify=True, plan=w.plan, progress=progress,
-                       cancel=cancel, what="deploying")
+        request = FlashRequest(w.image, selection=Selection("list", numbers), bus=h.name,
+                               init=False, verify=True, plan=w.plan)
+        result = flash(part, request, progress=progress, cancel=cancel)
         by_seq = {b.seq_id: b for b in result.boards}
         for r in group:
             b = by_seq.get(r.seq_id)
