@@ -39,6 +39,7 @@ from ucom_tools.config import topology as topo_mod  # noqa: E402
 from ucom_tools.image.formats import load_image  # noqa: E402
 from ucom_tools.ops import deploy as ops  # noqa: E402
 from ucom_tools.ops import params_keep  # noqa: E402
+from ucom_tools.ops.deploy_execute import execute  # noqa: E402
 from ucom_tools.ops.enumerate import enumerate_bus  # noqa: E402
 from ucom_tools.ops.flash import flash  # noqa: E402
 from ucom_tools.ops.flash_types import FlashRequest  # noqa: E402
@@ -90,7 +91,8 @@ def main() -> int:
         try:
             def deploy(manifest: ops.Manifest, changes: int) -> None:
                 journal = ops.Journal.open(directory / "journal", "ARMAR-III")
-                result = ops.execute(r, ops.plan(r, manifest, journal), journal)
+                request = ops.DeployRequest(manifest, journal)
+                result = execute(r, request, ops.plan(r, request))
                 assert result.ok and len(result.plan.changes) == changes, result.failed
 
             deploy(plain, 11)  # every board gets its program first

@@ -36,6 +36,7 @@ from ucom_tools.config import topology as topo_mod
 from ucom_tools.image.formats import load_image
 from ucom_tools.ops import deploy as deploy_ops
 from ucom_tools.ops import leave
+from ucom_tools.ops.deploy_execute import execute
 from ucom_tools.ops.flash import flash
 from ucom_tools.ops.flash_types import FlashInterrupted, FlashRequest, FlashResult
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot, open_robot
@@ -354,8 +355,8 @@ def deployed_head(tmp_path_factory: pytest.TempPathFactory) -> Path:
     try:
         t = topo_mod.load(str(topo))
         journal = deploy_ops.Journal.open(where / "journal", t.name)
-        assert deploy_ops.execute(r, deploy_ops.plan(r, deploy_ops.load_manifest(t), journal),
-                                  journal).ok
+        request = deploy_ops.DeployRequest(deploy_ops.load_manifest(t), journal)
+        assert execute(r, request, deploy_ops.plan(r, request)).ok
     finally:
         r.close()
     return where
@@ -397,12 +398,13 @@ def test_a_deploy_interrupted_in_any_step_leaves_no_board_prog_enabled_and_says_
     for the next deploy, which finishes the work."""
     with head_copy(deployed_head, tmp_path) as (r, topo):
         journal = deploy_ops.Journal.open(tmp_path / "journal", topo.name)
-        the_plan = deploy_ops.plan(r, deploy_ops.load_manifest(topo), journal)
+        request = deploy_ops.DeployRequest(deploy_ops.load_manifest(topo), journal)
+        the_plan = deploy_ops.plan(r, request)
         assert [x.action for x in the_plan.rows] == ["program"] * 3
         trap = Interrupter(r.buses["CAN0"], mode, when)
         try:
             with pytest.raises(deploy_ops.DeployInterrupted) as caught:
-                deploy_ops.execute(r, the_plan, journal, cancel=trap.cancel)
+                execute(r, request, the_plan, cancel=trap.cancel)
         finally:
             trap.close()
         assert trap.fired
@@ -428,8 +430,8 @@ def test_a_deploy_interrupted_in_any_step_leaves_no_board_prog_enabled_and_says_
                 assert saved
         if step == "programming" and mode == "cancel":  # the next deploy finishes it
             journal = deploy_ops.Journal.open(tmp_path / "journal", topo.name)
-            again = deploy_ops.execute(r, deploy_ops.plan(r, deploy_ops.load_manifest(topo),
-                                                          journal), journal)
+            request = deploy_ops.DeployRequest(deploy_ops.load_manifest(topo), journal)
+            again = execute(r, request, deploy_ops.plan(r, request))
             assert again.ok, again.failed
             assert all(b.params.outcome == "kept" for b in again.boards)
 
