@@ -50,9 +50,10 @@ from ucom_tools.net.keys import check_rate
 from ucom_tools.net.session import check_endpoint
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.remote import BoardFault, RemotePart, WriteEvent
-from ucom_tools.ops.remote_feed import Applied, LocalRun
+from ucom_tools.ops.remote_feed import LocalRun
 from ucom_tools.ops.remote_image import PartImage
 from ucom_tools.ops.remote_publish import Doorbell, LoopSnapshot
+from ucom_tools.ops.remote_requests import Applied
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.ids import Direction, IdType
