@@ -33,7 +33,7 @@ from typing import Any, Final, Self
 
 import can
 
-from ucom_tools.errors import BusError, FrameError, InputError, UcomError
+from ucom_tools.errors import BusError, FrameError, UcomError
 from ucom_tools.native import mypyc_attr
 from ucom_tools.ops.board_watch import BoardWatch, SilenceWatch
 from ucom_tools.ops.edges import EdgeRef
@@ -46,11 +46,11 @@ from ucom_tools.ops.realtime import (
 )
 from ucom_tools.ops.remote_faults import (
     HOLD,
-    POLICIES,
     STOP,
     BoardFault,
     BoardLost,
     LostBoard,
+    check_policy,
 )
 from ucom_tools.ops.remote_report import BoardEvent, LoopStats, Value
 from ucom_tools.ops.remote_values import RemoteValues
@@ -94,12 +94,7 @@ class RemoteLoop(RemoteValues):
                  *, realtime: bool = False, on_fault: str = STOP, rejoin: bool = False,
                  ) -> None:
         super().__init__(robot, exchanges)
-        if on_fault not in POLICIES:
-            raise InputError(f"on_fault must be {' or '.join(POLICIES)}, not {on_fault!r}",
-                             key="--on-fault")
-        if rejoin and on_fault != HOLD:
-            raise InputError("rejoin needs the hold policy (--on-fault hold): under stop "
-                             "a lost board ends the run", key="--rejoin")
+        check_policy(on_fault, rejoin)
         self.period_s = period_s
         self.watch = SilenceWatch(period_s, self._lose, self._maps_again)
         """Which boards are lost (:mod:`ucom_tools.ops.board_watch`)."""
@@ -114,14 +109,13 @@ class RemoteLoop(RemoteValues):
         """Called on the loop's thread with every fault event as it happens (a board lost,
         rejoined); what is called here must not wait for anything."""
         self.rejoiner: Callable[[str, int, float], Any] | None = None
-        """Starts the conversation that brings board (bus, n) back, its first question
-        after a delay in seconds (set by :class:`~ucom_tools.ops.remote.RemotePart` with
-        ``rejoin``): an object with ``step()``, ``cancel()``, ``done``, ``ok``,
-        ``answered`` and ``how``."""
+        """Starts the conversation that brings board (bus, n) back after a delay in seconds
+        (set by :class:`~ucom_tools.ops.remote.RemotePart` with ``rejoin``): an object
+        with ``step()``, ``cancel()``, ``done``, ``ok``, ``answered`` and ``how``."""
         self._notes: dict[tuple[str, int], tuple[float, str]] = {}
         """What each board said last besides its maps (an Error, its bootloader's Ready,
-        its program's unsolicited MCA Ready), with when (the watch's ``present``): what a lost
-        event names."""
+        its program's unsolicited MCA Ready), with when (the watch's ``present``): what a
+        lost event names."""
         self._failed: dict[str, str] = {}
         """Buses that failed (their connection or adapter) -> why; nothing is sent there."""
         self._sending: list[BusExchange] = list(exchanges.values())
