@@ -313,7 +313,7 @@ class _Run:
         stack.callback(consumers.close)
         record_mcap = o.record is not None and o.record.lower().endswith(".mcap")
         self.feed = feed = consumers.feed(
-            part, frames=o.record is not None or self.fox is not None, rate_hz=max(
+            part, frames=o.record is not None, rate_hz=max(
                 (o.publish_hz if o.sharing or self.fox else 0.0),
                 (10.0 if self.view else 0.0), 1.0, MCAP_EVENTS_HZ if record_mcap else 0.0,
                 extra.rate_hz if extra is not None else 0.0))

@@ -168,6 +168,8 @@ class LoopFeed:
         self.part = part
         self.out_fd, self.in_fd = out_fd, in_fd
         self.frames_wanted = frames
+        self.frames_kept = frames
+        """Every frame goes over whatever the consumers ask (a recording's)."""
         self.wait = bool(part.virtual) if wait is None else wait
         """Whether the loop waits for the consumers (in virtual time: nothing waits for
         the wall clock there, and nothing is lost); on the wall clock it never does."""
@@ -215,6 +217,15 @@ class LoopFeed:
         if self.frames_wanted:
             for h in self.part.robot.buses.values():
                 h.link.dispatcher.sink = []
+
+    def _want_frames(self, wanted: bool) -> None:
+        """The consumers want the frames from now on, or no longer (a recording's are
+        kept)."""
+        if self.frames_kept or wanted == self.frames_wanted:
+            return
+        self.frames_wanted = wanted
+        for h in self.part.robot.buses.values():
+            h.link.dispatcher.sink = [] if wanted else None
 
     def attach(self) -> None:
         """Collect value changes (beside the part's own ``on_values``, which is called as
@@ -362,6 +373,8 @@ class LoopFeed:
             self._answers.append((number, Applied(None, "stopping", event=event)))
             self.flush()
             raise RemoteStop(origin)
+        elif kind == "frames":
+            self._want_frames(bool(request[1]))
         elif kind == "quit":
             raise Quit()
         elif kind == "poll":

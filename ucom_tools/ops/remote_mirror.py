@@ -206,6 +206,11 @@ class Mirror(Snapshots):
         (:class:`~ucom_tools.ops.remote_requests.DriveWrites`)."""
         self._send(("drive", items))
 
+    def frames(self, wanted: bool) -> None:
+        """Have the loop hand over every bus's frames, or no longer (``--foxglove``: only
+        while a client watches a bus's frames; a recording's come whatever this says)."""
+        self._send(("frames", wanted))
+
     def stop(self, origin: str) -> Future[Applied]:
         """Stop every board and end the loop (a stop from the network, by ``origin``)."""
         return self._ask(("stop", origin))
