@@ -57,7 +57,8 @@ from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.remote_image import PartImage
 from ucom_tools.ops.remote_publish import LoopHandover, LoopSnapshot, lost_of
 from ucom_tools.ops.remote_report import RemoteStop, Value, WriteEvent
-from ucom_tools.protocol.dispatch import SinkEntry, Subscription
+from ucom_tools.protocol.routing import Subscription
+from ucom_tools.protocol.traffic import SinkEntry
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import ReportChannel
