@@ -26,7 +26,8 @@ from tests.helpers import assert_send_data_refuses_as_send
 from ucom_tools.protocol import frames
 from ucom_tools.protocol.dispatch import Dispatcher
 from ucom_tools.transport import socketcand as client
-from ucom_tools.transport.socketcand import PINGS, SocketcandBus, send_bytes
+from ucom_tools.transport.socketcand import PINGS, SocketcandBus
+from ucom_tools.transport.socketcand_frames import send_bytes
 from ucom_tools.wire.socketcand import (
     ElementSplitter,
     ElementTooLong,
