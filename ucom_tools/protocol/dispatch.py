@@ -73,6 +73,8 @@ class Dispatcher:
         """The periodic frames this dispatcher sends while it reads: its own, and those of
         the other buses of one in-process fleet, whose clock whichever of them waits
         drives (:func:`share_clock`)."""
+        self.batches = self.sender.batches
+        """Whether :meth:`send_data_many` hands frames to the bus in one call."""
         self._background = BackgroundReader(self.turns, self._read_one, self.name)
         self._advance = extensions.advance_frames
         """The bus's ``advance_frames``, if it has one: :meth:`pump` uses it."""
@@ -124,11 +126,6 @@ class Dispatcher:
     def failure(self) -> BusError | None:
         """Why the bus can no longer be read (every wait raises it), or None."""
         return self.turns.failure
-
-    @property
-    def batches(self) -> bool:
-        """Whether :meth:`send_data_many` hands frames to the bus in one call."""
-        return self.sender.batches
 
     # ------------------------------------------------------------------ subscribers
     def subscribe(self, accepts: Accepts, name: str,
@@ -236,20 +233,32 @@ class Dispatcher:
     def drain(self, limit: int = 1000) -> int:
         """Read and dispatch what has arrived, without waiting (at most ``limit`` frames);
         0 at once when another thread is reading.  For a loop that polls several buses."""
-        if not self.turns.take():
-            return 0
+        turns = self.turns
+        with turns.lock:  # turns.take() and give_back(), inline: once a cycle of every bus
+            if turns.background or turns.reading:
+                return 0
+            turns.reading = True
         try:
             for schedule in self.group:  # the periodic frames due, once (not once per frame)
                 schedule.run_due()
             ready = self._ready
             if ready is not None:  # a bus that hands over what has arrived in one call
-                msgs = self._received(ready, limit)
+                try:
+                    msgs = ready(limit)
+                except can.CanError as err:
+                    raise turns.fail(f"{self.name}: cannot receive: {err}") from err
+                except OSError as err:
+                    raise turns.fail(f"{self.name}: cannot receive: "
+                                     f"{err.strerror or err}") from err
                 if msgs is not None:
                     self.router.dispatch_all(msgs)
                     return len(msgs)
             return self._drain_one_by_one(limit)
         finally:
-            self.turns.give_back()
+            with turns.lock:
+                turns.reading = False
+                if turns.sleepers:
+                    turns.cond.notify_all()
 
     def _drain_one_by_one(self, limit: int) -> int:
         """:meth:`drain` by ``recv(0)``."""
