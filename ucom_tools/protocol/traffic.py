@@ -44,7 +44,7 @@ class Traffic:
 
     The per-frame paths (:meth:`~ucom_tools.protocol.routing.Router.dispatch_all`,
     :meth:`~ucom_tools.protocol.sending.Sender.note_sent`) add to the counts inline, as
-    :meth:`count` does: a call per frame would be a tenth of the frame's own handling."""
+    :meth:`count` does (one Python call fewer for every frame, as before the split)."""
 
     def __init__(self) -> None:
         self.taps: list[Tap] = []
