@@ -24,7 +24,7 @@ import pytest
 
 from tests.helpers import terminate
 from ucom_tools.errors import InputError
-from ucom_tools.protocol.dispatch import EXTENDED, SENT
+from ucom_tools.protocol.traffic import EXTENDED, SENT
 from ucom_tools.trace import mcapfile
 from ucom_tools.viewers import foxglove_msgs as fm
 

@@ -30,9 +30,9 @@ from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.errors import BoardError, BusError, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import spec_of
 from ucom_tools.protocol.bootloader import BootloaderClient
-from ucom_tools.protocol.dispatch import Periodic
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import MASK_TABLE, BoardEdges, McaClient, values_of
+from ucom_tools.protocol.periodic import Periodic
 from ucom_tools.protocol.plan import BusPlan, CiMapPlan, needs_of, plan
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.protocol.watch import OtherHosts

@@ -65,7 +65,8 @@ from ucom_tools.ops.remote_requests import (
     is_status,
     stop_event,
 )
-from ucom_tools.protocol.dispatch import SinkEntry, Subscription
+from ucom_tools.protocol.routing import Subscription
+from ucom_tools.protocol.traffic import SinkEntry
 
 FLUSH_EVERY_S: Final = 0.01
 """The longest frames and value changes wait on the loop's side (a snapshot goes at once)."""

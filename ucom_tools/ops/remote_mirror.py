@@ -26,7 +26,7 @@ from ucom_tools.ops.remote_image import PartImage
 from ucom_tools.ops.remote_publish import LateChunks, LoopFigures, LoopSnapshot, Snapshots, Tail
 from ucom_tools.ops.remote_report import BoardEvent, RawSnapshot, Value, WriteEvent
 from ucom_tools.ops.remote_requests import Applied
-from ucom_tools.protocol.dispatch import SinkEntry
+from ucom_tools.protocol.traffic import SinkEntry
 
 FrameSink = Callable[[str, list[SinkEntry]], None]
 ChangeSink = Callable[[float, EdgeRef, Value], None]

@@ -30,7 +30,7 @@ from ucom_tools.ops.remote_image import PartImage
 from ucom_tools.ops.remote_mirror import Mirror
 from ucom_tools.ops.remote_publish import Doorbell, LoopSnapshot
 from ucom_tools.ops.remote_requests import Applied
-from ucom_tools.protocol.dispatch import SinkEntry
+from ucom_tools.protocol.traffic import SinkEntry
 from ucom_tools.viewers import foxglove_msgs as fm
 from ucom_tools.viewers.foxglove import FoxgloveServer
 from ucom_tools.wire import mca
