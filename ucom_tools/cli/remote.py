@@ -16,7 +16,6 @@ from typing import Any
 
 import click
 from rich.markup import escape
-from rich.table import Table
 
 from ucom_tools.cli.consumers import END_S, ConsumerProcess, ExtraConsumer, error_of
 from ucom_tools.cli.exitcodes import EXIT_BUS, EXIT_FAILED
@@ -28,6 +27,7 @@ from ucom_tools.cli.options import (
     parse_sets,
 )
 from ucom_tools.cli.output import emit_json, json_number, stderr, stdout
+from ucom_tools.cli.tables import FitTable, shown_path
 from ucom_tools.config import topology as topo
 from ucom_tools.errors import InputError, UcomError
 from ucom_tools.net.keys import DEFAULT_ENDPOINT, check_rate, robot_id
@@ -109,10 +109,28 @@ def _part(args: tuple[str, ...], spec: ConnectSpec, **kwargs: Any) -> Iterator[R
         part = RemotePart(r, robot_trees(r, files), **kwargs)
         try:
             yield part
+        except MappingError as err:
+            if err.no_program:  # the usual first try: the in-process fleet, no --state
+                err.args = (f"{err}: {_flash_first(spec, r.topology)}",)
+            raise
         finally:
             part.close()
     finally:
         r.close()
+
+
+def _flash_first(spec: ConnectSpec, robot: topo.Topology | None) -> str:
+    """What to do about boards that hold no program."""
+    images = {b.image for bus in robot.buses for b in bus.boards} if robot else set()
+    one = images.pop() if len(images) == 1 else None
+    image = shown_path(one) if one is not None else "IMAGE"
+    if not spec.virtual:
+        return f"flash them first ('ucom flash {image}', or 'ucom deploy ROBOT')"
+    flash = f"'ucom flash {image} --virtual {spec.virtual} --state DIR'"
+    if spec.state_dir is None:
+        return (f"the in-process fleet powers up with empty boards unless --state DIR keeps "
+                f"what was flashed: flash first ({flash}) and give the same --state DIR")
+    return f"flash them first ({flash} with this --state)"
 
 
 # ---------------------------------------------------------------------- check
@@ -124,19 +142,25 @@ def _check_json(report: CheckReport) -> list[dict[str, Any]]:
 
 
 def _print_check(report: CheckReport) -> None:
-    t = Table(title="boards against their trees", title_justify="left")
-    for col in ("board", "prefix", "tree", "edges CI/SO/PAR", "result"):
-        t.add_column(col, overflow="fold")
+    if report.boards and all(b.no_program for b in report.boards):
+        return  # the error says it in one line
+    t = FitTable("boards against their trees")
+    for col, drop in (("board", 0), ("prefix", 0), ("tree", 2), ("edges CI/SO/PAR", 1),
+                      ("result", 0)):
+        t.add_column(col, drop=drop)
     for b in report.boards:
-        result = "[green]matches[/]" if b.ok else f"[red]{escape(b.summary())}[/]"
-        t.add_row(escape(b.where), escape(b.prefix), escape(b.tree_file), b.program or "-",
-                  result)
+        summary = b.summary().removeprefix(f"{b.where}: ")
+        result = ("[green]matches[/]" if b.ok else "[red]no program[/]" if b.no_program
+                  else f"[red]{escape(summary)}[/]")
+        t.add_row(escape(b.where), escape(b.prefix), escape(shown_path(b.tree_file)),
+                  b.program or "-", result)
     stdout().print(t)
     for b in report.boards:
         if b.differences:
-            stdout().print(f"[bold]{escape(b.where)}[/] ({escape(b.tree_file)}):")
+            tree = shown_path(b.tree_file)
+            stdout().print(f"[bold]{escape(b.where)}[/] ({escape(tree)}):")
             for d in b.differences:
-                where = f"{b.tree_file}:{d.line}: " if d.line else ""
+                where = f"{tree}:{d.line}: " if d.line else ""
                 stdout().print(f"  {escape(where)}{escape(d.message)}", soft_wrap=True)
 
 
@@ -159,11 +183,13 @@ def check(ctx: click.Context, robot_or_trees: tuple[str, ...], spec: ConnectSpec
           bus_name: str | None, as_json: bool) -> None:
     with _part(robot_or_trees, _one_bus(spec, bus_name)) as part:
         report = part.check()
-    if as_json:
-        emit_json({"connection": connection_json(spec), "ok": report.ok,
-                   "boards": _check_json(report)})
-    else:
-        _print_check(report)
+        if as_json:
+            emit_json({"connection": connection_json(spec), "ok": report.ok,
+                       "boards": _check_json(report)})
+        else:
+            _print_check(report)
+        if report.boards and all(b.no_program for b in report.boards):
+            raise MappingError(report)  # one line that says what to do (_part)
     if not report.ok:
         ctx.exit(EXIT_FAILED)
 
@@ -249,9 +275,10 @@ def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) 
                if r.kind is mca.Kind.SO and r in summary.traces and summary.traces[r].changes]
     # flags and one-count jitter (Settled 0 -> 1, an encoder's last count) say little here
     moved = [(r, t) for r, t in changed if r.raw(t.high) - r.raw(t.low) > 1]
-    t = Table(title="what the joints did (sensor values that moved)", title_justify="left")
-    for col in ("board", "name", "first", "last", "range", "unit"):
-        t.add_column(col, overflow="fold")
+    t = FitTable("what the joints did (sensor values that moved)")
+    for col, drop in (("board", 1), ("name", 0), ("first", 0), ("last", 0), ("range", 0),
+                      ("unit", 0)):
+        t.add_column(col, drop=drop)
     clipped = False
     for ref, tr in moved:
         low, high = _value_text(tr.low), _value_text(tr.high)
@@ -269,11 +296,14 @@ def _print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) 
         if clipped:
             stdout().print("[dim]* the most the edge's encoding can carry: the value went "
                            "further and was clipped[/]")
-    else:
-        stdout().print("no sensor value moved")
-    if len(changed) > len(moved):
-        stdout().print(f"[dim]{len(changed) - len(moved)} more changed by one count or "
-                       "flag (--json lists every value)[/]")
+    jitter = len(changed) - len(moved)
+    if not moved:
+        stdout().print("no sensor value moved" + (
+            f" by more than one count: {jitter} changed by one count or a flag only "
+            "(--json lists every value)" if jitter else ""), soft_wrap=True)
+    elif jitter:
+        stdout().print(f"[dim]{jitter} more changed by one count or a flag only (--json "
+                       "lists every value)[/]")
     s = part.stats
     clock = "virtual time" if part.virtual else "wall clock"
     gap = (f" (the longest gap between two cycles {s.longest_gap_s * 1e3:.1f} ms)"
