@@ -20,7 +20,7 @@ from click.testing import CliRunner, Result
 
 from ucom_tools.cli.main import cli
 from ucom_tools.cli.tables import FitTable
-from ucom_tools.image import load_image
+from ucom_tools.image.formats import load_image
 
 ROOT = Path(__file__).resolve().parent.parent
 IMAGE = str(ROOT / "firmware_images/armar3.fl.S")

@@ -38,6 +38,7 @@ from pathlib import Path
 from types import ModuleType
 
 MODULES: tuple[str, ...] = (
+    "ucom_tools.ops.board_watch",
     "ucom_tools.ops.edges",
     "ucom_tools.ops.exchange",
     "ucom_tools.ops.remote_loop",

@@ -19,11 +19,13 @@ from ucom_tools.cli import params as params_cli
 from ucom_tools.cli import render
 from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
 from ucom_tools.cli.flashrun import (
+    FORCE,
     NotBegun,
     as_finished,
     flash_progress,
     run_cancellable,
     run_flash,
+    with_force_hint,
 )
 from ucom_tools.cli.menu import help_text, label, parse_level
 from ucom_tools.cli.options import (
@@ -35,20 +37,19 @@ from ucom_tools.cli.options import (
 )
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.errors import InputError, UcomError
-from ucom_tools.image import Image, load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.ops import options as ops
 from ucom_tools.ops import params_keep
 from ucom_tools.ops.enumerate import enumerate_bus
-from ucom_tools.ops.flash import (
+from ucom_tools.ops.flash import flash, interrupted_before, listen_first
+from ucom_tools.ops.flash_types import (
     KEEP,
     LISTENING,
     RESET,
     FlashInterrupted,
+    FlashRequest,
     FlashResult,
     Selection,
-    flash,
-    interrupted_before,
-    listen_first,
 )
 from ucom_tools.ops.robot import ConnectSpec, Robot
 from ucom_tools.protocol.programmer import Cancelled
@@ -383,11 +384,10 @@ def _cancelled(ctx: click.Context, spec: ConnectSpec, e: BaseException, as_json:
     ctx.exit(interrupt_exit_code(e) if isinstance(e, KeyboardInterrupt) else EXIT_INTERRUPTED)
 
 
-def _stage(r: Robot, img: Image, bus_name: str | None, phase: str,
-           cancel: threading.Event) -> None:
+def _stage(r: Robot, request: FlashRequest, phase: str, cancel: threading.Event) -> None:
     """Before the job: stop (nothing sent that changes a board) if cancelled."""
     if cancel.is_set():
-        raise FlashInterrupted(interrupted_before(r, img, phase, bus=bus_name))
+        raise FlashInterrupted(interrupted_before(r, request, phase))
 
 
 @dataclass
@@ -444,8 +444,9 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
     afterwards into the programs, started again (also on boards that were not
     programmed: the reset stopped them); the directory is left, and named, when a board
     did not get its values back.  Boards in their bootloader have nothing to keep."""
-    img = load_image(image)
-    selection = Selection.parse(boards)
+    request = FlashRequest(load_image(image), selection=Selection.parse(boards), bus=bus_name,
+                           autostart=autostart, start=start_after or keep_params,
+                           verify=not no_verify, force=force)
     with robot(spec) as r:
         r.select(bus_name)  # an unknown --bus is exit code 3 before anything is sent
 
@@ -454,21 +455,20 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
         def job(cancel: threading.Event) -> _Flashed:
             """All of it in the worker (run_cancellable): a signal only sets ``cancel``,
             looked at between the steps and throughout the flash."""
-            _stage(r, img, bus_name, LISTENING, cancel)
+            _stage(r, request, LISTENING, cancel)
             listen_first(r, bus_name)  # another host programming: exit 4, nothing sent
-            _stage(r, img, bus_name, LISTENING, cancel)
+            _stage(r, request, LISTENING, cancel)
             out.kept = params_keep.keep_before(r, bus=bus_name) if keep_params else None
-            _stage(r, img, bus_name, KEEP, cancel)
+            _stage(r, request, KEEP, cancel)
             if out.kept is not None and not out.kept.readout.ok and not force:
                 return out
-            with flash_progress(r, img, verbose=_verbose(ctx), bus=bus_name) as report:
+            with flash_progress(r, request.image, verbose=_verbose(ctx),
+                                bus=bus_name) as report:
                 for h in r.select(bus_name):
                     h.client.reset()
-                _stage(r, img, bus_name, RESET, cancel)
-                out.result = flash(r, img, selection=selection, bus=bus_name,
-                                   autostart=autostart, start=start_after or keep_params,
-                                   verify=not no_verify, force=force, progress=report,
-                                   cancel=cancel)
+                _stage(r, request, RESET, cancel)
+                out.result = with_force_hint(flash(r, request, progress=report,
+                                                   cancel=cancel), FORCE)
             if out.kept is not None:
                 out.restored = _keep_after(r, out.kept, out.result)
             return out
@@ -476,8 +476,10 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
         try:
             done = run_cancellable(job, name="ucom-flash", finished=lambda out, stop: (
                 as_finished(out.result, stop) if out.result is not None else FlashInterrupted(
-                    interrupted_before(r, img, KEEP, bus=bus_name))))
+                    interrupted_before(r, request, KEEP))))
         except (KeyboardInterrupt, Cancelled) as e:
+            if isinstance(e, FlashInterrupted):
+                e.result = with_force_hint(e.result, FORCE)
             if out.kept is not None and out.kept.directory is not None:
                 stderr().print(f"[yellow]the values read before programming are in "
                                f"{escape(str(out.kept.directory))}[/]", soft_wrap=True)
@@ -540,9 +542,9 @@ def _program_command(name: str, option: int, target: Target, detail: str) -> cli
             selection = Selection("list", (ref.address.number,))
         with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
             try:
-                result = run_flash(r, img, selection=selection, bus=ref.bus or bus_name,
-                                   target=target, init=False, force=force,
-                                   verbose=_verbose(ctx), what=label(option))
+                request = FlashRequest(img, selection=selection, bus=ref.bus or bus_name,
+                                       target=target, init=False, force=force)
+                result = run_flash(r, request, what=label(option), verbose=_verbose(ctx))
             except (KeyboardInterrupt, Cancelled) as e:
                 _cancelled(ctx, spec, e, as_json)
                 return

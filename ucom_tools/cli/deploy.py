@@ -27,6 +27,7 @@ from ucom_tools.cli.tables import FitTable
 from ucom_tools.config import topology as topology_mod
 from ucom_tools.errors import InputError
 from ucom_tools.ops import deploy as ops
+from ucom_tools.ops.deploy_execute import execute
 from ucom_tools.ops.robot import ConnectSpec
 from ucom_tools.protocol.programmer import Cancelled
 from ucom_tools.signals import interrupt_exit_code, stop_signal, stopped_how
@@ -178,6 +179,8 @@ def deploy_cmd(ctx: click.Context, robot_name: str, dry_run: bool, boards_text: 
                                 manifest.trees)
     only = parse_boards(boards_text, manifest)
     journal = ops.Journal.open(journal_dir or ops.default_journal(topo.name), topo.name)
+    request = ops.DeployRequest(manifest, journal,
+                                only=frozenset(only) if only is not None else None)
     err = stderr()
 
     def event(text: str) -> None:
@@ -187,8 +190,7 @@ def deploy_cmd(ctx: click.Context, robot_name: str, dry_run: bool, boards_text: 
         event(f"resuming the deploy that did not finish (journal {journal.directory})")
     with robot(_of_robot(spec, robot_name, bus_name)) as r:
         try:
-            the_plan = run_cancellable(lambda _cancel: ops.plan(r, manifest, journal,
-                                                                only=only), name="ucom-deploy")
+            the_plan = run_cancellable(lambda _cancel: ops.plan(r, request), name="ucom-deploy")
         except KeyboardInterrupt as e:
             err.print(f"[yellow]deploy {stopped_how(e)} while planning (the init chains and "
                       "each board's Info): nothing that changes a board was sent[/]",
@@ -202,8 +204,8 @@ def deploy_cmd(ctx: click.Context, robot_name: str, dry_run: bool, boards_text: 
                 emit_json(_doc(the_plan, None, spec, journal, dry_run=True))
             ctx.exit(0 if the_plan.matches else EXIT_FAILED)
         try:
-            result = run_cancellable(lambda cancel: ops.execute(
-                r, the_plan, journal, events=event, cancel=cancel), name="ucom-deploy",
+            result = run_cancellable(lambda cancel: execute(
+                r, request, the_plan, events=event, cancel=cancel), name="ucom-deploy",
                 finished=lambda done, _stop: ops.DeployInterrupted(
                     replace(done, interrupted="finished")))
         except (KeyboardInterrupt, Cancelled) as e:

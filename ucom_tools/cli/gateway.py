@@ -20,7 +20,8 @@ from rich.markup import escape
 from ucom_tools.cli.consumers import ExtraConsumer
 from ucom_tools.cli.options import connection_options, json_option
 from ucom_tools.cli.output import emit_json, stderr, stdout
-from ucom_tools.cli.remote import run_options, run_robot
+from ucom_tools.cli.remote import run_options
+from ucom_tools.cli.remote_run import run_robot
 from ucom_tools.cli.tables import FitTable
 from ucom_tools.config import topology as topo
 from ucom_tools.errors import InputError

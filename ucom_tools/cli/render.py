@@ -13,10 +13,10 @@ from rich.console import Console
 from rich.markup import escape
 
 from ucom_tools.cli.tables import FitTable
-from ucom_tools.image import Image
+from ucom_tools.image.model import Image
 from ucom_tools.ops.compat import CheckRow
 from ucom_tools.ops.enumerate import BusEnumeration
-from ucom_tools.ops.flash import FlashResult, at_phase
+from ucom_tools.ops.flash_types import FlashResult, at_phase
 from ucom_tools.ops.options import ProbeResult, Row
 from ucom_tools.plugons import app_name, board_name
 from ucom_tools.wire import messages as m

@@ -21,10 +21,11 @@ from typing import Any
 
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.remote_faults import BoardFault, LostBoard
-from ucom_tools.ops.remote_feed import Applied, Unpacker, pack
+from ucom_tools.ops.remote_feed import Unpacker, pack
 from ucom_tools.ops.remote_image import PartImage
 from ucom_tools.ops.remote_publish import LateChunks, LoopFigures, LoopSnapshot, Snapshots, Tail
 from ucom_tools.ops.remote_report import BoardEvent, RawSnapshot, Value, WriteEvent
+from ucom_tools.ops.remote_requests import Applied
 from ucom_tools.protocol.dispatch import SinkEntry
 
 FrameSink = Callable[[str, list[SinkEntry]], None]
@@ -202,7 +203,7 @@ class Mirror(Snapshots):
 
     def drive(self, items: list[tuple[str, int]]) -> None:
         """Set edges by robot-wide name to raw values on the loop's thread, no answer
-        (:class:`~ucom_tools.ops.remote_feed.DriveWrites`)."""
+        (:class:`~ucom_tools.ops.remote_requests.DriveWrites`)."""
         self._send(("drive", items))
 
     def stop(self, origin: str) -> Future[Applied]:

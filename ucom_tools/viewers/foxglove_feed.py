@@ -26,10 +26,10 @@ from typing import Any, Final
 from ucom_tools.errors import BusError, InputError, UcomError
 from ucom_tools.net.keys import number
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote_feed import Applied
 from ucom_tools.ops.remote_image import PartImage
 from ucom_tools.ops.remote_mirror import Mirror
 from ucom_tools.ops.remote_publish import Doorbell, LoopSnapshot
+from ucom_tools.ops.remote_requests import Applied
 from ucom_tools.protocol.dispatch import SinkEntry
 from ucom_tools.viewers import foxglove_msgs as fm
 from ucom_tools.viewers.foxglove import FoxgloveServer
