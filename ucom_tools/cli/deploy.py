@@ -16,7 +16,6 @@ from typing import Any
 import click
 from rich.console import Console
 from rich.markup import escape
-from rich.table import Table
 
 from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
 from ucom_tools.cli.flashrun import NotBegun, run_cancellable
@@ -24,6 +23,7 @@ from ucom_tools.cli.options import connection_json, connection_options, json_opt
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.cli.params import _of_robot
 from ucom_tools.cli.render import LEFT_WORDS
+from ucom_tools.cli.tables import FitTable
 from ucom_tools.config import topology as topology_mod
 from ucom_tools.errors import InputError
 from ucom_tools.ops import deploy as ops
@@ -70,9 +70,10 @@ def _seen(s: ops.Seen | None) -> str:
 
 
 def print_plan(c: Console, p: ops.Plan) -> None:
-    t = Table(title=f"{escape(p.manifest.topology.name)}: deploy plan", title_justify="left")
-    for col in ("bus", "seq", "placement", "image", "before", "action", "why"):
-        t.add_column(col, overflow="fold")
+    t = FitTable(f"{escape(p.manifest.topology.name)}: deploy plan")
+    for col, drop in (("bus", 0), ("seq", 0), ("placement", 1), ("image", 0), ("before", 0),
+                      ("action", 0), ("why", 0)):
+        t.add_column(col, drop=drop)
     for r in p.rows:
         why = "; ".join([r.reason] * bool(r.reason) + [f"warning: {w}" for w in r.warnings])
         t.add_row(r.bus, str(r.seq_id or "-"), escape(r.placement), escape(r.image),
@@ -93,9 +94,10 @@ def summary(p: ops.Plan) -> str:
 
 
 def print_result(c: Console, result: ops.DeployResult) -> None:
-    t = Table(title="deployed", title_justify="left")
-    for col in ("bus", "seq", "placement", "outcome", "after", "parameters"):
-        t.add_column(col, overflow="fold")
+    t = FitTable("deployed")
+    for col, drop in (("bus", 0), ("seq", 0), ("placement", 1), ("outcome", 0), ("after", 0),
+                      ("parameters", 0)):
+        t.add_column(col, drop=drop)
     for b in result.boards:
         if b.row.action == ops.UP_TO_DATE:
             continue

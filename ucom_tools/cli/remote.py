@@ -17,7 +17,7 @@ from ucom_tools.cli.output import emit_json, stderr
 from ucom_tools.cli.remote_run import one_bus, part_of, run_robot
 from ucom_tools.errors import InputError
 from ucom_tools.net.keys import DEFAULT_ENDPOINT
-from ucom_tools.ops.remote import POLICIES, STOP
+from ucom_tools.ops.remote import POLICIES, STOP, MappingError
 from ucom_tools.ops.robot import ConnectSpec
 from ucom_tools.viewers.foxglove_msgs import DEFAULT_ADDRESS as FOXGLOVE_ADDRESS
 from ucom_tools.wire import mca
@@ -54,11 +54,13 @@ def check(ctx: click.Context, robot_or_trees: tuple[str, ...], spec: ConnectSpec
           bus_name: str | None, as_json: bool) -> None:
     with part_of(robot_or_trees, one_bus(spec, bus_name)) as part:
         report = part.check()
-    if as_json:
-        emit_json({"connection": connection_json(spec), "ok": report.ok,
-                   "boards": say.check_json(report)})
-    else:
-        say.print_check(report)
+        if as_json:
+            emit_json({"connection": connection_json(spec), "ok": report.ok,
+                       "boards": say.check_json(report)})
+        else:
+            say.print_check(report)
+        if report.boards and all(b.no_program for b in report.boards):
+            raise MappingError(report)  # one line that says what to do (part_of)
     if not report.ok:
         ctx.exit(EXIT_FAILED)
 

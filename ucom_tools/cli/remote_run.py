@@ -23,6 +23,7 @@ from ucom_tools.cli.consumers import END_S, ConsumerProcess, ExtraConsumer, erro
 from ucom_tools.cli.exitcodes import EXIT_BUS, EXIT_FAILED
 from ucom_tools.cli.options import connection_json, parse_sets
 from ucom_tools.cli.output import emit_json, stderr
+from ucom_tools.cli.tables import shown_path
 from ucom_tools.config import topology as topo
 from ucom_tools.errors import InputError, UcomError
 from ucom_tools.net.keys import check_rate, robot_id
@@ -87,10 +88,28 @@ def part_of(args: tuple[str, ...], spec: ConnectSpec, **kwargs: Any) -> Iterator
         part = RemotePart(r, robot_trees(r, files), **kwargs)
         try:
             yield part
+        except MappingError as err:
+            if err.no_program:  # the usual first try: the in-process fleet, no --state
+                err.args = (f"{err}: {_flash_first(spec, r.topology)}",)
+            raise
         finally:
             part.close()
     finally:
         r.close()
+
+
+def _flash_first(spec: ConnectSpec, robot: topo.Topology | None) -> str:
+    """What to do about boards that hold no program."""
+    images = {b.image for bus in robot.buses for b in bus.boards} if robot else set()
+    one = images.pop() if len(images) == 1 else None
+    image = shown_path(one) if one is not None else "IMAGE"
+    if not spec.virtual:
+        return f"flash them first ('ucom flash {image}', or 'ucom deploy ROBOT')"
+    flash = f"'ucom flash {image} --virtual {spec.virtual} --state DIR'"
+    if spec.state_dir is None:
+        return (f"the in-process fleet powers up with empty boards unless --state DIR keeps "
+                f"what was flashed: flash first ({flash}) and give the same --state DIR")
+    return f"flash them first ({flash} with this --state)"
 
 
 def one_bus(spec: ConnectSpec, bus_name: str | None) -> ConnectSpec:

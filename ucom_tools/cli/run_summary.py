@@ -8,9 +8,9 @@ from decimal import Decimal
 from typing import Any
 
 from rich.markup import escape
-from rich.table import Table
 
 from ucom_tools.cli.output import json_number, stderr, stdout
+from ucom_tools.cli.tables import FitTable, shown_path
 from ucom_tools.ops.remote import (
     STOP,
     BoardEvent,
@@ -42,19 +42,25 @@ def check_json(report: CheckReport) -> list[dict[str, Any]]:
 
 
 def print_check(report: CheckReport) -> None:
-    t = Table(title="boards against their trees", title_justify="left")
-    for col in ("board", "prefix", "tree", "edges CI/SO/PAR", "result"):
-        t.add_column(col, overflow="fold")
+    if report.boards and all(b.no_program for b in report.boards):
+        return  # the error says it in one line
+    t = FitTable("boards against their trees")
+    for col, drop in (("board", 0), ("prefix", 0), ("tree", 2), ("edges CI/SO/PAR", 1),
+                      ("result", 0)):
+        t.add_column(col, drop=drop)
     for b in report.boards:
-        result = "[green]matches[/]" if b.ok else f"[red]{escape(b.summary())}[/]"
-        t.add_row(escape(b.where), escape(b.prefix), escape(b.tree_file), b.program or "-",
-                  result)
+        summary = b.summary().removeprefix(f"{b.where}: ")
+        result = ("[green]matches[/]" if b.ok else "[red]no program[/]" if b.no_program
+                  else f"[red]{escape(summary)}[/]")
+        t.add_row(escape(b.where), escape(b.prefix), escape(shown_path(b.tree_file)),
+                  b.program or "-", result)
     stdout().print(t)
     for b in report.boards:
         if b.differences:
-            stdout().print(f"[bold]{escape(b.where)}[/] ({escape(b.tree_file)}):")
+            tree = shown_path(b.tree_file)
+            stdout().print(f"[bold]{escape(b.where)}[/] ({escape(tree)}):")
             for d in b.differences:
-                where = f"{b.tree_file}:{d.line}: " if d.line else ""
+                where = f"{tree}:{d.line}: " if d.line else ""
                 stdout().print(f"  {escape(where)}{escape(d.message)}", soft_wrap=True)
 
 
@@ -114,9 +120,10 @@ def print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) -
                if r.kind is mca.Kind.SO and r in summary.traces and summary.traces[r].changes]
     # flags and one-count jitter (Settled 0 -> 1, an encoder's last count) say little here
     moved = [(r, t) for r, t in changed if r.raw(t.high) - r.raw(t.low) > 1]
-    t = Table(title="what the joints did (sensor values that moved)", title_justify="left")
-    for col in ("board", "name", "first", "last", "range", "unit"):
-        t.add_column(col, overflow="fold")
+    t = FitTable("what the joints did (sensor values that moved)")
+    for col, drop in (("board", 1), ("name", 0), ("first", 0), ("last", 0), ("range", 0),
+                      ("unit", 0)):
+        t.add_column(col, drop=drop)
     clipped = False
     for ref, tr in moved:
         low, high = _value_text(tr.low), _value_text(tr.high)
@@ -134,11 +141,14 @@ def print_summary(part: RemotePart, summary: Summary, loads: dict[str, float]) -
         if clipped:
             stdout().print("[dim]* the most the edge's encoding can carry: the value went "
                            "further and was clipped[/]")
-    else:
-        stdout().print("no sensor value moved")
-    if len(changed) > len(moved):
-        stdout().print(f"[dim]{len(changed) - len(moved)} more changed by one count or "
-                       "flag (--json lists every value)[/]")
+    jitter = len(changed) - len(moved)
+    if not moved:
+        stdout().print("no sensor value moved" + (
+            f" by more than one count: {jitter} changed by one count or a flag only "
+            "(--json lists every value)" if jitter else ""), soft_wrap=True)
+    elif jitter:
+        stdout().print(f"[dim]{jitter} more changed by one count or a flag only (--json "
+                       "lists every value)[/]")
     s = part.stats
     clock = "virtual time" if part.virtual else "wall clock"
     gap = (f" (the longest gap between two cycles {s.longest_gap_s * 1e3:.1f} ms)"
