@@ -41,8 +41,9 @@ HEAVY = ("bincopy", "elftools", "canopen", "zenoh", "foxglove", "mcap", "numpy",
 
 LIGHT = {"ucom_tools", "ucom_tools.compiled", "ucom_tools.native", "ucom_tools.errors",
          "ucom_tools.signals", "ucom_tools.cli", "ucom_tools.cli.main",
-         "ucom_tools.cli.exitcodes"}
-"""All of ucom-tools that ``ucom --help`` and ``ucom --version`` may import."""
+         "ucom_tools.cli.exitcodes", "ucom_tools._native__mypyc"}
+"""All of ucom-tools that ``ucom --help`` and ``ucom --version`` may import (the last: the
+compiled modules' library, through ``signals``, when the run time is compiled)."""
 
 NOT_FOR_A_BOOTLOADER_COMMAND = (
     "ucom_tools.image", "ucom_tools.ops.flash", "ucom_tools.cli.flashrun",
