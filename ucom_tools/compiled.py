@@ -25,11 +25,8 @@ decides; :func:`status` says what it decided (``ucom --version`` shows it).
 
 from __future__ import annotations
 
-import hashlib
-import importlib.abc
 import importlib.machinery
 import importlib.util
-import json
 import os
 import sys
 from collections.abc import Sequence
@@ -117,6 +114,8 @@ def source_of(module: str) -> Path:
 
 
 def digest(path: Path) -> str:
+    import hashlib  # here, and json in _decide: a pure-Python ``ucom --help`` needs neither
+
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
@@ -135,9 +134,11 @@ def changed_sources(manifest: dict[str, str], modules: Sequence[str] = MODULES,
     return changed
 
 
-class _Sources(importlib.abc.MetaPathFinder):
+class _Sources:
     """Imports the compiled modules from their ``.py`` files (before the extension that
-    the normal path finder would prefer)."""
+    the normal path finder would prefer); a meta path finder as ``sys.meta_path`` takes
+    them (not derived from ``importlib.abc.MetaPathFinder``: its import brings
+    importlib.resources, tempfile and shutil, which ``ucom --help`` does not need)."""
 
     def find_spec(self, fullname: str, path: Sequence[str] | None,
                   target: ModuleType | None = None) -> importlib.machinery.ModuleSpec | None:
@@ -149,6 +150,8 @@ class _Sources(importlib.abc.MetaPathFinder):
 def _decide() -> Status:
     if os.environ.get(PURE_ENV, "") not in ("", "0"):
         return Status(False, f"pure Python ({PURE_ENV} is set)")
+    import json
+
     try:
         manifest = json.loads(MANIFEST.read_text())
     except FileNotFoundError:

@@ -10,23 +10,13 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 from rich.markup import escape
 
-from ucom_tools.cli import params as params_cli
 from ucom_tools.cli import render
 from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
-from ucom_tools.cli.flashrun import (
-    FORCE,
-    NotBegun,
-    as_finished,
-    flash_progress,
-    run_cancellable,
-    run_flash,
-    with_force_hint,
-)
 from ucom_tools.cli.menu import help_text, label, parse_level
 from ucom_tools.cli.options import (
     connection_json,
@@ -37,25 +27,16 @@ from ucom_tools.cli.options import (
 )
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.errors import InputError, UcomError
-from ucom_tools.image.formats import load_image
 from ucom_tools.ops import options as ops
-from ucom_tools.ops import params_keep
 from ucom_tools.ops.enumerate import enumerate_bus
-from ucom_tools.ops.flash import flash, interrupted_before, listen_first
-from ucom_tools.ops.flash_types import (
-    KEEP,
-    LISTENING,
-    RESET,
-    FlashInterrupted,
-    FlashRequest,
-    FlashResult,
-    Selection,
-)
 from ucom_tools.ops.robot import ConnectSpec, Robot
-from ucom_tools.protocol.programmer import Cancelled
 from ucom_tools.signals import interrupt_exit_code, stop_signal, stopped_how
 from ucom_tools.wire.codes import StatusOp, Target
 from ucom_tools.wire.ids import IdType
+
+if TYPE_CHECKING:  # imported where used, so that the other commands start without them
+    from ucom_tools.ops import params_keep
+    from ucom_tools.ops.flash_types import FlashRequest, FlashResult
 
 BOARD = "BOARD is a seq ID (1-31), F<n> for a fixed ID, or 'all'; BUS:<n> picks one bus."
 ONE_BOARD = "BOARD is a seq ID (1-31) or F<n> for a fixed ID; BUS:<n> picks one bus."
@@ -336,6 +317,8 @@ last_cmd = _probe_command("last", 15, True, "Found through its init output, the 
 # ----------------------------------------------------------------------------- 5, 6, flash
 def _flash_out(ctx: click.Context, spec: ConnectSpec, result: FlashResult,
                as_json: bool, kept: params_keep.KeepResult | None = None) -> None:
+    from ucom_tools.cli import params as params_cli
+
     if as_json:
         extra = {"keep_params": params_cli.kept_json(kept)} if kept is not None else {}
         _json(spec, {**render.flash_json(result), **extra})
@@ -362,6 +345,9 @@ def _flash_out(ctx: click.Context, spec: ConnectSpec, result: FlashResult,
 def _cancelled(ctx: click.Context, spec: ConnectSpec, e: BaseException, as_json: bool) -> None:
     """An interrupted flash: per board what it was left with (the table, or ``--json``
     with ``interrupted``), one line on stderr, the signal's exit code."""
+    from ucom_tools.cli.flashrun import NotBegun
+    from ucom_tools.ops.flash_types import FlashInterrupted
+
     how = stopped_how(e)
     if isinstance(e, FlashInterrupted):
         result = e.result
@@ -386,6 +372,9 @@ def _cancelled(ctx: click.Context, spec: ConnectSpec, e: BaseException, as_json:
 
 def _stage(r: Robot, request: FlashRequest, phase: str, cancel: threading.Event) -> None:
     """Before the job: stop (nothing sent that changes a board) if cancelled."""
+    from ucom_tools.ops.flash import interrupted_before
+    from ucom_tools.ops.flash_types import FlashInterrupted
+
     if cancel.is_set():
         raise FlashInterrupted(interrupted_before(r, request, phase))
 
@@ -444,6 +433,25 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
     afterwards into the programs, started again (also on boards that were not
     programmed: the reset stopped them); the directory is left, and named, when a board
     did not get its values back.  Boards in their bootloader have nothing to keep."""
+    from ucom_tools.cli.flashrun import (
+        FORCE,
+        as_finished,
+        flash_progress,
+        run_cancellable,
+        with_force_hint,
+    )
+    from ucom_tools.image.formats import load_image
+    from ucom_tools.ops import params_keep
+    from ucom_tools.ops.flash import flash, interrupted_before, listen_first
+    from ucom_tools.ops.flash_types import (
+        KEEP,
+        LISTENING,
+        RESET,
+        FlashInterrupted,
+        FlashRequest,
+        Selection,
+    )
+    from ucom_tools.protocol.programmer import Cancelled
     request = FlashRequest(load_image(image), selection=Selection.parse(boards), bus=bus_name,
                            autostart=autostart, start=start_after or keep_params,
                            verify=not no_verify, force=force)
@@ -494,6 +502,8 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
 
 def _keep_after(r: Robot, kept: params_keep.Kept, result: FlashResult) -> params_keep.KeepResult:
     """Load the kept values back; when that fails altogether, say where they are."""
+    from ucom_tools.ops import params_keep
+
     try:
         return params_keep.keep_after(r, kept, {(b.bus, b.seq_id): b.outcome
                                                for b in result.boards})
@@ -508,6 +518,9 @@ def _keep_refused(ctx: click.Context, spec: ConnectSpec, kept: params_keep.Kept,
                   as_json: bool) -> None:
     """flash --keep-params without --force when some board's values could not be read:
     nothing programmed, exit code 1."""
+    from ucom_tools.cli import params as params_cli
+    from ucom_tools.ops import params_keep
+
     report = params_keep.keep_refused(kept)
     if as_json:
         _json(spec, {"programmed": False, "keep_params": params_cli.kept_json(report)})
@@ -531,6 +544,11 @@ def _program_command(name: str, option: int, target: Target, detail: str) -> cli
     @click.pass_context
     def cmd(ctx: click.Context, board: str, image: str, force: bool, spec: ConnectSpec,
             bus_name: str | None, run_init: bool, as_json: bool) -> None:
+        from ucom_tools.cli.flashrun import run_flash
+        from ucom_tools.image.formats import load_image
+        from ucom_tools.ops.flash_types import FlashRequest, Selection
+        from ucom_tools.protocol.programmer import Cancelled
+
         ref = ops.parse_ref(board)
         img = load_image(image)
         if ref.is_all:
@@ -584,7 +602,3 @@ def check_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, as_js
         render.print_check(stdout(), rows)
     _finish(ctx, bool(rows) and not any(x.failed for x in rows))
 
-
-COMMANDS = [check_cmd, reset_cmd, init_cmd, info_cmd, prog_enable_cmd, program_cmd, extram_cmd,
-            start_cmd, autostart_cmd, xreset_cmd, set_init_in_cmd, set_init_out_cmd,
-            set_seqid_cmd, count_cmd, first_cmd, last_cmd, list_cmd, reset_one_cmd, flash_cmd]

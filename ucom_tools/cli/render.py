@@ -7,16 +7,13 @@ ProgIDs and names always come out whole.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.markup import escape
 
 from ucom_tools.cli.tables import FitTable
-from ucom_tools.image.model import Image
-from ucom_tools.ops.compat import CheckRow
 from ucom_tools.ops.enumerate import BusEnumeration
-from ucom_tools.ops.flash_types import FlashResult, at_phase
 from ucom_tools.ops.options import ProbeResult, Row
 from ucom_tools.plugons import app_name, board_name
 from ucom_tools.wire import messages as m
@@ -25,6 +22,11 @@ from ucom_tools.wire.fpga import FpgaVersion
 from ucom_tools.wire.ids import Address, IdType
 from ucom_tools.wire.info import BoardInfo
 from ucom_tools.wire.transfer import TransferPlan
+
+if TYPE_CHECKING:  # not imported to print the tables of the commands that do not use them
+    from ucom_tools.image.model import Image
+    from ucom_tools.ops.compat import CheckRow
+    from ucom_tools.ops.flash_types import FlashResult
 
 
 def status_leds(s: m.StatusReport) -> str:
@@ -387,6 +389,8 @@ LEFT_WORDS = {"kept": "kept their program as found (not erased, not ProgEnabled)
 def interrupted_line(r: FlashResult, how: str, what: str = "flash") -> str:
     """One line for an interrupted flash: where each bus was, how many boards were left
     with what (every board is named in the table and its detail lines)."""
+    from ucom_tools.ops.flash_types import at_phase
+
     phases: dict[str, list[str]] = {}
     for bus in r.buses:
         phases.setdefault(bus.interrupted or "finished", []).append(bus.bus)

@@ -27,8 +27,6 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import BinaryIO, TextIO
 
-import bincopy
-
 from ucom_tools.errors import ImageError
 from ucom_tools.image import text
 from ucom_tools.image.model import X_OFFSET, Image, finish_image, region_problem, runs
@@ -99,6 +97,8 @@ def _records(lines: Iterable[tuple[int, str]], source: str) -> list[_Record]:
 
 def _record(rec: str, source: str, no: int, indent: int) -> _Record:
     """One record, its structure checked before bincopy unpacks it and checks its sum."""
+    import bincopy  # here, not on top: with pyelftools it is a third of a command's start-up
+
     if not rec.startswith("S") or len(rec) < 2 or not rec[1].isdigit():
         raise ImageError(f"not an S-record: {text.clip(rec)}", file=source, line=no)
     type_ = rec[1]
@@ -243,6 +243,8 @@ def dumps(img: Image) -> str:
     CodeWarrior read: an S0 header (the image's, else "PROGRAM&DATA"), S3 records of
     :data:`WORDS_PER_RECORD` words at WORD addresses (X: at 0x00200000 + address), each
     word low byte first, the reset-vector words included, and an S7 entry record."""
+    import bincopy
+
     lines = [bincopy.pack_srec("0", 0, len(header), header)
              for header in [(img.header or CODEWARRIOR_HEADER).encode("latin-1")]]
     every = dict(img.words)
