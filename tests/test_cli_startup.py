@@ -111,7 +111,8 @@ def test_help_and_version_import_click_and_nothing_else(args: list[str]) -> None
                                   ["init", "--virtual", "armar3", "--no-info"]])
 def test_a_bootloader_command_imports_what_it_uses(args: list[str]) -> None:
     imports = ucom_imports(*args)
-    assert imports.has("ucom_tools.cli.commands") and imports.has("can")
+    module = "ucom_tools.cli.flash" if args[0] == "flash" else "ucom_tools.cli.commands"
+    assert imports.has(module) and imports.has("can")
     assert not imports.unwanted(list(NOT_FOR_A_BOOTLOADER_COMMAND))
     if "--virtual" in args:
         assert imports.has("ucom_tools.virtual.fleet")  # it did run the command

@@ -56,9 +56,9 @@ COMMANDS: dict[str, Entry] = {
                   "flags of a board (needs init: option 2, or --init)."),
     "prog-enable": Entry("commands", "prog_enable_cmd", "Option 4, SetProgEnable: enable "
                          "programming of a board or all (needs init: option 2, or --init)."),
-    "program": Entry("commands", "program_cmd", "Option 5, Program: program a board, or all "
+    "program": Entry("flash", "program_cmd", "Option 5, Program: program a board, or all "
                      "ProgEnabled boards (needs init: option 2, or --init)."),
-    "extram-load": Entry("commands", "extram_cmd", "Option 6, ExtRAMLoad: load the image "
+    "extram-load": Entry("flash", "extram_cmd", "Option 6, ExtRAMLoad: load the image "
                          "into external RAM (needs init: option 2, or --init)."),
     "start": Entry("commands", "start_cmd", "Option 7, Start: start the program in flash or "
                    "ExtRAM (needs init: option 2, or --init)."),
@@ -81,7 +81,7 @@ COMMANDS: dict[str, Entry] = {
                   "active boards."),
     "reset-one": Entry("commands", "reset_one_cmd", "Option 21, Reset Specific: reset one "
                        "board (needs init: option 2, or --init)."),
-    "flash": Entry("commands", "flash_cmd", "Program IMAGE (S-record or Intel HEX) into the "
+    "flash": Entry("flash", "flash_cmd", "Program IMAGE (S-record or Intel HEX) into the "
                    "boards of every bus, verified."),
     "check": Entry("commands", "check_cmd", "Compatibility matrix: plug-on board, FPGA and "
                    "stored DSP program of every board."),
