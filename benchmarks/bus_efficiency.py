@@ -16,7 +16,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from ucom_tools.config.topology import parse  # noqa: E402
-from ucom_tools.image import load_image  # noqa: E402
+from ucom_tools.image.formats import load_image  # noqa: E402
 from ucom_tools.protocol.bootloader import BootloaderClient  # noqa: E402
 from ucom_tools.protocol.link import Link  # noqa: E402
 from ucom_tools.protocol.programmer import Programmer  # noqa: E402

@@ -36,11 +36,13 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from ucom_tools.config import topology as topo_mod  # noqa: E402
-from ucom_tools.image import load_image  # noqa: E402
+from ucom_tools.image.formats import load_image  # noqa: E402
 from ucom_tools.ops import deploy as ops  # noqa: E402
 from ucom_tools.ops import params_keep  # noqa: E402
+from ucom_tools.ops.deploy_execute import execute  # noqa: E402
 from ucom_tools.ops.enumerate import enumerate_bus  # noqa: E402
 from ucom_tools.ops.flash import flash  # noqa: E402
+from ucom_tools.ops.flash_types import FlashRequest  # noqa: E402
 from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot  # noqa: E402
 from ucom_tools.virtual.canbus import VirtualUcomBus  # noqa: E402
 
@@ -89,20 +91,21 @@ def main() -> int:
         try:
             def deploy(manifest: ops.Manifest, changes: int) -> None:
                 journal = ops.Journal.open(directory / "journal", "ARMAR-III")
-                result = ops.execute(r, ops.plan(r, manifest, journal), journal)
+                request = ops.DeployRequest(manifest, journal)
+                result = execute(r, request, ops.plan(r, request))
                 assert result.ok and len(result.plan.changes) == changes, result.failed
 
             deploy(plain, 11)  # every board gets its program first
             flash_s, flash_v = timed(r, lambda: (
                 [h.client.reset() for h in r.buses.values()],
-                flash(r, image)), args.repeat)
+                flash(r, FlashRequest(image))), args.repeat)
             deploy(plain, 11)  # flash left the boards in their bootloader: start them
 
             def flash_keep() -> None:
                 kept = params_keep.keep_before(r)
                 for h in r.buses.values():
                     h.client.reset()
-                result = flash(r, image, start=True)
+                result = flash(r, FlashRequest(image, start=True))
                 restored = params_keep.keep_after(r, kept, {(b.bus, b.seq_id): b.outcome
                                                            for b in result.boards})
                 assert result.all_verified and restored.ok

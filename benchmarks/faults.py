@@ -64,7 +64,7 @@ Also ``seconds`` (the whole run), ``load_average_start`` and ``_end`` (the machi
 ``run_time`` (compiled or pure Python, and why), ``serve_held``: how often ``fleet
 serve`` said this machine kept it from running in real time (its standard error; a bus
 silent for half a second that way is lost as if it were, see ``QUIET_MIN_S`` in
-:mod:`ucom_tools.ops.remote_loop`), ``not_posed``: the joint sensors that did not follow
+:mod:`ucom_tools.ops.board_watch`), ``not_posed``: the joint sensors that did not follow
 their target at the start (the platform's wheels).
 
 Targets (``targets_met``, MET or NOT MET in the text, exit 1 when one is not), for every

@@ -24,8 +24,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from ucom_tools.config.topology import load  # noqa: E402
-from ucom_tools.image import load_image  # noqa: E402
+from ucom_tools.image.formats import load_image  # noqa: E402
 from ucom_tools.ops.flash import flash  # noqa: E402
+from ucom_tools.ops.flash_types import FlashRequest  # noqa: E402
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot  # noqa: E402
 from ucom_tools.protocol.bootloader import BootloaderClient  # noqa: E402
 from ucom_tools.protocol.link import Link  # noqa: E402
@@ -50,7 +51,7 @@ def run(loss: float, seed: int, image) -> dict[str, float]:
     try:
         stats = inner.sim.stats
         bits0, t0v, t0 = stats.bits, inner.sim.now, time.perf_counter()
-        result = flash(robot, image)
+        result = flash(robot, FlashRequest(image))
         wall = time.perf_counter() - t0
         (b,) = result.buses
         return {"verified": float(all(x.verified for x in result.boards)

@@ -38,8 +38,9 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from ucom_tools.image import load_image  # noqa: E402
+from ucom_tools.image.formats import load_image  # noqa: E402
 from ucom_tools.ops.flash import flash, listen_first  # noqa: E402
+from ucom_tools.ops.flash_types import FlashRequest  # noqa: E402
 from ucom_tools.ops.robot import ConnectSpec, open_robot  # noqa: E402
 from ucom_tools.signals import stop_signals  # noqa: E402
 
@@ -89,7 +90,7 @@ def run(loss: float, seed: int, image: Any) -> dict[str, Any]:
             listen_first(robot)
             for h in robot.buses.values():
                 h.client.reset()
-            result = flash(robot, image)
+            result = flash(robot, FlashRequest(image))
             wall = time.perf_counter() - t0
         finally:
             robot.close()

@@ -19,8 +19,9 @@ from canopen.objectdictionary import DOMAIN, ObjectDictionary, ODVariable
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from ucom_tools.image import load_image  # noqa: E402
+from ucom_tools.image.formats import load_image  # noqa: E402
 from ucom_tools.ops.flash import flash  # noqa: E402
+from ucom_tools.ops.flash_types import FlashRequest  # noqa: E402
 from ucom_tools.ops.robot import ConnectSpec, open_robot  # noqa: E402
 
 IMAGE = ROOT / "firmware_images" / "bench64k.fl.S"
@@ -57,7 +58,7 @@ def ours(image) -> tuple[float, int]:
         for h in robot.buses.values():
             h.client.reset()
         t0 = time.perf_counter()
-        result = flash(robot, image)
+        result = flash(robot, FlashRequest(image))
         elapsed = time.perf_counter() - t0
         assert result.all_verified, [b.detail for b in result.failed]
         return elapsed, len(result.boards)

@@ -51,9 +51,10 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from runtime import served_armar3  # noqa: E402
 
-from ucom_tools.image import load_image  # noqa: E402
+from ucom_tools.image.formats import load_image  # noqa: E402
 from ucom_tools.ops.enumerate import enumerate_bus  # noqa: E402
 from ucom_tools.ops.flash import flash  # noqa: E402
+from ucom_tools.ops.flash_types import FlashRequest  # noqa: E402
 from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot  # noqa: E402
 from ucom_tools.signals import stop_signals  # noqa: E402
 
@@ -95,7 +96,7 @@ def init(bus: str | None = None) -> Callable[[Robot], None]:
 
 
 def flash_all(robot: Robot) -> None:
-    result = flash(robot, load_image(IMAGE))
+    result = flash(robot, FlashRequest(load_image(IMAGE)))
     assert result.all_verified and len(result.boards) == 11, \
         [b.detail for b in result.failed]
 

@@ -18,8 +18,9 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from ucom_tools.image.srec import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.ops.flash import flash
+from ucom_tools.ops.flash_types import FlashRequest
 from ucom_tools.ops.remote import RemotePart
 from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot
 
@@ -70,8 +71,8 @@ def flash_armar3(state: Path) -> list[Frame]:
     robot = open_robot(ConnectSpec(virtual="armar3", state_dir=state))
     try:
         with sniffed(robot) as frames:
-            result = flash(robot, image, plan=image.plan(when=WHEN), autostart=True,
-                           start=True)
+            result = flash(robot, FlashRequest(image, plan=image.plan(when=WHEN),
+                                               autostart=True, start=True))
         assert result.all_verified and not result.failed, result
     finally:
         robot.close()

@@ -7,8 +7,9 @@ import threading
 
 import pytest
 
-from ucom_tools.image import load_image
-from ucom_tools.ops.flash import FlashInterrupted, flash
+from ucom_tools.image.formats import load_image
+from ucom_tools.ops.flash import flash
+from ucom_tools.ops.flash_types import FlashInterrupted, FlashRequest
 from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.wire.codes import BoardState
 from ucom_tools.wire.ids import seq
@@ -25,7 +26,7 @@ def test_cancel_aborts_the_transfer_and_boards_stay_in_their_bootloader() -> Non
                 cancel.set()
 
         with pytest.raises(FlashInterrupted) as caught:
-            flash(robot, image, bus="CAN0", progress=progress, cancel=cancel)
+            flash(robot, FlashRequest(image, bus="CAN0"), progress=progress, cancel=cancel)
         assert [(b.seq_id, b.outcome) for b in caught.value.result.boards] == [
             (1, "kept"), (2, "kept"), (3, "kept")]  # erased boards had no program to lose
         assert all("no program, as found" in b.detail for b in caught.value.result.boards)
@@ -37,6 +38,6 @@ def test_cancel_aborts_the_transfer_and_boards_stay_in_their_bootloader() -> Non
             assert not info.prog_enable
         assert h.client.start(seq(1))[0].errors[0].code.name == "NO_PROGRAM"
         # and the bus is usable right away: a new flash succeeds
-        assert flash(robot, image, bus="CAN0").all_verified
+        assert flash(robot, FlashRequest(image, bus="CAN0")).all_verified
     finally:
         robot.close()

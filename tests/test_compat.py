@@ -9,8 +9,9 @@ from pathlib import Path
 from click.testing import CliRunner, Result
 
 from ucom_tools.cli.main import cli
-from ucom_tools.image import load_image
-from ucom_tools.ops.flash import Selection, flash
+from ucom_tools.image.formats import load_image
+from ucom_tools.ops.flash import flash
+from ucom_tools.ops.flash_types import FlashRequest, Selection
 from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.wire.codes import BoardState, ErrorCode, StatusOp
 from ucom_tools.wire.ids import seq
@@ -62,7 +63,7 @@ def test_start_policy_through_real_frames() -> None:
     robot = open_robot(ConnectSpec(virtual=MIXED))
     try:
         image = load_image(ARMAR)
-        assert flash(robot, image, force=True).all_verified
+        assert flash(robot, FlashRequest(image, force=True)).all_verified
         client = robot.buses["CAN1"].client
         boards = robot.buses["CAN1"].bus.fleet.boards["CAN1"]
         ok, swapped, app, major, minor = (client.start(seq(n))[0] for n in range(1, 6))
@@ -87,8 +88,8 @@ def test_a_major_mismatch_with_autostart_does_not_loop(tmp_path: Path) -> None:
     robot_spec = ConnectSpec(virtual=MIXED, state_dir=tmp_path)
     robot = open_robot(robot_spec)
     try:
-        assert flash(robot, load_image(ARMAR), selection=Selection("list", (4,)),
-                     force=True).all_verified
+        request = FlashRequest(load_image(ARMAR), selection=Selection("list", (4,)), force=True)
+        assert flash(robot, request).all_verified
         client = robot.buses["CAN1"].client
         assert client.set_status(seq(4), StatusOp.AUTOSTART, 1)[0].ok
     finally:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from click.testing import CliRunner
 
 from ucom_tools.cli.main import cli
-from ucom_tools.image import load_image
+from ucom_tools.image.formats import load_image
 
 IMAGE = "firmware_images/armar3.fl.S"
 PROGID = f"0x{load_image(IMAGE).progid:08X}"

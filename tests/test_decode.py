@@ -16,7 +16,7 @@ from click.testing import CliRunner, Result
 
 from ucom_tools.cli import decode as decode_cli
 from ucom_tools.cli.main import UcomGroup, cli
-from ucom_tools.image import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.trace.decode import (
     BOARD_TO_PC,
     PC_TO_BOARD,

@@ -33,6 +33,7 @@ from ucom_tools.config import attrtree
 from ucom_tools.config import topology as topo_mod
 from ucom_tools.ops import deploy as ops
 from ucom_tools.ops import params as params_ops
+from ucom_tools.ops.deploy_execute import execute
 from ucom_tools.ops.enumerate import enumerate_bus
 from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot
 from ucom_tools.virtual.canbus import VirtualUcomBus
@@ -273,7 +274,8 @@ def test_armar3_deploys_then_a_second_deploy_touches_no_board_within_2x_of_init(
     manifest = ops.load_manifest(topo)
     with in_process(tmp_path / "state") as r:
         journal = ops.Journal.open(tmp_path / "j", topo.name)
-        first = ops.execute(r, ops.plan(r, manifest, journal), journal)
+        request = ops.DeployRequest(manifest, journal)
+        first = execute(r, request, ops.plan(r, request))
         assert first.ok and first.journal is None and not (tmp_path / "j").exists()
         assert {b.outcome for b in first.boards} == {"done"}
         boards = boards_of(r)
@@ -287,7 +289,8 @@ def test_armar3_deploys_then_a_second_deploy_touches_no_board_within_2x_of_init(
 
         def again() -> None:
             j = ops.Journal.open(tmp_path / "j", topo.name)
-            result = ops.execute(r, ops.plan(r, manifest, j), j)
+            request = ops.DeployRequest(manifest, j)
+            result = execute(r, request, ops.plan(r, request))
             assert result.ok and len(result.plan.up_to_date) == 11
 
         # each the best of five, taken in turns: a busy machine (other tests beside this
@@ -310,17 +313,19 @@ def test_a_changed_image_programs_only_its_board_and_its_tuned_values_survive(
                                                       "Neck Pitch P:40": "Neck Pitch P:7"})
     with in_process(tmp_path / "state") as r:
         journal = ops.Journal.open(tmp_path / "j", topo.name)
-        assert ops.execute(r, ops.plan(r, ops.load_manifest(topo), journal), journal).ok
+        request = ops.DeployRequest(ops.load_manifest(topo), journal)
+        assert execute(r, request, ops.plan(r, request)).ok
         trees = attrtree.bind_present(topo)
         loaded = params_ops.load_values(r, attrtree.with_files(trees, [tuned], only=True))
         assert loaded.ok
         boards = boards_of(r)
         running = {k: b.application for k, b in boards.items()}
         journal = ops.Journal.open(tmp_path / "j", topo.name)
-        the_plan = ops.plan(r, ops.load_manifest(changed), journal)
+        request = ops.DeployRequest(ops.load_manifest(changed), journal)
+        the_plan = ops.plan(r, request)
         assert [(x.key, x.action) for x in the_plan.changes] == [("CAN0:1", "program")]
         assert "other ProgID 0xCCD7F1F4" in the_plan.changes[0].reason
-        result = ops.execute(r, the_plan, journal)
+        result = execute(r, request, the_plan)
         assert result.ok, result.failed
         neck = next(b for b in result.boards if b.row.key == "CAN0:1")
         assert neck.outcome == "done" and neck.params.outcome == "kept"

@@ -33,10 +33,12 @@ import pytest
 
 from tests.helpers import ROOT, head_topology, served_in_process
 from ucom_tools.config import topology as topo_mod
-from ucom_tools.image import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.ops import deploy as deploy_ops
 from ucom_tools.ops import leave
-from ucom_tools.ops.flash import FlashInterrupted, FlashResult, flash
+from ucom_tools.ops.deploy_execute import execute
+from ucom_tools.ops.flash import flash
+from ucom_tools.ops.flash_types import FlashInterrupted, FlashRequest, FlashResult
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot, open_robot
 from ucom_tools.signals import Terminated, interrupt_exit_code, stop_signal
 from ucom_tools.virtual.board.ucom import VirtualBoard
@@ -185,7 +187,7 @@ def head() -> Iterator[Robot]:
     """ARMAR-III's head bus in process, its boards running armar3.fl.S with AutoStart."""
     r = open_robot(ConnectSpec(virtual=HEAD))
     try:
-        assert flash(r, OLD, autostart=True, start=True).all_verified
+        assert flash(r, FlashRequest(OLD, autostart=True, start=True)).all_verified
         yield r
     finally:
         r.close()
@@ -222,7 +224,7 @@ def test_a_flash_interrupted_in_any_phase_leaves_each_board_as_it_says(
     trap = Interrupter(head.buses["CAN0"], mode, when, stop)
     try:
         with pytest.raises(FlashInterrupted) as caught:
-            flash(head, NEW, autostart=True, start=True, cancel=trap.cancel)
+            flash(head, FlashRequest(NEW, autostart=True, start=True), cancel=trap.cancel)
     finally:
         trap.close()
     assert trap.fired, f"the {phase} never came"
@@ -248,7 +250,7 @@ def test_a_flash_interrupted_in_any_phase_leaves_each_board_as_it_says(
     else:
         assert interrupt_exit_code(caught.value) == 130
     if phase in ("erase", "transfer"):  # the bus is usable at once: a flash verifies
-        assert flash(head, NEW).all_verified
+        assert flash(head, FlashRequest(NEW)).all_verified
 
 
 def test_a_resend_round_interrupted_leaves_the_verified_boards_verified(head: Robot) -> None:
@@ -268,7 +270,7 @@ def test_a_resend_round_interrupted_leaves_the_verified_boards_verified(head: Ro
     trap = Interrupter(h, "raise", frame(0x103, 0, 1))  # its RESULT: MISSING
     try:
         with pytest.raises(FlashInterrupted) as caught:
-            flash(head, NEW, cancel=trap.cancel)
+            flash(head, FlashRequest(NEW), cancel=trap.cancel)
     finally:
         trap.close()
         h.bus.sim.drop = None  # type: ignore[attr-defined]
@@ -297,7 +299,7 @@ def test_a_board_that_does_not_answer_the_undo_is_named_unreachable(head: Robot)
     trap.on_frame = power_off_then_interrupt  # type: ignore[method-assign]
     try:
         with pytest.raises(FlashInterrupted) as caught:
-            flash(head, NEW, cancel=trap.cancel)
+            flash(head, FlashRequest(NEW), cancel=trap.cancel)
     finally:
         trap.close()
     result = caught.value.result
@@ -317,11 +319,11 @@ def test_an_interrupted_bus_is_put_back_the_one_done_says_so_the_others_not_begu
     others never begun, their boards keeping their program."""
     r = open_robot(ConnectSpec(virtual="armar3"))
     try:
-        assert flash(r, OLD).all_verified
+        assert flash(r, FlashRequest(OLD)).all_verified
         first, second, *others = r.buses
         trap = Interrupter(r.buses[second], "raise", frame(0x2C0, 4))
         with pytest.raises(FlashInterrupted) as caught:
-            flash(r, NEW, cancel=trap.cancel)
+            flash(r, FlashRequest(NEW), cancel=trap.cancel)
         trap.close()
         result = caught.value.result
         assert {b.bus: b.interrupted for b in result.buses} == {
@@ -353,8 +355,8 @@ def deployed_head(tmp_path_factory: pytest.TempPathFactory) -> Path:
     try:
         t = topo_mod.load(str(topo))
         journal = deploy_ops.Journal.open(where / "journal", t.name)
-        assert deploy_ops.execute(r, deploy_ops.plan(r, deploy_ops.load_manifest(t), journal),
-                                  journal).ok
+        request = deploy_ops.DeployRequest(deploy_ops.load_manifest(t), journal)
+        assert execute(r, request, deploy_ops.plan(r, request)).ok
     finally:
         r.close()
     return where
@@ -396,12 +398,13 @@ def test_a_deploy_interrupted_in_any_step_leaves_no_board_prog_enabled_and_says_
     for the next deploy, which finishes the work."""
     with head_copy(deployed_head, tmp_path) as (r, topo):
         journal = deploy_ops.Journal.open(tmp_path / "journal", topo.name)
-        the_plan = deploy_ops.plan(r, deploy_ops.load_manifest(topo), journal)
+        request = deploy_ops.DeployRequest(deploy_ops.load_manifest(topo), journal)
+        the_plan = deploy_ops.plan(r, request)
         assert [x.action for x in the_plan.rows] == ["program"] * 3
         trap = Interrupter(r.buses["CAN0"], mode, when)
         try:
             with pytest.raises(deploy_ops.DeployInterrupted) as caught:
-                deploy_ops.execute(r, the_plan, journal, cancel=trap.cancel)
+                execute(r, request, the_plan, cancel=trap.cancel)
         finally:
             trap.close()
         assert trap.fired
@@ -427,8 +430,8 @@ def test_a_deploy_interrupted_in_any_step_leaves_no_board_prog_enabled_and_says_
                 assert saved
         if step == "programming" and mode == "cancel":  # the next deploy finishes it
             journal = deploy_ops.Journal.open(tmp_path / "journal", topo.name)
-            again = deploy_ops.execute(r, deploy_ops.plan(r, deploy_ops.load_manifest(topo),
-                                                          journal), journal)
+            request = deploy_ops.DeployRequest(deploy_ops.load_manifest(topo), journal)
+            again = execute(r, request, deploy_ops.plan(r, request))
             assert again.ok, again.failed
             assert all(b.params.outcome == "kept" for b in again.boards)
 

@@ -202,5 +202,5 @@ def test_a_process_per_bus_routes_each_fault_and_the_estop_reaches_every_bus(
             for raw in raws.values():
                 raw.close()
         server.interrupt()
-        assert server.wait() == 0, server.stderr()
+        assert server.wait() == 130, server.stderr()
     assert "Traceback" not in server.stderr()

@@ -24,7 +24,7 @@ import pytest
 
 from tests.helpers import terminate
 from ucom_tools.errors import InputError
-from ucom_tools.protocol.dispatch import EXTENDED, SENT
+from ucom_tools.protocol.traffic import EXTENDED, SENT
 from ucom_tools.trace import mcapfile
 from ucom_tools.viewers import foxglove_msgs as fm
 
@@ -196,6 +196,8 @@ def test_a_foxglove_client_plots_the_joints_and_frames_and_sets_the_right_eye(
     assert set(served["encoded"]) == {"/joints", "/CAN0/frames", "/Eyes/values",
                                       "/events"}
     assert served["encoded"]["/CAN0/frames"] >= len(frames)
+    # handed over while watched: every bus's (the loop does not sort them by bus)
+    assert served["frames_received"] >= served["encoded"]["/CAN0/frames"]
     assert served["writes_applied"] == 1 and served["writes_refused"] == 0
     assert served["nodelay_sockets"] >= 1
 
@@ -222,6 +224,7 @@ def test_without_allow_writes_a_clients_write_is_refused_and_said(
     assert values[-1]["Right_Eye_Target"] == 0
     assert doc["foxglove"]["writes_refused"] == 2
     assert set(doc["foxglove"]["encoded"]) <= {"/Eyes/values", "/events"}
+    assert doc["foxglove"]["frames_received"] == 0  # no client watched a bus's frames
 
 
 def test_browse_serves_a_shared_robot_to_foxglove(
@@ -262,6 +265,7 @@ def test_nothing_is_encoded_while_no_client_subscribes(flashed: Path,  # noqa: F
     assert served["encoded_total"] == 0 and served["encoded"] == {}
     assert served["url"] == f"ws://127.0.0.1:{run.port}"
     assert "Right Eye" in served["joints"] and served["frames_dropped"] == 0
+    assert served["frames_received"] == 0  # nobody watches them: the loop keeps them
 
 
 def test_a_port_in_use_ends_the_run_before_the_boards_start(flashed: Path,  # noqa: F811

@@ -26,7 +26,8 @@ from tests.helpers import assert_send_data_refuses_as_send
 from ucom_tools.protocol import frames
 from ucom_tools.protocol.dispatch import Dispatcher
 from ucom_tools.transport import socketcand as client
-from ucom_tools.transport.socketcand import PINGS, SocketcandBus, send_bytes
+from ucom_tools.transport.socketcand import PINGS, SocketcandBus
+from ucom_tools.transport.socketcand_frames import send_bytes
 from ucom_tools.wire.socketcand import (
     ElementSplitter,
     ElementTooLong,
@@ -291,7 +292,7 @@ def test_dispatcher_send_data_is_send() -> None:
     dispatchers = {}
     for fast in (True, False):
         d = Dispatcher(_Bus(fast), "CAN0")
-        d._stamp = lambda: 5.0
+        d.sender.stamp = lambda: 5.0
         d.taps.append(lambda msg, fast=fast: seen[fast].append(attributes(msg)))
         for ident in range(0, 0x800, 7):
             d.send_data(ident, bytes(ident % 9), timeout=1.0)
@@ -310,7 +311,7 @@ def test_dispatcher_send_data_many_is_send_data_of_each() -> None:
     dispatchers = {}
     for way in ("one by one", "without", "many"):
         d = Dispatcher(_Bus(True, many=way == "many"), "CAN0")
-        d._stamp = lambda: 5.0
+        d.sender.stamp = lambda: 5.0
         seen[way] = []
         d.taps.append(lambda msg, way=way: seen[way].append(attributes(msg)))
         if way == "one by one":
@@ -360,12 +361,12 @@ def test_link_send_frames_in_one_call_keeps_the_horizon() -> None:
 
 def dispatch_one(d: Dispatcher, msg: can.Message) -> None:
     """Dispatcher.dispatch as it was before dispatch_all: the reference."""
-    d.received += 1
+    d.router.received += 1
     if not msg.is_error_frame and not msg.is_remote_frame and not msg.is_extended_id:
-        d._count(msg)
+        d.traffic.count(msg.arbitration_id, msg.data)
     for tap in d.taps:
         tap(msg)
-    subs = d._route(msg)
+    subs = d.router.route(msg)
     for sub in subs:
         if sub.on_frame is not None:
             sub.on_frame(msg)
@@ -406,6 +407,6 @@ def test_dispatch_all_is_dispatch_frame_by_frame() -> None:
             for msg in msgs:
                 dispatch_one(d, msg)
         return (got, tapped, [m.arbitration_id for m in queued.queue], dict(d.unclaimed),
-                d.received, d.bits, d._frames_counted)
+                d.received, d.bits, d.traffic.frames)
 
     assert run(True) == run(False)

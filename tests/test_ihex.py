@@ -16,7 +16,9 @@ from click.testing import CliRunner, Result
 
 from ucom_tools.cli.main import cli
 from ucom_tools.errors import ImageError
-from ucom_tools.image import formats, ihex, load_image, parse_image
+from ucom_tools.image import formats, ihex
+from ucom_tools.image.formats import load_image
+from ucom_tools.image.srec import parse_srec
 from ucom_tools.wire.codes import Space
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -203,7 +205,7 @@ def test_round_trip_srec_hex_srec_is_identical(tmp_path: Path, srec: Path) -> No
     hex_text = formats.dumps(original, "ihex")
     via_hex = ihex.parse_ihex(hex_text, "x.hex")
     back_text = formats.dumps(via_hex, "srec")
-    back = parse_image(back_text, "x.S")
+    back = parse_srec(back_text, "x.S")
     for img in (via_hex, back):
         assert img.words == original.words and img.vector_words == original.vector_words
         assert img.entry == original.entry and img.progid == original.progid

@@ -29,7 +29,7 @@ from ucom_tools.config.attrtree import Board, Kind, Value, load
 from ucom_tools.edgelists import by_name
 from ucom_tools.edgelists.lauron4 import NAME, SPEC, LegMode, Status
 from ucom_tools.edgelists.model import EdgeKind, EdgeSpec
-from ucom_tools.image.srec import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.virtual.hardware.fpga import VirtualFpga
 from ucom_tools.virtual.hardware.plant import AxisParams
 from ucom_tools.virtual.programs.base import Plant, ProgramModel

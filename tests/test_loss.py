@@ -12,8 +12,9 @@ import pytest
 
 from tests.helpers import image_words, plan_of
 from ucom_tools.config.topology import load
-from ucom_tools.image import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.ops.flash import flash
+from ucom_tools.ops.flash_types import FlashRequest
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
@@ -54,7 +55,7 @@ def flash_holds_image(fleet: Fleet, bus: str, n: int) -> bool:
 @pytest.mark.parametrize("seed", range(5))
 def test_one_percent_loss_both_ways_five_of_five_flashes_verify(seed: int) -> None:
     with lossy_robot(loss=0.01, seed=seed) as (robot, fleet):
-        result = flash(robot, IMAGE)
+        result = flash(robot, FlashRequest(IMAGE))
         lossy = robot.buses["CAN0"].bus
         assert isinstance(lossy, LossyBus)
         assert lossy.dropped["tx"] > 10  # frames were lost (few come back: rx losses are rare)
@@ -68,7 +69,7 @@ def test_one_percent_loss_both_ways_five_of_five_flashes_verify(seed: int) -> No
 
 def test_five_percent_loss_still_verifies() -> None:
     with lossy_robot(loss=0.05, seed=11) as (robot, fleet):
-        result = flash(robot, IMAGE)
+        result = flash(robot, FlashRequest(IMAGE))
         assert all(b.verified for b in result.boards), [b.detail for b in result.boards]
         assert len(result.boards) == 3
         assert all(flash_holds_image(fleet, "CAN0", n) for n in (1, 2, 3))
@@ -125,7 +126,7 @@ SINGLE_LOSSES = {
 @pytest.mark.parametrize("what", SINGLE_LOSSES)
 def test_a_single_lost_frame_is_asked_again_not_a_board_failure(what: str) -> None:
     with lossy_robot(drop=once(SINGLE_LOSSES[what])) as (robot, fleet):
-        result = flash(robot, IMAGE)
+        result = flash(robot, FlashRequest(IMAGE))
         lossy = robot.buses["CAN0"].bus
         assert isinstance(lossy, LossyBus)
         assert sum(lossy.dropped.values()) == 1, what
@@ -179,7 +180,7 @@ def test_a_board_that_never_gets_a_block_is_never_reported_verified() -> None:
     handle = BusHandle("CAN0", bus, link, BootloaderClient(link), topo.bus("CAN0"), virtual=True)
     robot = Robot(ConnectSpec(virtual="armar3"), {"CAN0": handle}, topo)
     try:
-        result = flash(robot, IMAGE)
+        result = flash(robot, FlashRequest(IMAGE))
         outcomes = {b.seq_id: b for b in result.boards}
         assert outcomes[1].verified and outcomes[3].verified
         assert not outcomes[2].verified

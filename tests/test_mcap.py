@@ -273,3 +273,85 @@ def test_a_damaged_file_is_bad_input(run, tmp_path: Path) -> None:
     bad.write_bytes(data[:100] + bytes([data[100] ^ 0xFF]) + data[101:])
     r = ucom("remote", "plot", str(bad), SENSOR, "--json")
     assert r.exit_code == 3, r.stderr
+
+
+def _panels(node: Any) -> Iterator[dict[str, Any]]:
+    """Every panel of a layout in foxglove-sdk's form."""
+    if node["type"] == "panel":
+        yield node
+    for child in node.get("tabs", []) + node.get("items", []):
+        yield from _panels(child["content"])
+
+
+def test_the_layout_plots_what_a_recording_holds(run, tmp_path: Path) -> None:
+    """``remote layout``: every plotted path names a field of a topic the recording has
+    (its schema lists it, its messages carry numbers there), the Log panel the events'
+    topic and each raw-messages panel a bus's frames; the right eye's sensor is plotted
+    against its target."""
+    _, _, got = run
+    out = tmp_path / "armar3.json"
+    r = ucom("remote", "layout", "armar3", "-o", str(out))
+    assert r.exit_code == 0, r.stderr
+    panels = list(_panels(json.loads(out.read_text())["content"]))
+    schemas = {topic: json.loads(msgs[0][0].data) for topic, msgs in got["topics"].items()}
+    plotted = []
+    for p in panels:
+        if p["panelType"] == "Plot":
+            for series in p["config"]["paths"]:
+                topic, _, field = series["value"].partition(".")
+                assert field in schemas[topic]["properties"], series["value"]
+                values = [json.loads(m[2].data).get(field) for m in got["topics"][topic]]
+                assert any(isinstance(v, int | float) for v in values), series["value"]
+                plotted.append(series["value"])
+        elif p["panelType"] == "Log":
+            # the events' topic (written once a run has events, see the injected fault's
+            # test above)
+            assert p["config"]["topicToRender"] == "/events"
+        else:
+            assert p["panelType"] == "RawMessages", p["panelType"]
+            assert p["config"]["topicPath"] in got["topics"]
+    assert "/Eyes/values.Right_Eye_Joint_Sensor" in plotted
+    assert "/Eyes/values.Right_Eye_Target" in plotted
+    assert sum(p["panelType"] == "RawMessages" for p in panels) == 4
+
+
+def test_the_lichtblick_layout_holds_every_panel_once(tmp_path: Path) -> None:
+    """``--for lichtblick``: Studio 1.x's form: every panel of the SDK's layout under an id
+    in configById, each reached once from the layout's tree (tabs and binary splits),
+    split shares between 0 and 100 %."""
+    sdk, studio = tmp_path / "sdk.json", tmp_path / "studio.json"
+    assert ucom("remote", "layout", "lauron4", "-o", str(sdk)).exit_code == 0
+    r = ucom("remote", "layout", "lauron4", "-o", str(studio), "--for", "lichtblick")
+    assert r.exit_code == 0, r.stderr
+    doc = json.loads(studio.read_text())
+    config = doc["configById"]
+    reached: list[str] = []
+
+    def walk(node: Any) -> None:
+        if isinstance(node, str):
+            reached.append(node)
+            for tab in config[node].get("tabs", []) if node.startswith("Tab!") else []:
+                walk(tab["layout"])
+            return
+        assert 0 < node["splitPercentage"] < 100 and node["direction"] in ("row", "column")
+        walk(node["first"])
+        walk(node["second"])
+
+    walk(doc["layout"])
+    assert sorted(reached) == sorted(config)
+    sdk_panels = list(_panels(json.loads(sdk.read_text())["content"]))
+    assert len(config) == len(sdk_panels) + 1  # and the Tab panel
+    titles = {c.get("foxglovePanelTitle") for c in config.values()}
+    assert {p.get("title") for p in sdk_panels} <= titles
+
+
+def test_the_layout_replaces_no_file_and_names_a_wrong_robot(tmp_path: Path) -> None:
+    mine = tmp_path / "mine.json"
+    mine.write_text("my layout")
+    r = ucom("remote", "layout", "armar3", "-o", str(mine))
+    assert r.exit_code == 3 and "exists; --force replaces it" in r.stderr
+    assert mine.read_text() == "my layout"
+    r = ucom("remote", "layout", "armar33", "-o", str(tmp_path / "x.json"))
+    assert r.exit_code == 3 and "armar33" in r.stderr and not (tmp_path / "x.json").exists()
+    assert ucom("remote", "layout", "armar3", "-o", str(mine), "--force").exit_code == 0
+    assert json.loads(mine.read_text())["content"]["type"] == "tabs"

@@ -164,15 +164,16 @@ def alive(pid: int) -> bool:
     return True
 
 
-def assert_stops_cleanly(server: Server, stop: Callable[[], None]) -> None:
-    """``stop()`` ends the server and every process it started, promptly."""
+def assert_stops_cleanly(server: Server, stop: Callable[[], None], code: int = 130) -> None:
+    """``stop()`` ends the server and every process it started, promptly, with exit code
+    ``code`` (130 after Ctrl-C, 143 after SIGTERM: ucom(1), EXIT STATUS)."""
     pids = until(lambda: len(server.bus_pids()) == len(ARMAR3.buses) and server.bus_pids(),
                  what="every bus's process logged")
     children = server.children()  # --processes auto: at most one per core
     assert set(pids.values()) <= set(children), (children, server.stderr())
     started = time.monotonic()
     stop()
-    assert server.wait(STOP_S) == 0, server.stderr()
+    assert server.wait(STOP_S) == code, server.stderr()
     until(lambda: not any(alive(pid) for pid in children), STOP_S - (time.monotonic() - started),
           "every process of the server gone")
     assert "Traceback" not in server.stderr()
@@ -360,7 +361,7 @@ def test_flash_into_can0_survives_a_restart_with_the_same_state(tmp_path: Path) 
         with host(server.port, "CAN1") as h:
             h.client.init_chain()
             assert not h.client.info(seq(1)).flash_valid  # another bus, untouched
-        assert_stops_cleanly(server, lambda: server.proc.send_signal(signal.SIGTERM))
+        assert_stops_cleanly(server, lambda: server.proc.send_signal(signal.SIGTERM), 143)
 
 
 BAD_FIRST = [b"< open CAN9 >", b"< open >", b"< open CAN0 CAN1 >", b"< rawmode >",
@@ -402,7 +403,7 @@ def test_elements_before_the_open_get_the_answers_of_one_process() -> None:
 
 def assert_stops_cleanly_single(server: Server) -> None:
     server.interrupt()
-    assert server.wait(STOP_S) == 0, server.stderr()
+    assert server.wait(STOP_S) == 130, server.stderr()
 
 
 def test_max_clients_counts_every_bus_and_a_killed_bus_process_ends_the_serve() -> None:
@@ -528,7 +529,7 @@ def test_fault_makes_the_boards_of_every_bus_mutants(processes: str) -> None:
                 init = h.client.init_chain()  # numbering from 0: only "0" is heard
                 assert {a.seq_id for a in init.acks} == {0}, spec.name
         server.interrupt()
-        assert server.wait(STOP_S) == 0, server.stderr()
+        assert server.wait(STOP_S) == 130, server.stderr()
 
 
 def test_an_unknown_fault_is_refused_before_anything_is_served() -> None:
@@ -601,7 +602,7 @@ def test_loss_loses_frames_between_each_client_and_its_bus(processes: str) -> No
         until(lambda: re.search(r"\d+ frames lost on their way to it, \d+ from it",
                                 server.stderr()), what="the losses logged")
         server.interrupt()
-        assert server.wait(STOP_S) == 0, server.stderr()
+        assert server.wait(STOP_S) == 130, server.stderr()
 
 
 def test_loss_must_be_a_share_below_one() -> None:

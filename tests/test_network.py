@@ -17,8 +17,9 @@ from click.testing import CliRunner, Result
 
 from ucom_tools.cli.main import cli
 from ucom_tools.config.topology import load
-from ucom_tools.image import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.ops.flash import flash
+from ucom_tools.ops.flash_types import FlashRequest
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
@@ -119,7 +120,7 @@ def test_one_percent_loss_over_socketcand_still_verifies() -> None:
                            virtual=False)
         robot = Robot(ConnectSpec(interface="socketcand"), {"CAN0": handle}, topo)
         try:
-            result = flash(robot, load_image("firmware_images/armar3.fl.S"))
+            result = flash(robot, FlashRequest(load_image("firmware_images/armar3.fl.S")))
         finally:
             robot.close()
         assert bus.dropped["tx"] > 0

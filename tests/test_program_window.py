@@ -15,6 +15,7 @@ import pytest
 from tests.helpers import image_words, plan_of
 from tests.test_loss import IMAGE, flash_holds_image, lossy_robot, once
 from ucom_tools.ops.flash import flash
+from ucom_tools.ops.flash_types import FlashRequest
 from ucom_tools.protocol import programmer
 from ucom_tools.protocol.programmer import PROGRESS_WINDOW, Programmer
 from ucom_tools.virtual.bus.loss import DropRule, LossyBus
@@ -44,7 +45,7 @@ def test_a_lost_resend_costs_a_round_not_the_transfer() -> None:
     """The frame is lost in round 1 and its resend in round 2 (a round without progress);
     round 3 brings it: every board verified, its flash holding the image."""
     with lossy_robot(drop=lost(2)) as (robot, fleet):
-        result = flash(robot, IMAGE)
+        result = flash(robot, FlashRequest(IMAGE))
         lossy = robot.buses["CAN0"].bus
         assert isinstance(lossy, LossyBus) and lossy.dropped["tx"] == 2
         assert [b.outcome for b in result.boards] == ["verified"] * 3, [
@@ -59,7 +60,7 @@ def test_the_old_one_round_rule_gave_that_transfer_up(monkeypatch: pytest.Monkey
     'the last round brought no progress'."""
     monkeypatch.setattr(programmer, "PROGRESS_WINDOW", 1)
     with lossy_robot(drop=lost(2)) as (robot, _):
-        result = flash(robot, IMAGE)
+        result = flash(robot, FlashRequest(IMAGE))
         assert [b.outcome for b in result.boards] == ["failed"] * 3
         assert all("1 data frame(s) still missing after 2 round(s)" in b.detail
                    and "brought no progress" in b.detail for b in result.boards)
@@ -67,7 +68,7 @@ def test_the_old_one_round_rule_gave_that_transfer_up(monkeypatch: pytest.Monkey
 
 def test_resends_lost_for_fewer_rounds_than_the_window_still_verify() -> None:
     with lossy_robot(drop=lost(PROGRESS_WINDOW)) as (robot, _):
-        result = flash(robot, IMAGE)
+        result = flash(robot, FlashRequest(IMAGE))
         assert result.all_verified and result.buses[0].rounds == PROGRESS_WINDOW + 1
 
 
@@ -75,7 +76,7 @@ def test_a_window_of_rounds_without_progress_ends_the_transfer() -> None:
     """The frame never arrives: after the round that reported it missing, the window's
     rounds bring nothing and the transfer ends, naming what is missing and why."""
     with lossy_robot(drop=lost(10 ** 6)) as (robot, fleet):
-        result = flash(robot, IMAGE)
+        result = flash(robot, FlashRequest(IMAGE))
         (bus,) = result.buses
         assert bus.rounds == 1 + PROGRESS_WINDOW
         for b in result.boards:
@@ -99,7 +100,7 @@ def test_a_board_silent_for_a_whole_round_is_asked_again_in_the_next() -> None:
         return False
 
     with lossy_robot(drop=first_three) as (robot, _):
-        result = flash(robot, IMAGE)
+        result = flash(robot, FlashRequest(IMAGE))
         assert count["n"] == 3
         assert result.all_verified, [b.detail for b in result.boards]
         assert result.buses[0].rounds == 2
@@ -108,7 +109,7 @@ def test_a_board_silent_for_a_whole_round_is_asked_again_in_the_next() -> None:
 def test_a_lost_end_answer_alone_is_asked_again_within_the_round() -> None:
     with lossy_robot(drop=once(lambda d, msg: d == "rx" and msg.arbitration_id >> 6
                                == Function.PROGRAM_FINISHED)) as (robot, _):
-        result = flash(robot, IMAGE)
+        result = flash(robot, FlashRequest(IMAGE))
         assert result.all_verified and result.buses[0].rounds == 1
 
 
@@ -117,7 +118,7 @@ def test_five_percent_loss_both_ways_verifies_and_rounds_go_past_a_barren_one(
         seed: int) -> None:
     """Seeded random loss each way, the served fleet's ``--loss 0.05`` in process."""
     with lossy_robot(loss=0.05, seed=seed) as (robot, fleet):
-        result = flash(robot, IMAGE)
+        result = flash(robot, FlashRequest(IMAGE))
         assert all(b.verified for b in result.boards), [b.detail for b in result.boards]
         assert all(flash_holds_image(fleet, "CAN0", n) for n in (1, 2, 3))
 

@@ -18,8 +18,9 @@ import pytest
 from ucom_tools import compiled
 from ucom_tools.edgelists import armar3, lauron4
 from ucom_tools.edgelists.model import MAX_NAME, EdgeKind, ProgramSpec
-from ucom_tools.image import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.ops.flash import flash
+from ucom_tools.ops.flash_types import FlashRequest
 from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.virtual.board import application, runtime
 from ucom_tools.wire import mca
@@ -233,7 +234,8 @@ def test_virtual_boards_answer_the_example_requests_with_the_example_frames() ->
     each answer is the frame the page prints."""
     robot = open_robot(ConnectSpec(virtual="armar3"))
     try:
-        assert flash(robot, load_image("firmware_images/armar3.fl.S")).all_verified
+        image = load_image("firmware_images/armar3.fl.S")
+        assert flash(robot, FlashRequest(image)).all_verified
         bus = robot.buses["CAN0"]
         link = bus.client.link
         seen: list[tuple[int, bytes]] = []

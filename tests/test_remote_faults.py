@@ -24,9 +24,9 @@ from ucom_tools.cli.main import cli
 from ucom_tools.config.attrtree.robot import bind
 from ucom_tools.config.scenario import FaultKind, InjectedFault
 from ucom_tools.errors import InputError
+from ucom_tools.ops.board_watch import QUIET_MIN_S
 from ucom_tools.ops.remote import BoardFault, BoardLost, LostBoardWrite, RemotePart
 from ucom_tools.ops.remote_faults import lost_after
-from ucom_tools.ops.remote_loop import QUIET_MIN_S
 from ucom_tools.virtual.bus.loss import LossyBus
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.wire import mca

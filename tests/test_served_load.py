@@ -12,8 +12,9 @@ from pathlib import Path
 import pytest
 
 from tests.helpers import served_in_process
-from ucom_tools.image import load_image
+from ucom_tools.image.formats import load_image
 from ucom_tools.ops.flash import flash
+from ucom_tools.ops.flash_types import FlashRequest
 from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.virtual.bus import clock as clock_mod
 from ucom_tools.virtual.bus.simbus import TX_QUEUE
@@ -40,7 +41,7 @@ def test_a_late_waking_driver_still_feeds_the_bus_a_whole_image(
     robot = open_robot(ConnectSpec(interface="socketcand", host="127.0.0.1", port=port,
                                    channels=("CAN0",)))
     try:
-        result = flash(robot, load_image(REPO / "firmware_images/armar3.fl.S"))
+        result = flash(robot, FlashRequest(load_image(REPO / "firmware_images/armar3.fl.S")))
     finally:
         robot.close()
     assert result.all_verified, [b.detail for b in result.failed]

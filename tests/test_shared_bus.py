@@ -32,6 +32,7 @@ from ucom_tools.config.topology import load
 from ucom_tools.errors import BusError
 from ucom_tools.ops.exchange import ExchangeWatch
 from ucom_tools.ops.flash import flash, listen_first
+from ucom_tools.ops.flash_types import FlashRequest
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.dispatch import share_clock
@@ -258,7 +259,7 @@ def test_a_host_that_sees_another_hosts_program_frames_stops_before_its_data() -
         h.link.dispatcher.taps.append(tap)
         try:
             with pytest.raises(BusError) as caught:
-                flash(robot, IMAGE)
+                flash(robot, FlashRequest(IMAGE))
         finally:
             other.bus.shutdown()
         text = str(caught.value)
@@ -297,7 +298,7 @@ def test_answers_to_requests_never_made_show_another_host() -> None:
 def test_a_quiet_bus_is_programmed_as_before() -> None:
     with lossy_robot() as (robot, _):
         listen_first(robot)
-        assert flash(robot, IMAGE).all_verified
+        assert flash(robot, FlashRequest(IMAGE)).all_verified
 
 
 def _echoing_robot(fleet: Fleet) -> Robot:
@@ -322,7 +323,7 @@ def test_own_frames_echoed_back_are_not_another_hosts() -> None:
     try:
         listen_first(robot)
         h.client.reset()
-        result = flash(robot, IMAGE)
+        result = flash(robot, FlashRequest(IMAGE))
     finally:
         robot.close()
     assert result.all_verified, [b.detail for b in result.boards]

@@ -27,9 +27,8 @@ from ucom_tools.transport.socketcand import (
     PINGS,
     ElementSplitter,
     SocketcandBus,
-    parse_frame,
-    send_element,
 )
+from ucom_tools.transport.socketcand_frames import parse_frame, send_element
 
 T = TypeVar("T")
 LOCAL = "127.0.0.1"

@@ -12,7 +12,8 @@ from click.testing import CliRunner
 
 from ucom_tools.cli.main import cli
 from ucom_tools.errors import ImageError
-from ucom_tools.image import load_image, parse_image
+from ucom_tools.image.formats import load_image
+from ucom_tools.image.srec import parse_srec
 from ucom_tools.wire.codes import Space
 
 X = 0x0020_0000
@@ -31,7 +32,7 @@ def good_lines() -> list[str]:
 
 
 def test_codewarrior_convention() -> None:
-    img = parse_image("\n".join(good_lines()), "ok.S")
+    img = parse_srec("\n".join(good_lines()), "ok.S")
     assert img.header == "PROGRAM&DATA"
     assert img.entry == 0x80
     assert img.addressing == "word"
@@ -42,7 +43,7 @@ def test_codewarrior_convention() -> None:
 
 
 def test_low_byte_first() -> None:
-    img = parse_image("\n".join([rec(0x80, [0xE984]), END]), "x.S")
+    img = parse_srec("\n".join([rec(0x80, [0xE984]), END]), "x.S")
     assert img.words[(Space.P, 0x80)] == 0xE984
     line = rec(0x80, [0xE984])
     assert "84E9" in line  # bytes 84 E9 = word 0xE984
@@ -51,12 +52,12 @@ def test_low_byte_first() -> None:
 def test_plain_s1_and_s2_files_and_byte_addressing() -> None:
     s1 = "\n".join([rec(0x80, [1, 2], "1"), rec(0x82, [3], "1"),
                     bincopy.pack_srec("9", 0x80, 0, None)])
-    assert parse_image(s1).entry == 0x80
+    assert parse_srec(s1).entry == 0x80
     s2 = "\n".join([rec(0x80, [1, 2], "2"), bincopy.pack_srec("8", 0x80, 0, None)])
-    assert parse_image(s2).size() == 2
+    assert parse_srec(s2).size() == 2
     byte_addressed = "\n".join([rec(0x100, [1, 2, 3, 4], "1"), rec(0x108, [5, 6], "1"),
                                 rec(0x10C, [7], "1"), bincopy.pack_srec("9", 0x100, 0, None)])
-    img = parse_image(byte_addressed)
+    img = parse_srec(byte_addressed)
     assert img.addressing == "byte"
     assert sorted(a for _, a in img.words) == list(range(0x80, 0x87))
 

@@ -16,7 +16,8 @@ from click.testing import CliRunner
 
 from ucom_tools.cli.main import cli
 from ucom_tools.errors import ImageError
-from ucom_tools.image import load_image, parse_image, srec
+from ucom_tools.image.formats import load_image
+from ucom_tools.image.srec import parse_srec
 
 X = 0x0020_0000
 HEADER = bincopy.pack_srec("0", 0, 12, b"PROGRAM&DATA")
@@ -67,7 +68,7 @@ def test_a_file_without_termination_record_is_refused_as_truncated(tmp_path: Pat
     assert err.reason == ("no termination record (S7, S8 or S9): the file ends after line 5; "
                           "is it truncated?")
     with pytest.raises(ImageError, match="no termination record") as info:
-        parse_image("\n".join(lines), "text.S")
+        parse_srec("\n".join(lines), "text.S")
     assert info.value.line == 5
 
 
@@ -211,11 +212,11 @@ def test_a_fifo_is_refused_at_once_without_a_writer(tmp_path: Path) -> None:
 def test_the_size_limit_counts_every_byte_with_line_ends(
         monkeypatch: pytest.MonkeyPatch) -> None:
     text = "\r\n".join(good_lines()) + "\r\n"
-    monkeypatch.setattr(srec, "MAX_FILE_BYTES", len(text))
-    assert parse_image(text).size() == 8
-    monkeypatch.setattr(srec, "MAX_FILE_BYTES", len(text) - 1)
+    monkeypatch.setattr("ucom_tools.image.text.MAX_FILE_BYTES", len(text))
+    assert parse_srec(text).size() == 8
+    monkeypatch.setattr("ucom_tools.image.text.MAX_FILE_BYTES", len(text) - 1)
     with pytest.raises(ImageError, match="larger than") as info:
-        parse_image(text)
+        parse_srec(text)
     assert info.value.line == 6
 
 
@@ -227,7 +228,7 @@ def test_overlong_lines_are_refused_at_their_line(tmp_path: Path) -> None:
                                          "characters (a record has at most 514)")
     longest = bincopy.pack_srec("1", 0x80, 252, bytes(252))  # length byte FF
     assert len(longest) == 2 + 2 * (1 + 255)
-    img = parse_image("\n".join([f"  {longest}\t", bincopy.pack_srec("9", 0x80, 0, None)]))
+    img = parse_srec("\n".join([f"  {longest}\t", bincopy.pack_srec("9", 0x80, 0, None)]))
     assert img.size() == 126
 
 
@@ -253,7 +254,7 @@ def test_crlf_cr_blank_lines_and_blanks_around_records_are_accepted(tmp_path: Pa
         img = load_image(write(tmp_path / "ok.S", spaced, newline=newline))
         assert (img.records, img.size(), img.entry) == (6, 8, 0x80)
     lines[3] = "S3" + lines[3][2:].lower()
-    assert parse_image("\n".join(lines)).size() == 8
+    assert parse_srec("\n".join(lines)).size() == 8
 
 
 def test_a_hex_digit_error_names_its_column(tmp_path: Path) -> None:
@@ -266,11 +267,11 @@ def test_a_hex_digit_error_names_its_column(tmp_path: Path) -> None:
 
 def test_s6_count_records_are_read() -> None:
     s6 = "S6" + bincopy.pack_srec("2", 4, 0, None)[2:]  # 24-bit count, which bincopy lacks
-    img = parse_image("\n".join([*good_lines()[:-1], s6, END]))
+    img = parse_srec("\n".join([*good_lines()[:-1], s6, END]))
     assert img.records == 7
     bad = "S6" + bincopy.pack_srec("2", 3, 0, None)[2:]
     with pytest.raises(ImageError, match="count record says 3 data records"):
-        parse_image("\n".join([*good_lines()[:-1], bad, END]))
+        parse_srec("\n".join([*good_lines()[:-1], bad, END]))
 
 
 def test_missing_directory_and_unreadable_files_keep_clear_errors(tmp_path: Path) -> None:

@@ -32,7 +32,10 @@ import bincopy
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
-from ucom_tools.image import formats, load_image, parse_image, srec  # noqa: E402
+from ucom_tools.image import formats  # noqa: E402
+from ucom_tools.image.formats import load_image  # noqa: E402
+from ucom_tools.image.model import runs  # noqa: E402
+from ucom_tools.image.srec import parse_srec  # noqa: E402
 from ucom_tools.wire.codes import Space  # noqa: E402
 from ucom_tools.wire.descriptor import DESCRIPTOR_ADDRESS, ImageDescriptor  # noqa: E402
 
@@ -112,11 +115,11 @@ def objcopy(source: Path, target: Path) -> None:
 
 def byte_addressed(text: str) -> str:
     """An S-record image's text with its addresses doubled (bytes, not words)."""
-    img = parse_image(text)
+    img = parse_srec(text)
     every = dict(img.words)
     every.update({(Space.P, a): v for a, v in img.vector_words.items()})
     lines = [bincopy.pack_srec("0", 0, 12, b"PROGRAM&DATA")]
-    for space, start, values in srec.runs(every):
+    for space, start, values in runs(every):
         base = X_OFFSET if space is Space.X else 0
         for i in range(0, len(values), 16):
             data = b"".join(w.to_bytes(2, "little") for w in values[i:i + 16])
@@ -129,7 +132,7 @@ def main(out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     small = small_srec()
     (out / "small.S").write_text(small)
-    small_hex = formats.dumps(parse_image(small, "small.S"), "ihex")
+    small_hex = formats.dumps(parse_srec(small, "small.S"), "ihex")
     (out / "small.hex").write_text(small_hex)
     armar3 = load_image(ROOT / "firmware_images" / "armar3.fl.S")
     (out / "armar3.hex").write_text(formats.dumps(armar3, "ihex"))

@@ -25,11 +25,8 @@ decides; :func:`status` says what it decided (``ucom --version`` shows it).
 
 from __future__ import annotations
 
-import hashlib
-import importlib.abc
 import importlib.machinery
 import importlib.util
-import json
 import os
 import sys
 from collections.abc import Sequence
@@ -38,6 +35,7 @@ from pathlib import Path
 from types import ModuleType
 
 MODULES: tuple[str, ...] = (
+    "ucom_tools.ops.board_watch",
     "ucom_tools.ops.edges",
     "ucom_tools.ops.exchange",
     "ucom_tools.ops.remote_loop",
@@ -46,8 +44,15 @@ MODULES: tuple[str, ...] = (
     "ucom_tools.protocol.frames",
     "ucom_tools.protocol.link",
     "ucom_tools.protocol.mca",
+    "ucom_tools.protocol.periodic",
+    "ucom_tools.protocol.routing",
+    "ucom_tools.protocol.sending",
+    "ucom_tools.protocol.traffic",
+    "ucom_tools.protocol.turns",
     "ucom_tools.signals",
     "ucom_tools.transport.socketcand",
+    "ucom_tools.transport.socketcand_frames",
+    "ucom_tools.transport.tcp",
     "ucom_tools.virtual.board.application",
     "ucom_tools.virtual.board.bootloader",
     "ucom_tools.virtual.board.nvmem",
@@ -110,6 +115,8 @@ def source_of(module: str) -> Path:
 
 
 def digest(path: Path) -> str:
+    import hashlib  # here, and json in _decide: a pure-Python ``ucom --help`` needs neither
+
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
@@ -128,9 +135,11 @@ def changed_sources(manifest: dict[str, str], modules: Sequence[str] = MODULES,
     return changed
 
 
-class _Sources(importlib.abc.MetaPathFinder):
+class _Sources:
     """Imports the compiled modules from their ``.py`` files (before the extension that
-    the normal path finder would prefer)."""
+    the normal path finder would prefer); a meta path finder as ``sys.meta_path`` takes
+    them (not derived from ``importlib.abc.MetaPathFinder``: its import brings
+    importlib.resources, tempfile and shutil, which ``ucom --help`` does not need)."""
 
     def find_spec(self, fullname: str, path: Sequence[str] | None,
                   target: ModuleType | None = None) -> importlib.machinery.ModuleSpec | None:
@@ -142,6 +151,8 @@ class _Sources(importlib.abc.MetaPathFinder):
 def _decide() -> Status:
     if os.environ.get(PURE_ENV, "") not in ("", "0"):
         return Status(False, f"pure Python ({PURE_ENV} is set)")
+    import json
+
     try:
         manifest = json.loads(MANIFEST.read_text())
     except FileNotFoundError:

@@ -19,7 +19,7 @@ from ucom_tools.viewers.foxglove_msgs import DEFAULT_ADDRESS as FOXGLOVE_ADDRESS
 from ucom_tools.viewers.foxglove_msgs import parse_address
 
 if TYPE_CHECKING:
-    from ucom_tools.net.client import Reading
+    from ucom_tools.net.client import Reading, RobotClient
 
 
 def _line(name: str, value: object, unit: str) -> str:
@@ -100,15 +100,7 @@ def browse(robot: str | None, endpoint: str, config_file: str | None, gets: tupl
     from ucom_tools.net.client import RobotClient
 
     wanted = parse_sets(sets)
-    fox = parse_address(foxglove) if foxglove is not None else None
-    if fox is not None and (wanted or gets or watches or stop):
-        raise InputError("--foxglove serves the robot: give --get, --set, --watch and "
-                         "--stop without it", key="--foxglove")
-    if allow_writes and fox is None:
-        raise InputError("--allow-writes is for the writes of --foxglove's clients",
-                         key="--allow-writes")
-    if seconds is not None and not watches and fox is None:
-        raise InputError("--for is the length of a --watch (or of --foxglove)", key="--for")
+    fox = _checked(wanted, gets, watches, seconds, stop, foxglove, allow_writes)
     where = endpoint if config_file is None or endpoint != DEFAULT_ENDPOINT else None
     with RobotClient.connect(where, robot=robot, config_file=config_file,
                              timeout=timeout) as client:
@@ -122,36 +114,11 @@ def browse(robot: str | None, endpoint: str, config_file: str | None, gets: tupl
                 where, robot=name, config_file=config_file, timeout=min(timeout, 2.0)),
                 timeout)
             return
-        out: dict[str, Any] = {"robot": client.robot, "endpoint": client.where}
-        for name, text in wanted:
-            answer = client.write(name, _value_of(text), timeout=timeout)
-            out.setdefault("set", []).append(answer)
-            if not as_json:
-                stdout().print(escape(_line(answer["name"], answer["value"],
-                                            answer.get("unit", ""))) + ": set",
-                               soft_wrap=True)
-        if gets:
-            values = client.read(list(gets), timeout=timeout)
-            out["values"] = {n: _value_json(r) for n, r in values.items()}
-            if not as_json:
-                for n, r in values.items():
-                    ref = client.resolve(n)
-                    stdout().print(escape(_line(n, r.value, ref.spec.unit)
-                                          + _stale(r, ref.where)), soft_wrap=True)
-        if stop:
-            out["stop"] = client.stop(timeout=timeout)
-            if not as_json:
-                stdout().print(f"robot {escape(client.robot)}: stopping every board")
+        out = _asked(client, wanted, gets, stop, timeout, as_json)
         if watches:
             if as_json and (wanted or gets or stop):
                 emit_json(out)  # the document first, then the watch's lines
-            for t, n, v, valid in client.watch(list(watches), seconds, validity=True):
-                if as_json:
-                    sys.stdout.write(json.dumps({"t": t, "name": n, "value": v,
-                                                 "valid": valid}) + "\n")
-                else:
-                    sys.stdout.write(f"{t:.6f} {n} {v}{'' if valid else ' stale'}\n")
-                sys.stdout.flush()
+            _watch(client, watches, seconds, as_json)
             return
         if not (wanted or gets or stop):
             values = client.read(timeout=timeout)
@@ -162,6 +129,59 @@ def browse(robot: str | None, endpoint: str, config_file: str | None, gets: tupl
                 _print_tree(client.structure, values, client)
         if as_json:
             emit_json(out)
+
+
+def _checked(wanted: list[tuple[str, str]], gets: tuple[str, ...], watches: tuple[str, ...],
+             seconds: float | None, stop: bool, foxglove: str | None,
+             allow_writes: bool) -> tuple[str, int] | None:
+    """The options that go together, or InputError; --foxglove's address."""
+    fox = parse_address(foxglove) if foxglove is not None else None
+    if fox is not None and (wanted or gets or watches or stop):
+        raise InputError("--foxglove serves the robot: give --get, --set, --watch and "
+                         "--stop without it", key="--foxglove")
+    if allow_writes and fox is None:
+        raise InputError("--allow-writes is for the writes of --foxglove's clients",
+                         key="--allow-writes")
+    if seconds is not None and not watches and fox is None:
+        raise InputError("--for is the length of a --watch (or of --foxglove)", key="--for")
+    return fox
+
+
+def _asked(client: RobotClient, wanted: list[tuple[str, str]], gets: tuple[str, ...],
+           stop: bool, timeout: float, as_json: bool) -> dict[str, Any]:
+    """--set, --get and --stop, in that order: printed, and as --json's document."""
+    out: dict[str, Any] = {"robot": client.robot, "endpoint": client.where}
+    for name, text in wanted:
+        answer = client.write(name, _value_of(text), timeout=timeout)
+        out.setdefault("set", []).append(answer)
+        if not as_json:
+            stdout().print(escape(_line(answer["name"], answer["value"],
+                                        answer.get("unit", ""))) + ": set", soft_wrap=True)
+    if gets:
+        values = client.read(list(gets), timeout=timeout)
+        out["values"] = {n: _value_json(r) for n, r in values.items()}
+        if not as_json:
+            for n, r in values.items():
+                ref = client.resolve(n)
+                stdout().print(escape(_line(n, r.value, ref.spec.unit)
+                                      + _stale(r, ref.where)), soft_wrap=True)
+    if stop:
+        out["stop"] = client.stop(timeout=timeout)
+        if not as_json:
+            stdout().print(f"robot {escape(client.robot)}: stopping every board")
+    return out
+
+
+def _watch(client: RobotClient, watches: tuple[str, ...], seconds: float | None,
+           as_json: bool) -> None:
+    """--watch: a line per value as it comes (--json: a JSON document a line)."""
+    for t, n, v, valid in client.watch(list(watches), seconds, validity=True):
+        if as_json:
+            sys.stdout.write(json.dumps({"t": t, "name": n, "value": v,
+                                         "valid": valid}) + "\n")
+        else:
+            sys.stdout.write(f"{t:.6f} {n} {v}{'' if valid else ' stale'}\n")
+        sys.stdout.flush()
 
 
 def _print_tree(structure: dict[str, Any], values: dict[str, Reading],

@@ -8,56 +8,29 @@ option table of :mod:`ucom_tools.cli.menu`, which the console shares.
 
 from __future__ import annotations
 
-import threading
-from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
 
 import click
-from rich.markup import escape
 
-from ucom_tools.cli import params as params_cli
 from ucom_tools.cli import render
-from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
-from ucom_tools.cli.flashrun import (
-    NotBegun,
-    as_finished,
-    flash_progress,
-    run_cancellable,
-    run_flash,
-)
-from ucom_tools.cli.menu import help_text, label, parse_level
+from ucom_tools.cli.exitcodes import EXIT_FAILED
+from ucom_tools.cli.menu import BOARD, ONE_BOARD, help_text, label, parse_level
 from ucom_tools.cli.options import (
-    connection_json,
     connection_options,
+    emit_with_connection,
     init_option,
     json_option,
     robot,
 )
-from ucom_tools.cli.output import emit_json, stderr, stdout
-from ucom_tools.errors import InputError, UcomError
-from ucom_tools.image import Image, load_image
+from ucom_tools.cli.output import stdout
 from ucom_tools.ops import options as ops
-from ucom_tools.ops import params_keep
 from ucom_tools.ops.enumerate import enumerate_bus
-from ucom_tools.ops.flash import (
-    KEEP,
-    LISTENING,
-    RESET,
-    FlashInterrupted,
-    FlashResult,
-    Selection,
-    flash,
-    interrupted_before,
-    listen_first,
-)
-from ucom_tools.ops.robot import ConnectSpec, Robot
-from ucom_tools.protocol.programmer import Cancelled
-from ucom_tools.signals import interrupt_exit_code, stop_signal, stopped_how
+from ucom_tools.ops.robot import ConnectSpec
 from ucom_tools.wire.codes import StatusOp, Target
-from ucom_tools.wire.ids import IdType
 
-BOARD = "BOARD is a seq ID (1-31), F<n> for a fixed ID, or 'all'; BUS:<n> picks one bus."
-ONE_BOARD = "BOARD is a seq ID (1-31) or F<n> for a fixed ID; BUS:<n> picks one bus."
+if TYPE_CHECKING:  # imported where used, so that the other commands start without them
+    pass
+
 
 
 def _finish(ctx: click.Context, ok: bool) -> None:
@@ -65,19 +38,10 @@ def _finish(ctx: click.Context, ok: bool) -> None:
         ctx.exit(EXIT_FAILED)
 
 
-def _json(spec: ConnectSpec, data: dict[str, Any]) -> None:
-    """JSON on stdout, with the bus that was used."""
-    emit_json({**data, "connection": connection_json(spec)})
-
-
-def _verbose(ctx: click.Context) -> int:
-    return int((ctx.find_root().obj or {}).get("verbose", 0))
-
-
 def _rows(ctx: click.Context, spec: ConnectSpec, rows: list[ops.Row], as_json: bool,
           title: str) -> None:
     if as_json:
-        _json(spec, render.rows_json(rows))
+        emit_with_connection(spec, render.rows_json(rows))
     else:
         render.print_rows(stdout(), rows, title)
     _finish(ctx, bool(rows) and all(r.ok for r in rows))
@@ -96,7 +60,7 @@ def reset_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, as_js
     with robot(spec) as r:
         rows = ops.reset(r, bus=bus_name, what=label(1))
     if as_json:
-        _json(spec, render.rows_json(rows))
+        emit_with_connection(spec, render.rows_json(rows))
     else:
         render.print_reset(stdout(), rows, "Reset All")
     _finish(ctx, all(x.ok for x in rows))
@@ -114,7 +78,7 @@ def xreset_cmd(ctx: click.Context, board: str, spec: ConnectSpec, bus_name: str 
     with robot(spec) as r:
         rows = ops.reset(r, ref, bus=bus_name, clear_autostart=True, what=label(9))
     if as_json:
-        _json(spec, render.rows_json(rows))
+        emit_with_connection(spec, render.rows_json(rows))
     else:
         render.print_reset(stdout(), rows, "XReset")
     _finish(ctx, all(x.ok for x in rows))
@@ -150,7 +114,7 @@ def init_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, no_inf
     with robot(spec) as r:
         results = r.each(lambda h: enumerate_bus(h, with_info=not no_info), bus_name)
     if as_json:
-        _json(spec, {"buses": [render.enumeration_json(e) for e in results]})
+        emit_with_connection(spec, {"buses": [render.enumeration_json(e) for e in results]})
     else:
         for e in results:
             render.print_enumeration(stdout(), e)
@@ -175,7 +139,7 @@ def info_cmd(ctx: click.Context, board: str, spec: ConnectSpec, bus_name: str | 
 def _info_out(ctx: click.Context, spec: ConnectSpec, rows: list[ops.Row], as_json: bool,
               title: str) -> None:
     if as_json:
-        _json(spec, {"boards": [{"bus": x.bus, **render.addr_json(x.address),
+        emit_with_connection(spec, {"boards": [{"bus": x.bus, **render.addr_json(x.address),
                                  "placement": x.placement, "ok": x.ok, "detail": x.detail,
                                  **(render.info_json(x.info) if x.info else {})}
                                 for x in rows]})
@@ -278,7 +242,7 @@ def _pin_command(name: str, option: int, op: StatusOp) -> click.Command:
         if as_json:
             data = render.rows_json(rows)
             data["status"] = [{"bus": b, "pins": s.pins, "leds": s.leds} for b, s in status]
-            _json(spec, data)
+            emit_with_connection(spec, data)
         else:
             render.print_rows(stdout(), rows, f"{name} {board} {level}")
             for b, s in status:
@@ -319,7 +283,7 @@ def _probe_command(name: str, option: int, last: bool, detail: str) -> click.Com
         with robot(spec) as r:
             results = ops.probe(r, last=last, bus=bus_name)
         if as_json:
-            _json(spec, render.probe_json(results))
+            emit_with_connection(spec, render.probe_json(results))
         else:
             render.print_probe(stdout(), results)
         _finish(ctx, all(len(p.answers) == 1 for p in results))
@@ -330,234 +294,6 @@ first_cmd = _probe_command("first", 14, False, "Two answers mean the init line i
                            "(exit code 1).")
 last_cmd = _probe_command("last", 15, True, "Found through its init output, the reverse "
                           "direction of the chain; two answers mean a broken line.")
-
-
-# ----------------------------------------------------------------------------- 5, 6, flash
-def _flash_out(ctx: click.Context, spec: ConnectSpec, result: FlashResult,
-               as_json: bool, kept: params_keep.KeepResult | None = None) -> None:
-    if as_json:
-        extra = {"keep_params": params_cli.kept_json(kept)} if kept is not None else {}
-        _json(spec, {**render.flash_json(result), **extra})
-    else:
-        render.print_flash(stdout(), result)
-        if kept is not None:
-            params_cli.print_kept(stdout(), kept)
-    if kept is not None and not kept.ok:
-        names = ", ".join(b.where for b in kept.failed)
-        stderr().print(f"[red]params not kept: {escape(names)}[/]", soft_wrap=True)
-    if not result.all_verified or result.failed:
-        names = ", ".join(
-            (f"{b.bus}:{b.seq_id}" if b.seq_id else f"{b.bus}:{b.placement}")
-            + ("" if b.verified else f" ({b.outcome})" if b.outcome != "failed"
-               else " (not verified)")
-            + (" (did not start)" if b.verified and b.started is False else "")
-            for b in result.failed) or "no board found"
-        stderr().print(f"[red]failed: {names}[/]", soft_wrap=True)
-        ctx.exit(EXIT_FAILED)
-    if kept is not None and not kept.ok:
-        ctx.exit(EXIT_FAILED)
-
-
-def _cancelled(ctx: click.Context, spec: ConnectSpec, e: BaseException, as_json: bool) -> None:
-    """An interrupted flash: per board what it was left with (the table, or ``--json``
-    with ``interrupted``), one line on stderr, the signal's exit code."""
-    how = stopped_how(e)
-    if isinstance(e, FlashInterrupted):
-        result = e.result
-        if as_json:
-            stop = stop_signal(e)
-            _json(spec, {**render.flash_json(result), "interrupted": {
-                "how": how, "signal": stop.name if stop is not None else "SIGINT",
-                "buses": {b.bus: b.interrupted for b in result.buses}}})
-        else:
-            render.print_flash(stdout(), result)
-        stderr().print(f"[yellow]{escape(render.interrupted_line(result, how))}[/]",
-                       soft_wrap=True)
-    elif isinstance(e, NotBegun):
-        stderr().print(f"[yellow]flash {how} before it began: nothing was sent to any "
-                       "board[/]", soft_wrap=True)
-    else:  # a third signal cut the undo short
-        stderr().print(f"[red]flash {how} again while putting the boards back: they are "
-                       "left as they are (check them with 'ucom info all --init')[/]",
-                       soft_wrap=True)
-    ctx.exit(interrupt_exit_code(e) if isinstance(e, KeyboardInterrupt) else EXIT_INTERRUPTED)
-
-
-def _stage(r: Robot, img: Image, bus_name: str | None, phase: str,
-           cancel: threading.Event) -> None:
-    """Before the job: stop (nothing sent that changes a board) if cancelled."""
-    if cancel.is_set():
-        raise FlashInterrupted(interrupted_before(r, img, phase, bus=bus_name))
-
-
-@dataclass
-class _Flashed:
-    """What ``ucom flash``'s worker did: refused before programming (the values to keep
-    could not be read), or the result and the values kept."""
-
-    kept: params_keep.Kept | None = None
-    result: FlashResult | None = None
-    restored: params_keep.KeepResult | None = None
-
-
-@click.command("flash")
-@click.argument("image", type=click.Path())
-@click.option("--boards", default="all", show_default=True,
-              help="'all' or seq IDs like 1,3 (on each selected bus).")
-@click.option("--autostart", is_flag=True, help="Set AutoStart on every verified board.")
-@click.option("--start", "start_after", is_flag=True, help="Start the verified boards.")
-@click.option("--no-verify", is_flag=True,
-              help="Skip reading back each board's Info after its verified transfer.")
-@click.option("--force", is_flag=True,
-              help="Program boards whose Board-ID, App-ID or FPGA major version do not fit "
-                   "the image (with a warning); with --keep-params, also program when some "
-                   "board's values could not be read.")
-@click.option("--keep-params", is_flag=True,
-              help="Keep the live PAR and CI values: before programming, read them from "
-                   "every board that runs a program (checked against its attribute tree in "
-                   "the topology); afterwards start the programs (implies --start) and load "
-                   "the values back, read back to verify.  A board whose values cannot be "
-                   "read (its program's edges differ from its tree, no answer) stops the job "
-                   "before anything is programmed (exit code 1) unless --force.")
-@connection_options
-@json_option
-@click.pass_context
-def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
-              start_after: bool, no_verify: bool, force: bool, keep_params: bool,
-              spec: ConnectSpec, bus_name: str | None, as_json: bool) -> None:
-    """Program IMAGE (S-record or Intel HEX) into the boards of every bus, verified.
-
-    Resets, runs the init chain with wiring checks, brings boards that run a program back
-    to their bootloader, enables programming, sends the image once per bus (all buses in
-    parallel), checks every board's ProgID, resends only the frames a board missed (on a
-    bus that loses frames too), then sets AutoStart and starts the boards when asked.
-    Option 20 (ProgAll) is 'flash --boards all'.  Boards the image does not fit (plug-on
-    board, FPGA Board-ID, App-ID, FPGA major version) are refused unless --force.  Exit
-    code 0 only when every selected board verified; with a topology, an expected board
-    that never answered fails the job too.  Ctrl-C, SIGTERM or SIGHUP at any moment
-    leaves every board with its old program intact, or in its bootloader with ProgEnable
-    cleared and no transfer open (ABORT, then each board's Info read), and says which
-    per board (exit code 130, 143, 129).
-
-    With --keep-params the PAR and CI values of the boards that run a program are read
-    first (into a temporary directory, as 'ucom params dump' writes them) and loaded back
-    afterwards into the programs, started again (also on boards that were not
-    programmed: the reset stopped them); the directory is left, and named, when a board
-    did not get its values back.  Boards in their bootloader have nothing to keep."""
-    img = load_image(image)
-    selection = Selection.parse(boards)
-    with robot(spec) as r:
-        r.select(bus_name)  # an unknown --bus is exit code 3 before anything is sent
-
-        out = _Flashed()
-
-        def job(cancel: threading.Event) -> _Flashed:
-            """All of it in the worker (run_cancellable): a signal only sets ``cancel``,
-            looked at between the steps and throughout the flash."""
-            _stage(r, img, bus_name, LISTENING, cancel)
-            listen_first(r, bus_name)  # another host programming: exit 4, nothing sent
-            _stage(r, img, bus_name, LISTENING, cancel)
-            out.kept = params_keep.keep_before(r, bus=bus_name) if keep_params else None
-            _stage(r, img, bus_name, KEEP, cancel)
-            if out.kept is not None and not out.kept.readout.ok and not force:
-                return out
-            with flash_progress(r, img, verbose=_verbose(ctx), bus=bus_name) as report:
-                for h in r.select(bus_name):
-                    h.client.reset()
-                _stage(r, img, bus_name, RESET, cancel)
-                out.result = flash(r, img, selection=selection, bus=bus_name,
-                                   autostart=autostart, start=start_after or keep_params,
-                                   verify=not no_verify, force=force, progress=report,
-                                   cancel=cancel)
-            if out.kept is not None:
-                out.restored = _keep_after(r, out.kept, out.result)
-            return out
-
-        try:
-            done = run_cancellable(job, name="ucom-flash", finished=lambda out, stop: (
-                as_finished(out.result, stop) if out.result is not None else FlashInterrupted(
-                    interrupted_before(r, img, KEEP, bus=bus_name))))
-        except (KeyboardInterrupt, Cancelled) as e:
-            if out.kept is not None and out.kept.directory is not None:
-                stderr().print(f"[yellow]the values read before programming are in "
-                               f"{escape(str(out.kept.directory))}[/]", soft_wrap=True)
-            _cancelled(ctx, spec, e, as_json)
-            return
-        if done.result is None:
-            assert done.kept is not None
-            _keep_refused(ctx, spec, done.kept, as_json)
-            return
-    _flash_out(ctx, spec, done.result, as_json, done.restored)
-
-
-def _keep_after(r: Robot, kept: params_keep.Kept, result: FlashResult) -> params_keep.KeepResult:
-    """Load the kept values back; when that fails altogether, say where they are."""
-    try:
-        return params_keep.keep_after(r, kept, {(b.bus, b.seq_id): b.outcome
-                                               for b in result.boards})
-    except (UcomError, KeyboardInterrupt):
-        if kept.directory is not None:
-            stderr().print(f"[yellow]the values read before programming are in "
-                           f"{escape(str(kept.directory))}[/]", soft_wrap=True)
-        raise
-
-
-def _keep_refused(ctx: click.Context, spec: ConnectSpec, kept: params_keep.Kept,
-                  as_json: bool) -> None:
-    """flash --keep-params without --force when some board's values could not be read:
-    nothing programmed, exit code 1."""
-    report = params_keep.keep_refused(kept)
-    if as_json:
-        _json(spec, {"programmed": False, "keep_params": params_cli.kept_json(report)})
-    else:
-        params_cli.print_kept(stdout(), report)
-    names = ", ".join(b.where for b in report.failed)
-    stderr().print(f"[red]nothing programmed: the values of {escape(names)} could not be "
-                   "read (--force programs anyway)[/]", soft_wrap=True)
-    ctx.exit(EXIT_FAILED)
-
-
-def _program_command(name: str, option: int, target: Target, detail: str) -> click.Command:
-    @click.command(name, help=help_text(option, detail))
-    @click.argument("board")
-    @click.argument("image", type=click.Path())
-    @click.option("--force", is_flag=True,
-                  help="Program even when the image does not fit the board (with a warning).")
-    @connection_options
-    @init_option
-    @json_option
-    @click.pass_context
-    def cmd(ctx: click.Context, board: str, image: str, force: bool, spec: ConnectSpec,
-            bus_name: str | None, run_init: bool, as_json: bool) -> None:
-        ref = ops.parse_ref(board)
-        img = load_image(image)
-        if ref.is_all:
-            selection = Selection("enabled")
-        elif ref.address.id_type is IdType.FIXED:
-            raise InputError("program by seq ID (run init first); fixed IDs are not used for "
-                             "programming", key="BOARD")
-        else:
-            selection = Selection("list", (ref.address.number,))
-        with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
-            try:
-                result = run_flash(r, img, selection=selection, bus=ref.bus or bus_name,
-                                   target=target, init=False, force=force,
-                                   verbose=_verbose(ctx), what=label(option))
-            except (KeyboardInterrupt, Cancelled) as e:
-                _cancelled(ctx, spec, e, as_json)
-                return
-        _flash_out(ctx, spec, result, as_json)
-    return cmd
-
-
-program_cmd = _program_command(
-    "program", 5, Target.FLASH,
-    "Programs IMAGE into board BOARD, or with 'all' into every ProgEnabled board (see "
-    "prog-enable); verified like 'flash'.\n\n" + BOARD)
-extram_cmd = _program_command(
-    "extram-load", 6, Target.EXTRAM,
-    "Loads IMAGE into external RAM of BOARD instead of flash (gone after reset; start it "
-    "with 'start --extram').\n\n" + BOARD)
 
 
 @click.command("check")
@@ -577,12 +313,8 @@ def check_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, as_js
     with robot(spec) as r:
         rows = check(r, bus=bus_name)
     if as_json:
-        _json(spec, render.check_json(rows))
+        emit_with_connection(spec, render.check_json(rows))
     else:
         render.print_check(stdout(), rows)
     _finish(ctx, bool(rows) and not any(x.failed for x in rows))
 
-
-COMMANDS = [check_cmd, reset_cmd, init_cmd, info_cmd, prog_enable_cmd, program_cmd, extram_cmd,
-            start_cmd, autostart_cmd, xreset_cmd, set_init_in_cmd, set_init_out_cmd,
-            set_seqid_cmd, count_cmd, first_cmd, last_cmd, list_cmd, reset_one_cmd, flash_cmd]

@@ -3,17 +3,18 @@ CI (JUnit report, a trace per case) and by hand (a table, decoded frames of fail
 
 from __future__ import annotations
 
+import textwrap
 from pathlib import Path
 from typing import Any
 
 import click
 from rich.markup import escape
-from rich.table import Table
 
 from ucom_tools import fileio
 from ucom_tools.cli.exitcodes import EXIT_BUS, EXIT_FAILED
 from ucom_tools.cli.options import connection_json, connection_options, json_option, robot
 from ucom_tools.cli.output import emit_json, stderr, stdout
+from ucom_tools.cli.tables import FitTable
 from ucom_tools.conformance import junit
 from ucom_tools.conformance.bench import RUNTIME_IMAGE
 from ucom_tools.conformance.restore import RECONNECT_S
@@ -27,6 +28,8 @@ from ucom_tools.conformance.runner import (
 from ucom_tools.errors import InputError, UcomError, WriteError
 from ucom_tools.ops.robot import ConnectSpec
 
+LIST_WIDTH = 80
+"""``--list`` wraps its sentences at this width at most (also when piped)."""
 STYLE = {"passed": "green", "failed": "red", "skipped": "yellow", "error": "red"}
 
 
@@ -36,13 +39,16 @@ def _list(pattern: str | None, as_json: bool) -> None:
         emit_json({"cases": [{"id": c.id, "group": c.group, "title": c.title,
                               "section": c.section, "writes": c.writes} for c in cases]})
         return
-    t = Table(title=f"{len(cases)} cases", title_justify="left")
-    for col in ("case", "group", "checks", "section", "writes"):
-        t.add_column(col, overflow="fold")
+    out = stdout()
+    width = min(out.width, LIST_WIDTH)
+    out.print(f"[bold]{len(cases)} cases[/]")
     for c in cases:
-        t.add_row(c.id, c.group, escape(c.title), escape(c.section),
-                  escape(c.writes) or "[dim]nothing[/]")
-    stdout().print(t)
+        out.print(f"[bold]{escape(c.id)}[/] [dim]({escape(c.group)})[/]", soft_wrap=True)
+        for text in (c.title, f"ucom-protocol(7): {c.section}; writes {c.writes or 'nothing'}"):
+            for line in textwrap.wrap(text, width, initial_indent="    ",
+                                      subsequent_indent="    ", break_on_hyphens=False,
+                                      break_long_words=False):
+                out.print(escape(line), soft_wrap=True)
 
 
 def _json(result: SuiteResult, spec: ConnectSpec) -> dict[str, Any]:
@@ -58,9 +64,9 @@ def _json(result: SuiteResult, spec: ConnectSpec) -> dict[str, Any]:
 
 
 def _print(result: SuiteResult) -> None:
-    t = Table(title="conformance", title_justify="left")
+    t = FitTable("conformance")
     for col in ("bus", "case", "result", "detail"):
-        t.add_column(col, overflow="fold")
+        t.add_column(col)
     for o in result.outcomes:
         t.add_row(o.bus, o.case.id, f"[{STYLE[o.status]}]{o.status}[/]",
                   escape(o.message) or "")

@@ -26,10 +26,11 @@ from ucom_tools.cli.menu import OPTIONS, MenuOption, label, parse_flag, parse_le
 from ucom_tools.cli.options import connection_options
 from ucom_tools.cli.output import stderr, stdout
 from ucom_tools.errors import InputError, UcomError
-from ucom_tools.image import Image, load_image
+from ucom_tools.image.formats import load_image
+from ucom_tools.image.model import Image
 from ucom_tools.ops import options as ops
 from ucom_tools.ops.enumerate import enumerate_bus
-from ucom_tools.ops.flash import FlashInterrupted, Selection
+from ucom_tools.ops.flash_types import FlashInterrupted, FlashRequest, Selection
 from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot
 from ucom_tools.protocol.programmer import Cancelled
 from ucom_tools.wire.codes import StatusOp, Target
@@ -258,8 +259,9 @@ class Session:
         image = self._need_image()
         if image is None:
             return
-        result = run_flash(self.robot, image, selection=selection, bus=bus, target=target,
-                           init=False, force=force is not None, what=label(option))
+        request = FlashRequest(image, selection=selection, bus=bus, target=target, init=False,
+                               force=force is not None)
+        result = run_flash(self.robot, request, what=label(option), force_hint=None)
         if selection.kind == "enabled" and not result.boards:
             self.out.print("[yellow]no board is ProgEnabled:[/] 'all' programs the boards "
                            "that option 4 enabled; use '4 all' first, or option 20 "

@@ -35,7 +35,7 @@ from ucom_tools.ops.remote_faults import BoardFault
 from ucom_tools.ops.remote_feed import LoopFeed, Unpacker, pack
 from ucom_tools.ops.remote_mirror import Mirror
 from ucom_tools.ops.remote_publish import LoopSnapshot
-from ucom_tools.protocol.dispatch import ERROR, EXTENDED, REMOTE, SENT, SinkEntry
+from ucom_tools.protocol.traffic import ERROR, EXTENDED, REMOTE, SENT, SinkEntry
 from ucom_tools.wire import mca
 
 READY_S = 30.0

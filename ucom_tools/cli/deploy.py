@@ -16,7 +16,6 @@ from typing import Any
 import click
 from rich.console import Console
 from rich.markup import escape
-from rich.table import Table
 
 from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
 from ucom_tools.cli.flashrun import NotBegun, run_cancellable
@@ -24,9 +23,11 @@ from ucom_tools.cli.options import connection_json, connection_options, json_opt
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.cli.params import _of_robot
 from ucom_tools.cli.render import LEFT_WORDS
+from ucom_tools.cli.tables import FitTable
 from ucom_tools.config import topology as topology_mod
 from ucom_tools.errors import InputError
 from ucom_tools.ops import deploy as ops
+from ucom_tools.ops.deploy_execute import execute
 from ucom_tools.ops.robot import ConnectSpec
 from ucom_tools.protocol.programmer import Cancelled
 from ucom_tools.signals import interrupt_exit_code, stop_signal, stopped_how
@@ -69,9 +70,10 @@ def _seen(s: ops.Seen | None) -> str:
 
 
 def print_plan(c: Console, p: ops.Plan) -> None:
-    t = Table(title=f"{escape(p.manifest.topology.name)}: deploy plan", title_justify="left")
-    for col in ("bus", "seq", "placement", "image", "before", "action", "why"):
-        t.add_column(col, overflow="fold")
+    t = FitTable(f"{escape(p.manifest.topology.name)}: deploy plan")
+    for col, drop in (("bus", 0), ("seq", 0), ("placement", 1), ("image", 0), ("before", 0),
+                      ("action", 0), ("why", 0)):
+        t.add_column(col, drop=drop)
     for r in p.rows:
         why = "; ".join([r.reason] * bool(r.reason) + [f"warning: {w}" for w in r.warnings])
         t.add_row(r.bus, str(r.seq_id or "-"), escape(r.placement), escape(r.image),
@@ -92,9 +94,10 @@ def summary(p: ops.Plan) -> str:
 
 
 def print_result(c: Console, result: ops.DeployResult) -> None:
-    t = Table(title="deployed", title_justify="left")
-    for col in ("bus", "seq", "placement", "outcome", "after", "parameters"):
-        t.add_column(col, overflow="fold")
+    t = FitTable("deployed")
+    for col, drop in (("bus", 0), ("seq", 0), ("placement", 1), ("outcome", 0), ("after", 0),
+                      ("parameters", 0)):
+        t.add_column(col, drop=drop)
     for b in result.boards:
         if b.row.action == ops.UP_TO_DATE:
             continue
@@ -176,6 +179,8 @@ def deploy_cmd(ctx: click.Context, robot_name: str, dry_run: bool, boards_text: 
                                 manifest.trees)
     only = parse_boards(boards_text, manifest)
     journal = ops.Journal.open(journal_dir or ops.default_journal(topo.name), topo.name)
+    request = ops.DeployRequest(manifest, journal,
+                                only=frozenset(only) if only is not None else None)
     err = stderr()
 
     def event(text: str) -> None:
@@ -185,8 +190,7 @@ def deploy_cmd(ctx: click.Context, robot_name: str, dry_run: bool, boards_text: 
         event(f"resuming the deploy that did not finish (journal {journal.directory})")
     with robot(_of_robot(spec, robot_name, bus_name)) as r:
         try:
-            the_plan = run_cancellable(lambda _cancel: ops.plan(r, manifest, journal,
-                                                                only=only), name="ucom-deploy")
+            the_plan = run_cancellable(lambda _cancel: ops.plan(r, request), name="ucom-deploy")
         except KeyboardInterrupt as e:
             err.print(f"[yellow]deploy {stopped_how(e)} while planning (the init chains and "
                       "each board's Info): nothing that changes a board was sent[/]",
@@ -200,8 +204,8 @@ def deploy_cmd(ctx: click.Context, robot_name: str, dry_run: bool, boards_text: 
                 emit_json(_doc(the_plan, None, spec, journal, dry_run=True))
             ctx.exit(0 if the_plan.matches else EXIT_FAILED)
         try:
-            result = run_cancellable(lambda cancel: ops.execute(
-                r, the_plan, journal, events=event, cancel=cancel), name="ucom-deploy",
+            result = run_cancellable(lambda cancel: execute(
+                r, request, the_plan, events=event, cancel=cancel), name="ucom-deploy",
                 finished=lambda done, _stop: ops.DeployInterrupted(
                     replace(done, interrupted="finished")))
         except (KeyboardInterrupt, Cancelled) as e:

@@ -13,9 +13,9 @@ from typing import Any
 
 import click
 from rich.markup import escape
-from rich.table import Table
 
 from ucom_tools.cli.output import emit_json, leds, stderr, stdout
+from ucom_tools.cli.tables import FitTable
 from ucom_tools.config import mutants
 from ucom_tools.config import topology as topo
 from ucom_tools.config.scenario import MAX_SECONDS, ROBOT, FaultKind, Scenario, injected
@@ -82,10 +82,11 @@ def show(topology: str, state_dir: Path | None, run_ms: int, as_json: bool) -> N
     stdout().print(f"[bold]{escape(snap['topology'])}[/] - {escape(snap['description'])}")
     stdout().print(f"{total} boards on {len(snap['buses'])} buses\n")
     for bus in snap["buses"]:
-        t = Table(title=f"{bus['name']} ({bus['bitrate'] // 1000} kbit/s)", title_justify="left")
-        for col in ("pos", "placement", "board", "FPGA", "seq ID", "fixed ID", "state",
-                    "program", "exchange", "LEDs r y g"):
-            t.add_column(col, overflow="fold")
+        t = FitTable(f"{bus['name']} ({bus['bitrate'] // 1000} kbit/s)")
+        for col, drop in (("pos", 0), ("placement", 0), ("board", 3), ("FPGA", 4),
+                          ("seq ID", 0), ("fixed ID", 1), ("state", 0), ("program", 0),
+                          ("exchange", 2), ("LEDs r y g", 0)):
+            t.add_column(col, drop=drop, no_wrap=col == "LEDs r y g")
         for b in bus["boards"]:
             prog = b["program"]
             f = b["fpga"]
@@ -204,7 +205,7 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     No client can stop the bus for the others: a malformed element gets
     '< error ... >', a client that stops reading is dropped, connections are limited.
     Clients dropped or refused are logged on stderr (-v: every connection).  Runs until
-    interrupted (Ctrl-C or SIGTERM).
+    interrupted: Ctrl-C (exit code 130) or SIGTERM (143).
 
     With --processes auto (the default) a topology with several buses is served from one
     process per bus behind the one port: the buses share nothing but the wall clock, to
@@ -393,9 +394,9 @@ def faults(as_json: bool) -> None:
     if as_json:
         emit_json({"faults": [f.as_dict() for f in mutants.faults()]})
         return
-    table = Table(box=None, show_header=True, header_style="bold")
+    table = FitTable(box=None, show_header=True, header_style="bold")
     for col in ("fault", "what the board does wrong", "violates"):
-        table.add_column(col, overflow="fold")
+        table.add_column(col)
     for f in mutants.faults():
         table.add_row(f.name, escape(f.title), escape(f.section))
     stdout().print(table)

@@ -16,12 +16,13 @@ from typing import Any
 
 import click
 from rich.markup import escape
-from rich.table import Table
 
 from ucom_tools.cli.consumers import ExtraConsumer
 from ucom_tools.cli.options import connection_options, json_option
 from ucom_tools.cli.output import emit_json, stderr, stdout
-from ucom_tools.cli.remote import run_options, run_robot
+from ucom_tools.cli.remote import run_options
+from ucom_tools.cli.remote_run import run_robot
+from ucom_tools.cli.tables import FitTable
 from ucom_tools.config import topology as topo
 from ucom_tools.errors import InputError
 from ucom_tools.gateway import buses, eds, joints
@@ -43,10 +44,10 @@ def gateway() -> None:
 
 def _print_table(robot: RobotJoints, directory: Path, written: eds.Written,
                  master_node: int) -> None:
-    t = Table(title=f"{robot.topology.name}: CANopen nodes (master {master_node})",
-              title_justify="left")
-    for col in ("node", "joint", "bus", "board", "placement", "axis", "program", "eds"):
-        t.add_column(col, overflow="fold")
+    t = FitTable(f"{robot.topology.name}: CANopen nodes (master {master_node})")
+    for col, drop in (("node", 0), ("joint", 0), ("bus", 0), ("board", 0), ("placement", 1),
+                      ("axis", 0), ("program", 2), ("eds", 0)):
+        t.add_column(col, drop=drop)
     for j in robot.joints:
         t.add_row(f"{j.node_id}{'' if j.node_given else '*'}", escape(j.name), j.bus,
                   str(j.board.position + 1), escape(j.board.placement), j.letter,

@@ -12,8 +12,10 @@ from ucom_tools import fileio
 from ucom_tools.cli import render
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.errors import InputError, UcomError
-from ucom_tools.image import formats, ihex, load_image, parse_image
-from ucom_tools.image.srec import FORMAT_NAMES, Image
+from ucom_tools.image import formats, ihex
+from ucom_tools.image.formats import load_image
+from ucom_tools.image.model import FORMAT_NAMES, Image
+from ucom_tools.image.srec import parse_srec
 
 ADDRESSING = click.Choice(["auto", "word", "byte"])
 FORMAT_CHOICE = click.Choice(list(formats.FORMATS))
@@ -93,7 +95,7 @@ def convert(source: str, target: str, to: str | None, addressing: str, force: bo
 
 def _check_round_trip(img: Image, text: str, fmt: str, target: str) -> None:
     """What is about to be written reads back as ``img`` (else nothing is written)."""
-    back = ihex.parse_ihex(text, target) if fmt == "ihex" else parse_image(text, target)
+    back = ihex.parse_ihex(text, target) if fmt == "ihex" else parse_srec(text, target)
     if (back.words, back.vector_words, back.entry) != (img.words, img.vector_words,
                                                        img.entry):
         raise UcomError(f"{target}: the converted image does not read back as "

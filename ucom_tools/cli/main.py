@@ -3,7 +3,10 @@
 Every error a user can cause ends here as one line on stderr and an exit code of
 :mod:`ucom_tools.cli.exitcodes`; a traceback only with ``-vv``.  The subcommands live in
 their own modules (commands, console, srec, fleet, tree, ...), which never import this
-one; each is imported when its command is looked up (:class:`LazyCommands`).
+one; each is imported when its command is looked up (:class:`LazyCommands`), and
+:data:`COMMANDS` lists them all.  ``ucom --help`` and ``--version`` import click and no
+more (rich neither: it is imported where a command or an error prints), so that they
+start as fast as click does (``tests/test_cli_startup.py``).
 """
 
 from __future__ import annotations
@@ -14,15 +17,12 @@ import importlib
 import io
 import os
 import sys
-import traceback
 from collections.abc import Iterator, MutableMapping
-from typing import Any
+from typing import Any, NamedTuple
 
 import click
-from rich.markup import escape
 
 from ucom_tools import __version__, compiled
-from ucom_tools.cli import output
 from ucom_tools.cli.exitcodes import (
     EXIT_BAD_INPUT,
     EXIT_BUS,
@@ -30,60 +30,133 @@ from ucom_tools.cli.exitcodes import (
     EXIT_OK,
     EXIT_WRITE,
 )
-from ucom_tools.cli.output import stderr
 from ucom_tools.errors import BusError, InputError, UcomError, WriteError
 from ucom_tools.signals import Terminated, interrupt_exit_code, stop_signals
 
-BOOTLOADER_COMMANDS = ("check", "reset", "init", "info", "prog-enable", "program",
-                       "extram-load", "start", "autostart", "xreset", "set-init-in",
-                       "set-init-out", "set-seqid", "count", "first", "last", "list",
-                       "reset-one", "flash")
-"""The commands of :mod:`ucom_tools.cli.commands` (its ``COMMANDS``)."""
 
-SUBCOMMANDS: dict[str, tuple[str, str]] = {
-    **{name: ("commands", "") for name in BOOTLOADER_COMMANDS},
-    "console": ("console", "console"), "image": ("image", "image"),
-    "srec": ("srec", "srec"), "fleet": ("fleet", "fleet"), "tree": ("tree", "tree"),
-    "remote": ("remote", "remote"), "browse": ("browse", "browse"),
-    "params": ("params", "params"), "conformance": ("conformance", "conformance"),
-    "decode": ("decode", "decode"), "dbc": ("dbc", "dbc"), "deploy": ("deploy", "deploy_cmd"),
-    "gateway": ("gateway", "gateway"),
+class Entry(NamedTuple):
+    """One subcommand of ``ucom``: where it is and its line in ``ucom --help``."""
+
+    module: str
+    """Its module in :mod:`ucom_tools.cli`."""
+    attr: str
+    """The command's name in that module."""
+    summary: str
+    """The first sentence of its help (``tests/test_cli_startup.py`` holds the two equal),
+    listed by ``ucom --help`` without importing the command's module."""
+
+
+COMMANDS: dict[str, Entry] = {
+    # the options of dsp_console2can, in its menu's order, and flash
+    "reset": Entry("commands", "reset_cmd",
+                   "Option 1, Reset All: reset every board and list who answered."),
+    "init": Entry("commands", "init_cmd", "Option 2, Init: number the boards along the "
+                  "init line, check the wiring."),
+    "info": Entry("commands", "info_cmd", "Option 3, GetInfo: program name, date, ProgID, "
+                  "flags of a board (needs init: option 2, or --init)."),
+    "prog-enable": Entry("commands", "prog_enable_cmd", "Option 4, SetProgEnable: enable "
+                         "programming of a board or all (needs init: option 2, or --init)."),
+    "program": Entry("flash", "program_cmd", "Option 5, Program: program a board, or all "
+                     "ProgEnabled boards (needs init: option 2, or --init)."),
+    "extram-load": Entry("flash", "extram_cmd", "Option 6, ExtRAMLoad: load the image "
+                         "into external RAM (needs init: option 2, or --init)."),
+    "start": Entry("commands", "start_cmd", "Option 7, Start: start the program in flash or "
+                   "ExtRAM (needs init: option 2, or --init)."),
+    "autostart": Entry("commands", "autostart_cmd", "Option 8, SetAutoStart: start the flash "
+                       "program after every reset (needs init: option 2, or --init)."),
+    "xreset": Entry("commands", "xreset_cmd", "Option 9, XReset: clear AutoStart and reset."),
+    "set-init-in": Entry("commands", "set_init_in_cmd", "Option 10, SetInitIn: drive a "
+                         "board's init input (needs init: option 2, or --init)."),
+    "set-init-out": Entry("commands", "set_init_out_cmd", "Option 11, SetInitOut: drive a "
+                          "board's init output (needs init: option 2, or --init)."),
+    "set-seqid": Entry("commands", "set_seqid_cmd", "Option 12, SetSeqID: give a board "
+                       "another seq ID (needs init: option 2, or --init)."),
+    "count": Entry("commands", "count_cmd", "Option 13, Count: GetInfo of every board that "
+                   "has a number."),
+    "first": Entry("commands", "first_cmd", "Option 14, Get First: which board is first on "
+                   "the init line."),
+    "last": Entry("commands", "last_cmd", "Option 15, Get Last: which board is last on the "
+                  "init line."),
+    "list": Entry("commands", "list_cmd", "Option 16, DSPListUpdate: build the list of "
+                  "active boards."),
+    "reset-one": Entry("commands", "reset_one_cmd", "Option 21, Reset Specific: reset one "
+                       "board (needs init: option 2, or --init)."),
+    "flash": Entry("flash", "flash_cmd", "Program IMAGE (S-record or Intel HEX) into the "
+                   "boards of every bus, verified."),
+    "check": Entry("commands", "check_cmd", "Compatibility matrix: plug-on board, FPGA and "
+                   "stored DSP program of every board."),
+    # the rest, a module each
+    "console": Entry("console", "console", "The interactive console of dsp_console2can: "
+                     "options 1-21 and q."),
+    "image": Entry("image", "image", "Firmware images: S-record (CodeWarrior 56800 "
+                   "convention) and Intel HEX."),
+    "srec": Entry("srec", "srec", "Firmware images (S-record or Intel HEX): the same as "
+                  "'ucom image info/progid'."),
+    "fleet": Entry("fleet", "fleet", "The virtual UCoM fleets: boards that behave like the "
+                   "hardware, on simulated buses."),
+    "tree": Entry("tree", "tree", "Attribute trees: the per-board configuration of a UCoM "
+                  "program (ucom-tree(5))."),
+    "remote": Entry("remote", "remote", "The run time: boards in the cyclic exchange, values "
+                    "by robot-wide name."),
+    "browse": Entry("browse", "browse",
+                    "A running robot's edges from this host, over Zenoh."),
+    "params": Entry("params", "params", "Live parameters: the PAR and CI values a robot's "
+                    "boards hold, read back into attribute trees and written from them "
+                    "(ucom-tree(5))."),
+    "conformance": Entry("conformance", "conformance", "Check that the boards speak the "
+                         "protocol (ucom-protocol(7)), content and timing."),
+    "decode": Entry("decode", "decode", "Decode a CAN TRACE into the UCoM conversation it "
+                    "carries, per bus and board."),
+    "dbc": Entry("dbc", "dbc", "Export the UCoM frames as a DBC file for SavvyCAN, cantools "
+                 "monitor, CANalyzer and other DBC tools."),
+    "deploy": Entry("deploy", "deploy_cmd", "Bring ROBOT's boards to the images its manifest "
+                    "names, keeping their parameters."),
+    "gateway": Entry("gateway", "gateway", "A UCoM robot's joints as CANopen CiA 402 drives "
+                     "(ucom-gateway(7))."),
 }
-"""Each subcommand: its module in :mod:`ucom_tools.cli` and the command's name there."""
+"""Every subcommand of ``ucom``, the one list of them: :class:`LazyCommands` imports a
+command from it when it is looked up, and ``ucom --help`` lists them from it."""
 
 
 class LazyCommands(MutableMapping[str, click.Command]):
     """The root's subcommands, each imported when it is first looked up: ``ucom init``
-    does not import the fleet server, the decoder or Zenoh (half of the start-up time of
-    a command; ``ucom --help`` imports them all to list them)."""
+    imports the bootloader commands and what they use, not the fleet server, the decoder
+    or Zenoh, and ``ucom --help`` imports none of them (:meth:`listing`)."""
 
-    def __init__(self, specs: dict[str, tuple[str, str]]) -> None:
-        self._specs = dict(specs)
+    def __init__(self, table: dict[str, Entry]) -> None:
+        self._table = dict(table)
         self._loaded: dict[str, click.Command] = {}
 
     def __getitem__(self, name: str) -> click.Command:
         command = self._loaded.get(name)
         if command is None:
-            module_name, attr = self._specs[name]  # KeyError: no such command
-            module = importlib.import_module(f"ucom_tools.cli.{module_name}")
-            command = getattr(module, attr) if attr else \
-                next(c for c in module.COMMANDS if c.name == name)
+            entry = self._table[name]  # KeyError: no such command
+            module = importlib.import_module(f"ucom_tools.cli.{entry.module}")
+            command = getattr(module, entry.attr)
+            assert isinstance(command, click.Command) and command.name == name, entry
             self._loaded[name] = command
         return command
 
+    def listing(self, name: str) -> click.Command:
+        """The command as ``ucom --help`` lists it: itself once imported, else a stand-in
+        with its summary (the same line, cut to the same width)."""
+        command = self._loaded.get(name)
+        return command if command is not None else \
+            click.Command(name, help=self._table[name].summary)
+
     def __setitem__(self, name: str, command: click.Command) -> None:
-        self._specs[name] = ("", "")
+        self._table[name] = Entry("", "", "")
         self._loaded[name] = command
 
     def __delitem__(self, name: str) -> None:
-        del self._specs[name]
+        del self._table[name]
         self._loaded.pop(name, None)
 
     def __iter__(self) -> Iterator[str]:
-        return iter(self._specs)
+        return iter(self._table)
 
     def __len__(self) -> int:
-        return len(self._specs)
+        return len(self._table)
 
 
 class UcomGroup(click.Group):
@@ -92,6 +165,19 @@ class UcomGroup(click.Group):
     def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
         ctx.meta["ucom.argv"] = list(args)  # for the error boundary: was --json asked?
         return super().parse_args(ctx, args)
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        """As click lists the commands, but from :data:`COMMANDS` (nothing imported)."""
+        if not isinstance(self.commands, LazyCommands):
+            super().format_commands(ctx, formatter)
+            return
+        listed = [(name, self.commands.listing(name)) for name in self.list_commands(ctx)]
+        listed = [(name, command) for name, command in listed if not command.hidden]
+        if listed:
+            limit = formatter.width - 6 - max(len(name) for name, _ in listed)
+            with formatter.section("Commands"):
+                formatter.write_dl([(name, command.get_short_help_str(limit))
+                                    for name, command in listed])
 
     def invoke(self, ctx: click.Context) -> Any:
         try:
@@ -105,6 +191,8 @@ class UcomGroup(click.Group):
         except UcomError as e:
             self._fail(ctx, e, EXIT_FAILED, "error")
         except KeyboardInterrupt as e:  # Ctrl-C, SIGTERM, SIGHUP (ucom_tools.signals)
+            from ucom_tools.cli.output import stderr
+
             with contextlib.suppress(OSError):
                 if isinstance(e, Terminated):
                     stderr().print(f"[yellow]terminated ({e.name})[/]")
@@ -114,9 +202,15 @@ class UcomGroup(click.Group):
 
     @staticmethod
     def _fail(ctx: click.Context, e: Exception, code: int, label: str) -> None:
+        import traceback
+
+        from rich.markup import escape
+
+        from ucom_tools.cli import output
+
         if (ctx.obj or {}).get("verbose", 0) >= 2:
             traceback.print_exc(file=sys.stderr)
-        stderr().print(f"[bold red]ucom: {label}:[/] {escape(str(e))}", highlight=False,
+        output.stderr().print(f"[bold red]ucom: {label}:[/] {escape(str(e))}", highlight=False,
                        soft_wrap=True)
         if "--json" in ctx.meta.get("ucom.argv", ()) and not output.json_emitted():
             # a program reading --json gets a document on standard output in any case
@@ -125,7 +219,7 @@ class UcomGroup(click.Group):
         ctx.exit(code)
 
 
-@click.group(cls=UcomGroup, commands=LazyCommands(SUBCOMMANDS),
+@click.group(cls=UcomGroup, commands=LazyCommands(COMMANDS),
              context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="ucom",
                       message=f"%(prog)s, version %(version)s, run time "
@@ -143,11 +237,11 @@ def cli(ctx: click.Context, verbose: int) -> None:
     UCOM_HOST, UCOM_PORT, UCOM_VIRTUAL, UCOM_TOPOLOGY, UCOM_STATE, UCOM_PACE; a bus named
     on the command line wins over the environment.  See ucom(1) and ucom-protocol(7).
     """
+    from ucom_tools.cli import output
+
     output.reset()
     ctx.ensure_object(dict)
     ctx.obj["verbose"] = verbose
-
-
 
 
 class GuardedStdout(io.TextIOBase):
@@ -242,6 +336,10 @@ def main() -> None:
     if guard.failure is not None:
         _quiet_stdout()
         if guard.failure.errno != errno.EPIPE:
+            from rich.markup import escape
+
+            from ucom_tools.cli.output import stderr
+
             with contextlib.suppress(OSError):
                 stderr().print(f"[bold red]ucom: cannot write:[/] standard output: "
                                f"{escape(guard.failure.strerror or str(guard.failure))}",

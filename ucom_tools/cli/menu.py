@@ -11,6 +11,10 @@ from dataclasses import dataclass
 
 from ucom_tools.errors import InputError
 
+BOARD = "BOARD is a seq ID (1-31), F<n> for a fixed ID, or 'all'; BUS:<n> picks one bus."
+ONE_BOARD = "BOARD is a seq ID (1-31) or F<n> for a fixed ID; BUS:<n> picks one bus."
+"""What a command's BOARD argument takes (all boards, or one)."""
+
 
 @dataclass(frozen=True)
 class MenuOption:

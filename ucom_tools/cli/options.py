@@ -208,3 +208,15 @@ def robot(spec: ConnectSpec, *, run_init: bool = False, bus: str | None = None
 def environment_note() -> str:
     """The UCOM_* variables set in this environment (for -v diagnostics)."""
     return ", ".join(f"{v}={os.environ[v]}" for v in ENVIRONMENT.values() if v in os.environ)
+
+
+def emit_with_connection(spec: ConnectSpec, data: dict[str, Any]) -> None:
+    """JSON on stdout, with the bus that was used."""
+    from ucom_tools.cli.output import emit_json
+
+    emit_json({**data, "connection": connection_json(spec)})
+
+
+def verbosity(ctx: click.Context) -> int:
+    """How many -v the root command was given."""
+    return int((ctx.find_root().obj or {}).get("verbose", 0))

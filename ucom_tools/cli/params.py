@@ -10,11 +10,11 @@ from typing import Any
 import click
 from rich.console import Console
 from rich.markup import escape
-from rich.table import Table
 
 from ucom_tools.cli.exitcodes import EXIT_FAILED
 from ucom_tools.cli.options import connection_json, connection_options, json_option, robot
 from ucom_tools.cli.output import emit_json, json_number, stderr, stdout
+from ucom_tools.cli.tables import FitTable, shown_path
 from ucom_tools.config import attrtree
 from ucom_tools.config import topology as topology_mod
 from ucom_tools.config.attrtree import Kind
@@ -63,14 +63,6 @@ def kept_json(k: params_keep.KeepResult) -> dict[str, Any]:
 
 
 # ----------------------------------------------------------------------------- tables
-def _shown(path: Path) -> str:
-    """A path relative to the current directory when it is inside it."""
-    try:
-        return str(path.resolve().relative_to(Path.cwd()))
-    except ValueError:
-        return str(path)
-
-
 def _of_robot(spec: ConnectSpec, robot_name: str, bus_name: str | None) -> ConnectSpec:
     """The connection to ROBOT's buses: a network or hardware interface without -c opens
     the robot's buses by name (``--bus NAME``: that one), as 'ucom remote' does."""
@@ -84,17 +76,25 @@ def _fail_line(where: str, error: str, at: str) -> str:
 
 
 def _read_table(c: Console, readout: ops.Readout) -> None:
-    t = Table(title=f"{escape(readout.topology.name)}: live values", title_justify="left")
-    for col in ("bus", "board", "placement", "prefix", "PAR", "CI", "changed", "result"):
-        t.add_column(col, overflow="fold")
+    t = FitTable(f"{escape(readout.topology.name)}: live values")
+    for col, drop in (("bus", 0), ("board", 0), ("placement", 1), ("prefix", 0), ("PAR", 0),
+                      ("CI", 0), ("differ from tree", 0), ("no tree default", 2), ("result", 0)):
+        t.add_column(col, drop=drop)
     for r in readout.boards:
         par = sum(v.kind is Kind.PAR for v in r.values)
         t.add_row(r.bus, str(r.board), escape(r.placement), escape(r.prefix),
                   str(par) if r.ok else "", str(len(r.values) - par) if r.ok else "",
-                  str(sum(v.changed for v in r.values)) if r.ok else "",
+                  str(sum(v.changed and v.default is not None for v in r.values))
+                  if r.ok else "",
+                  str(sum(v.default is None for v in r.values)) if r.ok else "",
                   "[green]read[/]" if r.ok else "[red]failed[/]" if r.error else
                   f"[dim]skipped: {escape(r.skipped)}[/]")
     c.print(t)
+    if any(v.changed for r in readout.boards for v in r.values):
+        c.print("[dim]differ from tree: live values other than the default their tree gives "
+                "(a program started for the dump holds its power-on values; 'ucom params "
+                "load' writes the tree's); no tree default: edges their tree gives no "
+                "default for[/]")
 
 
 def print_kept(c: Console, k: params_keep.KeepResult) -> None:
@@ -215,9 +215,10 @@ def load_cmd(ctx: click.Context, robot_name: str, files: tuple[str, ...], spec: 
 
 
 def _load_table(c: Console, result: ops.LoadResult) -> None:
-    t = Table(title=f"{escape(result.topology.name)}: values loaded", title_justify="left")
-    for col in ("bus", "board", "placement", "prefix", "tree", "written", "result"):
-        t.add_column(col, overflow="fold")
+    t = FitTable(f"{escape(result.topology.name)}: values loaded")
+    for col, drop in (("bus", 0), ("board", 0), ("placement", 1), ("prefix", 0), ("tree", 0),
+                      ("written", 0), ("result", 0)):
+        t.add_column(col, drop=drop)
     for b in result.boards:
         if b.ok:
             verdict = "[green]loaded, read back[/]"
@@ -228,5 +229,5 @@ def _load_table(c: Console, result: ops.LoadResult) -> None:
         else:
             verdict = "[red]failed[/]"
         t.add_row(b.bus, str(b.board), escape(b.placement), escape(b.prefix),
-                  escape(_shown(b.tree)), str(b.written or ""), verdict)
+                  escape(shown_path(b.tree)), str(b.written or ""), verdict)
     c.print(t)

@@ -7,16 +7,13 @@ ProgIDs and names always come out whole.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Console
 from rich.markup import escape
-from rich.table import Table
 
-from ucom_tools.image import Image
-from ucom_tools.ops.compat import CheckRow
+from ucom_tools.cli.tables import FitTable
 from ucom_tools.ops.enumerate import BusEnumeration
-from ucom_tools.ops.flash import FlashResult, at_phase
 from ucom_tools.ops.options import ProbeResult, Row
 from ucom_tools.plugons import app_name, board_name
 from ucom_tools.wire import messages as m
@@ -25,6 +22,11 @@ from ucom_tools.wire.fpga import FpgaVersion
 from ucom_tools.wire.ids import Address, IdType
 from ucom_tools.wire.info import BoardInfo
 from ucom_tools.wire.transfer import TransferPlan
+
+if TYPE_CHECKING:  # not imported to print the tables of the commands that do not use them
+    from ucom_tools.image.model import Image
+    from ucom_tools.ops.compat import CheckRow
+    from ucom_tools.ops.flash_types import FlashResult
 
 
 def status_leds(s: m.StatusReport) -> str:
@@ -49,11 +51,13 @@ def who(r: Row) -> str:
     return str(r.address) if r.address is not None else (r.placement or "-")
 
 
-def table(title: str, columns: tuple[str, ...], **kwargs: Any) -> Table:
-    """A table whose cells fold instead of being cut short."""
-    t = Table(title=title, title_justify="left", **kwargs)
+def table(title: str | None, columns: tuple[str, ...] | dict[str, int],
+          **kwargs: Any) -> FitTable:
+    """A table that fits the terminal (:class:`~ucom_tools.cli.tables.FitTable`):
+    ``columns`` each never left out, or header -> its drop order (0: never; 1 first)."""
+    t = FitTable(title, **kwargs)
     for col in columns:
-        t.add_column(col, overflow="fold")
+        t.add_column(col, drop=columns[col] if isinstance(columns, dict) else 0)
     return t
 
 
@@ -73,6 +77,26 @@ def info_json(inf: BoardInfo) -> dict[str, Any]:
                       "corrupt descriptor" if inf.descriptor_corrupt else
                       "no descriptor" if inf.flash_valid or inf.extram_valid else None),
     }
+
+
+INFO_LABELS = {
+    "state": "state", "seq_id": "seq ID", "fixed_id": "fixed ID", "serial": "serial",
+    "program": "program", "progid": "ProgID", "size_words": "size (words)",
+    "programmed": "programmed", "target": "memory", "entry": "entry point",
+    "autostart": "AutoStart", "prog_enable": "ProgEnable", "flash_valid": "flash valid",
+    "extram_valid": "ExtRAM valid", "bootloader": "bootloader version",
+    "plug_on_board": "plug-on board", "fpga": "FPGA", "built_for": "built for"}
+"""The label of each field of :func:`info_json` in ``ucom info``'s table (``--json`` keeps
+the keys)."""
+
+
+def info_value(v: object) -> str:
+    """A field's value as ``ucom info``'s table shows it: yes/no, '-' for none."""
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    return escape(str(v))
 
 
 def descriptor_text(d: ImageDescriptor) -> str:
@@ -99,10 +123,9 @@ def enumeration_json(e: BusEnumeration) -> dict[str, Any]:
 
 
 def print_enumeration(c: Console, e: BusEnumeration) -> None:
-    t = Table(title=f"{e.bus}: init chain", title_justify="left")
-    for col in ("seq ID", "pos", "placement", "board", "serial", "fixed ID", "state",
-                "program", "ProgID"):
-        t.add_column(col, overflow="fold")
+    t = table(f"{e.bus}: init chain", {"seq ID": 0, "pos": 1, "placement": 0, "board": 3,
+                                        "serial": 0, "fixed ID": 2, "state": 0,
+                                        "program": 0, "ProgID": 4})
     for b in e.boards:
         inf = b.info
         t.add_row(
@@ -142,9 +165,7 @@ def print_rows(c: Console, rows: list[Row], title: str) -> None:
     if not rows:
         c.print(f"[yellow]{title}: no board answered[/]")
         return
-    t = Table(title=title, title_justify="left")
-    for col in ("bus", "board", "result", "state", "messages"):
-        t.add_column(col, overflow="fold")
+    t = table(title, ("bus", "board", "result", "state", "messages"))
     for r in rows:
         t.add_row(r.bus, escape(who(r)), "[green]ok[/]" if r.ok and r.detail == "ok" else
                   (f"[green]{escape(r.detail)}[/]" if r.ok else f"[red]{escape(r.detail)}[/]"),
@@ -158,9 +179,8 @@ def print_reset(c: Console, rows: list[Row], title: str) -> None:
         c.print(f"[yellow]{title}: no board answered.[/] Boards answer a reset only once they "
                 "have a number (seq ID from the init chain, or a fixed ID): run 'init'.")
         return
-    t = Table(title=f"{title}: boards that answered (alive)", title_justify="left")
-    for col in ("bus", "board", "serial", "state after reset"):
-        t.add_column(col, overflow="fold")
+    t = table(f"{title}: boards that answered (alive)",
+              ("bus", "board", "serial", "state after reset"))
     for r in rows:
         t.add_row(r.bus, escape(who(r)), hex32(r.serial),
                   r.state.text if r.state is not None else f"[red]{escape(r.detail)}[/]")
@@ -172,18 +192,16 @@ def print_infos(c: Console, rows: list[Row], title: str) -> None:
     if len(infos) == 1 and len(rows) == 1:
         r = rows[0]
         assert r.info is not None
-        t = Table(title=f"{title}: {r.bus} board {r.address}", title_justify="left",
-                  show_header=False)
-        t.add_column("field", style="bold")
-        t.add_column("value")
+        t = FitTable(f"{title}: {r.bus} board {r.address}", show_header=False)
+        t.add_column("field", style="bold", keep=True)
+        t.add_column("value", keep=True)
         for k, v in info_json(r.info).items():
-            t.add_row(k, "-" if v is None else escape(str(v)))
+            t.add_row(INFO_LABELS.get(k, k), info_value(v))
         c.print(t)
         return
-    t = Table(title=title, title_justify="left")
-    for col in ("bus", "seq ID", "fixed", "serial", "state", "program", "ProgID", "size",
-                "programmed", "plug-on", "FPGA", "flags"):
-        t.add_column(col, overflow="fold")
+    t = table(title, {"bus": 0, "seq ID": 0, "fixed": 4, "serial": 0, "state": 0,
+                      "program": 0, "ProgID": 5, "size": 2, "programmed": 1, "plug-on": 3,
+                      "FPGA": 6, "flags": 0})
     for r in rows:
         inf = r.info
         if inf is None:
@@ -274,9 +292,7 @@ def print_image(c: Console, img: Image, plan: TransferPlan) -> None:
     c.print(f"  size       {d['size_words']} words ({d['words']['P']} P:, {d['words']['X']} X:)"
             f" = {d['size_words'] * 2} bytes in {d['blocks']} blocks")
     c.print(f"  ProgID     [bold]{d['progid']}[/]")
-    t = Table(show_header=True, box=None, padding=(0, 2))
-    for col in ("space", "words", "from", "to"):
-        t.add_column(col, overflow="fold")
+    t = table(None, ("space", "words", "from", "to"), box=None, padding=(0, 2))
     for s in d["segments"]:
         t.add_row(s["space"], str(s["words"]), f"{s['space']}:{s['start']}",
                   f"{s['space']}:{s['end']}")
@@ -325,11 +341,10 @@ def flash_json(r: FlashResult) -> dict[str, Any]:
 
 
 def print_flash(c: Console, r: FlashResult) -> None:
-    t = Table(title=f"{escape(r.image)} (ProgID {hex32(r.progid)}, {r.size_words} words) "
-                    f"-> {r.target.name.lower()}", title_justify="left")
-    for col in ("bus", "seq ID", "placement", "serial", "result", "ProgID", "resent",
-                "AutoStart", "started"):
-        t.add_column(col, overflow="fold")
+    t = table(f"{escape(r.image)} (ProgID {hex32(r.progid)}, {r.size_words} words) "
+              f"-> {r.target.name.lower()}",
+              {"bus": 0, "seq ID": 0, "placement": 5, "serial": 2, "result": 0, "ProgID": 3,
+               "resent": 1, "AutoStart": 4, "started": 0})
     for b in r.boards:
         t.add_row(b.bus, str(b.seq_id or "-"), escape(b.placement or "-"), hex32(b.serial),
                   "[green]verified[/]" if b.verified else
@@ -374,6 +389,8 @@ LEFT_WORDS = {"kept": "kept their program as found (not erased, not ProgEnabled)
 def interrupted_line(r: FlashResult, how: str, what: str = "flash") -> str:
     """One line for an interrupted flash: where each bus was, how many boards were left
     with what (every board is named in the table and its detail lines)."""
+    from ucom_tools.ops.flash_types import at_phase
+
     phases: dict[str, list[str]] = {}
     for bus in r.buses:
         phases.setdefault(bus.interrupted or "finished", []).append(bus.bus)
@@ -416,10 +433,9 @@ def check_json(rows: list[CheckRow]) -> dict[str, Any]:
 
 
 def print_check(c: Console, rows: list[CheckRow]) -> None:
-    t = Table(title="compatibility: plug-on board - FPGA - DSP program", title_justify="left")
-    for col in ("bus", "seq", "placement", "plug-on", "FPGA", "DSP program", "built for",
-                "verdict"):
-        t.add_column(col, overflow="fold")
+    t = table("compatibility: plug-on board - FPGA - DSP program",
+              {"bus": 0, "seq": 0, "placement": 1, "plug-on": 0, "FPGA": 0, "DSP program": 0,
+               "built for": 0, "verdict": 0})
     colours = {"ok": "green", "warning": "yellow", "mismatch": "red", "no program": "dim",
                "unknown": "red", "missing": "red"}
     for r in rows:

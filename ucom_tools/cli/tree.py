@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import click
 from rich.markup import escape
-from rich.table import Table
 
 from ucom_tools.cli.output import emit_json, stderr, stdout
+from ucom_tools.cli.tables import FitTable, shown_path
 from ucom_tools.config import attrtree, topology
 from ucom_tools.config.attrtree import Board, Change, Kind, RobotTrees, Tree
 from ucom_tools.errors import InputError, TreeError
@@ -119,21 +118,14 @@ def check(files: tuple[str, ...], robot: str | None, as_json: bool) -> None:
                       "fit their boards", soft_wrap=True)
 
 
-def _shown(path: Path) -> str:
-    """A path as people want to read it: relative to the current directory if inside it."""
-    try:
-        return str(path.relative_to(Path.cwd()))
-    except ValueError:
-        return str(path)
-
-
 def _print_robot(r: RobotTrees) -> None:
-    t = Table(title=f"{r.topology.name}: attribute trees", title_justify="left")
-    for col in ("bus", "pos", "placement", "tree", "block", "prefix", "edges", "defaults"):
-        t.add_column(col, overflow="fold")
+    t = FitTable(f"{r.topology.name}: attribute trees")
+    for col, drop in (("bus", 0), ("pos", 1), ("placement", 4), ("tree", 0), ("block", 2),
+                      ("prefix", 0), ("edges", 0), ("defaults", 3)):
+        t.add_column(col, drop=drop)
     for b in r.boards:
         t.add_row(b.bus, str(b.spec.position + 1), escape(b.spec.placement),
-                  escape(_shown(b.file)), str(b.board.number), escape(b.board.prefix),
+                  escape(shown_path(b.file)), str(b.board.number), escape(b.board.prefix),
                   str(len(b.board.edges)), str(len(b.board.defaults())))
     stdout().print(t)
     stdout().print(f"[green]ok[/] {len(r.boards)} boards, {len(r.trees)} tree files")
@@ -158,13 +150,14 @@ def show(file: str, number: int | None) -> None:
         stdout().print(_board_table(t, b))
 
 
-def _board_table(t: Tree, b: Board) -> Table:
-    table = Table(title=f"{escape(t.source)}: board {b.number} '{escape(b.prefix)}'",
-                  title_justify="left", caption=escape(_summary(b)), caption_justify="left")
-    table.add_column("index", justify="right", no_wrap=True)
-    table.add_column("kind", no_wrap=True)
+def _board_table(t: Tree, b: Board) -> FitTable:
+    table = FitTable(f"{escape(shown_path(t.source))}: board {b.number} "
+                     f"'{escape(b.prefix)}'", caption=escape(_summary(b)),
+                     caption_justify="left")
+    table.add_column("index", justify="right", no_wrap=True, keep=True)
+    table.add_column("kind", no_wrap=True, keep=True)
     for col in ("generic", "unique", "default"):
-        table.add_column(col, overflow="fold")
+        table.add_column(col, keep=True)
     for k in Kind:
         edges = b.of_kind(k)
         for i, e in enumerate(edges):
@@ -210,10 +203,9 @@ def diff(ctx: click.Context, a: str, b: str, as_json: bool) -> None:
         stdout().print(f"no differences: {escape(a)} and {escape(b)} hold the same tree",
                        soft_wrap=True)
     else:
-        table = Table(title=f"{escape(a)} -> {escape(b)}: {len(changes)} change(s)",
-                      title_justify="left")
+        table = FitTable(f"{escape(a)} -> {escape(b)}: {len(changes)} change(s)")
         for col in ("board", "index", "name", "change", "old", "new"):
-            table.add_column(col, overflow="fold")
+            table.add_column(col)
         for c in changes:
             table.add_row(str(c.board), "" if c.index is None else str(c.index),
                           escape(c.name or ""), c.kind.value,

@@ -11,6 +11,7 @@ cut), ``powered = false``, and two boards with the same ``fixed_id``; and mutant
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 import sys
@@ -242,7 +243,8 @@ def resolve(name_or_path: str) -> tuple[str, str]:
 
     def refuse(text: str) -> TopologyError:
         if text == "no such file":
-            text = f"no such topology file (bundled ones: {', '.join(BUNDLED)})"
+            text = (f"no such topology file{did_you_mean(name_or_path)} (bundled ones: "
+                    f"{', '.join(BUNDLED)})")
         return TopologyError(text, file=name_or_path)
 
     data = fileio.read_input(path, limit=fileio.TEXT_LIMIT, what="a topology file",
@@ -251,6 +253,14 @@ def resolve(name_or_path: str) -> tuple[str, str]:
         return str(path), data.decode("utf-8")
     except UnicodeDecodeError as err:
         raise TopologyError(f"cannot read: {err}", file=name_or_path) from None
+
+
+def did_you_mean(name_or_path: str) -> str:
+    """"; did you mean armar3?" for a name close to a bundled topology's (a misspelt
+    ``armr3``, ``ARMAR3``, ``armar3.toml``), else ""."""
+    stem = Path(name_or_path).stem.lower() if name_or_path else ""
+    close = difflib.get_close_matches(stem, BUNDLED, n=1, cutoff=0.6)
+    return f"; did you mean {close[0]}?" if close else ""
 
 
 def load(name_or_path: str) -> Topology:

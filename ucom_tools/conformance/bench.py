@@ -11,7 +11,8 @@ import can
 
 from ucom_tools.config.topology import SOURCE_ROOT
 from ucom_tools.conformance.outcome import CaseFailed, Skipped
-from ucom_tools.image import Image, load_image
+from ucom_tools.image.formats import load_image
+from ucom_tools.image.model import Image
 from ucom_tools.ops.robot import BusHandle
 from ucom_tools.protocol.bootloader import InitResult
 from ucom_tools.protocol.link import Received

@@ -16,8 +16,8 @@ from ucom_tools.conformance.case import case
 from ucom_tools.edgelists import by_name
 from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.errors import BoardError, UcomTimeoutError
-from ucom_tools.protocol.dispatch import Periodic
 from ucom_tools.protocol.mca import BoardEdges
+from ucom_tools.protocol.periodic import Periodic
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import ErrorCode

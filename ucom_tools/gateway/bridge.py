@@ -56,7 +56,7 @@ from ucom_tools.gateway.cia402_objects import (
     State402,
 )
 from ucom_tools.gateway.codes import NmtCommand, NmtState, StateChange
-from ucom_tools.gateway.joint_drive import JointDrive, SharedCommand, Source
+from ucom_tools.gateway.joint_drive import IDLE_S, JointDrive, SharedCommand, Source
 from ucom_tools.gateway.joints import Joint, Role
 from ucom_tools.gateway.load import CANOPEN_BITRATE, WARN_SHARE, pdo_load
 from ucom_tools.gateway.node import NodeCallbacks, NodeRuntime
@@ -68,6 +68,11 @@ _now = time.monotonic
 
 LOAD_SYNCS = 50
 """SYNCs over which the master's SYNC rate is measured for the bus load warning."""
+INF = float("inf")
+SYNCED_GAP_S = 2 * IDLE_S
+"""SYNCs at most this far apart run a bus's drives: a joint that moved waits for the
+next SYNC (its TPDOs carry it then) instead of running its drive at every snapshot (250
+a second: three times the drive's work of 100 SYNCs a second, all for nothing)."""
 
 
 @dataclass(frozen=True)
@@ -204,98 +209,7 @@ class Gateway:
 
     # ------------------------------------------------------------ callbacks
     def _callbacks(self, number: int, by_id: dict[int, JointDrive]) -> NodeCallbacks:
-        group = tuple(by_id.values())
-        source, image = self.source, self.image
-        wanted = frozenset().union(*(jd.so_wanted for jd in group))
-        seen = [-1]
-
-        def on_write(node_id: int, index: int, subindex: int, value: Any) -> None:
-            jd = by_id.get(node_id)
-            if jd is None:
-                return
-            now = jd.on_write(index, subindex, value, source.latest)
-            if now is None:
-                return
-            if now or not self.runtimes[number].node(node_id).applying:
-                # an SDO's at once (its effect in 0x6041 by its confirmation), a new
-                # controlword's at once (no edge lost); other RPDO values at the SYNC
-                # that applies them or the next turn (CSP's 0x607A every SYNC ran each
-                # drive twice a SYNC)
-                jd.update(_now(), source.latest, self._bus_faults[number])
-
-        def on_state(change: StateChange) -> None:
-            jd = by_id.get(change.node_id)
-            if jd is None:
-                return
-            if change.command in (NmtCommand.RESET_NODE, NmtCommand.RESET_COMMUNICATION) \
-                    or change.new is NmtState.INITIALISING:
-                jd.reset()
-            elif change.new is NmtState.STOPPED:
-                jd.drive.disable_voltage()
-                jd.update(_now(), source.latest, self._bus_faults[number])
-
-        def observe() -> LoopSnapshot | None:
-            snap = source.latest
-            if snap is not None and snap.number != seen[0]:
-                seen[0] = snap.number
-                raws = image.raw_so(snap.values, wanted)
-                for jd in group:
-                    jd.observe(snap, raws)
-            return snap
-
-        syncs: list[float] = []
-
-        def check_rate(now: float) -> None:
-            """Once the master's SYNC rate is known: warn where the PDOs it configured
-            need more of the bus than it has (once a bus)."""
-            syncs.append(now)
-            if len(syncs) < LOAD_SYNCS:
-                return
-            rate = (len(syncs) - 1) / (syncs[-1] - syncs[0]) if syncs[-1] > syncs[0] else 0.0
-            syncs.clear()
-            if rate <= 0 or number in self._load_warned:
-                return
-            runtime = self.runtimes[number]
-            load = pdo_load([runtime.node(jd.node_id) for jd in group
-                             if runtime.state(jd.node_id) is NmtState.OPERATIONAL], rate)
-            share = load.worst_bits_per_s / CANOPEN_BITRATE
-            if share > WARN_SHARE:
-                self._load_warned.add(number)
-                log.warning("%s: SYNC at %.0f Hz with these PDOs needs %.0f%% of a 1 Mbit/s "
-                            "bus (every stuff bit counted): TPDOs will come late or not at "
-                            "all; map fewer objects, put fewer joints on this bus or SYNC "
-                            "less often", self._groups[number][0].spec, rate, share * 100)
-
-        def on_sync(counter: int | None) -> None:
-            if number not in self._load_warned:
-                check_rate(_now())
-            snap, now, fault = observe(), _now(), self._bus_faults[number]
-            for jd in group:
-                jd.update(now, snap, fault, sync=True)
-
-        def on_tick(now: float) -> None:
-            snap, fault = observe(), self._bus_faults[number]
-            for jd in group:
-                if jd.due(now):
-                    jd.update(now, snap, fault)
-
-        def master_lost(reason: str) -> None:
-            cause = (FaultCause.SYNC_TIMEOUT if "SYNC" in reason
-                     else FaultCause.BUS_OFF if "bus" in reason.lower()
-                     else FaultCause.MASTER_HEARTBEAT)
-            self._bus_faults[number] = Fault(cause)
-            self._master_event(number, "lost", reason)
-            now, snap = _now(), source.latest
-            for jd in group:
-                jd.update(now, snap, self._bus_faults[number])
-
-        def master_back(reason: str) -> None:
-            self._bus_faults[number] = None
-            self._master_event(number, "back", reason)
-
-        return NodeCallbacks(on_write=on_write, on_state=on_state, on_sync=on_sync,
-                             on_tick=on_tick, master_lost=master_lost,
-                             master_back=master_back)
+        return _BusCallbacks(self, number, by_id).callbacks()
 
     def _master_event(self, number: int, event: str, reason: str) -> None:
         spec = self._groups[number][0].spec
@@ -348,3 +262,120 @@ def runtime_state(gateway: Gateway, node: int) -> str | None:
 
 
 __all__ = ["CanopenBus", "Gateway", "JointDrive", "SharedCommand", "Source", "dictionaries"]
+
+
+class _BusCallbacks:
+    """What one CANopen bus's node runtime calls (:class:`NodeCallbacks`): its joints'
+    drives run on writes, NMT changes, SYNCs and the runtime's turns, from the latest
+    snapshot; the master's loss and return."""
+
+    def __init__(self, gateway: Gateway, number: int, by_id: dict[int, JointDrive]) -> None:
+        self.gateway, self.number, self.by_id = gateway, number, by_id
+        self.group = tuple(by_id.values())
+        self.wanted = frozenset().union(*(jd.so_wanted for jd in self.group))
+        self.seen = -1  # the snapshot last observed
+        self.syncs: list[float] = []  # SYNC times, for the rate's check
+        self.last_sync = -INF  # the latest SYNC ...
+        self.sync_gap = INF  # ... and the time since the one before
+
+    def callbacks(self) -> NodeCallbacks:
+        return NodeCallbacks(on_write=self.on_write, on_state=self.on_state,
+                             on_sync=self.on_sync, on_tick=self.on_tick,
+                             master_lost=self.master_lost, master_back=self.master_back)
+
+    @property
+    def fault(self) -> Fault | None:
+        return self.gateway._bus_faults[self.number]
+
+    def on_write(self, node_id: int, index: int, subindex: int, value: Any) -> None:
+        jd = self.by_id.get(node_id)
+        if jd is None:
+            return
+        source = self.gateway.source
+        now = jd.on_write(index, subindex, value, source.latest)
+        if now is None:
+            return
+        if now or not self.gateway.runtimes[self.number].node(node_id).applying:
+            # an SDO's at once (its effect in 0x6041 by its confirmation), a new
+            # controlword's at once (no edge lost); other RPDO values at the SYNC that
+            # applies them or the next turn (CSP's 0x607A every SYNC ran each drive twice
+            # a SYNC)
+            jd.update(_now(), source.latest, self.fault)
+
+    def on_state(self, change: StateChange) -> None:
+        jd = self.by_id.get(change.node_id)
+        if jd is None:
+            return
+        if change.command in (NmtCommand.RESET_NODE, NmtCommand.RESET_COMMUNICATION) \
+                or change.new is NmtState.INITIALISING:
+            jd.reset()
+        elif change.new is NmtState.STOPPED:
+            jd.drive.disable_voltage()
+            jd.update(_now(), self.gateway.source.latest, self.fault)
+
+    def observe(self) -> LoopSnapshot | None:
+        """The latest snapshot, handed to every joint once."""
+        snap = self.gateway.source.latest
+        if snap is not None and snap.number != self.seen:
+            self.seen = snap.number
+            raws = self.gateway.image.raw_so(snap.values, self.wanted)
+            for jd in self.group:
+                jd.observe(snap, raws)
+        return snap
+
+    def check_rate(self, now: float) -> None:
+        """Once the master's SYNC rate is known: warn where the PDOs it configured need
+        more of the bus than it has (once a bus)."""
+        syncs, gateway, number = self.syncs, self.gateway, self.number
+        syncs.append(now)
+        if len(syncs) < LOAD_SYNCS:
+            return
+        rate = (len(syncs) - 1) / (syncs[-1] - syncs[0]) if syncs[-1] > syncs[0] else 0.0
+        syncs.clear()
+        if rate <= 0 or number in gateway._load_warned:
+            return
+        runtime = gateway.runtimes[number]
+        load = pdo_load([runtime.node(jd.node_id) for jd in self.group
+                         if runtime.state(jd.node_id) is NmtState.OPERATIONAL], rate)
+        share = load.worst_bits_per_s / CANOPEN_BITRATE
+        if share > WARN_SHARE:
+            gateway._load_warned.add(number)
+            log.warning("%s: SYNC at %.0f Hz with these PDOs needs %.0f%% of a 1 Mbit/s bus "
+                        "(every stuff bit counted): TPDOs will come late or not at all; map "
+                        "fewer objects, put fewer joints on this bus or SYNC less often",
+                        gateway._groups[number][0].spec, rate, share * 100)
+
+    def synced(self, now: float) -> bool:
+        """Do the master's SYNCs run the drives at least every :data:`IDLE_S` (a joint
+        that moved waits for the next, as a CiA 402 drive samples at SYNC); not once one
+        is overdue."""
+        return self.sync_gap <= SYNCED_GAP_S and now - self.last_sync <= 1.5 * self.sync_gap
+
+    def on_sync(self, counter: int | None) -> None:
+        now = _now()
+        self.sync_gap, self.last_sync = now - self.last_sync, now
+        if self.number not in self.gateway._load_warned:
+            self.check_rate(now)
+        snap, now, fault = self.observe(), _now(), self.fault
+        for jd in self.group:
+            jd.update(now, snap, fault, sync=True)
+
+    def on_tick(self, now: float) -> None:
+        snap, fault, synced = self.observe(), self.fault, self.synced(now)
+        for jd in self.group:
+            if jd.due(now, synced):
+                jd.update(now, snap, fault)
+
+    def master_lost(self, reason: str) -> None:
+        cause = (FaultCause.SYNC_TIMEOUT if "SYNC" in reason
+                 else FaultCause.BUS_OFF if "bus" in reason.lower()
+                 else FaultCause.MASTER_HEARTBEAT)
+        self.gateway._bus_faults[self.number] = Fault(cause)
+        self.gateway._master_event(self.number, "lost", reason)
+        now, snap = _now(), self.gateway.source.latest
+        for jd in self.group:
+            jd.update(now, snap, self.fault)
+
+    def master_back(self, reason: str) -> None:
+        self.gateway._bus_faults[self.number] = None
+        self.gateway._master_event(self.number, "back", reason)

@@ -150,6 +150,10 @@ class JointDrive:
                     continue
         self.objects = self.config.defaults()
         self._dirty = True
+        """The drive must run: a master's write, a reset, the board's events or faults."""
+        self._moved = False
+        """The joint's report changed (its position, velocity, answer): the drive runs at
+        the next SYNC where a master sends them often enough, else at the next turn."""
         self._seen_snapshot = -1
         self._seeded = False
         self._stale = False
@@ -264,7 +268,7 @@ class JointDrive:
                              velocity, valid, answer)
         if report != self._report:
             self._report = report
-            self._dirty = True
+            self._moved = True
         if (snap.events_total != self._events_seen or snap.faults_total != self._faults_seen
                 or snap.stale(*self.board) != self._stale):
             self._dirty = True
@@ -288,11 +292,14 @@ class JointDrive:
                 if self.shared is not None and name == self._out_names.get(Role.COMMAND):
                     self.shared.sent = raw
 
-    def due(self, now: float) -> bool:
-        """Is an update due: something changed, or the state has time-based rules and
-        :data:`IDLE_S` passed."""
-        return self._dirty or (self.drive.state in _TIMED and
-                               now - self._last_update >= IDLE_S)
+    def due(self, now: float, synced: bool = False) -> bool:
+        """Is an update due: a write, a reset or the board's events and faults changed;
+        or, unless ``synced`` (a master's SYNCs run the drive at least every
+        :data:`IDLE_S`, :func:`~ucom_tools.gateway.bridge` knows), the joint's report
+        changed or the state has time-based rules and :data:`IDLE_S` passed."""
+        return self._dirty or (not synced and (
+            self._moved or (self.drive.state in _TIMED
+                            and now - self._last_update >= IDLE_S)))
 
     def faults(self, snap: LoopSnapshot | None, bus_fault: Fault | None) -> list[Fault]:
         """The causes of FAULT present now (levels) and newly come (events)."""
@@ -337,7 +344,7 @@ class JointDrive:
         assert runtime is not None
         faults = self.faults(snap, bus_fault)
         out = self.drive.update(now, self.objects, self._report, faults, sync=sync)
-        self._dirty = False
+        self._dirty = self._moved = False
         self._last_update = now
         node, report, last = self.node_id, self._report, self.last
         if last is None or last.statusword != out.statusword:

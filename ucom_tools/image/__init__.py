@@ -1,6 +1,7 @@
-"""Firmware images for the DSP56F803: S-record and Intel HEX files, checked before any use."""
+"""Firmware images for the DSP56F803: S-record and Intel HEX files, checked before any use.
 
-from ucom_tools.image.formats import load_image
-from ucom_tools.image.srec import Image, parse_image
-
-__all__ = ["Image", "load_image", "parse_image"]
+:mod:`~ucom_tools.image.model` holds the :class:`Image` every format reads into,
+:func:`ucom_tools.image.formats.load_image` reads a file of either format (by its name, or
+its content), :mod:`~ucom_tools.image.srec` and :mod:`~ucom_tools.image.ihex` read and
+write the records of one format, :mod:`~ucom_tools.image.text` reads the lines of either.
+"""

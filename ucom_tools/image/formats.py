@@ -3,6 +3,7 @@
 The rule (``ucom(1)``, IMAGES): a file named ``*.hex``, ``*.ihex`` or ``*.ihx`` (in any
 case) is Intel HEX; any other file is Intel HEX when its first non-blank character is
 ``:``, and S-records otherwise.  Both are checked completely before any use.
+:func:`load_image` is the one way to read an image file.
 """
 
 from __future__ import annotations
@@ -13,8 +14,8 @@ from typing import BinaryIO
 
 from ucom_tools import fileio
 from ucom_tools.errors import ImageError
-from ucom_tools.image import ihex, srec
-from ucom_tools.image.srec import Image
+from ucom_tools.image import ihex, srec, text
+from ucom_tools.image.model import Image
 
 FORMATS = ("srec", "ihex")
 _BLANK = b" \t\r\n"
@@ -31,12 +32,12 @@ def load_image(path: str | Path, *, addressing: str = "auto") -> Image:
     :class:`ImageError` naming file and line.  ``addressing`` is for S-record files
     ("auto", "word", "byte"); Intel HEX addresses always count bytes."""
     source = str(path)
-    srec._check_addressing(addressing, source)
+    srec.check_addressing(addressing, source)
     if format_of_name(source) == "ihex":
-        binary = srec.open_image(path, "an Intel HEX file")
+        binary = text.open_image(path, "an Intel HEX file")
         fmt = "ihex"
     else:
-        binary = srec.open_image(path, "an S-record file")
+        binary = text.open_image(path, "an S-record file")
         try:
             fmt = _by_content(binary, source)
         except BaseException:
@@ -56,7 +57,7 @@ def _by_content(binary: BinaryIO, source: str) -> str:
     is put back at its start."""
     seen = 0
     try:
-        while seen <= srec.MAX_FILE_BYTES:
+        while seen <= text.MAX_FILE_BYTES:
             chunk = binary.read(_PEEK)
             if not chunk:
                 break

@@ -22,20 +22,20 @@ import bisect
 import io
 from collections.abc import Iterator
 from dataclasses import dataclass
-from pathlib import Path
 from typing import BinaryIO, TextIO
 
 import intelhex
 
 from ucom_tools.errors import ImageError
-from ucom_tools.image import srec
-from ucom_tools.image.srec import X_OFFSET, Image
+from ucom_tools.image import text
+from ucom_tools.image.model import X_OFFSET, Image, finish_image, region_problem
 from ucom_tools.memory import region_of
 from ucom_tools.wire.codes import Space
 from ucom_tools.wire.transfer import VECTOR_WORDS
 
 SUFFIXES = (".hex", ".ihex", ".ihx")
-"""File names read as Intel HEX whatever they hold (see :func:`ucom_tools.image.load_image`)."""
+"""File names read as Intel HEX whatever they hold (see
+:func:`ucom_tools.image.formats.load_image`)."""
 X_BYTES = 2 * X_OFFSET
 """Byte address of X:0000."""
 MAX_RECORD_CHARS = 1 + 2 * (5 + 255)
@@ -80,19 +80,15 @@ class _State:
         return None
 
 
-def load_ihex(path: str | Path) -> Image:
-    """Read and check an Intel HEX file; raises :class:`ImageError` naming file and line."""
-    return load_stream(srec.open_image(path, "an Intel HEX file"), str(path))
-
-
 def load_stream(binary: BinaryIO, source: str) -> Image:
     """Read and check the Intel HEX file open as ``binary`` (closed afterwards)."""
-    return srec.read_stream(binary, source,
+    return text.read_stream(binary, source,
                             lambda stream, too_big: _read(stream, source, too_big))
 
 
 def parse_ihex(text: str, source: str = "<image>") -> Image:
-    """Check Intel HEX text and return the image it describes (the checks of load_ihex)."""
+    """Check Intel HEX text and return the image it describes (the checks of
+    :func:`~ucom_tools.image.formats.load_image`)."""
     return _read(io.StringIO(text, newline=""), source, False)
 
 
@@ -112,8 +108,8 @@ class _Feed:
 
 def _read(stream: TextIO, source: str, too_big: bool) -> Image:
     state = _State()
-    lines = srec._lines(stream, source, too_big=too_big, kind=_KIND, record=_RECORD,
-                        max_record=MAX_RECORD_CHARS, max_line=MAX_LINE_CHARS)
+    lines = text.numbered_lines(stream, source, too_big=too_big, kind=_KIND, record=_RECORD,
+                                max_record=MAX_RECORD_CHARS, max_line=MAX_LINE_CHARS)
     checked = _checked(lines, source, state)
     ih = intelhex.IntelHex()
     try:
@@ -158,9 +154,9 @@ def _check(rec: str, source: str, no: int, indent: int, state: _State) -> None:
                 "Intel HEX: rename it, e.g. to .S)" if rec[:1] == "S" and rec[1:2].isdigit()
                 else "")
         raise ImageError(f"not an Intel HEX record: the line does not begin with ':': "
-                         f"{srec._clip(rec)}{hint}", file=source, line=no)
+                         f"{text.clip(rec)}{hint}", file=source, line=no)
     digits = rec[1:]
-    bad = srec._NOT_HEX.search(digits)
+    bad = text.NOT_HEX.search(digits)
     if bad:
         raise ImageError(f"malformed record: {bad.group()!r} is not a hex digit", file=source,
                          line=no, column=indent + 2 + bad.start())
@@ -238,7 +234,7 @@ def _place(start: int, length: int, source: str, no: int, state: _State) -> None
     region = _allowed(*first)
     if region is None or first[0] is not last[0] or _allowed(*last) != region:
         for b in range(start, start + length):
-            problem = srec.region_problem(*_word(b))
+            problem = region_problem(*_word(b))
             if problem:
                 raise ImageError(f"byte 0x{b:X}: {problem}", file=source, line=no)
     state.data.append(_Data(no, start, length))
@@ -248,7 +244,7 @@ def _allowed(space: Space, addr: int) -> object | None:
     """The region word ``space:addr`` may be written in (one id per region), or None."""
     if space is Space.P and addr in VECTOR_WORDS:
         return "vectors"
-    if srec.region_problem(space, addr):
+    if region_problem(space, addr):
         return None
     return region_of(space, addr)
 
@@ -295,7 +291,7 @@ def _image(ih: intelhex.IntelHex, source: str, state: _State) -> Image:
         i = bisect.bisect_right(starts, b) - 1
         return index[i][1] if i >= 0 else None
 
-    return srec.finish_image(source, header="", entry=entry, entry_line=entry_line,
+    return finish_image(source, header="", entry=entry, entry_line=entry_line,
                              words=words, vectors=vectors, records=state.records,
                              addressing="byte", line_of=line_of, format="ihex")
 

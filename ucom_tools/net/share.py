@@ -22,7 +22,7 @@ call happen on the publishing thread (or on Zenoh's own threads, for the queries
 
 One robot, one loop: where the robot's liveliness token is already on the network (or a
 ucom robot of that name listens on the endpoint) :func:`share` refuses (BusError),
-unless ``force``.
+unless ``force`` (:mod:`ucom_tools.net.one_loop`).
 """
 
 from __future__ import annotations
@@ -44,22 +44,21 @@ from typing import Any, Protocol
 import zenoh
 
 from ucom_tools.errors import BusError, FrameError, UcomError
-from ucom_tools.net import keys
+from ucom_tools.net import keys, one_loop
 from ucom_tools.net.encode import BoardEncoder, encoders
 from ucom_tools.net.keys import check_rate
-from ucom_tools.net.session import address_in_use, check_endpoint, config, open_session
+from ucom_tools.net.session import check_endpoint
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.remote import BoardFault, RemotePart, WriteEvent
-from ucom_tools.ops.remote_feed import Applied, LocalRun
+from ucom_tools.ops.remote_feed import LocalRun
 from ucom_tools.ops.remote_image import PartImage
 from ucom_tools.ops.remote_publish import Doorbell, LoopSnapshot
+from ucom_tools.ops.remote_requests import Applied
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.ids import Direction, IdType
 
 JSON = zenoh.Encoding.APPLICATION_JSON
-PROBE_S = 1.0
-"""How long a new share looks for the robot's liveliness token elsewhere on the network."""
 RESEND_S = 1.0
 """A board's sample that did not change (no new frame, nothing set) is put again only
 after this long; its latest is always in the ``values`` queryable."""
@@ -212,17 +211,18 @@ class RobotShare:
         if endpoint is None and config_file is None:
             endpoint = keys.DEFAULT_ENDPOINT
         self.endpoint = check_endpoint(endpoint) if endpoint is not None else None
-        self.joined: str | None = None
+        self.started = time.time()
+        self.session, joined = one_loop.open_listening(robot, self.endpoint, config_file,
+                                                       force=force)
+        self.joined: str | None = joined
         """The endpoint this share connected to instead of listening (``force``: another
         loop of the robot listens there)."""
-        self.started = time.time()
-        self.session = self._open(config_file, force)
         self.where = self.endpoint or str(config_file)
         try:
             if not force:
-                other = self._other(self.session)
+                other = one_loop.other_loop(self.session, robot)
                 if other is not None:
-                    raise BusError(self._refusal(other))
+                    raise BusError(one_loop.refusal(robot, self.endpoint, other))
             self._out: queue.SimpleQueue[Doorbell | _Answer] = queue.SimpleQueue()
             """What the publishing thread does next: the loop's doorbell (a snapshot to
             publish) or an answer to a write."""
@@ -271,69 +271,6 @@ class RobotShare:
         except BaseException:
             self.session.close()
             raise
-
-    # ------------------------------------------------------------------ opening
-    def _open(self, config_file: str | Path | None, force: bool) -> zenoh.Session:
-        listen = [self.endpoint] if self.endpoint is not None else None
-        try:
-            return open_session(config(listen=listen, file=config_file),
-                                self.endpoint or str(config_file))
-        except BusError as err:
-            if self.endpoint is None or not address_in_use(err):
-                raise
-            other = self._probe(self.endpoint, config_file)
-            if other is None:
-                raise BusError(f"cannot listen on {self.endpoint}: the address is in use "
-                               "(and no ucom robot of that name answers there)") from None
-            if not force:
-                raise BusError(self._refusal(other)) from None
-            self.joined = self.endpoint  # --force: join that network as a peer
-            return open_session(config(listen=[], connect=[self.endpoint], file=config_file,
-                                       connect_timeout_s=PROBE_S), self.endpoint)
-
-    def _probe(self, endpoint: str, config_file: str | Path | None) -> dict[str, Any] | None:
-        """The structure of this robot's loop that listens on ``endpoint``, if one does."""
-        try:
-            s = open_session(config(listen=[], connect=[endpoint], file=config_file,
-                                    connect_timeout_s=PROBE_S), endpoint)
-        except BusError:
-            return None
-        try:
-            return self._other(s)
-        finally:
-            s.close()
-
-    def _other(self, s: zenoh.Session) -> dict[str, Any] | None:
-        """Another loop of this robot reachable from session ``s``: its structure (or an
-        empty one where it does not answer), None where there is none."""
-        if not s.info.peers_zid() and not s.info.routers_zid():
-            return None
-        deadline = time.monotonic() + PROBE_S
-        found = False
-        while not found and time.monotonic() < deadline:
-            found = any(r.ok is not None for r in s.liveliness().get(
-                keys.robot_key(self.robot, "alive"), timeout=PROBE_S))
-            if not found:
-                time.sleep(0.05)  # the peer's declarations may still be on their way
-        if not found:
-            return None
-        for r in s.get(keys.robot_key(self.robot, "structure"), timeout=PROBE_S):
-            if r.ok is not None:
-                try:
-                    return keys.loads(r.ok.payload.to_bytes())
-                except ValueError:
-                    pass
-        return {}
-
-    def _refusal(self, other: dict[str, Any]) -> str:
-        who = ", ".join(f"{k} {other[k]}" for k in ("host", "pid", "listen") if other.get(k))
-        since = other.get("started")
-        when = f", since {time.strftime('%H:%M:%S', time.localtime(since))}" \
-            if isinstance(since, int | float) else ""
-        return (f"robot {self.robot!r} already runs its loop on this Zenoh network"
-                f"{' (' + who + when + ')' if who or when else ''}, reached on "
-                f"{self.endpoint or 'the configured endpoints'}: one robot, one loop; stop "
-                "that one first (or --force)")
 
     # ------------------------------------------------------------------ declarations
     def declare(self) -> None:

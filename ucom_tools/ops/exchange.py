@@ -30,13 +30,14 @@ from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.errors import BoardError, BusError, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import spec_of
 from ucom_tools.protocol.bootloader import BootloaderClient
-from ucom_tools.protocol.dispatch import Periodic
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import MASK_TABLE, BoardEdges, McaClient, values_of
+from ucom_tools.protocol.periodic import Periodic
 from ucom_tools.protocol.plan import BusPlan, CiMapPlan, needs_of, plan
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.protocol.watch import OtherHosts
 from ucom_tools.wire import mca
+from ucom_tools.wire.codes import ErrorCode
 from ucom_tools.wire.ids import ALL, Address, Function, seq
 
 _KIND: Final = {Kind.CI: mca.Kind.CI, Kind.SO: mca.Kind.SO, Kind.PAR: mca.Kind.PAR}
@@ -48,6 +49,11 @@ may be held by a busy machine for a moment (another host whose watchdog time is 
 500 ms say, keeps its boards running through a stall of a hundred milliseconds; measured:
 a second run beside such a host on a loaded machine missed it about once in ten with
 a listen of its own watchdog time, 50 ms)."""
+
+
+class NoProgram(BoardError):
+    """A board refused Start: it holds no complete, verified program (Error
+    NO_PROGRAM)."""
 
 
 class ExchangeError(InputError):
@@ -262,7 +268,10 @@ class BusExchange:
             started = answers[0]
             if not started.started:
                 why = "; ".join(e.describe() for e in started.errors) or "no answer"
-                raise BoardError(f"{self.where(n)}: its program did not start: {why}")
+                empty = bool(started.errors) and all(
+                    e.code is ErrorCode.NO_PROGRAM for e in started.errors)
+                raise (NoProgram if empty else BoardError)(
+                    f"{self.where(n)}: its program did not start: {why}")
             ready = self.mca.wait_ready(seq(n), self.mca.timeouts.reply)
             if ready is None:
                 raise UcomTimeoutError(f"{self.where(n)}: its program does not answer MCA "

@@ -12,7 +12,8 @@ from ucom_tools.config import attrtree
 from ucom_tools.config.attrtree import RobotTrees
 from ucom_tools.config.topology import BoardSpec, Topology
 from ucom_tools.errors import ImageError, InputError, TopologyError, UcomError
-from ucom_tools.image import Image, load_image
+from ucom_tools.image.formats import load_image
+from ucom_tools.image.model import Image
 from ucom_tools.ops.compat import fits
 from ucom_tools.plugons import PLUG_ON_BOARDS
 from ucom_tools.wire.transfer import TransferPlan

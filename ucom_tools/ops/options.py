@@ -23,7 +23,12 @@ from ucom_tools.wire.info import BoardInfo
 
 
 class NotInitialised(UcomError):
-    """The addressed boards have no seq ID: the init chain has not run since power-on."""
+    """The addressed boards have no seq ID: the init chain has not run since power-on;
+    ``bus`` names the bus."""
+
+    def __init__(self, message: str, *, bus: str | None = None) -> None:
+        super().__init__(message)
+        self.bus = bus
 
 
 @dataclass(frozen=True)
@@ -94,7 +99,7 @@ def _require_init(h: BusHandle, ref: BoardRef, what: str) -> None:
     raise NotInitialised(
         f"{h.name}: no board has a seq ID yet. {what[:1].upper() + what[1:]} works only "
         "after a successful init chain (option 2): run 'ucom init' first (the boards keep "
-        "their seq IDs until power-off), or add --init to this command.")
+        "their seq IDs until power-off), or add --init to this command.", bus=h.name)
 
 
 def _missing(h: BusHandle, ref: BoardRef, what: str) -> Row:

@@ -20,7 +20,7 @@ from ucom_tools.config.attrtree.model import Board
 from ucom_tools.config.attrtree.robot import RobotTrees
 from ucom_tools.errors import BoardError, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import EdgeRef, spec_of
-from ucom_tools.ops.exchange import BusExchange, edge_list, on_board
+from ucom_tools.ops.exchange import BusExchange, NoProgram, edge_list, on_board
 from ucom_tools.ops.remote_report import BoardCheck
 from ucom_tools.ops.robot import BusHandle
 from ucom_tools.protocol.mca import BoardEdges
@@ -66,7 +66,7 @@ def check_bus(h: BusHandle, x: BusExchange, trees: RobotTrees) -> BusCheck:
             ready = x.start_programs([n])[n]
             edges = x.mca.describe(seq(n), (ready.ci, ready.so, ready.par))
         except (BoardError, UcomTimeoutError) as err:
-            out.boards.append(_with(base, error=str(err)))
+            out.boards.append(_with(base, error=str(err), no_program=isinstance(err, NoProgram)))
             continue
         out.described[n] = edges
         found = tuple(differences(block, edge_list(edges)))

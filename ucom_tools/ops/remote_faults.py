@@ -92,3 +92,13 @@ class BoardLost(UcomError):
 
 class LostBoardWrite(InputError):
     """A write to an edge of a lost board: refused, not queued (nothing was sent)."""
+
+
+def check_policy(on_fault: str, rejoin: bool) -> None:
+    """InputError for a policy that is none, or a rejoin without ``hold``."""
+    if on_fault not in POLICIES:
+        raise InputError(f"on_fault must be {' or '.join(POLICIES)}, not {on_fault!r}",
+                         key="--on-fault")
+    if rejoin and on_fault != HOLD:
+        raise InputError("rejoin needs the hold policy (--on-fault hold): under stop a lost "
+                         "board ends the run", key="--rejoin")

@@ -9,17 +9,9 @@ buses delivered meanwhile.
 ``realtime`` runs the loop's thread under SCHED_FIFO (:mod:`ucom_tools.ops.realtime`).
 The in-process fleet in virtual time: the loop drives the fleet clock, nothing waits.
 
-After its drain the loop watches every board (``man/ucom-protocol.7``, RUN TIME, Faults):
-a board none of whose fastest SO maps came for :func:`~ucom_tools.ops.remote_faults.
-lost_after` is lost.  The silence is counted in the frames its bus's other boards sent
-meanwhile (their maps' periods say how long that took), not in time: frames come in the
-order they were sent, so neither the loop's own stall (the drain after it takes what
-came meanwhile) nor a transport or served fleet that delivers late and then all at
-once, nor time stamps on another clock, make a board that sends look lost.  A board
-from which nothing came at all for :data:`QUIET_MIN_S` (or the boards' watchdog time)
-of the loop's own running time (a cycle counts at most :data:`PRESENT_CAP` periods: a
-stall of the loop is no silence) is lost too: that is a whole bus gone silent, which
-the other boards cannot tell.  A bus that fails (the connection or adapter: a
+After its drain the loop watches every board (``man/ucom-protocol.7``, RUN TIME, Faults;
+:mod:`~ucom_tools.ops.board_watch`: a board whose SO maps stay away is lost).
+A bus that fails (the connection or adapter: a
 BusError, an interface that reports error-passive or bus-off) is a fault of every
 board on it, at once.
 The policy (``on_fault``): ``stop`` broadcasts MCA Start STOP on every bus in the cycle
@@ -41,8 +33,9 @@ from typing import Any, Final, Self
 
 import can
 
-from ucom_tools.errors import BusError, FrameError, InputError, UcomError
+from ucom_tools.errors import BusError, FrameError, UcomError
 from ucom_tools.native import mypyc_attr
+from ucom_tools.ops.board_watch import BoardWatch, SilenceWatch
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.exchange import BusExchange
 from ucom_tools.ops.realtime import (
@@ -53,18 +46,16 @@ from ucom_tools.ops.realtime import (
 )
 from ucom_tools.ops.remote_faults import (
     HOLD,
-    POLICIES,
     STOP,
     BoardFault,
     BoardLost,
     LostBoard,
-    lost_after,
+    check_policy,
 )
 from ucom_tools.ops.remote_report import BoardEvent, LoopStats, Value
 from ucom_tools.ops.remote_values import RemoteValues
 from ucom_tools.ops.robot import BusHandle, Robot
 from ucom_tools.protocol.dispatch import share_clock
-from ucom_tools.protocol.mca import ProcessImage
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as wire_messages
 from ucom_tools.wire.codes import ErrorCode, ReadyReason
@@ -91,92 +82,9 @@ _sleep: Final = time.sleep
 """Bound once: the loop's wait calls them every cycle."""
 RECENT_SAMPLES: Final = 2_000
 """The cycles a running view's lateness figures are taken over (the last 2 s at 1 kHz)."""
-QUIET_MIN_S: Final = 0.5
-"""A board from which nothing at all came for this long of the loop's running time (or
-the boards' watchdog time, if longer) is lost: a whole bus gone silent, which the other
-boards cannot tell.  Where the interface reports its state (error-passive: nobody
-acknowledges, a cut cable, every board off; socketcand by the server's error frames)
-that is noticed at once; where it does not (a socketcand server that sends no error
-frames), a shorter time would make a transport or a served fleet that a busy
-machine held for a moment (hundreds of milliseconds; the boards do not see it: their
-time stood still too) end the run.  A board cut off from the PC has stopped by its own
-watchdog long before."""
-BURST_TRUST_MAX_S: Final = 1.0
-"""After nothing came from a bus for cycles of this loop that sent (at least a board's
-limit of silence) and then frames came again, its boards' frames prove no silence for
-as long as the gap lasted (at most this long) and a limit more: the transport
-(socketcand, a served fleet that a busy machine held) held this host's frames too and
-delivers them to the bus in a burst that wins arbitration over every SO map; the
-boards' queued maps then follow in the order of their identifiers, the lowest board's
-last, so a board of low priority may stay unheard for several milliseconds while the
-others' maps come (measured over ``fleet serve`` beside two busy processes: 5-7 ms, a
-board lost that was not, in one run of two).  Only the quiet time and the bus's state
-tell meanwhile."""
-PRESENT_CAP: Final = 2.0
-"""A cycle counts at most this many periods of the loop's running time (the time a board's
-silence is measured on): a loop that was away longer was stalled."""
 REJOIN_MARGIN_S: Final = 0.0003
 """On the wall clock a rejoin's step ends this long before the loop's next deadline at the
 latest (its worker runs on beside the loop if it needs longer)."""
-_EPSILON: Final = 1e-9
-"""Sums of periods on the clock: a silence of exactly the limit counts as the limit."""
-
-
-class BoardWatch:
-    """One board's SO maps as the loop watches them: how many frames of the boards'
-    fastest maps of its bus's process image (:class:`~ucom_tools.protocol.mca.
-    ProcessImage`: ``watched``, ``order``, ``received``) had come when its latest frame
-    came (:attr:`index`), when that changed on the loop's running time (:attr:`last`),
-    and the silences after which it is lost: :attr:`limit` seconds, proved by
-    :attr:`frames` frames of the other boards' fastest maps after its last (its own
-    fastest: :attr:`rate` frames a second), or nothing at all for :attr:`quiet` of the
-    loop's running time."""
-
-    def __init__(self, bus: str, board: int, where: str, image: ProcessImage,
-                 maps: list[int], fast: int, rate: float, limit: float, quiet: float,
-                 present: float) -> None:
-        self.bus = bus
-        self.board = board
-        self.where = where
-        self.image = image
-        self.order = image.order
-        self.maps = maps
-        self.rate = rate
-        self.fast = fast
-        """Its fastest maps."""
-        self.limit = limit
-        self.quiet = quiet
-        self.frames = 0.0
-        """The other boards' frames that prove :attr:`limit` of silence (0: no other
-        board on its bus that is not lost: only :attr:`quiet` tells)."""
-        self.others = 0.0
-        """The frames a second of the fastest maps of the other boards not lost ..."""
-        self.extra = 0
-        """... and their number."""
-        self.index = self.latest()
-        self.last = present
-        self.armed = False
-        self.lost = False
-
-    def latest(self) -> int:
-        """How many of the bus's watched frames had come by its latest frame (0: none of
-        it yet)."""
-        order = self.order
-        out = 0
-        for n in self.maps:
-            k = order.get(n, 0)
-            if k > out:
-                out = k
-        return out
-
-    def back(self, present: float) -> None:
-        """Watched again from ``present`` (it rejoined)."""
-        self.index = self.latest()
-        self.last = present
-        self.armed = False
-        self.lost = False
-
-
 @mypyc_attr(allow_interpreted_subclasses=True)  # RemotePart (ops/remote.py, from source)
 class RemoteLoop(RemoteValues):
     """The loop over the exchanges of ``robot``'s buses at one period (see the module
@@ -186,12 +94,10 @@ class RemoteLoop(RemoteValues):
                  *, realtime: bool = False, on_fault: str = STOP, rejoin: bool = False,
                  ) -> None:
         super().__init__(robot, exchanges)
-        if on_fault not in POLICIES:
-            raise InputError(f"on_fault must be {' or '.join(POLICIES)}, not {on_fault!r}",
-                             key="--on-fault")
-        if rejoin and on_fault != HOLD:
-            raise InputError("rejoin needs the hold policy (--on-fault hold): under stop "
-                             "a lost board ends the run", key="--rejoin")
+        check_policy(on_fault, rejoin)
+        self.period_s = period_s
+        self.watch = SilenceWatch(period_s, self._lose, self._maps_again)
+        """Which boards are lost (:mod:`ucom_tools.ops.board_watch`)."""
         self.on_fault = on_fault
         """The policy when a board is lost: ``stop`` (every other board stopped, the run
         ends: :class:`~ucom_tools.ops.remote_faults.BoardLost`) or ``hold``."""
@@ -203,33 +109,13 @@ class RemoteLoop(RemoteValues):
         """Called on the loop's thread with every fault event as it happens (a board lost,
         rejoined); what is called here must not wait for anything."""
         self.rejoiner: Callable[[str, int, float], Any] | None = None
-        """Starts the conversation that brings board (bus, n) back, its first question
-        after a delay in seconds (set by :class:`~ucom_tools.ops.remote.RemotePart` with
-        ``rejoin``): an object with ``step()``, ``cancel()``, ``done``, ``ok``,
-        ``answered`` and ``how``."""
-        self._present = 0.0
-        """The loop's own running time since its start (seconds): the clock, but a cycle
-        that came late counts at most :data:`PRESENT_CAP` periods.  Silence is measured on
-        it, so that a stall of this process (or of the machine, a served fleet on it
-        with it) is no silence of the boards: after it they get the time to deliver."""
-        self._watch_at = 0.0
-        """The clock when :attr:`_present` last moved on."""
-        self._watches: list[BoardWatch] = []
-        self._groups: list[list[BoardWatch]] = []
-        self._seen_received: list[int] = []
-        """Per group (bus): its image's ``received`` when frames last came ..."""
-        self._seen_at: list[float] = []
-        """... the clock then ..."""
-        self._trust_from: list[float] = []
-        self._quiet_cycles: list[int] = []
-        """Per group: the cycles since its frames last came."""
-        """... and until when its boards' frames prove no silence (:data:`BURST_TRUST`)."""
-        """The watched boards by bus."""
-        self._watched: dict[tuple[str, int], BoardWatch] = {}
+        """Starts the conversation that brings board (bus, n) back after a delay in seconds
+        (set by :class:`~ucom_tools.ops.remote.RemotePart` with ``rejoin``): an object
+        with ``step()``, ``cancel()``, ``done``, ``ok``, ``answered`` and ``how``."""
         self._notes: dict[tuple[str, int], tuple[float, str]] = {}
         """What each board said last besides its maps (an Error, its bootloader's Ready,
-        its program's unsolicited MCA Ready), with when (:attr:`_present`): what a lost
-        event names."""
+        its program's unsolicited MCA Ready), with when (the watch's ``present``): what a
+        lost event names."""
         self._failed: dict[str, str] = {}
         """Buses that failed (their connection or adapter) -> why; nothing is sent there."""
         self._sending: list[BusExchange] = list(exchanges.values())
@@ -253,7 +139,6 @@ class RemoteLoop(RemoteValues):
         self._par_busy: dict[EdgeRef, int] = {}
         """Per edge with a write under way: the value it had before (put back where the
         write fails)."""
-        self.period_s = period_s
         self.virtual = robot.virtual_time
         self.stats = LoopStats(self.period_s)
         self._running = False
@@ -332,7 +217,7 @@ class RemoteLoop(RemoteValues):
         self._listen_for_events(clock)
         self.stats = LoopStats(self.period_s, started_wall=time.perf_counter(),
                                started_clock=clock)
-        self._watch_from(clock)
+        self.watch.start(clock, self.exchanges)
         self._deadline = clock
         self._sent_at = -1.0
         self._k = 0
@@ -410,7 +295,9 @@ class RemoteLoop(RemoteValues):
         if failed is not None:
             for name, why in failed:
                 self._bus_failed(name, why, now)
-        self._watch_boards(now)
+        self.watch.check(now)
+        if self._states:
+            self._watch_states(now)
         if self._rejoins:
             self._step_rejoins()
         self.stats.cycles += 1
@@ -454,7 +341,7 @@ class RemoteLoop(RemoteValues):
                 note = self._notes.get((h.name, n))
                 if err.code is not ErrorCode.LATCHED or note is None or \
                         not note[1].startswith("its watchdog"):  # (its CI refused since:
-                    self._notes[(h.name, n)] = (self._present, text)  # the same news)
+                    self._notes[(h.name, n)] = (self.watch.present, text)  # the same news)
                 if (h.name, n) in self._lost:
                     return  # answers to the rejoin's questions (NOT_RUNNING ...): not events
                 self.events.append(BoardEvent(round(now - started, 4), h.name, n,
@@ -471,7 +358,7 @@ class RemoteLoop(RemoteValues):
                             "started again)")
                 else:
                     return
-                self._notes[(h.name, msg.arbitration_id & 0x1F)] = (self._present, text)
+                self._notes[(h.name, msg.arbitration_id & 0x1F)] = (self.watch.present, text)
             d = h.link.dispatcher
             self._event_subs.append((d, d.subscribe(
                 lambda msg: msg.arbitration_id >> 6 == Function.ERROR,
@@ -560,128 +447,6 @@ class RemoteLoop(RemoteValues):
                 each(self)
 
     # ------------------------------------------------------------------ faults
-    def _watch_from(self, now: float) -> None:
-        """Watch every configured board's fastest SO maps from ``now`` (the loop's start)."""
-        self._watches = []
-        self._watched = {}
-        self._groups = []
-        self._seen_received = []
-        self._seen_at = []
-        self._trust_from = []
-        self._quiet_cycles = []
-        self._present = 0.0
-        self._watch_at = now
-        for name, x in self.exchanges.items():
-            image = x.mca.image
-            group: list[BoardWatch] = []
-            quiet = max(x.plan.alive_ms / 1000, QUIET_MIN_S)
-            for n in x.configured:
-                maps = x.plan.maps_of(n)
-                if not maps:
-                    continue  # no SO map: nothing tells whether it lives
-                fastest = min(m.interval_us for m in maps)
-                limit = lost_after(fastest / 1e6)
-                numbers = [m.number for m in maps if m.interval_us == fastest]
-                image.watched.update(numbers)
-                w = BoardWatch(name, n, x.where(n), image, [m.number for m in maps],
-                               len(numbers), len(numbers) * 1e6 / fastest, limit,
-                               max(limit, quiet) - _EPSILON, 0.0)
-                group.append(w)
-                self._watched[(name, n)] = w
-            if group:
-                self._groups.append(group)
-                self._seen_received.append(image.received)
-                self._seen_at.append(now)
-                self._trust_from.append(now)
-                self._quiet_cycles.append(0)
-                self._watches += group
-                self._proofs(group)
-
-    @staticmethod
-    def _proofs(group: list[BoardWatch]) -> None:
-        """How many frames of the other boards of a bus (those not lost) prove each one's
-        limit of silence: as many as they send in it, and one more of each map (the
-        first may come just after its last frame, at any phase)."""
-        live = 0.0
-        maps = 0
-        for w in group:
-            if not w.lost:
-                live += w.rate
-                maps += w.fast
-        for w in group:
-            others = live - (0.0 if w.lost else w.rate)
-            extra = maps - (0 if w.lost else w.fast)
-            w.others = others
-            w.extra = extra
-            w.frames = w.limit * others + extra - _EPSILON if others > 0 else 0.0
-
-    def _watch_boards(self, now: float) -> None:
-        """After the cycle's drain, per bus: a board after whose last watched map the
-        bus's other boards sent as many frames as fill its limit at their periods is lost
-        (counted in frames, in the order they were sent, not in time: neither a stall of
-        this loop nor a transport or served fleet that delivers late and then all at once
-        makes a board that sends look lost; and not for a while after frames came
-        again from a bus that had been silent while this loop cycled,
-        :data:`BURST_TRUST_MAX_S`); so is one from which nothing came for its quiet time
-        of the loop's running time (:attr:`_present`: the whole bus silent);
-        and every board of a bus whose interface reports error-passive or bus-off."""
-        step = now - self._watch_at
-        self._watch_at = now
-        cap = PRESENT_CAP * self.period_s
-        present = self._present + (step if step < cap else cap)
-        self._present = present
-        for g, group in enumerate(self._groups):
-            received = group[0].image.received
-            if received != self._seen_received[g]:
-                # nothing came for cycles that sent (the transport held this host's
-                # frames too), then all at once; a stall of this loop sent nothing, and a
-                # bus whose boards were lost (an emergency stop, a cable) was silent
-                # for that reason (no frames held: they came as they were sent)
-                gap = now - self._seen_at[g]
-                if self._quiet_cycles[g] * self.period_s >= group[0].limit and \
-                        not any(w.lost for w in group):
-                    trust = now + min(gap, BURST_TRUST_MAX_S) + group[0].limit
-                    if trust > self._trust_from[g]:
-                        self._trust_from[g] = trust
-                self._seen_received[g] = received
-                self._seen_at[g] = now
-                self._quiet_cycles[g] = 0
-            else:
-                self._quiet_cycles[g] += 1
-            trusted = now >= self._trust_from[g]
-            for w in group:
-                index = w.latest()
-                if index != w.index:
-                    w.index = index
-                    w.last = present
-                    w.armed = True
-                    if w.lost:  # (hold) its maps came again: it ran on, its configuration
-                        self._maps_again(w, now)  # and targets as they were
-                        continue
-                elif w.lost:
-                    continue
-                after = received - index  # (a drain that brought its last frame and
-                if trusted and w.armed and w.frames > 0.0 and after >= w.frames:
-                    silent = max(w.limit, (after - w.extra) / w.others)
-                    self._lose(w, now, f"silence: none of its SO maps for "
-                                       f"{silent * 1e3:.1f} ms")
-                elif present - w.last >= w.quiet:
-                    self._lose(w, now, self._quiet_text(group, w, present))
-        if self._states:
-            self._watch_states(now)
-
-    def _group_of(self, w: BoardWatch) -> list[BoardWatch]:
-        for group in self._groups:
-            if w in group:
-                return group
-        return [w]
-
-    def _quiet_text(self, group: list[BoardWatch], w: BoardWatch, present: float) -> str:
-        silent = present - w.last
-        if all(present - other.last >= other.quiet or other.lost for other in group):
-            return f"silence: nothing from any board of {w.bus} for {silent * 1e3:.1f} ms"
-        return f"silence: none of its SO maps for {silent * 1e3:.1f} ms"
-
     def _watch_states(self, now: float) -> None:
         for name, bus in self._states:
             try:
@@ -694,7 +459,7 @@ class RemoteLoop(RemoteValues):
             elif name not in self._bad_state:  # the moment it turns: every board's fault
                 what = "bus-off" if state is can.BusState.ERROR else "error-passive"
                 self._bad_state[name] = what
-                for w in self._watches:
+                for w in self.watch.watches:
                     if w.bus == name and not w.lost:
                         self._lose(w, now, f"the bus failing: the interface reports {name} "
                                            f"{what}")
@@ -709,7 +474,7 @@ class RemoteLoop(RemoteValues):
         self._drain_of = [(n, d) for n, d in self._drain_of if n != name]
         self._batching = [(n, b) for n, b in self._batching if n != name]
         self._states = [(n, b) for n, b in self._states if n != name]
-        for w in self._watches:
+        for w in self.watch.watches:
             if w.bus == name and not w.lost:
                 self._lose(w, now, f"the bus failing: {why}")
 
@@ -732,7 +497,7 @@ class RemoteLoop(RemoteValues):
         lost = dict(self._lost)
         lost[key] = LostBoard(w.bus, w.board, w.where, t, seen, status)
         self._lost = lost
-        self._proofs(self._group_of(w))
+        self.watch.regroup(w)
         self._newly.append(fault)
         for hook in self.fault_hooks:
             hook(fault)
@@ -779,7 +544,7 @@ class RemoteLoop(RemoteValues):
         if lost is None:
             return
         w.lost = False
-        self._proofs(self._group_of(w))
+        self.watch.regroup(w)
         replaced = dict(self._lost)
         del replaced[key]
         self._lost = replaced
@@ -868,9 +633,9 @@ class RemoteLoop(RemoteValues):
             self._lost = replaced
             return
         now = self._clock()
-        w = self._watched[key]
-        w.back(self._present)
-        self._proofs(self._group_of(w))
+        w = self.watch.watched[key]
+        w.back(self.watch.present)
+        self.watch.regroup(w)
         replaced = dict(self._lost)
         del replaced[key]
         self._lost = replaced

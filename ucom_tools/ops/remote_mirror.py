@@ -21,11 +21,12 @@ from typing import Any
 
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.remote_faults import BoardFault, LostBoard
-from ucom_tools.ops.remote_feed import Applied, Unpacker, pack
+from ucom_tools.ops.remote_feed import Unpacker, pack
 from ucom_tools.ops.remote_image import PartImage
 from ucom_tools.ops.remote_publish import LateChunks, LoopFigures, LoopSnapshot, Snapshots, Tail
 from ucom_tools.ops.remote_report import BoardEvent, RawSnapshot, Value, WriteEvent
-from ucom_tools.protocol.dispatch import SinkEntry
+from ucom_tools.ops.remote_requests import Applied
+from ucom_tools.protocol.traffic import SinkEntry
 
 FrameSink = Callable[[str, list[SinkEntry]], None]
 ChangeSink = Callable[[float, EdgeRef, Value], None]
@@ -202,8 +203,13 @@ class Mirror(Snapshots):
 
     def drive(self, items: list[tuple[str, int]]) -> None:
         """Set edges by robot-wide name to raw values on the loop's thread, no answer
-        (:class:`~ucom_tools.ops.remote_feed.DriveWrites`)."""
+        (:class:`~ucom_tools.ops.remote_requests.DriveWrites`)."""
         self._send(("drive", items))
+
+    def frames(self, wanted: bool) -> None:
+        """Have the loop hand over every bus's frames, or no longer (``--foxglove``: only
+        while a client watches a bus's frames; a recording's come whatever this says)."""
+        self._send(("frames", wanted))
 
     def stop(self, origin: str) -> Future[Applied]:
         """Stop every board and end the loop (a stop from the network, by ``origin``)."""

@@ -29,9 +29,19 @@ class MappingError(UcomError):
 
     def __init__(self, report: CheckReport) -> None:
         bad = [b for b in report.boards if not b.ok]
-        super().__init__(f"{len(bad)} board(s) do not match their trees: "
-                         + "; ".join(_where_and(b.where, b.summary()) for b in bad))
+        empty = [b for b in bad if b.no_program]
+        parts = [] if not empty else [
+            f"{len(empty)} board(s) hold no program to start" + (
+                "" if len(empty) == len(report.boards) else
+                f" ({', '.join(b.where for b in empty)})")]
+        others = [b for b in bad if not b.no_program]
+        if others:
+            parts.append(f"{len(others)} board(s) do not match their trees: "
+                         + "; ".join(_where_and(b.where, b.summary()) for b in others))
+        super().__init__("; ".join(parts))
         self.report = report
+        self.no_program = len(empty) == len(bad)
+        """Every board that failed holds no program (nothing else is wrong)."""
 
 
 def _where_and(where: str, text: str) -> str:
@@ -115,6 +125,8 @@ class BoardCheck:
     differences: tuple[Mismatch, ...] = ()
     error: str = ""
     """Why the board could not be checked (did not start, did not answer)."""
+    no_program: bool = False
+    """It could not start a program: it holds none (its flash or ExtRAM empty)."""
 
     @property
     def ok(self) -> bool:

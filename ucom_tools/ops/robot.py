@@ -146,27 +146,51 @@ class Robot:
 
     def each(self, work: Callable[[BusHandle], T], name: str | None = None, *,
              cancel: threading.Event | None = None) -> list[T]:
+        """``work`` on every selected bus (``name``: one), in bus order, by the rule of
+        :meth:`each_until_stopped`.  The first exception, after every bus has finished its
+        work; a :class:`KeyboardInterrupt` in this thread while the buses work sets
+        ``cancel`` (their work's own stop) and is raised once they ended."""
+        collect, stop = self._each(work, name, cancel)
+        if stop is not None:
+            raise stop
+        return collect()
+
+    def each_until_stopped(self, work: Callable[[BusHandle], T], name: str | None = None,
+                           *, cancel: threading.Event | None = None
+                           ) -> tuple[list[T], KeyboardInterrupt | None]:
         """``work`` on every selected bus (``name``: one), in bus order: all buses at once,
         one thread each (a robot's buses are independent: init, Info, flash take the time
         of the slowest bus, not the sum), or one after the other in virtual time, where
         the fleet clock is driven by whoever waits and threads would only take turns.
         The first exception, after every bus has finished its work.  A
         :class:`KeyboardInterrupt` in this thread while the buses work sets ``cancel``
-        (their work's own stop) and is raised once they ended."""
+        (their work's own stop) and is returned, with every bus's result, once they
+        ended (None: none came)."""
+        collect, stop = self._each(work, name, cancel)
+        return collect(), stop
+
+    def _each(self, work: Callable[[BusHandle], T], name: str | None,
+              cancel: threading.Event | None
+              ) -> tuple[Callable[[], list[T]], KeyboardInterrupt | None]:
+        """The one rule of :meth:`each` and :meth:`each_until_stopped`: every bus's work
+        done, then how to collect the results (raising the first exception) and the
+        interrupt that came meanwhile."""
         handles = self.select(name)
         if len(handles) == 1 or self.virtual_time:
-            return [work(h) for h in handles]
+            results = [work(h) for h in handles]
+            return lambda: results, None
+        stop: KeyboardInterrupt | None = None
         with ThreadPoolExecutor(max_workers=len(handles),
                                 thread_name_prefix="ucom-bus") as pool:
             futures = [pool.submit(work, h) for h in handles]
             try:
                 wait(futures)
-            except KeyboardInterrupt:
+            except KeyboardInterrupt as e:
+                stop = e
                 if cancel is not None:
                     cancel.set()
                 wait(futures)
-                raise
-        return [f.result() for f in futures]
+        return lambda: [f.result() for f in futures], stop
 
     def close(self, *, keep_log: bool = True) -> None:
         """Shut every bus down, then end the ``--log`` recording: renamed into place

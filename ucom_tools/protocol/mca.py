@@ -17,8 +17,8 @@ from typing import Final
 import can
 
 from ucom_tools.errors import BoardError, FrameError, UcomTimeoutError
-from ucom_tools.protocol.dispatch import Subscription
 from ucom_tools.protocol.link import Link
+from ucom_tools.protocol.routing import Subscription
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m

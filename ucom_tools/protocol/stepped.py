@@ -50,7 +50,8 @@ from typing import Any
 
 import can
 
-from ucom_tools.protocol.dispatch import Dispatcher, Subscription, stepped_by
+from ucom_tools.protocol.dispatch import Dispatcher, stepped_by
+from ucom_tools.protocol.routing import Subscription
 
 
 class Cancelled(BaseException):

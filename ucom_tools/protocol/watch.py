@@ -15,8 +15,8 @@ import can
 
 from ucom_tools.errors import BusError, FrameError
 from ucom_tools.memory import REGIONS
-from ucom_tools.protocol.dispatch import Subscription
 from ucom_tools.protocol.link import Link
+from ucom_tools.protocol.routing import Subscription
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import (

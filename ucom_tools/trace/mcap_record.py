@@ -39,7 +39,7 @@ from typing import Any, Protocol
 from ucom_tools import __version__
 from ucom_tools.errors import InputError, WriteError
 from ucom_tools.fileio import reason
-from ucom_tools.protocol.dispatch import ERROR, EXTENDED, REMOTE, SENT
+from ucom_tools.protocol.traffic import ERROR, EXTENDED, REMOTE, SENT
 from ucom_tools.trace.logs import LogError
 from ucom_tools.trace.mcapfile import (
     EVENTS_TOPIC,

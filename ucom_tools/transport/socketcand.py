@@ -35,7 +35,8 @@ send that timed out after writing part of a frame leave the bus unusable: that c
 every later ``recv``/``send`` raise :class:`can.CanOperationError`.
 
 Elements are cut, read and written by :mod:`ucom_tools.wire.socketcand` (one copy for
-this client and the server).
+this client and the server), messages made of them by :mod:`.socketcand_frames`; the
+connection and its writes within a deadline are :mod:`.tcp`'s.
 
 Time stamps: a received frame is stamped on this machine's clock (``time.time()``), as a
 sent one is, so a log of both (``--log``, ``--record``) has one time base.  The server's
@@ -59,30 +60,34 @@ import time
 from binascii import hexlify
 from collections import deque
 from collections.abc import Iterator
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 import can
 
 from ucom_tools.protocol.frames import DataFrame, received_message
+from ucom_tools.transport.socketcand_frames import (
+    data_elements,
+    parse_frame,
+    send_bytes,
+    shown,
+    state_of_error,
+)
+from ucom_tools.transport.tcp import connect, reason, send_within
 from ucom_tools.wire.socketcand import (
-    CAN_EFF_FLAG,
     CAN_EFF_MASK,
-    CAN_ERR_ACK,
-    CAN_ERR_BUSOFF,
-    CAN_ERR_RESTARTED,
     CAN_SFF_MASK,
     MAX_ELEMENT,
     SEND_EMPTY,
     SEND_STD,
     ElementSplitter,
     error_frame,
-    frame_words,
     plain_frame,
 )
-from ucom_tools.wire.socketcand import send_element as wire_send_element
 
-__all__ = ["MAX_ELEMENT", "PINGS", "ElementSplitter", "SocketcandBus", "parse_frame",
-           "send_bytes", "send_element"]
+if TYPE_CHECKING:
+    from ucom_tools.protocol.buscontract import BatchingBus
+
+__all__ = ["MAX_ELEMENT", "PINGS", "ElementSplitter", "SocketcandBus"]
 
 log = logging.getLogger(__name__)
 
@@ -91,10 +96,6 @@ SERVER_ERRORS_KEPT: Final = 100
 _CHUNK: Final = 65536
 
 _CHANNEL: Final = re.compile(r"[^\s<>]+")
-_SEND_HEADS: Final[dict[int, bytes]] = {}
-"""``< send ID DLC `` by ``ID << 4 | DLC`` (:meth:`SocketcandBus.send_data_many`)."""
-_HEX_BLANK: Final = [b"%02X " % octet for octet in range(256)]
-"""Each byte's two upper-case hex digits and a blank."""
 
 
 CONNECT_TIMEOUT_S = 3.0
@@ -113,44 +114,6 @@ attaches a client to its bus 20 ms after the rawmode ``< ok >``, for python-can'
 client)."""
 PING_WAIT_S: Final = 0.1
 """The least an echo is waited for (more on a slow connection: 20 rawmode round trips)."""
-
-def parse_frame(words: list[str], channel: str) -> can.Message:
-    """``< frame ID SEC.USEC DATA >`` as words -> a received message; ``ValueError`` if bad
-    (:func:`ucom_tools.wire.socketcand.frame_words`)."""
-    can_id, stamp, data = frame_words(words)
-    return can.Message(timestamp=stamp, arbitration_id=can_id & CAN_EFF_MASK, data=data,
-                       is_extended_id=can_id > CAN_EFF_MASK, is_rx=True, channel=channel)
-
-
-def send_element(msg: can.Message) -> str:
-    """The ``< send ID DLC B0 B1 ... >`` element for a message; ``ValueError`` if it has none."""
-    return send_bytes(msg).decode("ascii")
-
-
-def send_bytes(msg: can.Message) -> bytes:
-    """:func:`send_element` as the bytes written; the usual standard data frame in a few
-    operations (this runs for every frame sent)."""
-    data = msg.data
-    dlc = msg.dlc
-    ident = msg.arbitration_id
-    if not (msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame or msg.is_fd) \
-            and 0 <= ident <= CAN_SFF_MASK and 0 < dlc <= 8 and len(data) == dlc:
-        return SEND_STD % (ident, dlc, bytes(data).hex(" ").upper().encode())
-    if msg.is_remote_frame:
-        raise ValueError("remote frames")
-    if msg.is_error_frame:
-        raise ValueError("error frames")
-    if msg.is_fd:
-        raise ValueError("CAN FD frames")
-    if msg.dlc > 8 or len(data) < msg.dlc:
-        raise ValueError(f"DLC {msg.dlc} with {len(msg.data)} data bytes")
-    return wire_send_element(ident | CAN_EFF_FLAG if msg.is_extended_id else ident,
-                             bytes(data[:dlc]))
-
-
-def _shown(element: bytes) -> str:
-    """An element as text, with its brackets (for messages)."""
-    return f"<{element.decode('ascii', 'replace')}>"
 
 
 def _skipped(junk: bytes) -> None:
@@ -212,8 +175,8 @@ class SocketcandBus(can.BusABC):
         self._broken: str | None = None
         self._closed = False
         with contextlib.ExitStack() as on_failure:
-            self._sock = on_failure.enter_context(_connect(host, port, connect_timeout,
-                                                           self._where))
+            self._sock = on_failure.enter_context(connect(host, port, connect_timeout,
+                                                          self._where))
             self._readable = on_failure.enter_context(selectors.DefaultSelector())
             self._writable = on_failure.enter_context(selectors.DefaultSelector())
             self._readable.register(self._sock, selectors.EVENT_READ)
@@ -283,9 +246,9 @@ class SocketcandBus(can.BusABC):
             if what.startswith("< open"):
                 raise can.CanInitializationError(
                     f"socketcand {self._where} refused to open channel {self.channel}: "
-                    f"{_shown(element)}")
+                    f"{shown(element)}")
         raise can.CanInitializationError(
-            f"socketcand {self._where} answered {what} with {_shown(element)}, expected < {word} >")
+            f"socketcand {self._where} answered {what} with {shown(element)}, expected < {word} >")
 
     def _next_element(self, deadline: float) -> bytes | None:
         while True:
@@ -381,7 +344,7 @@ class SocketcandBus(can.BusABC):
             try:
                 self._pending.append(self._local(parse_frame(words, self.channel)))
             except ValueError as err:
-                log.warning("socketcand %s: ignored %s: %s", self._where, _shown(element), err)
+                log.warning("socketcand %s: ignored %s: %s", self._where, shown(element), err)
         elif kind == "error":
             error = error_frame(element)
             if error is not None:
@@ -391,21 +354,15 @@ class SocketcandBus(can.BusABC):
             self.server_errors.append(text)
             log.warning("socketcand %s reports an error: %s", self._where, text)
         else:
-            log.debug("socketcand %s: ignored %s", self._where, _shown(element))
+            log.debug("socketcand %s: ignored %s", self._where, shown(element))
 
     def _error_frame(self, error_class: int) -> None:
         """An error frame of the server's bus: what it says of this node's state."""
         self.error_frames += 1
-        if error_class & CAN_ERR_BUSOFF:
-            state = can.BusState.ERROR
-        elif error_class & CAN_ERR_ACK:
-            state = can.BusState.PASSIVE
-        elif error_class & CAN_ERR_RESTARTED:
-            state = can.BusState.ACTIVE
-        else:
-            return  # the controller's details (CAN_ERR_CRTL) travel in data socketcand drops
-        self._error_state = state
-        self._error_mark = self._frames_in
+        state = state_of_error(error_class)
+        if state is not None:
+            self._error_state = state
+            self._error_mark = self._frames_in
 
     @property
     def state(self) -> can.BusState:
@@ -526,28 +483,11 @@ class SocketcandBus(can.BusABC):
         :meth:`hold`) within ``timeout``: all of them or none (a frame that is not a
         standard data frame of at most 8 bytes: none, refused as :meth:`send` refuses
         it)."""
-        pieces: list[bytes] = []  # SEND_STD's bytes, from cached pieces (no formatting)
-        heads = _SEND_HEADS
-        for ident, data in frames:
-            n = len(data)
-            if not 0 <= ident <= CAN_SFF_MASK or n > 8:
-                try:  # send()'s refusal of it, nothing sent
-                    send_bytes(can.Message(arbitration_id=ident, data=data,
-                                           is_extended_id=False, check=False))
-                except ValueError as err:
-                    raise can.CanOperationError(
-                        f"socketcand {self._where} cannot send {err}") from err
-                raise can.CanOperationError(f"socketcand {self._where} cannot send "
-                                            f"identifier {ident:#x} with {n} bytes")
-            key = ident << 4 | n
-            head = heads.get(key)
-            if head is None:
-                head = heads[key] = b"< send %03X %d " % (ident, n)
-            pieces.append(head)
-            for octet in data:
-                pieces.append(_HEX_BLANK[octet])
-            pieces.append(b">")
-        self._put(b"".join(pieces), timeout)
+        try:
+            elements = data_elements(frames)
+        except ValueError as err:
+            raise can.CanOperationError(f"socketcand {self._where} cannot send {err}") from err
+        self._put(elements, timeout)
         if self.receive_own_messages:
             now = time.time()
             for ident, data in frames:
@@ -601,23 +541,11 @@ class SocketcandBus(can.BusABC):
         try:
             self._check_usable()
             try:
-                try:  # the usual case: the socket takes all of it at once (no
-                    sent = self._sock.send(data)  # context manager: ~1 us per cycle)
-                except BlockingIOError:
-                    sent = 0
-                if sent == len(data):
-                    return
-                view = memoryview(data)
-                while True:
-                    remaining = deadline - time.monotonic()
-                    if remaining <= 0 or not self._writable.select(remaining):
-                        break
-                    with contextlib.suppress(BlockingIOError):
-                        sent += self._sock.send(view[sent:])
-                    if sent == len(data):
-                        return
+                sent = send_within(self._sock, self._writable, data, deadline)
             except (OSError, ValueError) as err:
                 raise self._lost(err) from err
+            if sent == len(data):
+                return
             if sent:
                 self._fail(f"socketcand {self._where} is unusable: a send timed out after "
                            f"writing {sent} of the {len(data)} bytes of {data.decode()}")
@@ -642,8 +570,7 @@ class SocketcandBus(can.BusABC):
     def _lost(self, err: Exception) -> can.CanOperationError:
         if self._closed:
             return self._shut_down()
-        reason = (err.strerror if isinstance(err, OSError) else None) or str(err)
-        return self._fail(f"socketcand {self._where} connection lost: {reason}")
+        return self._fail(f"socketcand {self._where} connection lost: {reason(err)}")
 
     def _shut_down(self) -> can.CanOperationError:
         return can.CanOperationError(f"socketcand {self._where} bus is shut down")
@@ -666,36 +593,6 @@ class SocketcandBus(can.BusABC):
         self._sock.close()
 
 
-def _connect(host: str, port: int, timeout: float, where: str) -> socket.socket:
-    """A non-blocking TCP connection with TCP_NODELAY, made within ``timeout`` seconds."""
-    deadline = time.monotonic() + timeout
-    error: OSError | None = None
-    try:
-        addresses = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
-    except (OSError, OverflowError) as err:
-        raise can.CanInitializationError(
-            f"cannot connect to socketcand {where}: {_reason(err)}") from err
-    for family, kind, proto, _, address in addresses:
-        remaining = deadline - time.monotonic()
-        if remaining <= 0:
-            break
-        sock = socket.socket(family, kind, proto)
-        try:
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            sock.settimeout(remaining)
-            sock.connect(address)
-        except OSError as err:
-            sock.close()
-            error = err
-            continue
-        sock.setblocking(False)
-        return sock
-    if error is None or isinstance(error, TimeoutError):
-        reason = f"no connection within {timeout:g} s"
-    else:
-        reason = _reason(error)
-    raise can.CanInitializationError(f"cannot connect to socketcand {where}: {reason}") from error
-
-
-def _reason(err: Exception) -> str:
-    return (err.strerror if isinstance(err, OSError) else None) or str(err) or type(err).__name__
+if TYPE_CHECKING:  # mypy checks that the bus keeps the contract the dispatcher relies on
+    def _keeps_the_bus_contract(bus: SocketcandBus) -> BatchingBus:
+        return bus

@@ -366,7 +366,7 @@ def _send(sim: SimBus, sender: object, t: float, arbitration_id: int, data: byte
 
 def install_program(board: VirtualBoard, spec: BoardSpec, source: str, bus: str) -> None:
     """Put a topology's initial program into a board's flash, as if flashed earlier."""
-    from ucom_tools.image import load_image  # the image layer is only needed here
+    from ucom_tools.image.formats import load_image  # the image layer is only needed here
 
     assert spec.program is not None
     try:

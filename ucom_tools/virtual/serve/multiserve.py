@@ -70,6 +70,7 @@ from typing import Any
 
 from ucom_tools.config.topology import Topology
 from ucom_tools.errors import BusError
+from ucom_tools.signals import Terminated
 from ucom_tools.virtual.serve.multiserve_bus import LOG_FORMAT, BusConfig, BusProcess
 from ucom_tools.virtual.serve.multiserve_dispatch import Dispatcher
 from ucom_tools.virtual.serve.outbox import MAX_QUEUED_FRAMES
@@ -143,12 +144,15 @@ class MultiServer:
         self._thread.start()
 
     def serve_until_interrupted(self) -> None:
-        """Serve until Ctrl-C or SIGTERM, then stop everything; BusError when a bus
-        process ended meanwhile."""
-        with contextlib.suppress(KeyboardInterrupt), sigterm_interrupts():
-            while not self._failed.wait(0.2):
-                pass
-        self.close()
+        """Serve until Ctrl-C or SIGTERM, then stop everything and raise the interrupt on
+        (the command's exit code says how it ended); BusError when a bus process ended
+        meanwhile."""
+        try:
+            with sigterm_interrupts():
+                while not self._failed.wait(0.2):
+                    pass
+        finally:
+            self.close()
         if self.failure is not None:
             raise BusError(self.failure)
 
@@ -218,13 +222,14 @@ def bus_groups(topology: Topology, processes: int | None = None) -> list[tuple[s
 
 @contextlib.contextmanager
 def sigterm_interrupts() -> Iterator[None]:
-    """SIGTERM raises KeyboardInterrupt meanwhile, as Ctrl-C does (in the main thread)."""
+    """SIGTERM raises :class:`~ucom_tools.signals.Terminated` (a KeyboardInterrupt)
+    meanwhile, as Ctrl-C does (in the main thread)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     def interrupt(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
+        raise Terminated(signum)
 
     previous = signal.signal(signal.SIGTERM, interrupt)
     try:

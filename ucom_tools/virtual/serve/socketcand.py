@@ -198,11 +198,13 @@ class FleetServer(ClientServer):
 
 
 def serve_until_interrupted(server: FleetServer) -> None:
-    """Serve in a thread until Ctrl-C, then shut the server down and close its clients."""
+    """Serve in a thread until Ctrl-C, then shut the server down, close its clients and
+    raise the interrupt on (the command's exit code says how it ended)."""
     thread = threading.Thread(target=server.serve_forever, name="ucom-socketcand", daemon=True)
     thread.start()
-    with contextlib.suppress(KeyboardInterrupt):
+    try:
         while thread.is_alive():
             thread.join(0.2)
-    server.shutdown()
-    server.server_close()
+    finally:
+        server.shutdown()
+        server.server_close()
