@@ -5,7 +5,7 @@ The terminal is put in cbreak mode (keys come one by one, not echoed) and the al
 screen; both are restored on every way out: ``q``, Ctrl-C, SIGTERM and SIGHUP (raised as
 :class:`~ucom_tools.signals.Terminated` by ``ucom``'s :func:`~ucom_tools.signals.
 stop_signals`), an error.  The connection lives in a thread of its own
-(:class:`Link`): when the robot's liveliness token goes, the view says "connection lost"
+(:class:`RobotLink`): when the robot's liveliness token goes, the view says "connection lost"
 and the thread connects again until the robot (the same robot name, on the same
 endpoint) is back.
 """
@@ -57,7 +57,7 @@ def interactive(*streams: Any) -> bool:
         return False
 
 
-class Link:
+class RobotLink:
     """The connection to the robot, in a thread: posts ``("connected", gen, client)``,
     ``("values", gen, doc, t)``, ``("board", gen, bus, board, running)``, ``("event",
     gen, doc)`` and ``("lost", gen)`` to ``inbox``; ``gen`` counts the connections, so
@@ -135,7 +135,7 @@ class App:
     def __init__(self, client: RobotClient, connect: Callable[[], RobotClient],
                  timeout: float, console: Console | None = None) -> None:
         self.inbox: Inbox = queue.SimpleQueue()
-        self.link = Link(client, connect, self.inbox)
+        self.link = RobotLink(client, connect, self.inbox)
         self.model = Model(client.where)
         self.keys = Keys()
         self.timeout = timeout

@@ -14,8 +14,8 @@ from ucom_tools.trace.conversation import (
     PC_TO_BOARD,
 )
 from ucom_tools.trace.state import (
-    BoardState,
     Expect,
+    TracedBoard,
 )
 from ucom_tools.trace.text import (
     _info_fields,
@@ -154,7 +154,7 @@ class BootDecoding(BusState):
 
     # ------------------------------------------------------------------ programming
 
-    def _state_of(self, bd: BoardState, message: object) -> None:
+    def _state_of(self, bd: TracedBoard, message: object) -> None:
         if isinstance(message, m.Ready):
             if message.reason is ReadyReason.BOOT:
                 bd.running = False
@@ -169,7 +169,7 @@ class BootDecoding(BusState):
             else:
                 self._stop_exchange(bd, self.t)
 
-    def _error(self, bd: BoardState, err: m.Error) -> None:
+    def _error(self, bd: TracedBoard, err: m.Error) -> None:
         about = {0xFF: "no frame", mca.PROCESS_DATA | Function.MCA_CONTROLLER_INPUT:
                  "a CI map frame"}.get(err.function)
         if about is None and err.function <= 31:
@@ -194,7 +194,7 @@ class BootDecoding(BusState):
                 del self.so_maps[err.detail]
         self.answer(bd.label, err, error=err)
 
-    def _init_ack(self, bd: BoardState, ack: m.InitAck) -> None:
+    def _init_ack(self, bd: TracedBoard, ack: m.InitAck) -> None:
         version = f"{ack.bootloader_version >> 4}.{ack.bootloader_version & 15}"
         text = (f"{ack.kind.name}: seq ID {ack.seq_id or '-'}, fixed ID {ack.fixed_id or '-'}, "
                 f"serial 0x{ack.serial:08X}, bootloader {version}")
@@ -217,7 +217,7 @@ class BootDecoding(BusState):
                                "and then answered)", str(e.init_number), t=missed.t,
                                index=missed.index)
 
-    def _info(self, bd: BoardState, frame: m.InfoFrame) -> None:
+    def _info(self, bd: TracedBoard, frame: m.InfoFrame) -> None:
         if frame.index == 0 or bd.info is None:
             self._flush_info(bd)
             msg = self.add(bd.label, "Info", "(incomplete)", {}, direction=BOARD_TO_PC)
@@ -248,7 +248,7 @@ class BootDecoding(BusState):
             bd.serial = info.serial
             bd.running = info.state.name.startswith("RUNNING")
 
-    def _flush_info(self, bd: BoardState) -> None:
+    def _flush_info(self, bd: TracedBoard) -> None:
         if bd.info is None:
             return
         msg, bodies = bd.info
@@ -257,7 +257,7 @@ class BootDecoding(BusState):
         msg.fields = {"missing": lacking}
         bd.info = None
 
-    def _text(self, bd: BoardState, piece: m.TextReport) -> None:
+    def _text(self, bd: TracedBoard, piece: m.TextReport) -> None:
         if piece.index == 0 or bd.text is None:
             self._flush_text(bd)
             msg = self.add(bd.label, "Report 2", "", {}, direction=BOARD_TO_PC)
@@ -279,7 +279,7 @@ class BootDecoding(BusState):
         if piece.last:
             bd.text = None
 
-    def _flush_text(self, bd: BoardState) -> None:
+    def _flush_text(self, bd: TracedBoard) -> None:
         if bd.text is not None:
             msg, _ = bd.text
             msg.text = msg.text.replace(" (more to come)", " (incomplete: the last piece "
@@ -287,7 +287,7 @@ class BootDecoding(BusState):
             bd.text = None
 
 
-    def _describe(self, bd: BoardState, message: object) -> tuple[str, dict[str, Any]]:
+    def _describe(self, bd: TracedBoard, message: object) -> tuple[str, dict[str, Any]]:
         """Text and fields of a single-frame board message."""
         if isinstance(message, m.Ready):
             return _ready_text(message), {"reason": message.reason, "state": message.state,

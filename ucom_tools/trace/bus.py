@@ -19,10 +19,10 @@ from ucom_tools.trace.conversation import (
 )
 from ucom_tools.trace.state import (
     DEFAULT_BITRATE,
-    BoardState,
     Expect,
     Periodic,
     SoMap,
+    TracedBoard,
     Transfer,
     expected_answer,
 )
@@ -86,7 +86,7 @@ class BusState:
         self.senders: list[str] = []
         """... and who sent it (a board's label, or "PC")."""
         self.horizon = 0.0
-        self.boards: dict[str, BoardState] = {}
+        self.boards: dict[str, TracedBoard] = {}
         self.expects: list[Expect] = []
         self.init_missed: dict[int, list[Expect]] = {}
         self.chain: list[int] = []
@@ -105,10 +105,10 @@ class BusState:
         self.raw = ""
 
     # ------------------------------------------------------------------ output
-    def board(self, label: str) -> BoardState:
+    def board(self, label: str) -> TracedBoard:
         b = self.boards.get(label)
         if b is None:
-            b = self.boards[label] = BoardState(label)
+            b = self.boards[label] = TracedBoard(label)
         return b
 
     def add(self, board: str, function: str, text: str, fields_: dict[str, Any] | None = None,
@@ -221,18 +221,18 @@ class BusState:
 
     # ------------------------------------------------------------------ the parts'
     # (each defined by one part of BusDecoder, called by another)
-    def _stop_exchange(self, bd: BoardState, until: float) -> None:
+    def _stop_exchange(self, bd: TracedBoard, until: float) -> None:
         raise NotImplementedError  # trace.runtime
 
-    def _run_exchange(self, bd: BoardState, since: float) -> None:
+    def _run_exchange(self, bd: TracedBoard, since: float) -> None:
         raise NotImplementedError  # trace.runtime
 
-    def _values_text(self, bd: BoardState | None, kind: mca.Kind, index: int, data: bytes
+    def _values_text(self, bd: TracedBoard | None, kind: mca.Kind, index: int, data: bytes
                      ) -> tuple[str, list[dict[str, Any]]]:
         raise NotImplementedError  # trace.runtime
 
-    def _flush_info(self, bd: BoardState) -> None:
+    def _flush_info(self, bd: TracedBoard) -> None:
         raise NotImplementedError  # trace.boot
 
-    def _flush_text(self, bd: BoardState) -> None:
+    def _flush_text(self, bd: TracedBoard) -> None:
         raise NotImplementedError  # trace.boot

@@ -66,7 +66,7 @@ from ucom_tools.trace.runtime import (
 from ucom_tools.trace.state import (
     BACKWARDS_S,
     DEFAULT_MARGIN,
-    BoardState,
+    TracedBoard,
 )
 from ucom_tools.trace.text import (
     _to,
@@ -226,7 +226,7 @@ HOST: dict[type, Callable[[BusDecoder, str, str | None, Any], None]] = {
 }
 """Who reads which request of the PC (the rest are MCA requests: ``_mca_request``)."""
 
-FROM_BOARD: dict[type, Callable[[BusDecoder, BoardState, Any], None]] = {
+FROM_BOARD: dict[type, Callable[[BusDecoder, TracedBoard, Any], None]] = {
     m.Error: BusDecoder._error,
     m.InitAck: BusDecoder._init_ack,
     m.InfoFrame: BusDecoder._info,

@@ -21,10 +21,10 @@ from ucom_tools.trace.conversation import (
 from ucom_tools.trace.state import (
     MAP_PERIODS_LATE,
     MAP_SLACK,
-    BoardState,
     Edge,
     Periodic,
     SoMap,
+    TracedBoard,
 )
 from ucom_tools.trace.text import (
     _ms,
@@ -327,7 +327,7 @@ class RuntimeDecoding(BusState):
                            f"or the trace did; its period is {_ms(self._interval(so))}",
                            so.board, t=until)
 
-    def _run_exchange(self, bd: BoardState, since: float) -> None:
+    def _run_exchange(self, bd: TracedBoard, since: float) -> None:
         if bd.exchange_since is None:
             bd.exchange_since = since
             for so in self.so_maps.values():
@@ -336,7 +336,7 @@ class RuntimeDecoding(BusState):
         else:  # START again: every map starts its period afresh
             bd.exchange_since = since
 
-    def _stop_exchange(self, bd: BoardState, until: float) -> None:
+    def _stop_exchange(self, bd: TracedBoard, until: float) -> None:
         if bd.exchange_since is None:
             return
         for so in self.so_maps.values():
@@ -345,7 +345,7 @@ class RuntimeDecoding(BusState):
         bd.exchange_since = None
 
     # ------------------------------------------------------------------ edges
-    def _bind(self, bd: BoardState | None) -> None:
+    def _bind(self, bd: TracedBoard | None) -> None:
         if bd is None or bd.bound_done:
             return
         trees = self.owner.trees
@@ -361,7 +361,7 @@ class RuntimeDecoding(BusState):
             bd.bound = found[0]
             bd.spec = self.owner.program(found[0])
 
-    def _edge(self, bd: BoardState | None, kind: mca.Kind, index: int) -> Edge | None:
+    def _edge(self, bd: TracedBoard | None, kind: mca.Kind, index: int) -> Edge | None:
         """What is known of an edge of board ``bd`` (cached until its records or binding
         change)."""
         if bd is None:
@@ -373,7 +373,7 @@ class RuntimeDecoding(BusState):
         edge = bd.edges[key] = self._edge_of(bd, kind, index)
         return edge
 
-    def _edge_of(self, bd: BoardState, kind: mca.Kind, index: int) -> Edge | None:
+    def _edge_of(self, bd: TracedBoard, kind: mca.Kind, index: int) -> Edge | None:
         unique = prefix = None
         if bd.bound is not None:
             block = bd.bound.board
@@ -392,11 +392,11 @@ class RuntimeDecoding(BusState):
                              e.exponent, e.unit)
         return None
 
-    def _edge_label(self, bd: BoardState | None, kind: mca.Kind, index: int) -> str:
+    def _edge_label(self, bd: TracedBoard | None, kind: mca.Kind, index: int) -> str:
         e = self._edge(bd, kind, index)
         return e.label if e is not None else f"{kind.name} {index}"
 
-    def _values_text(self, bd: BoardState | None, kind: mca.Kind, index: int, data: bytes
+    def _values_text(self, bd: TracedBoard | None, kind: mca.Kind, index: int, data: bytes
                      ) -> tuple[str, list[dict[str, Any]]]:
         """The values of consecutive edges from ``index`` in ``data``, as text and JSON;
         raw bytes when the edges are not known."""
@@ -415,7 +415,7 @@ class RuntimeDecoding(BusState):
                                                     zip(edges, raws, strict=True)),
                 [e.json(r) for e, r in zip(edges, raws, strict=True)])
 
-    def _dump_frames(self, bd: BoardState | None, msg: mca.DumpRequest) -> int | None:
+    def _dump_frames(self, bd: TracedBoard | None, msg: mca.DumpRequest) -> int | None:
         """MCA DSP CI frames that answer ``msg`` (a new frame when the next value would
         pass 6 bytes); None when the widths are not known."""
         frames, size = 0, 0
@@ -428,7 +428,7 @@ class RuntimeDecoding(BusState):
             size += e.width
         return frames or None
 
-    def _maybe_cycle(self, bd: BoardState, index: int, data: bytes) -> None:
+    def _maybe_cycle(self, bd: TracedBoard, index: int, data: bytes) -> None:
         """A PAR write that sets the program's cycle time changes its SO map periods."""
         pos = 0
         i = index
@@ -446,7 +446,7 @@ class RuntimeDecoding(BusState):
 
     # ------------------------------------------------------------------ answers
 
-    def _segment(self, bd: BoardState, seg: mca.DescrSegment) -> None:
+    def _segment(self, bd: TracedBoard, seg: mca.DescrSegment) -> None:
         key = (seg.kind, seg.index)
         entry = bd.segments.get(key)
         if entry is None or (seg.segment == 0 and 0 in entry[1]):
@@ -485,7 +485,7 @@ class RuntimeDecoding(BusState):
                                    "exponent": rec.exponent, "minimum": rec.minimum,
                                    "maximum": rec.maximum, "unit": rec.unit})
 
-    def _flush_partial(self, bd: BoardState) -> None:
+    def _flush_partial(self, bd: TracedBoard) -> None:
         self._flush_info(bd)
         self._flush_text(bd)
 

@@ -114,7 +114,7 @@ def expected_answer(e: Expect) -> int:
 
 
 @dataclass
-class BoardState:
+class TracedBoard:
     label: str
     serial: int | None = None
     counts: tuple[int, int, int] | None = None

@@ -72,7 +72,7 @@ from ucom_tools.config.topology import Topology
 from ucom_tools.errors import BusError
 from ucom_tools.signals import Terminated
 from ucom_tools.virtual.serve.multiserve_bus import LOG_FORMAT, BusConfig, BusProcess
-from ucom_tools.virtual.serve.multiserve_dispatch import Dispatcher
+from ucom_tools.virtual.serve.multiserve_dispatch import ClientRouter
 from ucom_tools.virtual.serve.outbox import MAX_QUEUED_FRAMES
 from ucom_tools.virtual.serve.socketcand import MAX_CLIENTS
 
@@ -109,7 +109,7 @@ class MultiServer:
         self.buses: dict[str, BusProcess] = {}
         """The process of each bus."""
         self.processes: list[BusProcess] = []
-        self.dispatcher = Dispatcher(host, port, self.buses, topology.name,
+        self.dispatcher = ClientRouter(host, port, self.buses, topology.name,
                                      max_clients=max_clients, topology=topology)
         for group in bus_groups(topology, processes):
             worker = BusProcess(BusConfig(topology, group, state_dir, max_queued_frames,

@@ -1,9 +1,9 @@
 """The main process of a multi-process ``ucom fleet serve``
-(:mod:`ucom_tools.virtual.serve.multiserve`): its TCP server (:class:`Dispatcher`) greets each
+(:mod:`ucom_tools.virtual.serve.multiserve`): its TCP server (:class:`ClientRouter`) greets each
 client, answers its elements up to ``< open BUS >`` as one process would
 (:class:`Reception`), then hands the connection to the process of that bus.  A fault a
 client asks for (``< ucom_fault ... >``, before any open) goes to the process of its bus,
-a fault of the whole robot to every process at once (:meth:`Dispatcher.inject`).
+a fault of the whole robot to every process at once (:meth:`ClientRouter.inject`).
 """
 
 from __future__ import annotations
@@ -65,7 +65,7 @@ class Reception:
         self.buses = buses
         self.fleet_name = fleet_name
         self.inject = inject
-        """Applies a fault a client asks for (:meth:`Dispatcher.inject`)."""
+        """Applies a fault a client asks for (:meth:`ClientRouter.inject`)."""
         self.reason = "disconnected"
         self.dropped = False
         self._closing = False
@@ -157,7 +157,7 @@ class Reception:
             self.sock.shutdown(socket.SHUT_RDWR)
 
 
-class Dispatcher(ClientServer):
+class ClientRouter(ClientServer):
     """The main process's TCP server: greets each client, reads up to its open and hands
     it to the process of that bus; counts the connections of every bus."""
 
