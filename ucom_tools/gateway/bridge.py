@@ -275,6 +275,7 @@ class _BusCallbacks:
         self.wanted = frozenset().union(*(jd.so_wanted for jd in self.group))
         self.seen = -1  # the snapshot last observed
         self.syncs: list[float] = []  # SYNC times, for the rate's check
+        self.told: tuple[bool, int, int] | None = None  # news() last said
         self.last_sync = -INF  # the latest SYNC ...
         self.sync_gap = INF  # ... and the time since the one before
 
@@ -360,11 +361,32 @@ class _BusCallbacks:
         for jd in self.group:
             jd.update(now, snap, fault, sync=True)
 
-    def on_tick(self, now: float) -> None:
-        snap, fault, synced = self.observe(), self.fault, self.synced(now)
+    def on_tick(self, now: float) -> float | None:
+        """The drives due.  Where SYNCs run the drives (each SYNC observes the latest
+        snapshot too), the next turn when the next SYNC is overdue: the runtime wakes for
+        the master's frames, not every cycle for nothing."""
+        synced = self.synced(now)
+        if synced and not self.news():  # the joints' new values wait for the SYNC
+            snap = self.gateway.source.latest
+        else:
+            snap = self.observe()
+        fault = self.fault
         for jd in self.group:
             if jd.due(now, synced):
                 jd.update(now, snap, fault)
+        return self.last_sync + 1.5 * self.sync_gap if synced else None
+
+    def news(self) -> bool:
+        """Has the latest snapshot news the drives take at once: the loop's end, the
+        boards' events or faults (a board lost or back)."""
+        snap = self.gateway.source.latest
+        if snap is None or snap.number == self.seen:
+            return False
+        key = (snap.running, snap.events_total, snap.faults_total)
+        if key == self.told:
+            return False
+        self.told = key
+        return True
 
     def master_lost(self, reason: str) -> None:
         cause = (FaultCause.SYNC_TIMEOUT if "SYNC" in reason
