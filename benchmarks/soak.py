@@ -344,7 +344,7 @@ class Soak:
             if len(self.stalls) < 30:
                 self.stalls.append(f"{self.previous - self.start:.3f} s: "
                                    f"{(now - self.previous) * 1e3:.0f} ms, "
-                                   f"{len(part._rejoins)} rejoins under way, "
+                                   f"{len(part.conversations.under_way)} rejoins under way, "
                                    f"{len(part.lost)} boards lost")
         self.previous = now
         if self.held:
@@ -555,7 +555,7 @@ def run(port: int, minutes: float, every: float, realtime: bool) -> dict[str, An
                     next_sample += RSS_EVERY_S
             # every board back, no rejoin or request under way (a deadline: the loop runs on)
             deadline = now + END_WAIT_S
-            while now < deadline and (part.lost or part._rejoins or soak.held or any(
+            while now < deadline and (part.lost or part.conversations.under_way or soak.held or any(
                     f.sent and not f.done for f in soak.faults) or
                     not injector.todo.empty()):
                 part.cycle()

@@ -14,9 +14,7 @@ ROOT = Path(__file__).resolve().parent.parent
 MODULE_LINES = 600
 FUNCTION_LINES = 80
 
-OVER: dict[str, int] = {
-    "ucom_tools/ops/remote_loop.py": 663,
-}
+OVER: dict[str, int] = {}
 """What is still too long, and how long it is: the debt to pay."""
 
 

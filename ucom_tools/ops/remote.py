@@ -117,10 +117,11 @@ class RemotePart(RemoteLoop):
         if rejoin:
             from ucom_tools.ops.rejoin import Rejoin
 
-            self.rejoiner = lambda bus, n, delay: Rejoin(self, bus, n, delay)
+            self.conversations.rejoiner = lambda bus, n, delay: Rejoin(self, bus, n, delay)
         from ucom_tools.ops.par_write import ParWrite
 
-        self.par_writer = lambda ref, raw: ParWrite(self, ref, raw)
+        self.conversations.par_writer = lambda ref, raw: ParWrite(self, ref, raw)
+        self.conversations.par_failed = self._par_failed
         self._claimed = False
         self._owns_robot = False
         self.writes: list[WriteEvent] = []
@@ -309,7 +310,7 @@ class RemotePart(RemoteLoop):
             return []
         self._running = False
         self.stats.ended_clock = self._clock()
-        self._end_rejoins()
+        self.conversations.end()
         problems: list[str] = []
         failed = set(self._failed)
         for h, x in self._handles():  # as at the start: while the boards are stopped one

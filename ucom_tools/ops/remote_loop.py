@@ -44,6 +44,7 @@ from ucom_tools.ops.realtime import (
     let_signals_in,
     precise_sleep,
 )
+from ucom_tools.ops.remote_conversations import REJOIN_MARGIN_S, Conversations
 from ucom_tools.ops.remote_faults import (
     HOLD,
     STOP,
@@ -82,9 +83,6 @@ _sleep: Final = time.sleep
 """Bound once: the loop's wait calls them every cycle."""
 RECENT_SAMPLES: Final = 2_000
 """The cycles a running view's lateness figures are taken over (the last 2 s at 1 kHz)."""
-REJOIN_MARGIN_S: Final = 0.0003
-"""On the wall clock a rejoin's step ends this long before the loop's next deadline at the
-latest (its worker runs on beside the loop if it needs longer)."""
 @mypyc_attr(allow_interpreted_subclasses=True)  # RemotePart (ops/remote.py, from source)
 class RemoteLoop(RemoteValues):
     """The loop over the exchanges of ``robot``'s buses at one period (see the module
@@ -108,10 +106,6 @@ class RemoteLoop(RemoteValues):
         self.fault_hooks: list[Callable[[BoardFault], None]] = []
         """Called on the loop's thread with every fault event as it happens (a board lost,
         rejoined); what is called here must not wait for anything."""
-        self.rejoiner: Callable[[str, int, float], Any] | None = None
-        """Starts the conversation that brings board (bus, n) back after a delay in seconds
-        (set by :class:`~ucom_tools.ops.remote.RemotePart` with ``rejoin``): an object
-        with ``step()``, ``cancel()``, ``done``, ``ok``, ``answered`` and ``how``."""
         self._notes: dict[tuple[str, int], tuple[float, str]] = {}
         """What each board said last besides its maps (an Error, its bootloader's Ready,
         its program's unsolicited MCA Ready), with when (the watch's ``present``): what a
@@ -127,19 +121,11 @@ class RemoteLoop(RemoteValues):
         self._bad_state: dict[str, str] = {}
         self._newly: list[BoardFault] = []
         self._halt: BoardLost | None = None
-        self._rejoins: list[Any] = []
-        """The conversations the loop steps after each cycle's drain: rejoins, and PAR
-        writes it does not wait for (:mod:`ucom_tools.ops.par_write`)."""
-        self.par_writer: Callable[[EdgeRef, int], Any] | None = None
-        """Starts a write (a PAR, a CI outside the maps) the loop steps (set by
-        :class:`~ucom_tools.ops.remote.RemotePart`): an object like a rejoin's, with
-        ``is_rejoin`` False."""
-        self._par_next: dict[EdgeRef, tuple[int, int]] = {}
-        """Per edge with a write under way: the next raw value asked for."""
-        self._par_busy: dict[EdgeRef, int] = {}
-        """Per edge with a write under way: the value it had before (put back where the
-        write fails)."""
         self.virtual = robot.virtual_time
+        self.conversations = Conversations(exchanges, self.virtual, self._rejoin_ended,
+                                           self._held, self._hold)
+        """The rejoins and the writes the loop steps (:mod:`~ucom_tools.ops.
+        remote_conversations`)."""
         self.stats = LoopStats(self.period_s)
         self._running = False
         self._k = 0
@@ -298,8 +284,8 @@ class RemoteLoop(RemoteValues):
         self.watch.check(now)
         if self._states:
             self._watch_states(now)
-        if self._rejoins:
-            self._step_rejoins()
+        if self.conversations.under_way:
+            self.conversations.step(self._k, self._deadline + self.period_s - REJOIN_MARGIN_S)
         self.stats.cycles += 1
         self._k += 1
         self._deadline += self.period_s
@@ -519,11 +505,11 @@ class RemoteLoop(RemoteValues):
             self._halt = BoardLost(newly + self._newly)
             self._newly = []
             raise self._halt
-        if self.rejoin and self.rejoiner is not None:
+        if self.rejoin and self.conversations.rejoiner is not None:
             k = 0
             for f in newly:
                 if f.bus not in self._failed:  # boards lost together asked a cycle apart
-                    self._rejoins.append(self.rejoiner(f.bus, f.board, k * self.period_s))
+                    self.conversations.rejoin(f.bus, f.board, k * self.period_s)
                     k += 1
 
     def _maps_again(self, w: BoardWatch, now: float) -> None:
@@ -533,13 +519,8 @@ class RemoteLoop(RemoteValues):
         change meanwhile (writes to it were refused): it is back as it was.  A rejoin
         under way that has not reached it yet is called off."""
         key = (w.bus, w.board)
-        for r in self._rejoins:
-            if r.is_rejoin and (r.bus, r.board) == key:
-                if r.answered is not None:
-                    return  # the rejoin reached it: it finishes the job
-                self._rejoins.remove(r)
-                r.cancel()
-                break
+        if not self.conversations.call_off(w.bus, w.board):
+            return  # the rejoin reached it: it finishes the job
         lost = self._lost.get(key)
         if lost is None:
             return
@@ -556,70 +537,8 @@ class RemoteLoop(RemoteValues):
         for hook in self.fault_hooks:
             hook(fault)
 
-    def _step_rejoins(self) -> None:
-        """Hand each rejoin conversation control if what it waits for came (after the
-        cycle's drain; on the wall clock until shortly before the next cycle at most); a
-        conversation that ended brings its board back, or says why not.  On the wall
-        clock the conversations share that time: once it is spent the others wait for the
-        next cycle (handed control with none left, each would run on beside the loop, and
-        several at once kept it from its deadlines: boards lost together, an emergency
-        stop), and each cycle another one has the first turn."""
-        virtual = self.virtual
-        ends = self._deadline + self.period_s - REJOIN_MARGIN_S
-        rejoins = list(self._rejoins)
-        count = len(rejoins)
-        first = 0 if virtual else self._k % count
-        if not virtual and any([r.busy() for r in rejoins]):
-            count = 0  # one runs beside the loop: none other joins it (each would share
-        for i in range(count):  # the GIL with the loop: boards lost together, 2-4 ms late)
-            r = rejoins[(first + i) % count]
-            if virtual:
-                r.step(None)
-            else:
-                budget = ends - _monotonic()
-                if budget <= 0.0:
-                    break
-                r.step(budget)
-        for r in rejoins:
-            if r.done:
-                self._rejoins.remove(r)
-                if r.is_rejoin:
-                    self._rejoin_ended(r)
-                else:
-                    self._par_ended(r)
-            # the run time's own client got a copy of every answer the conversation
-            # had: dropped here, between its requests (kept, they piled up to the
-            # dispatcher's limit: megabytes over a day of faults)
-            self.exchanges[r.bus].mca.forget()
-
     def _write_later(self, ref: EdgeRef, raw: int) -> bool:
-        if not self._running or self.par_writer is None:
-            return False
-        if ref in self._par_busy:  # one write of an edge at a time: the last one wins
-            self._par_next[ref] = (raw, 0)
-            return True
-        held = self._held(ref)
-        self._par_busy[ref] = raw if held is None else held
-        self._rejoins.append(self.par_writer(ref, raw))
-        return True
-
-    def _par_ended(self, w: Any) -> None:
-        """A write the loop did not wait for ended: the next one of that edge, or the
-        value put back where the board did not acknowledge it (kept in the run's writes
-        as failed)."""
-        ref: EdgeRef = w.ref
-        before = self._par_busy.pop(ref, w.raw)
-        queued = self._par_next.pop(ref, None)
-        if not w.ok:
-            self._hold(ref, before)
-            self._par_failed(ref, w.raw, w.how)
-            return
-        if queued is not None and self.par_writer is not None and self._running:
-            self._par_busy[ref] = w.raw
-            self._rejoins.append(self.par_writer(ref, queued[0]))
-
-    def _par_failed(self, ref: EdgeRef, raw: int, how: str) -> None:
-        """Where a PAR write the loop did not wait for failed (the part keeps it)."""
+        return self._running and self.conversations.write_later(ref, raw)
 
     def _rejoin_ended(self, r: Any) -> None:
         key = (r.bus, r.board)
@@ -655,9 +574,3 @@ class RemoteLoop(RemoteValues):
             replaced[(bus, board)] = LostBoard(lost.bus, lost.board, lost.where,
                                                lost.since, lost.seen, status)
             self._lost = replaced
-
-    def _end_rejoins(self) -> None:
-        """Cancel every rejoin under way (the part stops)."""
-        rejoins, self._rejoins = self._rejoins, []
-        for r in rejoins:
-            r.cancel()
