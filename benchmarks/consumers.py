@@ -312,8 +312,8 @@ def costs(cycles: int = 3000) -> dict[str, float]:
     from tests.runtime_rig import programmed, robot_of
     from ucom_tools.config.attrtree.robot import bind
     from ucom_tools.ops.remote import RemotePart
-    from ucom_tools.ops.remote_feed import LoopFeed
-    from ucom_tools.ops.remote_publish import LoopHandover
+    from ucom_tools.ops.remote.feed import LoopFeed
+    from ucom_tools.ops.remote.publish import LoopHandover
 
     fleet = programmed("armar3")
     robot = robot_of(fleet)

@@ -24,7 +24,7 @@ Figures, per kind (``kinds``):
   by the socketcand client, never later than its arrival) to the moment the loop
   declared it lost (its ``fault_hooks`` call, on the same clock); one sample per board
   lost (``estop``: 11 a round, ``cable``: 3).  ``beyond_rule_p99_ms``: the same less the
-  silence the rule itself waits for (:func:`~ucom_tools.ops.remote_faults.lost_after`:
+  silence the rule itself waits for (:func:`~ucom_tools.ops.remote.faults.lost_after`:
   5 ms for a 1 ms map), the part the loop adds.  ``seen``: how the losses were told
   (the start of their ``seen``), with counts.
 - ``rejoin_p50_s``, ``rejoin_p99_s``, ``rejoin_max_s``: from the board's return to its
@@ -64,7 +64,7 @@ Also ``seconds`` (the whole run), ``load_average_start`` and ``_end`` (the machi
 ``run_time`` (compiled or pure Python, and why), ``serve_held``: how often ``fleet
 serve`` said this machine kept it from running in real time (its standard error; a bus
 silent for half a second that way is lost as if it were, see ``QUIET_MIN_S`` in
-:mod:`ucom_tools.ops.board_watch`), ``not_posed``: the joint sensors that did not follow
+:mod:`ucom_tools.ops.remote.watch`), ``not_posed``: the joint sensors that did not follow
 their target at the start (the platform's wheels).
 
 Targets (``targets_met``, MET or NOT MET in the text, exit 1 when one is not), for every
@@ -102,8 +102,8 @@ from ucom_tools.config.attrtree.match import program_of  # noqa: E402
 from ucom_tools.edgelists.model import Seed  # noqa: E402
 from ucom_tools.ops.edges import EdgeRef  # noqa: E402
 from ucom_tools.ops.realtime import frozen_heap  # noqa: E402
-from ucom_tools.ops.remote import BoardFault, RemotePart  # noqa: E402
-from ucom_tools.ops.remote_faults import lost_after  # noqa: E402
+from ucom_tools.ops.remote import RemotePart  # noqa: E402
+from ucom_tools.ops.remote.faults import BoardFault, lost_after  # noqa: E402
 from ucom_tools.signals import stop_signals  # noqa: E402
 from ucom_tools.transport.fault_request import TIMEOUT_S, request_fault  # noqa: E402
 from ucom_tools.wire import mca  # noqa: E402

@@ -102,7 +102,8 @@ from ucom_tools import compiled  # noqa: E402
 from ucom_tools.errors import UcomError  # noqa: E402
 from ucom_tools.ops.edges import EdgeRef  # noqa: E402
 from ucom_tools.ops.realtime import frozen_heap  # noqa: E402
-from ucom_tools.ops.remote import BoardFault, LostBoardWrite, RemotePart  # noqa: E402
+from ucom_tools.ops.remote import RemotePart  # noqa: E402
+from ucom_tools.ops.remote.faults import BoardFault, LostBoardWrite  # noqa: E402
 from ucom_tools.signals import stop_signals  # noqa: E402
 from ucom_tools.transport.fault_request import request_fault  # noqa: E402
 from ucom_tools.wire.codes import ErrorCode  # noqa: E402

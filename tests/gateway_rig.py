@@ -52,7 +52,7 @@ and a TCP socket, and the gateway's consumers' process runs at niceness 10 besid
 loop, the served fleet and the test on two cores (measured here, with other work on them:
 4-16 ms past the consumer time for the EMCY, 6-29 ms for the loop's Command OFF)."""
 REQUESTS_S = 0.005
-"""How often the loop takes the gateway's writes (``ops.remote_feed.REQUESTS_EVERY_S``)."""
+"""How often the loop takes the gateway's writes (``ops.remote.feed.REQUESTS_EVERY_S``)."""
 MAX_LAG = 20
 """The most SYNC periods a joint in CSP may lag behind its ramp (its cascade's following
 error, about 6 periods here, and the gateway's consumers' process, which a busy machine

@@ -3,7 +3,7 @@ in-process ARMAR-III under ``RemotePart`` (virtual time, the loop on a thread of
 test), its hand-over (``LocalRun``), the gateway's nodes on a python-can virtual bus and
 canopen's own ``RemoteNode`` as the master on that bus.  What it checks: the nodes boot
 and every joint is switched off until its master enables it; a PAR written by SDO reaches
-the board without the loop waiting for it (``ops/par_write.py``); a write out of range is
+the board without the loop waiting for it (``ops/remote/par_write.py``); a write out of range is
 aborted and nothing reaches the board; a lost board's joints go to FAULT with EMCY 0xFF01
 and a write to it is aborted 0x08000022.  The masters of other processes and the command
 itself: ``tests/test_gateway_canopen.py``."""
@@ -31,7 +31,7 @@ from ucom_tools.gateway.bridge import CanopenBus, Gateway, SharedCommand
 from ucom_tools.gateway.cia402_objects import State402
 from ucom_tools.gateway.joints import Role
 from ucom_tools.ops.remote import RemotePart
-from ucom_tools.ops.remote_feed import LocalRun
+from ucom_tools.ops.remote.feed import LocalRun
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.wire.ids import seq
 

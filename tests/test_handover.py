@@ -1,7 +1,7 @@
 """The loop's state for everyone else (issue 34, part 4): one hand-over
-(``ops/remote_publish.py``) that the live view, ``--record`` and the Zenoh share read,
+(``ops/remote/publish.py``) that the live view, ``--record`` and the Zenoh share read,
 never the loop's live structures; the consumers of ``ucom remote run`` in a process of
-their own (``ops/remote_feed.py`` -> ``ops/remote_mirror.py``); a lost board's values
+their own (``ops/remote/feed.py`` -> ``ops/remote/mirror.py``); a lost board's values
 stale wherever they are shown.  In process and in virtual time, over the real code path;
 the command itself where the consumers' process is what is tested."""
 
@@ -28,10 +28,11 @@ from tests.runtime_rig import programmed, robot_of
 from ucom_tools.cli.main import cli
 from ucom_tools.config.attrtree.robot import bind
 from ucom_tools.config.scenario import FaultKind, InjectedFault
-from ucom_tools.ops.remote import RECENT_SAMPLES, RemotePart
-from ucom_tools.ops.remote_feed import LoopFeed
-from ucom_tools.ops.remote_mirror import Mirror
-from ucom_tools.ops.remote_publish import LoopHandover, LoopSnapshot
+from ucom_tools.ops.remote import RemotePart
+from ucom_tools.ops.remote.feed import LoopFeed
+from ucom_tools.ops.remote.loop import RECENT_SAMPLES
+from ucom_tools.ops.remote.mirror import Mirror
+from ucom_tools.ops.remote.publish import LoopHandover, LoopSnapshot
 from ucom_tools.virtual.fleet import Fleet
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -261,7 +262,7 @@ def test_the_consumers_process_sees_what_the_loop_hands_over(running) -> None:
 def test_a_consumer_that_does_not_keep_up_never_holds_the_loop(running) -> None:
     """On the wall clock the loop writes what the pipe takes, keeps a bounded rest and
     counts what it had to drop; nobody reads the pipe here."""
-    from ucom_tools.ops import remote_feed
+    from ucom_tools.ops.remote import feed
 
     _, part = running
     w = Wired(part, wait=False)
@@ -269,8 +270,8 @@ def test_a_consumer_that_does_not_keep_up_never_holds_the_loop(running) -> None:
         w.feed.attach_frames()
         w.feed.attach()
         w.feed.send_image()
-        limit = remote_feed.PENDING_LIMIT
-        remote_feed.PENDING_LIMIT = 64 << 10
+        limit = feed.PENDING_LIMIT
+        feed.PENDING_LIMIT = 64 << 10
         try:
             worst = 0.0
             for _ in range(3000):
@@ -278,7 +279,7 @@ def test_a_consumer_that_does_not_keep_up_never_holds_the_loop(running) -> None:
                 part.cycle()
                 worst = max(worst, time.perf_counter() - t)
         finally:
-            remote_feed.PENDING_LIMIT = limit
+            feed.PENDING_LIMIT = limit
         assert w.feed.lost > 0
         assert w.feed._pending_bytes <= (64 << 10) + 65536  # a message beyond at most
         assert w.feed._resync  # the snapshots not sent: the next one goes whole

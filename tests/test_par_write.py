@@ -1,4 +1,4 @@
-"""Writes the loop does not wait for (``ops/par_write.py``): a PAR, or a CI outside the CI
+"""Writes the loop does not wait for (``ops/remote/par_write.py``): a PAR, or a CI outside the CI
 maps (an axis's Command), set with ``wait=False`` while the loop runs is written by a
 conversation the loop steps after its cycles; the call itself sends nothing and returns.
 In process and in virtual time: the board's own value (MCA Dump) says when it arrived."""

@@ -1,5 +1,5 @@
 """The PC side's per-cycle shortcuts do what the plain paths do: SO maps unpacked by a
-precompiled struct (:class:`~ucom_tools.ops.remote_values._SoFeed`) as ``values_of``,
+precompiled struct (:class:`~ucom_tools.ops.remote.values._SoFeed`) as ``values_of``,
 ``EdgeRef.raw``/``value`` of ints as the edge's spec, ``Link.send_frames`` as
 ``send_raw`` of each frame, and ``VirtualUcomBus.send_data`` as ``send``."""
 
@@ -15,7 +15,7 @@ from tests.helpers import assert_send_data_refuses_as_send
 from ucom_tools.edgelists.model import EdgeKind, EdgeSpec
 from ucom_tools.errors import BusError, FrameError
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote_values import _SoFeed
+from ucom_tools.ops.remote.values import _SoFeed
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import ProcessImage, values_of
 from ucom_tools.wire import mca

@@ -22,7 +22,8 @@ from ucom_tools.config.attrtree.robot import bind
 from ucom_tools.edgelists.armar3 import SPEC
 from ucom_tools.edgelists.model import EdgeKind
 from ucom_tools.errors import InputError, UcomError
-from ucom_tools.ops.remote import MappingError, RemotePart
+from ucom_tools.ops.remote import RemotePart
+from ucom_tools.ops.remote.report import MappingError
 from ucom_tools.virtual.bus.loss import LossyBus
 from ucom_tools.wire import mca
 from ucom_tools.wire.fpga import Reg
@@ -98,7 +99,7 @@ def test_a_tree_with_a_renamed_edge_or_for_another_program_starts_nothing(tmp_pa
     text = (ROOT / "attribute_trees/armar3/head_right.tree").read_text()
     renamed = tmp_path / "head_right.tree"
     renamed.write_text(text.replace("3:MotorA Target ==>", "3:MotorA Targets ==>"))
-    from ucom_tools.ops.remote import robot_trees
+    from ucom_tools.ops.remote.part import robot_trees
     own = robot_trees(robot, [str(renamed)])
     part = RemotePart(robot, own)
     try:

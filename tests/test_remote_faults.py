@@ -24,9 +24,9 @@ from ucom_tools.cli.main import cli
 from ucom_tools.config.attrtree.robot import bind
 from ucom_tools.config.scenario import FaultKind, InjectedFault
 from ucom_tools.errors import InputError
-from ucom_tools.ops.board_watch import QUIET_MIN_S
-from ucom_tools.ops.remote import BoardFault, BoardLost, LostBoardWrite, RemotePart
-from ucom_tools.ops.remote_faults import lost_after
+from ucom_tools.ops.remote import RemotePart
+from ucom_tools.ops.remote.faults import BoardFault, BoardLost, LostBoardWrite, lost_after
+from ucom_tools.ops.remote.watch import QUIET_MIN_S
 from ucom_tools.virtual.bus.loss import LossyBus
 from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.wire import mca
@@ -548,7 +548,7 @@ def test_served_a_stall_of_the_loop_loses_nobody_and_a_power_loss_is_noticed(
 def test_the_protocol_page_says_the_rule_and_how_each_program_is_seeded() -> None:
     from ucom_tools.edgelists import armar3, lauron4
     from ucom_tools.edgelists.model import Seed
-    from ucom_tools.ops.remote_faults import LOST_AFTER_MIN_S, LOST_PERIODS, REJOIN_EVERY_S
+    from ucom_tools.ops.remote.faults import LOST_AFTER_MIN_S, LOST_PERIODS, REJOIN_EVERY_S
     page = (ROOT / "man/ucom-protocol.7").read_text()
     section = page[page.index("\n.SS Faults\n"):page.index("\n.SS Bad input\n")]
     text = " ".join(re.sub(r"\\f[BIRP]|\\&", "", section).replace("\\-", "-").split())

@@ -227,7 +227,7 @@ def test_precompiled_samples_are_what_the_decoded_values_give(flashed: Path,
     RemotePart.decode, for every board and every edge's own key."""
     from ucom_tools.net.encode import encoders
     from ucom_tools.ops.remote import RemotePart
-    from ucom_tools.ops.remote_image import PartImage
+    from ucom_tools.ops.remote.image import PartImage
     from ucom_tools.wire import mca
 
     state = tmp_path / "state"

@@ -35,11 +35,12 @@ from pathlib import Path
 from types import ModuleType
 
 MODULES: tuple[str, ...] = (
-    "ucom_tools.ops.board_watch",
     "ucom_tools.ops.edges",
     "ucom_tools.ops.exchange",
-    "ucom_tools.ops.remote_loop",
-    "ucom_tools.ops.remote_values",
+    "ucom_tools.ops.remote.conversations",
+    "ucom_tools.ops.remote.loop",
+    "ucom_tools.ops.remote.values",
+    "ucom_tools.ops.remote.watch",
     "ucom_tools.protocol.dispatch",
     "ucom_tools.protocol.frames",
     "ucom_tools.protocol.link",

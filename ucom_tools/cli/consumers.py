@@ -1,5 +1,5 @@
 """The consumers of ``ucom remote run`` (its live view, ``--record``, ``--zenoh``) in a
-process of their own, apart from the PC's loop (why: :mod:`ucom_tools.ops.remote_feed`).
+process of their own, apart from the PC's loop (why: :mod:`ucom_tools.ops.remote.feed`).
 
 The loop's process starts this one (:class:`ConsumerProcess`, ``python -m
 ucom_tools.cli.consumers IN OUT``: two pipes; a session of its own, niceness
@@ -8,7 +8,7 @@ to do (a config message) and goes on with its own start; this process opens the
 recording and the Zenoh session and answers "ready" (or why it cannot: the exit code and
 the message of the error, which the loop's process raises before anything is sent to the
 boards).  Once the boards run it gets the part's structure, then the loop's snapshots,
-frames and value changes (:class:`~ucom_tools.ops.remote_mirror.Mirror`), shows the live
+frames and value changes (:class:`~ucom_tools.ops.remote.mirror.Mirror`), shows the live
 view on the terminal both share, records and shares; the view's writes and quit, and the
 network's writes and stops, go back to the loop.  It ignores Ctrl-C, SIGTERM and SIGHUP:
 the loop's process decides the end, and then this one commits the recording, says on
@@ -31,10 +31,10 @@ from typing import Any
 import can
 
 from ucom_tools.errors import BusError, InputError, UcomError, WriteError
-from ucom_tools.ops.remote_faults import BoardFault
-from ucom_tools.ops.remote_feed import LoopFeed, Unpacker, pack
-from ucom_tools.ops.remote_mirror import Mirror
-from ucom_tools.ops.remote_publish import LoopSnapshot
+from ucom_tools.ops.remote.faults import BoardFault
+from ucom_tools.ops.remote.feed import LoopFeed, Unpacker, pack
+from ucom_tools.ops.remote.mirror import Mirror
+from ucom_tools.ops.remote.publish import LoopSnapshot
 from ucom_tools.protocol.traffic import ERROR, EXTENDED, REMOTE, SENT, SinkEntry
 from ucom_tools.wire import mca
 

@@ -4,8 +4,8 @@ load, and a command line to set CI and PAR values while the boards run (with com
 of the names).
 
 The view reads nothing of the loop's but the snapshots it hands over
-(:class:`~ucom_tools.ops.remote_publish.LoopSnapshot`: values, figures, events, the lost
-boards) and the part's structure (:class:`~ucom_tools.ops.remote_image.PartImage`);
+(:class:`~ucom_tools.ops.remote.publish.LoopSnapshot`: values, figures, events, the lost
+boards) and the part's structure (:class:`~ucom_tools.ops.remote.image.PartImage`);
 its writes are applied on the loop's thread and answered.  ``ucom remote run`` shows it
 from the consumers' process (:mod:`ucom_tools.cli.consumers`), the loop in another;
 :meth:`LiveView.local` shows it beside the loop in one process (the loop on a thread of
@@ -34,10 +34,11 @@ from prompt_toolkit.output import Output
 
 from ucom_tools.cli.ages import age_text
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote import RECENT_SAMPLES, RemotePart
-from ucom_tools.ops.remote_feed import LocalRun
-from ucom_tools.ops.remote_image import PartImage
-from ucom_tools.ops.remote_publish import LoopSnapshot
+from ucom_tools.ops.remote import RemotePart
+from ucom_tools.ops.remote.feed import LocalRun
+from ucom_tools.ops.remote.image import PartImage
+from ucom_tools.ops.remote.loop import RECENT_SAMPLES
+from ucom_tools.ops.remote.publish import LoopSnapshot
 from ucom_tools.wire import mca
 
 REFRESH_S = 0.1
@@ -155,9 +156,9 @@ class NameCompleter(Completer):
 class LiveView:
     """The view of a run: ``image`` is the part's structure, ``source`` hands over the
     loop's snapshots (``latest``) and applies the view's writes on the loop's thread
-    (``write``): the consumers' process's :class:`~ucom_tools.ops.remote_mirror.Mirror`
+    (``write``): the consumers' process's :class:`~ucom_tools.ops.remote.mirror.Mirror`
     (``ucom remote run``), or in the loop's own process a
-    :class:`~ucom_tools.ops.remote_feed.LocalRun` with ``cycle``, the loop, run on a
+    :class:`~ucom_tools.ops.remote.feed.LocalRun` with ``cycle``, the loop, run on a
     thread of the view's own (:meth:`local`).  ``ended``: set when the run ended
     elsewhere (the view then ends too)."""
 

@@ -17,7 +17,8 @@ from ucom_tools.cli.output import emit_json, stderr
 from ucom_tools.cli.remote_run import one_bus, part_of, run_robot
 from ucom_tools.errors import InputError
 from ucom_tools.net.keys import DEFAULT_ENDPOINT
-from ucom_tools.ops.remote import POLICIES, STOP, MappingError
+from ucom_tools.ops.remote.faults import POLICIES, STOP
+from ucom_tools.ops.remote.report import MappingError
 from ucom_tools.ops.robot import ConnectSpec
 from ucom_tools.viewers.foxglove_msgs import DEFAULT_ADDRESS as FOXGLOVE_ADDRESS
 from ucom_tools.wire import mca

@@ -29,18 +29,12 @@ from ucom_tools.errors import InputError, UcomError
 from ucom_tools.net.keys import check_rate, robot_id
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.realtime import frozen_heap
-from ucom_tools.ops.remote import (
-    HOLD,
-    STOP,
-    BoardLost,
-    MappingError,
-    RemotePart,
-    RemoteStop,
-    Summary,
-    robot_trees,
-)
-from ucom_tools.ops.remote_feed import ConsumersGone, LoopFeed, Quit
-from ucom_tools.ops.remote_publish import LoopHandover, LoopSnapshot
+from ucom_tools.ops.remote import RemotePart
+from ucom_tools.ops.remote.faults import HOLD, STOP, BoardLost
+from ucom_tools.ops.remote.feed import ConsumersGone, LoopFeed, Quit
+from ucom_tools.ops.remote.part import robot_trees
+from ucom_tools.ops.remote.publish import LoopHandover, LoopSnapshot
+from ucom_tools.ops.remote.report import MappingError, RemoteStop, Summary
 from ucom_tools.ops.robot import ConnectSpec, open_robot
 from ucom_tools.signals import Terminated, interrupt_exit_code
 from ucom_tools.trace.logs import check_buses, log_extension
@@ -303,7 +297,7 @@ class _Run:
                 or self.fox:
             # the view, the recording, the share and the gateway in a process of their
             # own: none of them holds the lock this process's loop needs
-            # (ops/remote_feed.py)
+            # (ops/remote/feed.py)
             self._start_consumers(stack)
         part.claim(force=o.force)  # another host's exchange: exit 4, nothing sent
         report = part.check()

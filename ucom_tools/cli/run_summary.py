@@ -11,17 +11,10 @@ from rich.markup import escape
 
 from ucom_tools.cli.output import json_number, stderr, stdout
 from ucom_tools.cli.tables import FitTable, shown_path
-from ucom_tools.ops.remote import (
-    STOP,
-    BoardEvent,
-    BoardFault,
-    CheckReport,
-    RemotePart,
-    Summary,
-    WriteEvent,
-)
-from ucom_tools.ops.remote_feed import LoopFeed
-from ucom_tools.ops.remote_report import LoopStats
+from ucom_tools.ops.remote import RemotePart
+from ucom_tools.ops.remote.faults import STOP, BoardFault
+from ucom_tools.ops.remote.feed import LoopFeed
+from ucom_tools.ops.remote.report import BoardEvent, CheckReport, LoopStats, Summary, WriteEvent
 from ucom_tools.wire import mca
 from ucom_tools.wire.codes import ErrorCode
 

@@ -60,8 +60,8 @@ from ucom_tools.gateway.joint_drive import IDLE_S, JointDrive, SharedCommand, So
 from ucom_tools.gateway.joints import Joint, Role
 from ucom_tools.gateway.load import CANOPEN_BITRATE, WARN_SHARE, pdo_load
 from ucom_tools.gateway.node import NodeCallbacks, NodeRuntime
-from ucom_tools.ops.remote_image import PartImage
-from ucom_tools.ops.remote_publish import LoopSnapshot
+from ucom_tools.ops.remote.image import PartImage
+from ucom_tools.ops.remote.publish import LoopSnapshot
 
 log = logging.getLogger("ucom.gateway")
 _now = time.monotonic
@@ -178,7 +178,7 @@ class Gateway:
         buses it opened."""
         from ucom_tools.gateway import buses as buses_mod
         from ucom_tools.gateway import joints as joints_mod
-        from ucom_tools.ops.remote_feed import LocalRun
+        from ucom_tools.ops.remote.feed import LocalRun
 
         topology = part.robot.topology
         if topology is None:

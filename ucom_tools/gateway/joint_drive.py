@@ -31,8 +31,8 @@ from ucom_tools.gateway.codes import SdoAbort
 from ucom_tools.gateway.joints import BoardEdge, Joint, Role
 from ucom_tools.gateway.node import NodeRuntime
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote_image import PartImage
-from ucom_tools.ops.remote_publish import LoopSnapshot
+from ucom_tools.ops.remote.image import PartImage
+from ucom_tools.ops.remote.publish import LoopSnapshot
 from ucom_tools.wire import mca
 from ucom_tools.wire.codes import ErrorCode
 

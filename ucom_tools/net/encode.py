@@ -1,7 +1,7 @@
 """A board's ``values`` sample and an edge's sample, encoded from precompiled parts
 (``man/ucom-network.7``, PAYLOADS and THE LOOP'S COST).
 
-:meth:`PartImage.decode <ucom_tools.ops.remote_image.PartImage.decode>` turns a
+:meth:`PartImage.decode <ucom_tools.ops.remote.image.PartImage.decode>` turns a
 snapshot into (time stamp, value) per :class:`EdgeRef` (dict look-ups, a Decimal per
 value) and :func:`keys.dumps` walks the result again: about
 4 us per value in Python, on a thread that competes with the 1 kHz loop for the GIL.
@@ -25,8 +25,8 @@ from typing import Any
 
 from ucom_tools.net import keys
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote_image import PartImage
-from ucom_tools.ops.remote_report import RawSnapshot
+from ucom_tools.ops.remote.image import PartImage
+from ucom_tools.ops.remote.report import RawSnapshot
 from ucom_tools.wire import mca
 
 Conv = Callable[[int], Any] | None

@@ -12,7 +12,7 @@ refused unless ``allow_writes``; an allowed write is checked and applied exactly
 local one (:meth:`RemotePart.set`), on the loop's thread, and answered.
 
 Off the loop's critical path: the share reads the run through the loop's hand-over
-(:class:`~ucom_tools.ops.remote_publish.LoopHandover`: every publishing period the
+(:class:`~ucom_tools.ops.remote.publish.LoopHandover`: every publishing period the
 loop's thread takes a snapshot, references and small dict copies, and rings the
 publishing thread's queue), never the loop's live structures; the loop's thread only
 applies the writes the network queued and asks for the boards' Status reports; it never
@@ -49,11 +49,13 @@ from ucom_tools.net.encode import BoardEncoder, encoders
 from ucom_tools.net.keys import check_rate
 from ucom_tools.net.session import check_endpoint
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote import BoardFault, RemotePart, WriteEvent
-from ucom_tools.ops.remote_feed import LocalRun
-from ucom_tools.ops.remote_image import PartImage
-from ucom_tools.ops.remote_publish import Doorbell, LoopSnapshot
-from ucom_tools.ops.remote_requests import Applied
+from ucom_tools.ops.remote import RemotePart
+from ucom_tools.ops.remote.faults import BoardFault
+from ucom_tools.ops.remote.feed import LocalRun
+from ucom_tools.ops.remote.image import PartImage
+from ucom_tools.ops.remote.publish import Doorbell, LoopSnapshot
+from ucom_tools.ops.remote.report import WriteEvent
+from ucom_tools.ops.remote.requests import Applied
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.ids import Direction, IdType
@@ -163,8 +165,8 @@ def share(part: RemotePart, *, endpoint: str | None = None,
 
 class RunSource(Protocol):
     """What a share reads and asks of the run: in the loop's own process its
-    :class:`~ucom_tools.ops.remote_feed.LocalRun`, in the consumers' process of ``ucom
-    remote run`` its :class:`~ucom_tools.ops.remote_mirror.Mirror`."""
+    :class:`~ucom_tools.ops.remote.feed.LocalRun`, in the consumers' process of ``ucom
+    remote run`` its :class:`~ucom_tools.ops.remote.mirror.Mirror`."""
 
     @property
     def image(self) -> PartImage | None: ...

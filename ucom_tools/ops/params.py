@@ -32,7 +32,8 @@ from ucom_tools.edgelists.model import EdgeSpec
 from ucom_tools.errors import BoardError, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import spec_of
 from ucom_tools.ops.exchange import defaults_raw, on_board, write_runs
-from ucom_tools.ops.remote import BoardCheck, RemotePart
+from ucom_tools.ops.remote import RemotePart
+from ucom_tools.ops.remote.report import BoardCheck
 from ucom_tools.ops.robot import Robot
 from ucom_tools.protocol.mca import BoardEdges, McaClient
 from ucom_tools.wire import mca

@@ -6,7 +6,7 @@ RECORDINGS; the channels and the writer: :mod:`ucom_tools.trace.mcapfile`).
 
 :class:`McapRecorder` runs in the consumers' process of ``remote run``
 (:mod:`ucom_tools.cli.consumers`) and reads what the loop hands over there (a
-:class:`RunSource`, the :class:`~ucom_tools.ops.remote_mirror.Mirror`): the sinks it adds
+:class:`RunSource`, the :class:`~ucom_tools.ops.remote.mirror.Mirror`): the sinks it adds
 only queue what comes (the pipe's reader must keep up); a thread of its own encodes and
 writes every :data:`WRITE_EVERY_S`, up to the latest snapshot, so that the faults and
 events a snapshot brings are placed in time among the values before they are written.
@@ -65,7 +65,7 @@ RESERVED = ("time", "valid")
 
 
 class RunSource(Protocol):
-    """What the recorder reads (:class:`~ucom_tools.ops.remote_mirror.Mirror`)."""
+    """What the recorder reads (:class:`~ucom_tools.ops.remote.mirror.Mirror`)."""
 
     image: Any
     frame_sinks: list[Any]

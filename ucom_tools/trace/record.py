@@ -5,7 +5,7 @@ python-can log, every value change of the exchanged edges into ``FILE.values.csv
 each frame, from several threads at once, and it only queues them: a thread of its own
 writes them (:class:`~ucom_tools.trace.logs.FrameWriter`), so that no file keeps the
 loop from its deadline; ``ucom remote run`` hands it the value changes on a thread of
-their own too (:class:`~ucom_tools.ops.remote_publish.ChangeFeed`).  One lock keeps the
+their own too (:class:`~ucom_tools.ops.remote.publish.ChangeFeed`).  One lock keeps the
 values file whole.  The log format follows
 FILE's extension (:data:`FORMATS`, written by :func:`can.Logger`); the extension and the
 directory are checked before anything is written.  Both files are written by the rules of

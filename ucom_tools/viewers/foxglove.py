@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 from ucom_tools.errors import BusError
 from ucom_tools.net.keys import number
-from ucom_tools.ops.remote_requests import Applied
+from ucom_tools.ops.remote.requests import Applied
 from ucom_tools.viewers import foxglove_msgs as fm
 
 if TYPE_CHECKING:

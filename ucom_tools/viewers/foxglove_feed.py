@@ -1,6 +1,6 @@
 """What feeds a :class:`~.foxglove.FoxgloveServer`: a run's consumers' process
 (:class:`RunFoxglove`, ``remote run --foxglove``: the loop's snapshots and every bus's
-frames, from :class:`~ucom_tools.ops.remote_mirror.Mirror`) or a browser's Zenoh
+frames, from :class:`~ucom_tools.ops.remote.mirror.Mirror`) or a browser's Zenoh
 session (:class:`BrowseFoxglove`, ``browse --foxglove``: the boards' ``values`` samples
 and the events; the frames stay on the robot's host).
 
@@ -26,10 +26,10 @@ from typing import Any, Final
 from ucom_tools.errors import BusError, InputError, UcomError
 from ucom_tools.net.keys import number
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote_image import PartImage
-from ucom_tools.ops.remote_mirror import Mirror
-from ucom_tools.ops.remote_publish import Doorbell, LoopSnapshot
-from ucom_tools.ops.remote_requests import Applied
+from ucom_tools.ops.remote.image import PartImage
+from ucom_tools.ops.remote.mirror import Mirror
+from ucom_tools.ops.remote.publish import Doorbell, LoopSnapshot
+from ucom_tools.ops.remote.requests import Applied
 from ucom_tools.protocol.traffic import SinkEntry
 from ucom_tools.viewers import foxglove_msgs as fm
 from ucom_tools.viewers.foxglove import FoxgloveServer

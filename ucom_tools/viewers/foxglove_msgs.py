@@ -26,8 +26,8 @@ from typing import Any, Final
 from ucom_tools.errors import InputError
 from ucom_tools.net.encode import Conv, conv_of, write
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote_image import PartImage
-from ucom_tools.ops.remote_publish import LoopSnapshot
+from ucom_tools.ops.remote.image import PartImage
+from ucom_tools.ops.remote.publish import LoopSnapshot
 from ucom_tools.protocol.traffic import ERROR, EXTENDED, REMOTE, SENT, SinkEntry
 from ucom_tools.trace import mcapfile
 from ucom_tools.trace.mcap_record import Board, joints_of, layout, values_schema

@@ -3,7 +3,7 @@
 
 While a board is lost, :class:`Rejoin` asks it with Init Request REJOIN (its seq ID and
 the serial number the start's init chain gave) every
-:data:`~ucom_tools.ops.remote_faults.REJOIN_EVERY_S`; when it answers:
+:data:`~ucom_tools.ops.remote.faults.REJOIN_EVERY_S`; when it answers:
 
 1. MCA Start QUERY.  Error NOT_RUNNING: it is in its bootloader; Start (12) its program
    and take its MCA Ready.  A program that runs (RUNNING, LATCHED, or STOPPED after an
@@ -41,8 +41,8 @@ from ucom_tools.edgelists.model import ProgramSpec, Seed
 from ucom_tools.errors import BoardError, BusError, UcomError, UcomTimeoutError
 from ucom_tools.ops.exchange import Configured, configure, write_runs
 from ucom_tools.ops.realtime import like_the_loop
-from ucom_tools.ops.remote_check import tree_file
-from ucom_tools.ops.remote_faults import REJOIN_EVERY_S
+from ucom_tools.ops.remote.check import tree_file
+from ucom_tools.ops.remote.faults import REJOIN_EVERY_S
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.mca import BoardEdges, McaClient
 from ucom_tools.protocol.stepped import Stepped

@@ -2,8 +2,8 @@
 (:func:`apply_write`, answered by :class:`Applied`), a driving consumer's raw writes
 (:class:`DriveWrites`), a stop (:func:`stop_event`), and the boards' Status reports asked
 for in turn (:class:`StatusPoll`).  The consumers in another process
-(:class:`~ucom_tools.ops.remote_feed.LoopFeed`) and in the loop's own
-(:class:`~ucom_tools.ops.remote_feed.LocalRun`) are served by the same functions.
+(:class:`~ucom_tools.ops.remote.feed.LoopFeed`) and in the loop's own
+(:class:`~ucom_tools.ops.remote.feed.LocalRun`) are served by the same functions.
 """
 
 from __future__ import annotations
@@ -16,8 +16,8 @@ import can
 
 from ucom_tools.errors import InputError, UcomError
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote_publish import lost_of
-from ucom_tools.ops.remote_report import Value, WriteEvent
+from ucom_tools.ops.remote.publish import lost_of
+from ucom_tools.ops.remote.report import Value, WriteEvent
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import ReportChannel
@@ -80,12 +80,12 @@ edge's robot-wide name, its raw value), in order."""
 
 class DriveWrites:
     """The loop's side of a consumer's raw writes (:meth:`LocalRun.drive
-    <ucom_tools.ops.remote_feed.LocalRun.drive>`, :meth:`Mirror.drive
-    <ucom_tools.ops.remote_mirror.Mirror.drive>`): applied on the loop's thread as a
+    <ucom_tools.ops.remote.feed.LocalRun.drive>`, :meth:`Mirror.drive
+    <ucom_tools.ops.remote.mirror.Mirror.drive>`): applied on the loop's thread as a
     local ``--set`` is, without an answer each (the consumer reads the outcome in the
     snapshots) and without an entry in the run's writes (a joint's target at every SYNC
     would fill them); a PAR's acknowledgement is not waited for (the loop steps its
-    write beside its cycles: :mod:`ucom_tools.ops.par_write`).  A write to a lost board,
+    write beside its cycles: :mod:`ucom_tools.ops.remote.par_write`).  A write to a lost board,
     or a name or value the part refuses, is counted (:attr:`refused`, the last reason in
     :attr:`reason`)."""
 
@@ -113,7 +113,7 @@ class DriveWrites:
 
 def stop_event(part: Any, origin: str) -> WriteEvent:
     """A stop asked for from the network, kept in ``part.writes`` (the loop then raises
-    :class:`~ucom_tools.ops.remote_report.RemoteStop`)."""
+    :class:`~ucom_tools.ops.remote.report.RemoteStop`)."""
     event = WriteEvent(round(part._clock() - part.stats.started_clock, 4), "", "stop",
                        origin, "done")
     part.writes.append(event)

@@ -8,7 +8,7 @@ meanwhile can see them half-changed (``deque mutated during iteration``) or, rea
 lot of them, hold Python's lock the loop waits for.  So nothing but the loop reads them:
 every few cycles (:attr:`LoopHandover.rate_hz`, at most the loop's rate, and only while
 someone reads) the loop's thread takes a :class:`LoopSnapshot` (the values' raw state as
-:meth:`~ucom_tools.ops.remote_values.RemoteValues.snapshot` takes it, the loop's figures
+:meth:`~ucom_tools.ops.remote.values.RemoteValues.snapshot` takes it, the loop's figures
 with what percentiles need, the events, writes and faults so far, the lost boards, each
 bus's traffic) and swaps it in by reference.  A snapshot is never changed after that:
 any number of threads read it, each as long as it likes.
@@ -19,7 +19,7 @@ any number of threads read it, each as long as it likes.
   queue that holds at most one, it never waits);
 - :attr:`LoopHandover.taken` are called with each snapshot on the loop's thread: the
   hand-over to the consumers' process of ``ucom remote run``
-  (:mod:`~ucom_tools.ops.remote_feed`), which runs the view, the recording and the
+  (:mod:`~ucom_tools.ops.remote.feed`), which runs the view, the recording and the
   share apart from the loop, so that none of them holds the lock the loop needs.
 
 What the loop pays: a hand-over that nobody reads costs one decrement and one test a
@@ -37,9 +37,9 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Final, Generic, TypeVar
 
-from ucom_tools.ops.remote_faults import BoardFault, LostBoard
-from ucom_tools.ops.remote_loop import RECENT_SAMPLES, RemoteLoop
-from ucom_tools.ops.remote_report import BoardEvent, RawSnapshot, WriteEvent
+from ucom_tools.ops.remote.faults import BoardFault, LostBoard
+from ucom_tools.ops.remote.loop import RECENT_SAMPLES, RemoteLoop
+from ucom_tools.ops.remote.report import BoardEvent, RawSnapshot, WriteEvent
 
 READ_LEASE_S: Final = 1.0
 """A hand-over goes on publishing this long (of the loop's time) after a consumer last
@@ -58,7 +58,7 @@ T = TypeVar("T")
 # ---------------------------------------------------------------------- what is handed over
 @dataclass(frozen=True)
 class LoopFigures:
-    """The loop's figures at one moment (:class:`~ucom_tools.ops.remote_report.LoopStats`
+    """The loop's figures at one moment (:class:`~ucom_tools.ops.remote.report.LoopStats`
     as the loop's thread saw it), with the lateness of the last cycles."""
 
     period_s: float
@@ -69,7 +69,7 @@ class LoopFigures:
     ended_clock: float | None
     late: tuple[tuple[float, ...], ...]
     """How late the last cycles sent (seconds), in chunks, oldest first: at least the
-    last :data:`~ucom_tools.ops.remote_loop.RECENT_SAMPLES` where as many ran."""
+    last :data:`~ucom_tools.ops.remote.loop.RECENT_SAMPLES` where as many ran."""
 
     def recent(self, last: int = RECENT_SAMPLES) -> list[float]:
         """The lateness of the last ``last`` cycles (fewer where fewer ran)."""
@@ -112,7 +112,7 @@ class LoopSnapshot:
     running: bool
     values: RawSnapshot
     """Every value's raw state; :meth:`RemotePart.decode
-    <ucom_tools.ops.remote_values.RemoteValues.decode>` makes values of it."""
+    <ucom_tools.ops.remote.values.RemoteValues.decode>` makes values of it."""
     figures: LoopFigures
     events: tuple[BoardEvent, ...]
     """The newest of the boards' Errors (at most :data:`KEPT`)."""
@@ -275,7 +275,7 @@ class Snapshots:
     """Where the loop's snapshots are handed over: the newest (:attr:`latest`) and the
     doorbells of the consumers that wait for them (:meth:`subscribe`).  The loop's own
     process has :class:`LoopHandover`; the consumers' process its mirror
-    (:class:`~ucom_tools.ops.remote_mirror.Mirror`)."""
+    (:class:`~ucom_tools.ops.remote.mirror.Mirror`)."""
 
     def __init__(self, period_s: float) -> None:
         self.period_s = period_s
@@ -333,7 +333,7 @@ class LoopHandover(Snapshots):
         self.taken: list[Callable[[LoopSnapshot], None]] = []
         """Called with every snapshot on the thread that took it (the loop's): a consumer
         of every snapshot that lives on the loop's thread itself, as the hand-over to the
-        consumers' process (:mod:`~ucom_tools.ops.remote_feed`).  It must not wait."""
+        consumers' process (:mod:`~ucom_tools.ops.remote.feed`).  It must not wait."""
         self._number = 0
         self._cycles_seen = 0
         self._late = LateChunks()

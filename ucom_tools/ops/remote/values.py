@@ -17,8 +17,8 @@ from ucom_tools.errors import InputError
 from ucom_tools.native import mypyc_attr
 from ucom_tools.ops.edges import EdgeRef, Names
 from ucom_tools.ops.exchange import BusExchange
-from ucom_tools.ops.remote_faults import LostBoard, LostBoardWrite
-from ucom_tools.ops.remote_report import RawSnapshot, Value
+from ucom_tools.ops.remote.faults import LostBoard, LostBoardWrite
+from ucom_tools.ops.remote.report import RawSnapshot, Value
 from ucom_tools.ops.robot import Robot
 from ucom_tools.protocol.mca import ProcessImage, values_of
 from ucom_tools.wire import mca
@@ -217,7 +217,7 @@ class RemoteValues:
         """Set a CI or PAR by name, in the edge's unit; range-checked before anything is
         sent (InputError).  The write of a PAR, or of a CI outside the CI maps, waits for
         the board's acknowledgement unless ``wait`` is False: then, while the loop runs,
-        the loop steps it beside its cycles (:mod:`ucom_tools.ops.par_write`)."""
+        the loop steps it beside its cycles (:mod:`ucom_tools.ops.remote.par_write`)."""
         ref = name if isinstance(name, EdgeRef) else self.names.resolve(
             name, key=key, kinds=(mca.Kind.CI, mca.Kind.PAR))
         if ref.kind is mca.Kind.SO:

@@ -2,7 +2,7 @@
 to the mapping check): on one bus, the init chain, each board's program started if
 needed, its descriptions fetched and compared with its tree block; nothing is written.
 
-:func:`check_bus` gives the :class:`~ucom_tools.ops.remote_report.BoardCheck` of every
+:func:`check_bus` gives the :class:`~ucom_tools.ops.remote.report.BoardCheck` of every
 board of the bus that has a tree, and the robot-wide names (:class:`~ucom_tools.ops.
 edges.EdgeRef`) of the edges of those that match;
 :meth:`RemotePart.check <ucom_tools.ops.remote.RemotePart.check>` runs it on every bus.
@@ -21,7 +21,7 @@ from ucom_tools.config.attrtree.robot import RobotTrees
 from ucom_tools.errors import BoardError, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import EdgeRef, spec_of
 from ucom_tools.ops.exchange import BusExchange, NoProgram, edge_list, on_board
-from ucom_tools.ops.remote_report import BoardCheck
+from ucom_tools.ops.remote.report import BoardCheck
 from ucom_tools.ops.robot import BusHandle
 from ucom_tools.protocol.mca import BoardEdges
 from ucom_tools.wire.ids import seq

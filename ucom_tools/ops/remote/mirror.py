@@ -1,12 +1,12 @@
 """The consumers' side of a run whose loop runs in another process (``ucom remote run``):
-what the loop's process sends (:mod:`ucom_tools.ops.remote_feed`) turned back into the
-part's structure (:class:`~ucom_tools.ops.remote_image.PartImage`) and the loop's
-snapshots (:class:`~ucom_tools.ops.remote_publish.LoopSnapshot`), and the way back: writes,
+what the loop's process sends (:mod:`ucom_tools.ops.remote.feed`) turned back into the
+part's structure (:class:`~ucom_tools.ops.remote.image.PartImage`) and the loop's
+snapshots (:class:`~ucom_tools.ops.remote.publish.LoopSnapshot`), and the way back: writes,
 stops, the view's quit, which Status reports to ask for.
 
 :class:`Mirror` reads the pipe on a thread of its own and is, for the consumers, what
-the loop's :class:`~ucom_tools.ops.remote_publish.LoopHandover` is in the loop's process
-(:attr:`~ucom_tools.ops.remote_publish.Snapshots.latest`, doorbells); frames, value
+the loop's :class:`~ucom_tools.ops.remote.publish.LoopHandover` is in the loop's process
+(:attr:`~ucom_tools.ops.remote.publish.Snapshots.latest`, doorbells); frames, value
 changes and Status reports go to the callbacks that want them.
 """
 
@@ -20,12 +20,12 @@ from concurrent.futures import Future
 from typing import Any
 
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote_faults import BoardFault, LostBoard
-from ucom_tools.ops.remote_feed import Unpacker, pack
-from ucom_tools.ops.remote_image import PartImage
-from ucom_tools.ops.remote_publish import LateChunks, LoopFigures, LoopSnapshot, Snapshots, Tail
-from ucom_tools.ops.remote_report import BoardEvent, RawSnapshot, Value, WriteEvent
-from ucom_tools.ops.remote_requests import Applied
+from ucom_tools.ops.remote.faults import BoardFault, LostBoard
+from ucom_tools.ops.remote.feed import Unpacker, pack
+from ucom_tools.ops.remote.image import PartImage
+from ucom_tools.ops.remote.publish import LateChunks, LoopFigures, LoopSnapshot, Snapshots, Tail
+from ucom_tools.ops.remote.report import BoardEvent, RawSnapshot, Value, WriteEvent
+from ucom_tools.ops.remote.requests import Applied
 from ucom_tools.protocol.traffic import SinkEntry
 
 FrameSink = Callable[[str, list[SinkEntry]], None]
@@ -203,7 +203,7 @@ class Mirror(Snapshots):
 
     def drive(self, items: list[tuple[str, int]]) -> None:
         """Set edges by robot-wide name to raw values on the loop's thread, no answer
-        (:class:`~ucom_tools.ops.remote_requests.DriveWrites`)."""
+        (:class:`~ucom_tools.ops.remote.requests.DriveWrites`)."""
         self._send(("drive", items))
 
     def frames(self, wanted: bool) -> None:

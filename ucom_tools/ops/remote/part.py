@@ -17,16 +17,16 @@ bus and refuses (BusError) where another host's exchange runs, unless forced.
 
 A board that goes silent, or whose bus fails, is *lost* (``man/ucom-protocol.7``, RUN
 TIME, Faults): ``on_fault="stop"`` (the default) stops every other board at once and
-:meth:`cycle` raises :class:`~ucom_tools.ops.remote_faults.BoardLost`; ``"hold"`` runs
+:meth:`cycle` raises :class:`~ucom_tools.ops.remote.faults.BoardLost`; ``"hold"`` runs
 the others on, and with ``rejoin=True`` brings the board back when it returns
-(:mod:`~ucom_tools.ops.rejoin`), its joints held where they stand.  :attr:`lost`,
+(:mod:`~ucom_tools.ops.remote.rejoin`), its joints held where they stand.  :attr:`lost`,
 :attr:`faults`, :attr:`fault_hooks`, :meth:`valid` and :meth:`age` say what is current.
 
 This module opens, checks, starts and stops; the jobs between live beside it: the
-start-up check (:mod:`~ucom_tools.ops.remote_check`), the values by name
-(:mod:`~ucom_tools.ops.remote_values`), the loop (:mod:`~ucom_tools.ops.remote_loop`),
-what is reported (:mod:`~ucom_tools.ops.remote_report`, faults:
-:mod:`~ucom_tools.ops.remote_faults`).  Their names are here too.
+start-up check (:mod:`~ucom_tools.ops.remote.check`), the values by name
+(:mod:`~ucom_tools.ops.remote.values`), the loop (:mod:`~ucom_tools.ops.remote.loop`),
+what is reported (:mod:`~ucom_tools.ops.remote.report`, faults:
+:mod:`~ucom_tools.ops.remote.faults`), in the modules of this package.
 """
 
 from __future__ import annotations
@@ -46,28 +46,15 @@ from ucom_tools.config.attrtree.robot import RobotTrees, bind, with_files
 from ucom_tools.errors import InputError, UcomError
 from ucom_tools.ops.edges import EdgeRef, Names
 from ucom_tools.ops.exchange import LISTEN_MIN_S, BusExchange, ExchangeWatch
-from ucom_tools.ops.remote_check import BusCheck, check_bus, check_periods, tree_file
-from ucom_tools.ops.remote_faults import (
-    HOLD,
-    POLICIES,
+from ucom_tools.ops.remote.check import BusCheck, check_bus, check_periods, tree_file
+from ucom_tools.ops.remote.faults import (
     STOP,
-    BoardFault,
-    BoardLost,
-    LostBoard,
-    LostBoardWrite,
 )
-from ucom_tools.ops.remote_loop import RECENT_SAMPLES, RemoteLoop
-from ucom_tools.ops.remote_report import (
+from ucom_tools.ops.remote.loop import RemoteLoop
+from ucom_tools.ops.remote.report import (
     BoardCheck,
-    BoardEvent,
     CheckReport,
-    LoopStats,
     MappingError,
-    RawSnapshot,
-    RemoteStop,
-    Summary,
-    Trace,
-    Value,
     WriteEvent,
 )
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot, open_robot
@@ -115,10 +102,10 @@ class RemotePart(RemoteLoop):
         self._serials: dict[tuple[str, int], int] = {}
         """(bus, seq ID) -> the board's serial number, from the start's init chain."""
         if rejoin:
-            from ucom_tools.ops.rejoin import Rejoin
+            from ucom_tools.ops.remote.rejoin import Rejoin
 
             self.conversations.rejoiner = lambda bus, n, delay: Rejoin(self, bus, n, delay)
-        from ucom_tools.ops.par_write import ParWrite
+        from ucom_tools.ops.remote.par_write import ParWrite
 
         self.conversations.par_writer = lambda ref, raw: ParWrite(self, ref, raw)
         self.conversations.par_failed = self._par_failed
@@ -374,7 +361,4 @@ def robot_trees(robot: Robot, files: Sequence[str | Path] = ()) -> RobotTrees:
     return with_files(bind(robot.topology), files)
 
 
-__all__ = ["HOLD", "POLICIES", "RECENT_SAMPLES", "STOP", "BoardCheck", "BoardEvent",
-           "BoardFault", "BoardLost", "CheckReport", "LoopStats", "LostBoard",
-           "LostBoardWrite", "MappingError", "RawSnapshot", "RemotePart", "RemoteStop",
-           "Summary", "Trace", "Value", "WriteEvent", "robot_trees"]
+__all__ = ["RemotePart", "robot_trees"]

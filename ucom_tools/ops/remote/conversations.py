@@ -1,8 +1,8 @@
 """The conversations the loop steps after each cycle's drain: the rejoins that bring a lost
-board back (:mod:`~ucom_tools.ops.rejoin`) and the writes it does not wait for
-(:mod:`~ucom_tools.ops.par_write`).
+board back (:mod:`~ucom_tools.ops.remote.rejoin`) and the writes it does not wait for
+(:mod:`~ucom_tools.ops.remote.par_write`).
 
-:class:`Conversations` is a part the loop holds (:class:`~ucom_tools.ops.remote_loop.
+:class:`Conversations` is a part the loop holds (:class:`~ucom_tools.ops.remote.loop.
 RemoteLoop`): it starts them, hands each control in turn, and calls the loop back with
 what changes the loop's state (a rejoin that ended, a value held or put back).  Each
 conversation is an object with ``step(budget)``, ``busy()``, ``cancel()``, ``done``,

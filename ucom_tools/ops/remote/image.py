@@ -2,12 +2,12 @@
 board's description and SO maps, the buses, the loop's rate (:class:`PartImage`).
 
 A consumer of the run (the live view, ``--record``, the Zenoh share) needs the part's
-structure to make values of a snapshot (:class:`~ucom_tools.ops.remote_publish.
+structure to make values of a snapshot (:class:`~ucom_tools.ops.remote.publish.
 LoopSnapshot`) and to describe the robot; it must not read the running part for it.
 :meth:`PartImage.of` takes it from a checked part once, on the thread that runs it; the
 image is then read by any thread, and it pickles (the compiled run time's own objects do
 not), so that another process can have it (``ucom remote run`` runs its consumers in a
-process of their own: :mod:`ucom_tools.ops.remote_feed`).
+process of their own: :mod:`ucom_tools.ops.remote.feed`).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import Any
 
 from ucom_tools.edgelists.model import EdgeSpec
 from ucom_tools.ops.edges import EdgeRef, Names
-from ucom_tools.ops.remote_report import CheckReport, RawSnapshot, Value
+from ucom_tools.ops.remote.report import CheckReport, RawSnapshot, Value
 from ucom_tools.protocol.mca import BoardEdges, values_of
 from ucom_tools.protocol.plan import BusPlan, SoMapPlan
 from ucom_tools.wire import mca
@@ -157,7 +157,7 @@ class PartImage:
     def decode(self, snap: RawSnapshot, kinds: tuple[mca.Kind, ...] = tuple(mca.Kind),
                ) -> dict[EdgeRef, tuple[float, Value]]:
         """(time stamp, value) of every edge of ``kinds`` ``snap`` holds a value of, as
-        :meth:`RemotePart.decode <ucom_tools.ops.remote_values.RemoteValues.decode>`
+        :meth:`RemotePart.decode <ucom_tools.ops.remote.values.RemoteValues.decode>`
         gives it (an SO stamped with its map's frame, a CI or PAR with the snapshot)."""
         out: dict[EdgeRef, tuple[float, Value]] = {}
         if mca.Kind.SO not in kinds:

@@ -1,7 +1,7 @@
 """The loop's watch over the boards' SO maps (``man/ucom-protocol.7``, RUN TIME, Faults):
 which board is lost, and when.
 
-A board none of whose fastest SO maps came for :func:`~ucom_tools.ops.remote_faults.
+A board none of whose fastest SO maps came for :func:`~ucom_tools.ops.remote.faults.
 lost_after` is lost.  The silence is counted in the frames its bus's other boards sent
 meanwhile (their maps' periods say how long that took), not in time: frames come in the
 order they were sent, so neither the loop's own stall (the drain after it takes what
@@ -11,7 +11,7 @@ from which nothing came at all for :data:`QUIET_MIN_S` (or the boards' watchdog 
 of the loop's own running time (a cycle counts at most :data:`PRESENT_CAP` periods: a
 stall of the loop is no silence) is lost too: that is a whole bus gone silent, which
 the other boards cannot tell.  :class:`SilenceWatch` does this after every cycle's drain
-of :class:`~ucom_tools.ops.remote_loop.RemoteLoop`, which decides what a loss means.
+of :class:`~ucom_tools.ops.remote.loop.RemoteLoop`, which decides what a loss means.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from collections.abc import Callable, Mapping
 from typing import Final
 
 from ucom_tools.ops.exchange import BusExchange
-from ucom_tools.ops.remote_faults import lost_after
+from ucom_tools.ops.remote.faults import lost_after
 from ucom_tools.protocol.mca import ProcessImage
 
 QUIET_MIN_S: Final = 0.5

@@ -5,9 +5,9 @@ a policy raises.
 A board is *lost* when none of its SO maps came for :func:`lost_after` (three periods of
 its fastest map, at least :data:`LOST_AFTER_MIN_S`), or when its bus failed; it is
 *rejoined* when the PC brought it back into the running exchange (``rejoin``).  The loop
-(:mod:`~ucom_tools.ops.remote_loop`) detects, :class:`~ucom_tools.ops.remote.RemotePart`
+(:mod:`~ucom_tools.ops.remote.loop`) detects, :class:`~ucom_tools.ops.remote.RemotePart`
 reacts by its policy (:data:`POLICIES`), the rejoin itself is
-:mod:`~ucom_tools.ops.rejoin`.
+:mod:`~ucom_tools.ops.remote.rejoin`.
 """
 
 from __future__ import annotations
@@ -80,7 +80,7 @@ class LostBoard:
 class BoardLost(UcomError):
     """A board was lost under the ``stop`` policy: every other board was stopped (MCA
     Start STOP broadcast on every bus in the cycle of the detection), raised out of
-    :meth:`RemotePart.cycle <ucom_tools.ops.remote_loop.RemoteLoop.cycle>` and every
+    :meth:`RemotePart.cycle <ucom_tools.ops.remote.loop.RemoteLoop.cycle>` and every
     cycle after; leaving the part stops the boards one by one as usual."""
 
     def __init__(self, faults: list[BoardFault]) -> None:

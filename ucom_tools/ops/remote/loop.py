@@ -10,15 +10,15 @@ buses delivered meanwhile.
 The in-process fleet in virtual time: the loop drives the fleet clock, nothing waits.
 
 After its drain the loop watches every board (``man/ucom-protocol.7``, RUN TIME, Faults;
-:mod:`~ucom_tools.ops.board_watch`: a board whose SO maps stay away is lost).
+:mod:`~ucom_tools.ops.remote.watch`: a board whose SO maps stay away is lost).
 A bus that fails (the connection or adapter: a
 BusError, an interface that reports error-passive or bus-off) is a fault of every
 board on it, at once.
 The policy (``on_fault``): ``stop`` broadcasts MCA Start STOP on every bus in the cycle
 of the detection and raises
-:class:`~ucom_tools.ops.remote_faults.BoardLost`; ``hold`` runs the others on and, with
+:class:`~ucom_tools.ops.remote.faults.BoardLost`; ``hold`` runs the others on and, with
 ``rejoin``, steps a conversation that brings the lost board back
-(:mod:`~ucom_tools.ops.rejoin`) after each cycle's drain; a lost board whose maps come
+(:mod:`~ucom_tools.ops.remote.rejoin`) after each cycle's drain; a lost board whose maps come
 again before that ran on all along and is back as it was.
 :class:`~ucom_tools.ops.remote.RemotePart` is a :class:`RemoteLoop`; its
 :meth:`~RemoteLoop.cycle` is the performance-critical path (``benchmarks/runtime.py``).
@@ -35,7 +35,6 @@ import can
 
 from ucom_tools.errors import BusError, FrameError, UcomError
 from ucom_tools.native import mypyc_attr
-from ucom_tools.ops.board_watch import BoardWatch, SilenceWatch
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.exchange import BusExchange
 from ucom_tools.ops.realtime import (
@@ -44,8 +43,8 @@ from ucom_tools.ops.realtime import (
     let_signals_in,
     precise_sleep,
 )
-from ucom_tools.ops.remote_conversations import REJOIN_MARGIN_S, Conversations
-from ucom_tools.ops.remote_faults import (
+from ucom_tools.ops.remote.conversations import REJOIN_MARGIN_S, Conversations
+from ucom_tools.ops.remote.faults import (
     HOLD,
     STOP,
     BoardFault,
@@ -53,8 +52,9 @@ from ucom_tools.ops.remote_faults import (
     LostBoard,
     check_policy,
 )
-from ucom_tools.ops.remote_report import BoardEvent, LoopStats, Value
-from ucom_tools.ops.remote_values import RemoteValues
+from ucom_tools.ops.remote.report import BoardEvent, LoopStats, Value
+from ucom_tools.ops.remote.values import RemoteValues
+from ucom_tools.ops.remote.watch import BoardWatch, SilenceWatch
 from ucom_tools.ops.robot import BusHandle, Robot
 from ucom_tools.protocol.dispatch import share_clock
 from ucom_tools.wire import mca
@@ -83,7 +83,7 @@ _sleep: Final = time.sleep
 """Bound once: the loop's wait calls them every cycle."""
 RECENT_SAMPLES: Final = 2_000
 """The cycles a running view's lateness figures are taken over (the last 2 s at 1 kHz)."""
-@mypyc_attr(allow_interpreted_subclasses=True)  # RemotePart (ops/remote.py, from source)
+@mypyc_attr(allow_interpreted_subclasses=True)  # RemotePart (ops/remote/part.py, from source)
 class RemoteLoop(RemoteValues):
     """The loop over the exchanges of ``robot``'s buses at one period (see the module
     docstring); :meth:`_start_loop` begins it, :meth:`_end_loop` ends it."""
@@ -95,10 +95,10 @@ class RemoteLoop(RemoteValues):
         check_policy(on_fault, rejoin)
         self.period_s = period_s
         self.watch = SilenceWatch(period_s, self._lose, self._maps_again)
-        """Which boards are lost (:mod:`ucom_tools.ops.board_watch`)."""
+        """Which boards are lost (:mod:`ucom_tools.ops.remote.watch`)."""
         self.on_fault = on_fault
         """The policy when a board is lost: ``stop`` (every other board stopped, the run
-        ends: :class:`~ucom_tools.ops.remote_faults.BoardLost`) or ``hold``."""
+        ends: :class:`~ucom_tools.ops.remote.faults.BoardLost`) or ``hold``."""
         self.rejoin = rejoin
         """With ``hold``: bring a lost board back when it returns."""
         self.faults: list[BoardFault] = []
@@ -124,8 +124,8 @@ class RemoteLoop(RemoteValues):
         self.virtual = robot.virtual_time
         self.conversations = Conversations(exchanges, self.virtual, self._rejoin_ended,
                                            self._held, self._hold)
-        """The rejoins and the writes the loop steps (:mod:`~ucom_tools.ops.
-        remote_conversations`)."""
+        """The rejoins and the writes the loop steps (:mod:`~ucom_tools.ops.remote.
+        conversations`)."""
         self.stats = LoopStats(self.period_s)
         self._running = False
         self._k = 0

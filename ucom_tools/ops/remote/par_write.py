@@ -1,7 +1,7 @@
 """A PAR (or a CI outside the CI maps, such as an axis's Command) written while the loop
 runs, without the loop waiting for its acknowledgement.
 
-:meth:`RemoteValues.set <ucom_tools.ops.remote_values.RemoteValues.set>` writes a PAR, or
+:meth:`RemoteValues.set <ucom_tools.ops.remote.values.RemoteValues.set>` writes a PAR, or
 a CI that no CI map carries, and waits for the board's acknowledgement (retries
 included) on the caller's thread: from the
 loop's thread (a ``--set`` from the live view, a write from the network) the loop misses

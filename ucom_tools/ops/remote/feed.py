@@ -14,8 +14,8 @@ runs the loop alone.
 
 What goes over (one pipe each way; each message a length and a pickle, :func:`pack`):
 
-- to the consumers: the part's structure (:class:`~ucom_tools.ops.remote_image.PartImage`,
-  once the boards run), the loop's snapshots (:class:`~ucom_tools.ops.remote_publish.
+- to the consumers: the part's structure (:class:`~ucom_tools.ops.remote.image.PartImage`,
+  once the boards run), the loop's snapshots (:class:`~ucom_tools.ops.remote.publish.
   LoopSnapshot`, at the rate the consumers want, only what changed: :class:`WireSnapshots`),
   every frame of every bus where a recording wants them (the dispatchers' ``sink``), every
   value change the loop reports (``on_values``), the boards' Status reports, the answers
@@ -32,7 +32,7 @@ most :data:`WRITE_BUDGET` handed over a flush), and past :data:`PENDING_LIMIT` t
 and value changes are counted as lost (a recording that lost frames fails rather than
 keep a gap).  In virtual time the loop waits for the
 consumers instead (nothing waits for the wall clock there, and nothing is lost).
-The consumers' side is :mod:`ucom_tools.ops.remote_mirror`.
+The consumers' side is :mod:`ucom_tools.ops.remote.mirror`.
 """
 
 from __future__ import annotations
@@ -53,10 +53,10 @@ import can
 
 from ucom_tools.errors import UcomError
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.remote_image import PartImage
-from ucom_tools.ops.remote_publish import LoopHandover, LoopSnapshot
-from ucom_tools.ops.remote_report import RemoteStop, Value
-from ucom_tools.ops.remote_requests import (
+from ucom_tools.ops.remote.image import PartImage
+from ucom_tools.ops.remote.publish import LoopHandover, LoopSnapshot
+from ucom_tools.ops.remote.report import RemoteStop, Value
+from ucom_tools.ops.remote.requests import (
     Applied,
     DriveItems,
     DriveWrites,
@@ -474,7 +474,7 @@ def _write_all(fd: int, data: bytes | memoryview) -> None:
 class LocalRun:
     """A part's run for consumers in the loop's own process (a Python program's
     ``share(part)``): the same face as the consumers' process has of it
-    (:class:`~ucom_tools.ops.remote_mirror.Mirror`): the hand-over's snapshots, the
+    (:class:`~ucom_tools.ops.remote.mirror.Mirror`): the hand-over's snapshots, the
     part's image once it is checked, writes and stops applied on the loop's thread
     (:meth:`on_cycle`, in ``each_cycle``), Status reports asked for."""
 
@@ -527,7 +527,7 @@ class LocalRun:
 
     def drive(self, items: DriveItems) -> None:
         """Set edges by robot-wide name to raw values on the loop's thread, no answer
-        (:class:`~ucom_tools.ops.remote_requests.DriveWrites`)."""
+        (:class:`~ucom_tools.ops.remote.requests.DriveWrites`)."""
         self._requests.put(("drive", items))
 
     def poll_status(self, boards: list[tuple[str, int]]) -> None:
