@@ -18,8 +18,10 @@ The policy (``on_fault``): ``stop`` broadcasts MCA Start STOP on every bus in th
 of the detection and raises
 :class:`~ucom_tools.ops.remote.faults.BoardLost`; ``hold`` runs the others on and, with
 ``rejoin``, steps a conversation that brings the lost board back
-(:mod:`~ucom_tools.ops.remote.rejoin`) after each cycle's drain; a lost board whose maps come
-again before that ran on all along and is back as it was.
+(:mod:`~ucom_tools.ops.remote.rejoin`) after each cycle's drain (its conversations, and
+the writes it does not wait for, are a part it holds:
+:mod:`~ucom_tools.ops.remote.conversations`); a lost board whose maps come again before
+that ran on all along and is back as it was.
 :class:`~ucom_tools.ops.remote.RemotePart` is a :class:`RemoteLoop`; its
 :meth:`~RemoteLoop.cycle` is the performance-critical path (``benchmarks/runtime.py``).
 """
