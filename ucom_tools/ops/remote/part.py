@@ -47,16 +47,9 @@ from ucom_tools.errors import InputError, UcomError
 from ucom_tools.ops.edges import EdgeRef, Names
 from ucom_tools.ops.exchange import LISTEN_MIN_S, BusExchange, ExchangeWatch
 from ucom_tools.ops.remote.check import BusCheck, check_bus, check_periods, tree_file
-from ucom_tools.ops.remote.faults import (
-    STOP,
-)
+from ucom_tools.ops.remote.faults import STOP
 from ucom_tools.ops.remote.loop import RemoteLoop
-from ucom_tools.ops.remote.report import (
-    BoardCheck,
-    CheckReport,
-    MappingError,
-    WriteEvent,
-)
+from ucom_tools.ops.remote.report import BoardCheck, CheckReport, MappingError, WriteEvent
 from ucom_tools.ops.robot import BusHandle, ConnectSpec, Robot, open_robot
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
