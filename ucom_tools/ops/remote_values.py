@@ -223,7 +223,7 @@ class RemoteValues:
         if ref.kind is mca.Kind.SO:
             raise InputError(f"{ref.qualified} is a sensor output; only CI and PAR edges "
                              "can be set", key=key)
-        raw = ref.raw(value, what=key)
+        raw = ref.raw(value, key=key)
         lost = self._lost.get((ref.bus, ref.board))
         if lost is not None:
             raise LostBoardWrite(f"{ref.qualified}: {lost.where} is lost since "
