@@ -192,8 +192,7 @@ class ExchangeWatch(OtherHosts):
 
     def __init__(self, link: Link) -> None:
         super().__init__(link)
-        # set here, not as a class attribute: mypyc (this module is compiled) does not
-        # compile a class-level default of this kind, the instance would have none
+        # an instance field, not a class-level default (see compiled.py)
         self.functions = frozenset({Function.MCA_ALIVE, Function.MCA_CONTROLLER_INPUT})
 
     def judge(self, arbitration_id: int, data: bytes) -> str | None:

@@ -85,7 +85,7 @@ RECENT_SAMPLES: Final = 2_000
 REJOIN_MARGIN_S: Final = 0.0003
 """On the wall clock a rejoin's step ends this long before the loop's next deadline at the
 latest (its worker runs on beside the loop if it needs longer)."""
-@mypyc_attr(allow_interpreted_subclasses=True)  # RemotePart (ops/remote.py, from source)
+@mypyc_attr(allow_interpreted_subclasses=True)  # RemotePart extends it (see compiled.py)
 class RemoteLoop(RemoteValues):
     """The loop over the exchanges of ``robot``'s buses at one period (see the module
     docstring); :meth:`_start_loop` begins it, :meth:`_end_loop` ends it."""

@@ -25,7 +25,7 @@ from ucom_tools.wire import mca
 from ucom_tools.wire.ids import seq
 
 
-@mypyc_attr(allow_interpreted_subclasses=True)  # RemoteLoop, RemotePart (from source)
+@mypyc_attr(allow_interpreted_subclasses=True)  # RemotePart extends it (see compiled.py)
 class RemoteValues:
     """The values of the boards of ``exchanges`` (one per bus of ``robot``) by name;
     :attr:`names` knows the edges once the boards are checked, :meth:`_bind_values`
