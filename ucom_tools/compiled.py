@@ -28,7 +28,7 @@ The one place that says it; a comment in a compiled module points here ("see
 compiled.py") where the code would otherwise look odd.  mypyc compiles ordinary typed
 Python, but not all of it alike, and some of it not at all:
 
-- Classes are native: their methods cannot be replaced, on the class or an instance.
+- Compiled classes are native: their methods cannot be replaced, on the class or an instance.
   A class whose method a test or conformance case replaces (``Link.send_raw``: frames
   lost on purpose), or that extends a built-in type other than ``object``
   (``signals.Terminated``, a ``KeyboardInterrupt``), is compiled as a plain class,
@@ -46,24 +46,28 @@ Python, but not all of it alike, and some of it not at all:
 - Module constants on a hot path are ``Final`` (read as C values, not looked up in the
   module's dictionary); state a hot path changes lives in an object's attributes, not in
   module globals (``signals._Deferred``: module state cost some 1,400 instructions a
-  block).  A default argument that names another module's constant is not seen by a
-  compiled caller in a third module: such a caller gives every argument
-  (``lauron4_leg.key_of``).  A method with literal defaults and ``**kwargs`` has no text
-  signature mypyc can write ("non-default argument follows default argument"): its
-  defaults are named constants (``transport.socketcand``).
+  block).  A compiled caller in another module does not see defaults that name the
+  callee's module constants: it gives every argument (``lauron4_leg.key_of``).  A method
+  with literal defaults and ``**kwargs`` has no text signature mypyc can write
+  ("non-default argument follows default argument"): its defaults are named constants
+  (``transport.socketcand``).
 - ``raise ... from err`` leaves ``__cause__`` unset: where a caller reads the cause, it
   is set by hand (``virtual.canbus._init_error``: the CLI gives the cause's exit code).
 - Some builtins and idioms go through the interpreter: ``round(x)`` looks up
   ``float.__round__`` each time (some 600 instructions: ``hardware.numeric``'s
   ``round_half_even`` instead), ``zip`` is not compiled (index loops on the programs' hot
-  paths), ``(t, *args)`` builds a list first (``(t,) + args`` in ``bus.clock``).
+  paths), ``(t, *args)`` builds a list first (``(t,) + args`` in ``bus.clock``).  A
+  generator expression given to a call (``bytes(c >> 8 for c in table)``, ``any(...)``)
+  is built as a whole list first: the same result, only not lazy (``make compiled``
+  lists each one as a warning, "Treating generator comprehension as list").
 - Native integers: ``i64`` annotations (``mypy_extensions``, imported under
   ``TYPE_CHECKING``: annotations of locals are never evaluated) make loop indices and
   arithmetic 64-bit C integers (``wire.canbits``, ``wire.socketcand``); lookup tables are
   ``bytes``, whose items are native integers, not tuples of objects to unbox.
 - Where the fastest compiled code and the fastest interpreted code differ, a module keeps
   both, chosen by ``_NATIVE: Final = not __file__.endswith(".py")`` (``bus.clock``'s
-  event heap, ``wire.socketcand``'s byte scan); the tests hold both paths to one result.
+  event heap, ``wire.socketcand``'s byte scan); the tests, run both ways, hold them to
+  one result.
 - A compiled loop never passes through the interpreter, so a pending signal handler
   would wait for the end of the run: the loop calls ``ops.realtime.let_signals_in`` (from
   source, not in :data:`MODULES`) once a cycle.
