@@ -1,8 +1,8 @@
 """A fleet: every bus and board of one topology, built and (optionally) persisted.
 
 ``state_dir`` keeps each board's non-volatile memory (flash, bootloader record with the
-AutoStart flag) across restarts, like power cycles of the real robot.  ``fault`` makes
-every board that does not name its own fault in the topology a mutant board
+AutoStart flag) across restarts, like power cycles of the real robot.  ``defect`` makes
+every board that does not name its own defect in the topology a mutant board
 (:mod:`~ucom_tools.virtual.board.mutants`).  ``scenario`` times injected faults (a power loss, a
 reset, bus-off, a cut cable, the emergency stop: :mod:`ucom_tools.config.scenario`) from
 each bus's first MCA Alive; :meth:`Fleet.inject` applies one at once
@@ -47,13 +47,13 @@ class Fleet:
     """The virtual boards and buses of one topology."""
 
     def __init__(self, topology: Topology, *, state_dir: Path | None = None,
-                 realtime: bool = False, fault: str | None = None,
+                 realtime: bool = False, defect: str | None = None,
                  client_loss: float = 0.0, seed: int = 0,
                  scenario: Scenario | None = None) -> None:
-        self.fault = mutants.check(fault)
+        self.defect = mutants.check(defect)
         if scenario is not None:
             scenario.check(topology)  # before anything is built: the caller's mistake
-        """The fault of every board whose topology entry names none (None: they conform)."""
+        """The defect of every board whose topology entry names none (None: they conform)."""
         if not 0.0 <= client_loss < 1.0:
             raise InputError(f"a share of frames lost must be in [0, 1), not {client_loss:g}",
                              key="--loss")
@@ -84,7 +84,7 @@ class Fleet:
                                                    b.fixed_id, b.fpga),
                                      timing=topology.timing, powered=False,
                                      state_file=self._state_file(spec.name, b),
-                                     fault=b.fault or fault)
+                                     defect=b.defect or defect)
                 if b.program is not None and not board.nv.record.flash_valid:
                     install_program(board, b, topology.source, spec.name)
                 sim.attach(board)
@@ -115,11 +115,11 @@ class Fleet:
 
     @classmethod
     def load(cls, name_or_path: str, *, state_dir: Path | None = None,
-             realtime: bool = False, fault: str | None = None,
+             realtime: bool = False, defect: str | None = None,
              scenario: Scenario | None = None) -> Fleet:
-        mutants.check(fault)  # before the topology: a wrong name is the caller's mistake
+        mutants.check(defect)  # before the topology: a wrong name is the caller's mistake
         return cls(topo.load(name_or_path), state_dir=state_dir, realtime=realtime,
-                   fault=fault, scenario=scenario)
+                   defect=defect, scenario=scenario)
 
     def inject(self, fault: InjectedFault) -> str:
         """Apply ``fault`` now (its ``at_s`` is not looked at) and return what was done in
@@ -306,7 +306,7 @@ class Fleet:
                     "can_errors": b.can_errors,
                     "bus_off": b.bus_off,
                     "runtime": _runtime(b),
-                    **({"fault": b.fault} if b.fault else {}),
+                    **({"defect": b.defect} if b.defect else {}),
                 } for b in self.boards[name]]
                 buses.append({
                     "name": name, "bitrate": sim.bitrate, "boards": boards,

@@ -42,11 +42,11 @@ _PROGRAM: Final = int(Function.PROGRAM)
 class BoardProgramming:
     """The programming part of one virtual board's bootloader."""
 
-    def __init__(self, port: BoardPort, nv: NonVolatile, *, fault: str | None = None) -> None:
+    def __init__(self, port: BoardPort, nv: NonVolatile, *, defect: str | None = None) -> None:
         self.port = port
         self.nv = nv
-        self.fault = fault
-        """The board's fault (:mod:`~ucom_tools.virtual.board.mutants`), None if it conforms."""
+        self.defect = defect
+        """The board's defect (:mod:`~ucom_tools.virtual.board.mutants`), None if it conforms."""
         self.enabled = False
         """ProgEnable (SetStatus): broadcast Program frames are taken only when set."""
         self.reception: Reception | None = None
@@ -259,10 +259,10 @@ class BoardProgramming:
             result, reports = rx.result(memory)
             self.overruns += rx.overruns
             rx.overruns = 0
-            if self.fault == mutants.WRONG_PROGID and result.status is ResultStatus.VERIFIED:
+            if self.defect == mutants.WRONG_PROGID and result.status is ResultStatus.VERIFIED:
                 result = replace(result, progid=(result.progid + 1) & 0xFFFFFFFF)
             if result.status is ResultStatus.VERIFIED or (
-                    self.fault == mutants.ACCEPT_BAD_PROGID
+                    self.defect == mutants.ACCEPT_BAD_PROGID
                     and result.status is ResultStatus.PROGID_MISMATCH):
                 self._commit(rx)
                 self.finished = result
@@ -278,7 +278,7 @@ class BoardProgramming:
         name = b"".join(meta.get(MetaField.NAME_0 + i, b"") for i in range(7))
         name_s = name.rstrip(b"\0").decode("latin-1")
         progid = rx.expected_progid()
-        if self.fault == mutants.WRONG_PROGID:
+        if self.defect == mutants.WRONG_PROGID:
             progid = (progid + 1) & 0xFFFFFFFF
         if rx.target is Target.FLASH:
             rec = self.nv.record
