@@ -26,12 +26,12 @@ from ucom_tools.wire.codes import (
     BoardState,
     ErrorCode,
     MetaField,
-    PrepareFault,
+    PrepareLack,
     ReadyReason,
     ResultStatus,
     Space,
     Target,
-    prepare_fault,
+    prepare_lack,
 )
 from ucom_tools.wire.ids import Function
 from ucom_tools.wire.transfer import bytes_to_words
@@ -97,7 +97,7 @@ class BoardProgramming:
             return
         if rx is None:
             if isinstance(msg, m.ProgramPrepare | m.ProgramEnd):
-                port.error(t, ErrorCode.SEQUENCE, _PROGRAM, prepare_fault(PrepareFault.NO_BEGIN),
+                port.error(t, ErrorCode.SEQUENCE, _PROGRAM, prepare_lack(PrepareLack.NO_BEGIN),
                            via_fixed)
             return  # the rest of a preamble whose BEGIN was lost
         if isinstance(msg, m.ProgramMeta):
@@ -177,9 +177,9 @@ class BoardProgramming:
             return  # still erasing: Ready(ERASED) follows when done
         detail = None
         if not rx.meta_complete():
-            detail = prepare_fault(PrepareFault.META_INCOMPLETE, rx.meta_lacking())
+            detail = prepare_lack(PrepareLack.META_INCOMPLETE, rx.meta_lacking())
         elif rx.target is Target.FLASH and len(rx.erase_pages) != msg.pages:
-            detail = prepare_fault(PrepareFault.ERASE_INCOMPLETE, len(rx.erase_pages))
+            detail = prepare_lack(PrepareLack.ERASE_INCOMPLETE, len(rx.erase_pages))
         if detail is not None:
             port.error(t, ErrorCode.SEQUENCE, _PROGRAM, detail, via_fixed)
             return
