@@ -26,7 +26,7 @@ from dataclasses import dataclass, field, replace
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
 
-from ucom_tools.config.attrtree import BoundBoard, Kind, RobotTrees, Value
+from ucom_tools.config.attrtree import BoundBoard, RobotTrees, TreeEdgeKind, Value
 from ucom_tools.config.topology import Topology
 from ucom_tools.edgelists.model import EdgeSpec
 from ucom_tools.errors import BoardError, InputError, UcomTimeoutError
@@ -39,7 +39,7 @@ from ucom_tools.wire import mca
 from ucom_tools.wire.codes import BoardState
 from ucom_tools.wire.ids import ALL, seq
 
-KINDS = (Kind.CI, Kind.PAR)
+KINDS = (TreeEdgeKind.CI, TreeEdgeKind.PAR)
 """The kinds a board holds values of that the PC sets (SO values are measurements)."""
 RUNNING = (BoardState.RUNNING_FLASH, BoardState.RUNNING_EXTRAM)
 BITMASK = "(BitMask)"
@@ -124,7 +124,7 @@ def value_text(raw: int, spec: EdgeSpec, original: Value | None = None) -> str:
 class EdgeValue:
     """One PAR or CI value a board holds."""
 
-    kind: Kind
+    kind: TreeEdgeKind
     index: int
     """The tree index (counting CI, SO, PAR)."""
     generic: str

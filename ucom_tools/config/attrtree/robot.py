@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from ucom_tools.config.attrtree.model import Board, Edge, Tree
+from ucom_tools.config.attrtree.model import BoardBlock, Edge, Tree
 from ucom_tools.config.attrtree.parser import load
 from ucom_tools.config.topology import BoardSpec, Topology
 from ucom_tools.errors import InputError, TreeError
@@ -26,7 +26,7 @@ class BoundBoard:
     bus: str
     spec: BoardSpec
     file: Path
-    board: Board
+    board: BoardBlock
 
     @property
     def where(self) -> str:
@@ -48,7 +48,7 @@ class RobotTrees:
     def ok(self) -> bool:
         return not self.problems
 
-    def board(self, bus: str, position: int) -> Board:
+    def board(self, bus: str, position: int) -> BoardBlock:
         """The tree block of the board at 0-based ``position`` on ``bus``; KeyError if none."""
         for b in self.boards:
             if b.bus == bus and b.spec.position == position:
@@ -112,7 +112,7 @@ def _fail(topology: Topology, spec: BoardSpec, message: str) -> TreeError:
     return TreeError(message, file=topology.source, line=spec.line or None)
 
 
-def _block(tree: Tree, spec: BoardSpec) -> Board | str:
+def _block(tree: Tree, spec: BoardSpec) -> BoardBlock | str:
     """The board's block of ``tree``, or why there is none."""
     numbers = ", ".join(map(str, tree.numbers))
     if spec.tree_block is None:
