@@ -105,19 +105,19 @@ def running(robot: Robot, trees: RobotTrees) -> tuple[set[tuple[str, int]], dict
 
 
 # ----------------------------------------------------------------------------- values
-def value_text(raw: int, spec: EdgeSpec, original: Value | None = None) -> str:
+def value_text(raw: int, edge_spec: EdgeSpec, original: Value | None = None) -> str:
     """How a dumped tree writes ``raw``: the original text when it denotes the same raw
     number, else hex for a bit mask, else the exact decimal (no exponent, no trailing
     zeros)."""
     if original is not None:
         try:
-            if spec.raw(original.text) == raw:
+            if edge_spec.raw(original.text) == raw:
                 return original.text
         except (ValueError, InvalidOperation):
             pass
-    if spec.name.endswith(BITMASK) and spec.exponent == 0:
+    if edge_spec.name.endswith(BITMASK) and edge_spec.exponent == 0:
         return f"-0x{-raw:X}" if raw < 0 else f"0x{raw:X}"
-    return format(spec.value(raw).normalize(), "f")
+    return format(edge_spec.value(raw).normalize(), "f")
 
 
 @dataclass(frozen=True)
@@ -223,10 +223,10 @@ def _values(b: BoundBoard, edges: BoardEdges, raws: Mapping[mca.Kind, Sequence[i
         if e.kind not in KINDS:
             continue
         record = edges.of(kind)[i]
-        spec = spec_of(kind, record)
+        edge_spec = spec_of(kind, record)
         raw = raws[kind][i]
         out.append(EdgeValue(e.kind, e.index, e.generic, e.unique, raw,
-                             value_text(raw, spec, e.default), record.unit,
+                             value_text(raw, edge_spec, e.default), record.unit,
                              e.default.text if e.default else None))
     return tuple(out)
 

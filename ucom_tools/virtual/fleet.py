@@ -76,27 +76,27 @@ class Fleet:
         self._pending_lock = threading.Lock()
         if state_dir is not None:
             _state_dir(state_dir)
-        for spec in topology.buses:
-            sim = SimBus(spec.name, spec.bitrate, self.clock)
+        for bus_spec in topology.buses:
+            sim = SimBus(bus_spec.name, bus_spec.bitrate, self.clock)
             boards = []
-            for b in spec.boards:
+            for b in bus_spec.boards:
                 board = VirtualBoard(sim, Identity(b.position, b.placement, b.board, b.serial,
                                                    b.fixed_id, b.fpga),
                                      timing=topology.timing, powered=False,
-                                     state_file=self._state_file(spec.name, b),
+                                     state_file=self._state_file(bus_spec.name, b),
                                      defect=b.defect or defect)
                 if b.program is not None and not board.nv.record.flash_valid:
-                    install_program(board, b, topology.source, spec.name)
+                    install_program(board, b, topology.source, bus_spec.name)
                 sim.attach(board)
                 sim.chain.append(board)
                 if b.init_link_broken:
                     sim.broken_before.add(b.position)
                 boards.append(board)
-            for board, b in zip(boards, spec.boards, strict=True):
+            for board, b in zip(boards, bus_spec.boards, strict=True):
                 if b.powered:
                     board.power_on(0.0)
-            self.buses[spec.name] = sim
-            self.boards[spec.name] = boards
+            self.buses[bus_spec.name] = sim
+            self.boards[bus_spec.name] = boards
         self.scenario = scenario
         """The timed injected faults (None: none)."""
         self.injector = Injector(topology, self.buses, self.boards, self.clock)
@@ -155,10 +155,11 @@ class Fleet:
             raise outcome
         return outcome
 
-    def _state_file(self, bus: str, spec: BoardSpec) -> Path | None:
+    def _state_file(self, bus: str, board_spec: BoardSpec) -> Path | None:
         if self.state_dir is None:
             return None
-        safe = re.sub(r"[^A-Za-z0-9_-]+", "_", f"{bus}-{spec.position + 1}-{spec.placement}")
+        safe = re.sub(r"[^A-Za-z0-9_-]+", "_",
+                      f"{bus}-{board_spec.position + 1}-{board_spec.placement}")
         return self.state_dir / safe
 
     @property
@@ -364,31 +365,31 @@ def _send(sim: SimBus, sender: object, t: float, arbitration_id: int, data: byte
         sim.send(sender, t, arbitration_id, data)
 
 
-def install_program(board: VirtualBoard, spec: BoardSpec, source: str, bus: str) -> None:
+def install_program(board: VirtualBoard, board_spec: BoardSpec, source: str, bus: str) -> None:
     """Put a topology's initial program into a board's flash, as if flashed earlier."""
     from ucom_tools.image.formats import load_image  # the image layer is only needed here
 
-    assert spec.program is not None
+    assert board_spec.program is not None
     try:
-        stat = spec.program.stat()
-        key = (str(spec.program.resolve()), stat.st_mtime_ns, stat.st_size)
+        stat = board_spec.program.stat()
+        key = (str(board_spec.program.resolve()), stat.st_mtime_ns, stat.st_size)
         plan = _PLANS.get(key)
         if plan is None:
-            plan = load_image(spec.program).plan(when_epoch=stat.st_mtime)
+            plan = load_image(board_spec.program).plan(when_epoch=stat.st_mtime)
             if len(_PLANS) >= PLANS_KEPT:
                 _PLANS.pop(next(iter(_PLANS)))
             _PLANS[key] = plan
     except OSError as err:
         raise TopologyError(f"the S-record file it names cannot be read: "
-                            f"{err.strerror or err}", file=source, line=spec.line,
-                            key=f"{bus}, board {spec.position + 1} ({spec.placement}), "
+                            f"{err.strerror or err}", file=source, line=board_spec.line,
+                            key=f"{bus}, board {board_spec.position + 1} ({board_spec.placement}), "
                             "program") from None
     except UcomError as err:
         raise TopologyError(f"the S-record file it names is not usable: {err}", file=source,
-                            line=spec.line, key=f"{bus}, board {spec.position + 1} "
-                            f"({spec.placement}), program") from None
+                            line=board_spec.line, key=f"{bus}, board {board_spec.position + 1} "
+                            f"({board_spec.placement}), program") from None
     board.nv.install(plan)
-    board.nv.record.autostart = spec.autostart
+    board.nv.record.autostart = board_spec.autostart
 
 
 PLANS_KEPT = 8
