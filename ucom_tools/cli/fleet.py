@@ -419,10 +419,13 @@ def defects(as_json: bool) -> None:
 @click.option("--json", "as_json", is_flag=True, help="Print the defects as JSON.")
 @click.pass_context
 def old_faults(ctx: click.Context, as_json: bool) -> None:
-    """The old name of 'ucom fleet defects'."""
+    """The old name of 'ucom fleet defects' (its JSON under the old key, "faults")."""
     stderr().print("[yellow]'fleet faults' is the old name of 'fleet defects'; it still "
                    "works[/]")
-    ctx.invoke(defects, as_json=as_json)
+    if as_json:
+        emit_json({"faults": [d.as_dict() for d in mutants.defects()]})
+        return
+    ctx.invoke(defects, as_json=False)
 
 
 def _exchange(rt: dict[str, Any] | None) -> str:
