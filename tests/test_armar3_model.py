@@ -25,7 +25,7 @@ import pytest
 
 import ucom_tools.virtual.programs.armar3 as armar3_model
 import ucom_tools.virtual.programs.armar3_axis as armar3_axis
-from ucom_tools.config.attrtree import Board, Value, load
+from ucom_tools.config.attrtree import BoardBlock, Value, load
 from ucom_tools.edgelists.armar3 import SPEC, Command
 from ucom_tools.edgelists.model import EdgeKind, EdgeSpec
 from ucom_tools.virtual.hardware.fpga import VirtualFpga
@@ -48,7 +48,7 @@ LOWER_STOP = (EYE_AXIS.end_stops or (0.0, 0.0))[0]
 
 
 @cache
-def eyes() -> Board:
+def eyes() -> BoardBlock:
     return load(TREE).boards[0]
 
 

@@ -7,7 +7,16 @@ from pathlib import Path
 
 import pytest
 
-from ucom_tools.config.attrtree import Board, Edge, Kind, Tree, Value, dumps, load, parse
+from ucom_tools.config.attrtree import (
+    BoardBlock,
+    Edge,
+    Tree,
+    TreeEdgeKind,
+    Value,
+    dumps,
+    load,
+    parse,
+)
 from ucom_tools.errors import InputError, TreeError
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -137,12 +146,12 @@ def test_b5_counts() -> None:
     (board,) = load(EYES).boards
     assert (board.number, board.prefix) == (0, "Eyes")
     assert len(board.edges) == 71
-    assert [len(board.of_kind(k)) for k in Kind] == [13, 20, 38]
-    assert [e.index for e in board.of_kind(Kind.CI)] == list(range(13))
-    assert [e.index for e in board.of_kind(Kind.SO)] == list(range(13, 33))
-    assert [e.index for e in board.of_kind(Kind.PAR)] == list(range(33, 71))
-    assert len(board.defaults(Kind.PAR)) == 35
-    assert len(board.defaults(Kind.CI)) == 6
+    assert [len(board.of_kind(k)) for k in TreeEdgeKind] == [13, 20, 38]
+    assert [e.index for e in board.of_kind(TreeEdgeKind.CI)] == list(range(13))
+    assert [e.index for e in board.of_kind(TreeEdgeKind.SO)] == list(range(13, 33))
+    assert [e.index for e in board.of_kind(TreeEdgeKind.PAR)] == list(range(33, 71))
+    assert len(board.defaults(TreeEdgeKind.PAR)) == 35
+    assert len(board.defaults(TreeEdgeKind.CI)) == 6
     assert len(board.defaults()) == 41
     assert sum(e.generic == e.unique for e in board.edges) == 25
 
@@ -167,11 +176,11 @@ def test_b5_default_numbers_and_lines() -> None:
     assert numbers["Max PWM"] == 14000 and isinstance(numbers["Max PWM"], int)
     assert numbers["Right Eye Reset Offset"] == -12725
     assert numbers["MotorC Min Position"] == -30000
-    by_line = sorted((e.default_line, e.unique) for e in board.edges if e.kind is Kind.PAR
+    by_line = sorted((e.default_line, e.unique) for e in board.edges if e.kind is TreeEdgeKind.PAR
                      and e.default)
     assert [u for _, u in by_line] == PARAMETER_ORDER
     assert [n for n, _ in by_line] == list(range(82, 117))
-    ci = sorted((e.default_line, e.unique) for e in board.edges if e.kind is Kind.CI
+    ci = sorted((e.default_line, e.unique) for e in board.edges if e.kind is TreeEdgeKind.CI
                 and e.default)
     assert ci == list(zip(range(120, 126), CI_ORDER, strict=True))
 
@@ -232,7 +241,7 @@ def test_a_ci_default_may_be_added_for_any_ci_edge() -> None:
     board = parse(text, "eyes").boards[0]
     assert board.edge("Left Eye Target Vel").default == Value.parse("0")
     assert board.edge("Left Eye Reset Offset").default is None
-    assert len(board.defaults(Kind.CI)) == 6
+    assert len(board.defaults(TreeEdgeKind.CI)) == 6
 
 
 # ----------------------------------------------------------------------------- values
@@ -280,7 +289,7 @@ def test_values_compare_by_text() -> None:
 
 # ----------------------------------------------------------------------------- model
 def test_kind_sections() -> None:
-    assert [k.section for k in Kind] == ["ControllerInput", None, "Parameter"]
+    assert [k.section for k in TreeEdgeKind] == ["ControllerInput", None, "Parameter"]
 
 
 def test_lookups_raise_key_error() -> None:
@@ -293,7 +302,7 @@ def test_lookups_raise_key_error() -> None:
 
 def test_several_boards_keep_file_order_and_names_may_repeat_across_boards() -> None:
     eyes = load(EYES).boards[0]
-    other = Board(7, "Other", eyes.edges)
+    other = BoardBlock(7, "Other", eyes.edges)
     tree = parse(dumps(Tree((other, eyes))), "two")
     assert tree.numbers == (7, 0)
     assert tree.board(7).edges == tree.board(0).edges
@@ -306,5 +315,5 @@ def test_missing_file_is_a_tree_error(tmp_path: Path) -> None:
 
 
 def test_edges_compare_without_lines() -> None:
-    a = Edge(0, Kind.CI, "g", "u", Value.parse("1"), line=3, default_line=9)
-    assert a == Edge(0, Kind.CI, "g", "u", Value.parse("1"))
+    a = Edge(0, TreeEdgeKind.CI, "g", "u", Value.parse("1"), line=3, default_line=9)
+    assert a == Edge(0, TreeEdgeKind.CI, "g", "u", Value.parse("1"))

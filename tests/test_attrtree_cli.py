@@ -134,7 +134,7 @@ def test_check_topology_names_every_board_without_a_tree(tmp_path: Path) -> None
 
 def _two_blocks(tmp: Path) -> Path:
     eyes = attrtree.load(EYES).boards[0]
-    other = attrtree.Board(5, "Other", eyes.edges)
+    other = attrtree.BoardBlock(5, "Other", eyes.edges)
     path = tmp / "two.tree"
     attrtree.save(attrtree.Tree((eyes, other)), path)
     return path
@@ -198,7 +198,7 @@ def test_show_on_a_narrow_terminal_folds_but_never_truncates() -> None:
         rows[-1][0] += "".join(cells[3].split())
         rows[-1][1] += "".join(cells[4].split())
     board = attrtree.load(EYES).boards[0]
-    by_kind = [e for k in attrtree.Kind for e in board.of_kind(k)]
+    by_kind = [e for k in attrtree.TreeEdgeKind for e in board.of_kind(k)]
     assert rows == [["".join(e.generic.split()), "".join(e.unique.split())] for e in by_kind]
     assert any(len(e.unique) > 20 for e in board.edges)  # so some cells had to fold
 

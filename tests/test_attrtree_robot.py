@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from ucom_tools.config import attrtree, topology
-from ucom_tools.config.attrtree import Kind, bind, check, load
+from ucom_tools.config.attrtree import TreeEdgeKind, bind, check, load
 from ucom_tools.errors import TreeError
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -99,7 +99,7 @@ def test_lauron4_has_its_own_leg_program() -> None:
     (program,) = programs
     armar3 = {e.generic for e in load(EYES).boards[0].edges}
     assert not armar3 & {g for _, _, g in program}
-    assert [sum(k is kind for _, k, _ in program) for kind in Kind] == [11, 15, 30]
+    assert [sum(k is kind for _, k, _ in program) for kind in TreeEdgeKind] == [11, 15, 30]
 
 
 def test_lauron4_legs_name_alpha_beta_gamma_and_the_head_pan_tilt() -> None:

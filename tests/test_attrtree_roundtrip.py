@@ -10,11 +10,11 @@ from hypothesis import strategies as st
 
 from ucom_tools.config.attrtree import (
     KIND_ORDER,
-    Board,
+    BoardBlock,
     ChangeKind,
     Edge,
-    Kind,
     Tree,
+    TreeEdgeKind,
     Value,
     diff,
     dumps,
@@ -64,7 +64,7 @@ value_texts = st.one_of(
 
 
 @st.composite
-def boards(draw: st.DrawFn, number: int, prefix: str) -> Board:
+def boards(draw: st.DrawFn, number: int, prefix: str) -> BoardBlock:
     n = draw(st.integers(1, 20))
     kinds = sorted(draw(st.lists(st.sampled_from(KIND_ORDER), min_size=n, max_size=n)),
                    key=KIND_ORDER.index)
@@ -73,10 +73,10 @@ def boards(draw: st.DrawFn, number: int, prefix: str) -> Board:
     edges = []
     for i, kind in enumerate(kinds):
         default = None
-        if kind is not Kind.SO and draw(st.booleans()):
+        if kind is not TreeEdgeKind.SO and draw(st.booleans()):
             default = Value.parse(draw(value_texts))
         edges.append(Edge(i, kind, generic[i], unique[i], default))
-    return Board(number, prefix, tuple(edges))
+    return BoardBlock(number, prefix, tuple(edges))
 
 
 @st.composite
@@ -139,8 +139,9 @@ def test_diff_names_exactly_the_one_change(data: st.DataObject) -> None:
     elif what is ChangeKind.GENERIC_CHANGED:
         edges[ei] = replace(edge, generic=edge.generic + " new")
     elif what is ChangeKind.KIND_CHANGED:
-        edges[ei] = replace(edge, kind=Kind.SO if edge.kind is not Kind.SO else Kind.CI,
-                            default=None if edge.kind is not Kind.SO else edge.default)
+        so = edge.kind is TreeEdgeKind.SO
+        edges[ei] = replace(edge, kind=TreeEdgeKind.CI if so else TreeEdgeKind.SO,
+                            default=edge.default if so else None)
         if edge.default is not None:
             what = ChangeKind.KIND_CHANGED  # and default-removed, checked below
     elif what is ChangeKind.DEFAULT_CHANGED:
@@ -151,7 +152,7 @@ def test_diff_names_exactly_the_one_change(data: st.DataObject) -> None:
         edges[ei] = replace(edge, default=None if edge.default else Value.parse("0x1"))
         what = ChangeKind.DEFAULT_REMOVED if edge.default else ChangeKind.DEFAULT_ADDED
     elif what is ChangeKind.EDGE_ADDED:
-        edges.append(Edge(len(edges), Kind.PAR, "added g", "added u"))
+        edges.append(Edge(len(edges), TreeEdgeKind.PAR, "added g", "added u"))
         ei = len(edges) - 1
     elif what is ChangeKind.EDGE_REMOVED:
         edges.pop()
@@ -159,7 +160,7 @@ def test_diff_names_exactly_the_one_change(data: st.DataObject) -> None:
     elif what is ChangeKind.PREFIX_CHANGED:
         board = replace(board, prefix=board.prefix + " new")
     elif what is ChangeKind.BOARD_ADDED:
-        boards.append(Board(max(a.numbers) + 1, "added", board.edges))
+        boards.append(BoardBlock(max(a.numbers) + 1, "added", board.edges))
     elif what is ChangeKind.BOARD_REMOVED:
         if len(boards) == 1:
             return
@@ -170,7 +171,8 @@ def test_diff_names_exactly_the_one_change(data: st.DataObject) -> None:
     assert changes and changes[0].kind is what
     assert all(c.board == (boards[-1].number if what is ChangeKind.BOARD_ADDED else
                            board.number) for c in changes)
-    if what is ChangeKind.KIND_CHANGED and edge.default is not None and edge.kind is not Kind.SO:
+    if (what is ChangeKind.KIND_CHANGED and edge.default is not None
+            and edge.kind is not TreeEdgeKind.SO):
         assert [c.kind for c in changes] == [what, ChangeKind.DEFAULT_REMOVED]
     else:
         assert len(changes) == 1

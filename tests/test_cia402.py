@@ -27,9 +27,9 @@ from ucom_tools.gateway.cia402_objects import (
     ERROR_RESET,
     SUPPORTED_MODES,
     DriveConfig,
+    DriveFault,
     DriveOutputs,
     Emcy,
-    Fault,
     FaultCause,
     JointReport,
     ObjectValues,
@@ -62,7 +62,7 @@ class Bench:
         self.drive = Drive402(config)
         self.objects = replace(config.defaults(), **objects)
         self.joint = JointReport(position=100, velocity=0, valid=True)
-        self.faults: tuple[Fault, ...] = ()
+        self.faults: tuple[DriveFault, ...] = ()
         self.now = 0.0
         self.out = self.step()
 
@@ -170,7 +170,7 @@ def test_each_transition_by_its_command_and_its_statusword(
 def test_fault_reaction_fault_and_reset_transitions_13_14_15() -> None:
     bench = Bench()
     _to(bench, S.OPERATION_ENABLED)
-    bench.faults = (Fault(FaultCause.BOARD_LOST),)
+    bench.faults = (DriveFault(FaultCause.BOARD_LOST),)
     out = bench.step(0.001)
     assert (out.transitions, out.statusword, out.command) == ((13,), FRA, Command.OFF)
     out = bench.step(0.001)
@@ -241,7 +241,7 @@ def test_basenode402_state_setter_reaches_operation_enabled() -> None:
 def test_basenode402_reset_from_fault_then_operation_enabled() -> None:
     bench = Bench()
     _set_state(bench, "OPERATION ENABLED")
-    bench.faults = (Fault(FaultCause.MASTER_HEARTBEAT),)
+    bench.faults = (DriveFault(FaultCause.MASTER_HEARTBEAT),)
     bench.step(0.001)
     bench.step(0.001)
     assert _named(bench.out.statusword) == "FAULT"
@@ -339,7 +339,7 @@ def test_canopens_basenode402_drives_it_over_sdo() -> None:
         node.controlword = 0x0F
         assert not node.statusword & BIT12
         with served.lock:
-            served.bench.faults = (Fault(FaultCause.SYNC_TIMEOUT),)
+            served.bench.faults = (DriveFault(FaultCause.SYNC_TIMEOUT),)
             served.bench.step()
             served.bench.step()
         assert node.state == "FAULT"
@@ -689,19 +689,19 @@ def test_quick_stop_option_0_switches_off_at_once() -> None:
 
 # ---------------------------------------------------------------- faults
 EMCYS = [
-    (Fault(FaultCause.MASTER_HEARTBEAT), Emcy(0x8130, 0x11, bytes([1, 0, 0, 0, 0]))),
-    (Fault(FaultCause.SYNC_TIMEOUT, detail=300), Emcy(0x8100, 0x11, bytes([2, 44, 1, 0, 0]))),
-    (Fault(FaultCause.BUS_OFF), Emcy(0x8140, 0x11, bytes([3, 0, 0, 0, 0]))),
-    (Fault(FaultCause.BOARD_LOST, detail=7), Emcy(0xFF01, 0x81, bytes([4, 7, 0, 0, 0]))),
-    (Fault(FaultCause.BOARD_LATCHED, detail=52),
+    (DriveFault(FaultCause.MASTER_HEARTBEAT), Emcy(0x8130, 0x11, bytes([1, 0, 0, 0, 0]))),
+    (DriveFault(FaultCause.SYNC_TIMEOUT, detail=300), Emcy(0x8100, 0x11, bytes([2, 44, 1, 0, 0]))),
+    (DriveFault(FaultCause.BUS_OFF), Emcy(0x8140, 0x11, bytes([3, 0, 0, 0, 0]))),
+    (DriveFault(FaultCause.BOARD_LOST, detail=7), Emcy(0xFF01, 0x81, bytes([4, 7, 0, 0, 0]))),
+    (DriveFault(FaultCause.BOARD_LATCHED, detail=52),
      Emcy(0xFF02, 0x81, bytes([5, 52, 0, 0, 0]))),
-    (Fault(FaultCause.BOARD_ERROR, code=0x10, detail=0x01020304),
+    (DriveFault(FaultCause.BOARD_ERROR, code=0x10, detail=0x01020304),
      Emcy(0xFF90, 0x81, bytes([6, 4, 3, 2, 1]))),
 ]
 
 
 @pytest.mark.parametrize(("fault", "emcy"), EMCYS)
-def test_each_cause_enters_fault_with_its_emcy(fault: Fault, emcy: Emcy) -> None:
+def test_each_cause_enters_fault_with_its_emcy(fault: DriveFault, emcy: Emcy) -> None:
     bench = Bench()
     bench.enable(3)
     bench.write(target_velocity=1000)
@@ -726,7 +726,7 @@ def test_each_cause_enters_fault_with_its_emcy(fault: Fault, emcy: Emcy) -> None
 
 def test_a_new_cause_while_in_fault_sends_its_emcy_too() -> None:
     bench = Bench()
-    lost, latched = Fault(FaultCause.BOARD_LOST), Fault(FaultCause.BOARD_LATCHED)
+    lost, latched = DriveFault(FaultCause.BOARD_LOST), DriveFault(FaultCause.BOARD_LATCHED)
     bench.faults = (lost,)
     assert bench.step(0.001).emcys == (lost.emcy(),)
     assert bench.step(0.001).emcys == ()  # the same cause: sent once
@@ -741,7 +741,7 @@ def test_a_new_cause_while_in_fault_sends_its_emcy_too() -> None:
 
 def test_a_fault_before_the_joint_reports_and_an_event_fault() -> None:
     drive = Drive402(EYE)
-    error = Fault(FaultCause.BOARD_ERROR, code=0x0B)
+    error = DriveFault(FaultCause.BOARD_ERROR, code=0x0B)
     out = drive.update(0.0, EYE.defaults(), JointReport(), (error,))
     assert out.transitions == (0, 13) and out.statusword == 0x000F | REMOTE
     out = drive.update(0.001, EYE.defaults(), JointReport(valid=True))  # the event passed
@@ -753,9 +753,9 @@ def test_a_fault_before_the_joint_reports_and_an_event_fault() -> None:
 
 def test_faults_are_checked() -> None:
     with pytest.raises(ValueError, match=r"0\.\.127"):
-        Fault(FaultCause.BOARD_ERROR, code=0x80)
+        DriveFault(FaultCause.BOARD_ERROR, code=0x80)
     with pytest.raises(ValueError, match="UNSIGNED32"):
-        Fault(FaultCause.BOARD_LOST, detail=-1)
+        DriveFault(FaultCause.BOARD_LOST, detail=-1)
 
 
 def test_objects_default_to_the_trees_values() -> None:

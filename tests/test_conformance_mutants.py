@@ -1,5 +1,5 @@
-"""The conformance suite is proven: run against boards with each documented fault
-(ucom_tools.virtual.board.mutants), it fails, and in the case named for that fault; against
+"""The conformance suite is proven: run against boards with each documented defect
+(ucom_tools.virtual.board.mutants), it fails, and in the case named for that defect; against
 conforming boards it passes (tests/test_conformance.py: ten times in a row).  The
 mutation score is printed at the end of the test run."""
 
@@ -35,40 +35,40 @@ CATCHES = {
     mutants.DUMP_OFF_BY_ONE: "mca.dump",
     mutants.READY_COUNTS_WRONG: "mca.ready",
 }
-"""Each fault and the case that must catch it."""
+"""Each defect and the case that must catch it."""
 
 SCORE: dict[str, bool] = {}
-"""Fault -> caught by its case (read by conftest's summary)."""
+"""Defect -> caught by its case (read by conftest's summary)."""
 
 
-def _head(fault: str | None) -> Fleet:
-    """ARMAR-III's CAN0 (three boards), every board with ``fault``."""
+def _head(defect: str | None) -> Fleet:
+    """ARMAR-III's CAN0 (three boards), every board with ``defect``."""
     armar3 = load("armar3")
-    return Fleet(replace(armar3, buses=armar3.buses[:1]), fault=fault)
+    return Fleet(replace(armar3, buses=armar3.buses[:1]), defect=defect)
 
 
-def test_every_fault_has_a_case_that_catches_it() -> None:
-    assert set(CATCHES) == {f.name for f in mutants.faults()}
+def test_every_defect_has_a_case_that_catches_it() -> None:
+    assert set(CATCHES) == {d.name for d in mutants.defects()}
     assert len(CATCHES) >= 15
     ids = {c.id for c in select(None)}
     assert set(CATCHES.values()) <= ids
 
 
-@pytest.mark.parametrize("fault", sorted(CATCHES))
-def test_the_suite_catches_the_mutant(fault: str) -> None:
-    fleet = _head(fault)
+@pytest.mark.parametrize("defect", sorted(CATCHES))
+def test_the_suite_catches_the_mutant(defect: str) -> None:
+    fleet = _head(defect)
     robot = robot_of(fleet)
     try:
         result = run_suite(robot, select(None))
     finally:
         robot.close()
     failed = {o.case.id for o in result.failed}
-    SCORE[fault] = CATCHES[fault] in failed
-    assert CATCHES[fault] in failed, (fault, sorted(failed),
+    SCORE[defect] = CATCHES[defect] in failed
+    assert CATCHES[defect] in failed, (defect, sorted(failed),
                                       [(o.case.id, o.status, o.message)
-                                       for o in result.outcomes if o.case.id == CATCHES[fault]])
+                                       for o in result.outcomes if o.case.id == CATCHES[defect]])
     assert result.bus_failure is None
-    failure = next(o for o in result.failed if o.case.id == CATCHES[fault])
+    failure = next(o for o in result.failed if o.case.id == CATCHES[defect])
     assert "expected" in failure.message and failure.frames  # readable: what and the frames
 
 

@@ -59,7 +59,8 @@ def test_environment_and_exit_codes_are_documented_once_and_completely() -> None
 
 def _leaf_commands(groups: bool = False) -> dict[tuple[str, ...], click.Command]:
     """Every command of ``ucom`` by its words (``("fleet", "serve")``), groups walked
-    (and named too with ``groups``, the root as ``()``)."""
+    (and named too with ``groups``, the root as ``()``); hidden ones (old names kept for
+    scripts, tests/test_old_names.py) are not."""
     found: dict[tuple[str, ...], click.Command] = {}
 
     def walk(cmd: click.Command, words: tuple[str, ...]) -> None:
@@ -70,7 +71,8 @@ def _leaf_commands(groups: bool = False) -> dict[tuple[str, ...], click.Command]
             for name in cmd.list_commands(ctx):
                 sub = cmd.get_command(ctx, name)
                 assert sub is not None, name
-                walk(sub, (*words, name))
+                if not sub.hidden:
+                    walk(sub, (*words, name))
         else:
             found[words] = cmd
 

@@ -25,7 +25,7 @@ from pathlib import Path
 import pytest
 
 import ucom_tools.virtual.programs.lauron4 as lauron4_model
-from ucom_tools.config.attrtree import Board, Kind, Value, load
+from ucom_tools.config.attrtree import BoardBlock, TreeEdgeKind, Value, load
 from ucom_tools.edgelists import by_name
 from ucom_tools.edgelists.lauron4 import NAME, SPEC, LegMode, Status
 from ucom_tools.edgelists.model import EdgeKind, EdgeSpec
@@ -43,12 +43,12 @@ from ucom_tools.virtual.programs.lauron4 import (
 from ucom_tools.wire.fpga import FpgaVersion, Reg
 
 TREES = sorted(Path("attribute_trees/lauron4").glob("*.tree"))
-KINDS = {Kind.CI: EdgeKind.CI, Kind.SO: EdgeKind.SO, Kind.PAR: EdgeKind.PAR}
+KINDS = {TreeEdgeKind.CI: EdgeKind.CI, TreeEdgeKind.SO: EdgeKind.SO, TreeEdgeKind.PAR: EdgeKind.PAR}
 DEG = math.pi / 180
 
 
 @cache
-def tree_board(name: str) -> Board:
+def tree_board(name: str) -> BoardBlock:
     return load(Path("attribute_trees/lauron4") / name).boards[0]
 
 

@@ -520,10 +520,10 @@ def test_processes_is_auto_or_a_positive_number(value: str) -> None:
 
 
 @pytest.mark.parametrize("processes", ["auto", "1"])
-def test_fault_makes_the_boards_of_every_bus_mutants(processes: str) -> None:
-    with served("--processes", processes, "--fault", "seq-from-zero") as server:
+def test_defect_makes_the_boards_of_every_bus_mutants(processes: str) -> None:
+    with served("--processes", processes, "--defect", "seq-from-zero") as server:
         until(lambda: "mutant boards (seq-from-zero)" in " ".join(server.stderr().split()),
-              what="the banner naming the fault")
+              what="the banner naming the defect")
         for spec in (ARMAR3.buses[0], ARMAR3.buses[-1]):
             with host(server.port, spec.name) as h:
                 init = h.client.init_chain()  # numbering from 0: only "0" is heard
@@ -532,22 +532,22 @@ def test_fault_makes_the_boards_of_every_bus_mutants(processes: str) -> None:
         assert server.wait(STOP_S) == 130, server.stderr()
 
 
-def test_an_unknown_fault_is_refused_before_anything_is_served() -> None:
-    result = CliRunner().invoke(cli, ["fleet", "serve", "armar3", "--fault", "seq-from-one"])
+def test_an_unknown_defect_is_refused_before_anything_is_served() -> None:
+    result = CliRunner().invoke(cli, ["fleet", "serve", "armar3", "--defect", "seq-from-one"])
     assert result.exit_code == 3
-    assert "--fault: unknown fault 'seq-from-one'; known: seq-from-zero" in result.output
+    assert "--defect: unknown defect 'seq-from-one'; known: seq-from-zero" in result.output
 
 
-def test_fleet_faults_lists_the_catalogue_as_text_and_json() -> None:
+def test_fleet_defects_lists_the_catalogue_as_text_and_json() -> None:
     from ucom_tools.virtual.board import mutants
-    text = CliRunner().invoke(cli, ["fleet", "faults"], terminal_width=200)
+    text = CliRunner().invoke(cli, ["fleet", "defects"], terminal_width=200)
     assert text.exit_code == 0
     assert [line.split()[0] for line in text.output.splitlines()[1:]] == list(mutants.NAMES)
-    js = CliRunner().invoke(cli, ["fleet", "faults", "--json"])
+    js = CliRunner().invoke(cli, ["fleet", "defects", "--json"])
     import json
-    faults = json.loads(js.output)["faults"]
-    assert [f["name"] for f in faults] == list(mutants.NAMES)
-    assert all(f["section"] and f["symptom"] for f in faults)
+    defects = json.loads(js.output)["defects"]
+    assert [d["name"] for d in defects] == list(mutants.NAMES)
+    assert all(d["section"] and d["symptom"] for d in defects)
 
 
 def test_bus_option_of_the_run_time_commands_opens_that_bus_by_name() -> None:

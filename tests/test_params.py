@@ -17,7 +17,7 @@ from ucom_tools.cli import output
 from ucom_tools.cli import params as params_cli
 from ucom_tools.cli.main import UcomGroup, cli
 from ucom_tools.config import attrtree
-from ucom_tools.config.attrtree import Kind
+from ucom_tools.config.attrtree import TreeEdgeKind
 from ucom_tools.config.attrtree.robot import bind
 from ucom_tools.config.topology import SOURCE_ROOT, load
 from ucom_tools.edgelists import armar3
@@ -35,8 +35,8 @@ IMAGE = str(SOURCE_ROOT / "firmware_images" / "armar3.fl.S")
 TREES = SOURCE_ROOT / "attribute_trees"
 ARMAR3 = sorted((TREES / "armar3").glob("*.tree"))
 EYES = TREES / "armar3" / "head_right.tree"
-WIRE = {Kind.CI: mca.Kind.CI, Kind.PAR: mca.Kind.PAR}
-FIRST = {Kind.CI: 0, Kind.PAR: 33}
+WIRE = {TreeEdgeKind.CI: mca.Kind.CI, TreeEdgeKind.PAR: mca.Kind.PAR}
+FIRST = {TreeEdgeKind.CI: 0, TreeEdgeKind.PAR: 33}
 """Tree index of the first edge of each kind in armar3.fl.S (CI 0-12, SO 13-32, PAR 33-70)."""
 
 
@@ -83,7 +83,7 @@ class Held:
         assert app is not None and app.runtime is not None, f"{bus} board {n} runs nothing"
         return app.runtime
 
-    def raw(self, bus: str, n: int, kind: Kind, unique: str) -> int:
+    def raw(self, bus: str, n: int, kind: TreeEdgeKind, unique: str) -> int:
         """What the board holds, from its own memory (not over the bus)."""
         block = attrtree.load(TREES / "armar3" / _TREE[(bus, n)]).boards[0]
         e = block.edge(unique)
@@ -166,7 +166,7 @@ def test_dump_writes_trees_that_tree_check_accepts_with_the_live_values(
         assert [(e.index, e.kind, e.generic, e.unique) for e in dumped.edges] == \
             [(e.index, e.kind, e.generic, e.unique) for e in bundled.edges]
         for e in dumped.edges:
-            if e.kind is Kind.SO:
+            if e.kind is TreeEdgeKind.SO:
                 assert e.default is None
                 continue
             assert e.default is not None, e.unique
@@ -175,7 +175,7 @@ def test_dump_writes_trees_that_tree_check_accepts_with_the_live_values(
             .edges if e.default is not None}
     assert (eyes["RightEye P"], eyes["Encoder Prescaler(BitMask)"], eyes["LoopTime(ms)"],
             eyes["Right Eye Reset Offset"]) == ("0.123456", "0x123", "2.5", "-1234")
-    assert held.raw("CAN2", 1, Kind.PAR, "Max PWM") == 12345
+    assert held.raw("CAN2", 1, TreeEdgeKind.PAR, "Max PWM") == 12345
     data = json.loads(r.stdout)
     assert data["ok"] and len(data["written"]) == 11 and len(data["boards"]) == 11
     board = next(b for b in data["boards"] if b["prefix"] == "Eyes")
@@ -194,12 +194,12 @@ def test_dump_load_dump_gives_byte_identical_files(held: Held, tmp_path: Path) -
     assert r.exit_code == 0, r.stderr
     held.power_cycle()  # every board back to its program's power-on values
     held.set_live({})
-    assert held.raw("CAN0", 3, Kind.PAR, "RightEye P") == 0
+    assert held.raw("CAN0", 3, TreeEdgeKind.PAR, "RightEye P") == 0
     r = run("params", "load", "armar3", *sorted(first.iterdir()), *spec)
     assert r.exit_code == 0, r.stderr
     assert "loaded, read back" in r.stdout
-    assert held.raw("CAN0", 3, Kind.PAR, "RightEye P") == 123456
-    assert held.raw("CAN2", 1, Kind.PAR, "Max PWM") == 12345
+    assert held.raw("CAN0", 3, TreeEdgeKind.PAR, "RightEye P") == 123456
+    assert held.raw("CAN2", 1, TreeEdgeKind.PAR, "Max PWM") == 12345
     r = run("params", "dump", "armar3", "-o", second, *spec)
     assert r.exit_code == 0, r.stderr
     for f in sorted(first.iterdir()):
@@ -292,7 +292,7 @@ def test_load_of_an_out_of_range_value_is_exit_3_with_file_and_line_and_sends_no
     bad.write_text(text.replace("Max PWM:14000", "Max PWM:12000"))
     r = run("params", "load", "armar3", bad, "--virtual", "armar3", "--state", held.state)
     assert r.exit_code == 0, r.stderr
-    assert held.raw("CAN0", 3, Kind.PAR, "Max PWM") == 12000
+    assert held.raw("CAN0", 3, TreeEdgeKind.PAR, "Max PWM") == 12000
     assert held.snapshot("CAN0", 1) == before[1]  # no file for the neck: left alone
 
 
@@ -364,14 +364,14 @@ def test_flash_keep_params_keeps_a_changed_gain_across_a_reflash(held: Held) -> 
     assert "3 of 3 board(s) verified" in out
     assert "params kept: CAN0 board 3 (head right): 51 values loaded back and read back" in out
     assert held.fleet.boards["CAN0"][2].application is not old  # reprogrammed and restarted
-    assert held.raw("CAN0", 3, Kind.PAR, "RightEye P") == 123456
-    assert held.raw("CAN0", 3, Kind.PAR, "Encoder Prescaler(BitMask)") == 0x123
-    assert held.raw("CAN0", 3, Kind.CI, "Right Eye Reset Offset") == -1234
+    assert held.raw("CAN0", 3, TreeEdgeKind.PAR, "RightEye P") == 123456
+    assert held.raw("CAN0", 3, TreeEdgeKind.PAR, "Encoder Prescaler(BitMask)") == 0x123
+    assert held.raw("CAN0", 3, TreeEdgeKind.CI, "Right Eye Reset Offset") == -1234
     # without --keep-params the reflash loses them: the check above can fail
     r = run("flash", IMAGE, "--start", *spec, "--json")
     assert r.exit_code == 0, r.stderr
     assert "keep_params" not in json.loads(r.stdout)
-    assert held.raw("CAN0", 3, Kind.PAR, "RightEye P") == 0
+    assert held.raw("CAN0", 3, TreeEdgeKind.PAR, "RightEye P") == 0
 
 
 def test_flash_keep_params_json_and_a_board_without_a_program(held: Held) -> None:
@@ -387,8 +387,8 @@ def test_flash_keep_params_json_and_a_board_without_a_program(held: Held) -> Non
         (1, "kept", 51), (2, "kept", 51), (3, "skipped", 0)]
     assert kept["boards"][2]["detail"] == "nothing to keep: runs no program (bootloader)"
     assert kept["boards"][0]["detail"] == "51 values loaded back and read back"
-    assert held.raw("CAN0", 1, Kind.PAR, "Max PWM") == 9000
-    assert held.raw("CAN0", 3, Kind.PAR, "Max PWM") == armar3.PWM_FULL  # power-on value
+    assert held.raw("CAN0", 1, TreeEdgeKind.PAR, "Max PWM") == 9000
+    assert held.raw("CAN0", 3, TreeEdgeKind.PAR, "Max PWM") == armar3.PWM_FULL  # power-on value
 
 
 def test_flash_keep_params_stops_before_programming_when_a_board_cannot_be_read(

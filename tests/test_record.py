@@ -18,7 +18,7 @@ from click.testing import CliRunner
 
 from ucom_tools.cli.main import UcomGroup
 from ucom_tools.cli.plot import PLOT_EXTRA, plot
-from ucom_tools.config.attrtree.model import Kind
+from ucom_tools.config.attrtree.model import TreeEdgeKind
 from ucom_tools.errors import InputError
 from ucom_tools.trace.logs import LogError
 from ucom_tools.trace.record import VALUES_HEADER, RunRecorder, read_values, values_path
@@ -150,7 +150,7 @@ def test_values_file_holds_only_changes_as_exact_decimal_text(tmp_path: Path) ->
         put = rec.value
         assert put(1.0, "CAN0", 1, "Eyes", "Right Eye Target", "CI", Decimal("1.50"))
         assert not put(1.001, "CAN0", 1, "Eyes", "Right Eye Target", "CI", Decimal("1.5"))
-        assert not put(1.002, "CAN0", 1, "Eyes", "Right Eye Target", Kind.CI, 1.5)
+        assert not put(1.002, "CAN0", 1, "Eyes", "Right Eye Target", TreeEdgeKind.CI, 1.5)
         assert put(1.003, "CAN0", 1, "Eyes", "Right Eye Target", "CI", 2)
         # the same name on another board or bus is another signal: its first row is written
         assert put(1.003, "CAN0", 2, "Neck", "Right Eye Target", "CI", 2)
@@ -159,7 +159,7 @@ def test_values_file_holds_only_changes_as_exact_decimal_text(tmp_path: Path) ->
                    0.00001)
         assert put(1.005, "CAN0", 1, "Eyes", "Right Eye Joint Sensor", "SO",
                    Decimal("-1.2E+3"))
-        assert put(1.006, "CAN0", 1, "Eyes", "Right Eye Gain", Kind.PAR, 10**20)
+        assert put(1.006, "CAN0", 1, "Eyes", "Right Eye Gain", TreeEdgeKind.PAR, 10**20)
         assert not put(1.007, "CAN0", 1, "Eyes", "Right Eye Gain", "PAR", Decimal("1E+20"))
         with pytest.raises(ValueError):
             put(1.008, "CAN0", 1, "Eyes", "Right Eye Gain", "XX", 1)

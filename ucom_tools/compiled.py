@@ -21,6 +21,60 @@ It is all or nothing: the compiled modules call each other natively, so one of t
 compiled beside another one from source would not be the same program.
 :func:`activate` (run by ``ucom_tools/__init__.py`` before anything else is imported)
 decides; :func:`status` says what it decided (``ucom --version`` shows it).
+
+What the compiled build needs of the code
+-----------------------------------------
+The one place that says it; a comment in a compiled module points here ("see
+compiled.py") where the code would otherwise look odd.  mypyc compiles ordinary typed
+Python, but not all of it alike, and some of it not at all:
+
+- Compiled classes are native: their methods cannot be replaced, on the class or an instance.
+  A class whose method a test or conformance case replaces (``Link.send_raw``: frames
+  lost on purpose), or that extends a built-in type other than ``object``
+  (``signals.Terminated``, a ``KeyboardInterrupt``), is compiled as a plain class,
+  ``@mypyc_attr(native_class=False)`` (:mod:`ucom_tools.native`); its methods are
+  compiled all the same.
+- A class from source may extend a compiled one only where that one allows it,
+  ``@mypyc_attr(allow_interpreted_subclasses=True)``: ``RemoteValues`` and ``RemoteLoop``,
+  which ``RemotePart`` (from source) extends.
+- Attributes are declared fields: a class-level default of an object (a frozenset, a
+  ``ProgramSpec``) is not compiled as one, the instance would have none; set it in
+  ``__init__`` (``exchange``, ``programs.lauron4``).  Types narrow as the type checker
+  narrows them: a field read just after it was set to None is None to the compiled code,
+  even where another thread set it meanwhile; read it through a method of its own
+  (``serve.connection``'s ``_take_returned``).
+- Module constants on a hot path are ``Final`` (read as C values, not looked up in the
+  module's dictionary); state a hot path changes lives in an object's attributes, not in
+  module globals (``signals._Deferred``: module state cost some 1,400 instructions a
+  block).  A compiled caller in another module does not see defaults that name the
+  callee's module constants: it gives every argument (``lauron4_leg.key_of``).  A method
+  with literal defaults and ``**kwargs`` has no text signature mypyc can write
+  ("non-default argument follows default argument"): its defaults are named constants
+  (``transport.socketcand``).
+- ``raise ... from err`` leaves ``__cause__`` unset: where a caller reads the cause, it
+  is set by hand (``virtual.canbus._init_error``: the CLI gives the cause's exit code).
+- Some builtins and idioms go through the interpreter: ``round(x)`` looks up
+  ``float.__round__`` each time (some 600 instructions: ``hardware.numeric``'s
+  ``round_half_even`` instead), ``zip`` is not compiled (index loops on the programs' hot
+  paths), ``(t, *args)`` builds a list first (``(t,) + args`` in ``bus.clock``).  A
+  generator expression given to a call (``bytes(c >> 8 for c in table)``, ``any(...)``)
+  is built as a whole list first: the same result, only not lazy (``make compiled``
+  lists each one as a warning, "Treating generator comprehension as list").
+- Native integers: ``i64`` annotations (``mypy_extensions``, imported under
+  ``TYPE_CHECKING``: annotations of locals are never evaluated) make loop indices and
+  arithmetic 64-bit C integers (``wire.canbits``, ``wire.socketcand``); lookup tables are
+  ``bytes``, whose items are native integers, not tuples of objects to unbox.
+- Where the fastest compiled code and the fastest interpreted code differ, a module keeps
+  both, chosen by ``_NATIVE: Final = not __file__.endswith(".py")`` (``bus.clock``'s
+  event heap, ``wire.socketcand``'s byte scan); the tests, run both ways, hold them to
+  one result.
+- A compiled loop never passes through the interpreter, so a pending signal handler
+  would wait for the end of the run: the loop calls ``ops.realtime.let_signals_in`` (from
+  source, not in :data:`MODULES`) once a cycle.
+
+Beyond that the compiled modules are the pure-Python modules: the frame traces of
+``tests/test_fidelity.py`` are the same bit for bit either way (``make test`` runs it
+both ways).
 """
 
 from __future__ import annotations
@@ -82,11 +136,8 @@ MODULES: tuple[str, ...] = (
     "ucom_tools.wire.socketcand",
 )
 """The modules compiled (``tools/compile.py`` reads this tuple; kept sorted): those the
-profiles of the served fleet and of the PC side put on top.  A compiled class's methods
-cannot be replaced: the conformance case that loses frames on purpose replaces
-``Link.send_raw`` on an instance, so ``Link`` is compiled as a plain class
-(``native_class=False``, :mod:`ucom_tools.native`), and ``RemotePart`` (from
-source) may extend the compiled ``RemoteLoop``."""
+profiles of the served fleet and of the PC side put on top.  What they need of the code:
+the module docstring."""
 
 GROUP = "ucom_tools._native"
 """The compiled modules' shared library (``ucom_tools/_native__mypyc*.so``)."""

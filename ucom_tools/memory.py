@@ -12,7 +12,9 @@ from enum import Enum
 from ucom_tools.wire.codes import Space
 
 
-class Kind(Enum):
+class RegionKind(Enum):
+    """What a region of the memory map holds (its value: the words that say so)."""
+
     VECTORS = "reset/COP vectors (owned by the bootloader)"
     PROGRAM_FLASH = "program flash"
     PROGRAM_RAM = "program RAM"
@@ -31,28 +33,28 @@ class Region:
     space: Space
     start: int
     end: int  # inclusive
-    kind: Kind
+    kind: RegionKind
 
     @property
     def programmable(self) -> bool:
-        return self.kind in (Kind.PROGRAM_FLASH, Kind.DATA_FLASH)
+        return self.kind in (RegionKind.PROGRAM_FLASH, RegionKind.DATA_FLASH)
 
     def __str__(self) -> str:
         return f"{self.space.name}:{self.start:04X}-{self.end:04X} {self.kind.value}"
 
 
 REGIONS: tuple[Region, ...] = (
-    Region(Space.P, 0x0000, 0x0003, Kind.VECTORS),
-    Region(Space.P, 0x0004, 0x7DFF, Kind.PROGRAM_FLASH),
-    Region(Space.P, 0x7E00, 0x7FFF, Kind.PROGRAM_RAM),
-    Region(Space.P, 0x8000, 0x87FF, Kind.BOOT_FLASH),
-    Region(Space.X, 0x0000, 0x07FF, Kind.DATA_RAM),
-    Region(Space.X, 0x0C00, 0x0FFF, Kind.PERIPHERALS),
-    Region(Space.X, 0x1000, 0x1EFF, Kind.DATA_FLASH),
-    Region(Space.X, 0x1F00, 0x1FFF, Kind.BOOT_RECORD),
-    Region(Space.X, 0x2000, 0x3FFF, Kind.EXTERNAL),
-    Region(Space.X, 0x4000, 0x403F, Kind.FPGA),
-    Region(Space.X, 0x4040, 0xFF7F, Kind.EXTERNAL),
+    Region(Space.P, 0x0000, 0x0003, RegionKind.VECTORS),
+    Region(Space.P, 0x0004, 0x7DFF, RegionKind.PROGRAM_FLASH),
+    Region(Space.P, 0x7E00, 0x7FFF, RegionKind.PROGRAM_RAM),
+    Region(Space.P, 0x8000, 0x87FF, RegionKind.BOOT_FLASH),
+    Region(Space.X, 0x0000, 0x07FF, RegionKind.DATA_RAM),
+    Region(Space.X, 0x0C00, 0x0FFF, RegionKind.PERIPHERALS),
+    Region(Space.X, 0x1000, 0x1EFF, RegionKind.DATA_FLASH),
+    Region(Space.X, 0x1F00, 0x1FFF, RegionKind.BOOT_RECORD),
+    Region(Space.X, 0x2000, 0x3FFF, RegionKind.EXTERNAL),
+    Region(Space.X, 0x4000, 0x403F, RegionKind.FPGA),
+    Region(Space.X, 0x4040, 0xFF7F, RegionKind.EXTERNAL),
 )
 
 P_FLASH_END = 0x7DFF
@@ -68,9 +70,9 @@ def region_of(space: Space, address: int) -> Region | None:
     return None
 
 
-def kind_of(space: Space, address: int) -> Kind:
+def kind_of(space: Space, address: int) -> RegionKind:
     r = region_of(space, address)
-    return r.kind if r else Kind.UNMAPPED
+    return r.kind if r else RegionKind.UNMAPPED
 
 
 def is_fpga_address(address: int) -> bool:
@@ -78,22 +80,24 @@ def is_fpga_address(address: int) -> bool:
     return (address >> 6) == 0b0100000000
 
 
-def first_unprogrammable(space: Space, start: int, count: int) -> tuple[int, Kind] | None:
+def first_unprogrammable(space: Space, start: int,
+                         count: int) -> tuple[int, RegionKind] | None:
     """The first word of ``space:start`` .. ``start+count-1`` that may not be programmed."""
     addr = start
     end = start + count - 1
     while addr <= end:
         r = region_of(space, addr)
         if r is None or not r.programmable:
-            return addr, (r.kind if r else Kind.UNMAPPED)
+            return addr, (r.kind if r else RegionKind.UNMAPPED)
         addr = r.end + 1
     return None
 
 
-PROTECTED_KINDS = frozenset({Kind.VECTORS, Kind.BOOT_FLASH, Kind.BOOT_RECORD})
+PROTECTED_KINDS = frozenset({RegionKind.VECTORS, RegionKind.BOOT_FLASH,
+                             RegionKind.BOOT_RECORD})
 
 
-def page_refusal(space: Space, page: int) -> tuple[int, Kind] | None:
+def page_refusal(space: Space, page: int) -> tuple[int, RegionKind] | None:
     """Why flash page ``page`` of ``space`` may not be erased (None if it may).
 
     P page 0 may be erased: the bootloader restores its reset vectors right after."""

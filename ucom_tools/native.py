@@ -1,16 +1,11 @@
-"""What the modules compiled with mypyc (:mod:`ucom_tools.compiled`) tell the compiler,
-at no cost where nothing is compiled.
+"""What the compiled modules (:mod:`ucom_tools.compiled`) tell the compiler, at no cost
+where nothing is compiled.
 
 :func:`mypyc_attr` is ``mypy_extensions.mypyc_attr`` where that is installed (it comes
 with mypy, which a build needs anyway), else a decorator that changes nothing: the
 pure-Python run time needs neither mypy nor mypy_extensions.  Used for
-
-- ``native_class=False``: a class whose methods tests or conformance cases replace on
-  an instance (``Link.send_raw``), or that extends a built-in type other than
-  ``object`` (:class:`~ucom_tools.signals.Terminated`, a ``KeyboardInterrupt``); its
-  methods are compiled all the same;
-- ``allow_interpreted_subclasses=True``: a compiled class that a class from source
-  extends (``RemotePart`` of ``RemoteLoop``).
+``native_class=False`` and ``allow_interpreted_subclasses=True``; when and why: the
+docstring of :mod:`ucom_tools.compiled`.
 """
 
 from __future__ import annotations

@@ -26,8 +26,8 @@ _get_ident: Final = threading.get_ident
 """Bound once: :data:`deferred` asks it twice for every step of the in-process fleet."""
 
 
-@mypyc_attr(native_class=False)  # compiled (deferred is on the fleet's per-frame path),
-class Terminated(KeyboardInterrupt):  # but a built-in exception's subclass
+@mypyc_attr(native_class=False)  # a built-in exception's subclass (see compiled.py)
+class Terminated(KeyboardInterrupt):
     """The job was ended by ``signum`` (SIGTERM or SIGHUP); handled as Ctrl-C."""
 
     def __init__(self, signum: int) -> None:
@@ -71,8 +71,8 @@ def stopped_how(exc: BaseException) -> str:
 
 
 class _Deferred:
-    """See :data:`deferred`.  Its state is its own attributes (native integers where
-    compiled: a dictionary of module state cost some 1,400 instructions a block)."""
+    """See :data:`deferred`.  Its state is its own attributes, not module globals (see
+    compiled.py)."""
 
     def __init__(self) -> None:
         self.depth = 0

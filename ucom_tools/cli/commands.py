@@ -14,12 +14,13 @@ import click
 
 from ucom_tools.cli import render
 from ucom_tools.cli.exitcodes import EXIT_FAILED
-from ucom_tools.cli.menu import BOARD, ONE_BOARD, help_text, label, parse_level
+from ucom_tools.cli.menu import BOARD, ONE_BOARD, help_text, parse_level
 from ucom_tools.cli.options import (
     connection_options,
     emit_with_connection,
     init_option,
     json_option,
+    needing_init,
     robot,
 )
 from ucom_tools.cli.output import stdout
@@ -58,7 +59,7 @@ def _rows(ctx: click.Context, spec: ConnectSpec, rows: list[ops.Row], as_json: b
 @click.pass_context
 def reset_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, as_json: bool) -> None:
     with robot(spec) as r:
-        rows = ops.reset(r, bus=bus_name, what=label(1))
+        rows = ops.reset(r, bus=bus_name)
     if as_json:
         emit_with_connection(spec, render.rows_json(rows))
     else:
@@ -75,8 +76,8 @@ def reset_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, as_js
 def xreset_cmd(ctx: click.Context, board: str, spec: ConnectSpec, bus_name: str | None,
                as_json: bool) -> None:
     ref = ops.parse_ref(board)
-    with robot(spec) as r:
-        rows = ops.reset(r, ref, bus=bus_name, clear_autostart=True, what=label(9))
+    with robot(spec) as r, needing_init(9):
+        rows = ops.reset(r, ref, bus=bus_name, clear_autostart=True)
     if as_json:
         emit_with_connection(spec, render.rows_json(rows))
     else:
@@ -93,8 +94,8 @@ def xreset_cmd(ctx: click.Context, board: str, spec: ConnectSpec, bus_name: str 
 def reset_one_cmd(ctx: click.Context, board: str, spec: ConnectSpec, bus_name: str | None,
                   run_init: bool, as_json: bool) -> None:
     ref = ops.parse_ref(board, allow_all=False)
-    with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
-        rows = ops.reset(r, ref, bus=bus_name, what=label(21))
+    with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r, needing_init(21):
+        rows = ops.reset(r, ref, bus=bus_name)
     _rows(ctx, spec, rows, as_json, f"Reset board {ref}")
 
 
@@ -131,8 +132,8 @@ def init_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, no_inf
 def info_cmd(ctx: click.Context, board: str, spec: ConnectSpec, bus_name: str | None,
              run_init: bool, as_json: bool) -> None:
     ref = ops.parse_ref(board)
-    with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
-        rows = ops.info(r, ref, bus=bus_name, what=label(3))
+    with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r, needing_init(3):
+        rows = ops.info(r, ref, bus=bus_name)
     _info_out(ctx, spec, rows, as_json, "GetInfo")
 
 
@@ -162,7 +163,7 @@ def _info_out(ctx: click.Context, spec: ConnectSpec, rows: list[ops.Row], as_jso
 def count_cmd(ctx: click.Context, spec: ConnectSpec, bus_name: str | None, run_init: bool,
               as_json: bool) -> None:
     with robot(spec, run_init=run_init, bus=bus_name) as r:
-        rows = ops.info(r, ops.BoardRef(None, ops.ALL), bus=bus_name, what=label(13))
+        rows = ops.info(r, ops.BoardRef(None, ops.ALL), bus=bus_name)
     _info_out(ctx, spec, rows, as_json, "Count")
 
 
@@ -191,9 +192,9 @@ def _status_command(name: str, option: int, op: StatusOp) -> click.Command:
     def cmd(ctx: click.Context, board: str, spec: ConnectSpec, bus_name: str | None,
             run_init: bool, as_json: bool, off: bool) -> None:
         ref = ops.parse_ref(board)
-        with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
-            rows = ops.set_status(r, ref, op, 0 if off else 1, what=label(option),
-                                  bus=bus_name)
+        with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r, \
+                needing_init(option):
+            rows = ops.set_status(r, ref, op, 0 if off else 1, bus=bus_name)
         _rows(ctx, spec, rows, as_json, f"{name} {board}" + (" off" if off else ""))
     return cmd
 
@@ -214,9 +215,8 @@ autostart_cmd = _status_command("autostart", 8, StatusOp.AUTOSTART)
 def start_cmd(ctx: click.Context, board: str, extram: bool, spec: ConnectSpec,
               bus_name: str | None, run_init: bool, as_json: bool) -> None:
     ref = ops.parse_ref(board)
-    with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
-        rows = ops.start(r, ref, Target.EXTRAM if extram else Target.FLASH, bus=bus_name,
-                         what=label(7))
+    with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r, needing_init(7):
+        rows = ops.start(r, ref, Target.EXTRAM if extram else Target.FLASH, bus=bus_name)
     _rows(ctx, spec, rows, as_json, f"Start {board}" + (" (ExtRAM)" if extram else ""))
 
 
@@ -235,8 +235,9 @@ def _pin_command(name: str, option: int, op: StatusOp) -> click.Command:
             bus_name: str | None, run_init: bool, as_json: bool) -> None:
         ref = ops.parse_ref(board, allow_all=False)
         value = parse_level(level)
-        with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
-            rows = ops.set_status(r, ref, op, value, what=label(option), bus=bus_name)
+        with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r, \
+                needing_init(option):
+            rows = ops.set_status(r, ref, op, value, bus=bus_name)
             status = (ops.board_status(r, ref, bus=bus_name)
                       if rows and all(x.ok for x in rows) else [])
         if as_json:
@@ -267,9 +268,9 @@ set_init_out_cmd = _pin_command("set-init-out", 11, StatusOp.INIT_OUT)
 @click.pass_context
 def set_seqid_cmd(ctx: click.Context, old: str, new: int, spec: ConnectSpec,
                   bus_name: str | None, run_init: bool, as_json: bool) -> None:
-    ref = ops.parse_ref(old, allow_all=False, what="OLD")
-    with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
-        rows = ops.set_seqid(r, ref, new, bus=bus_name, what=label(12))
+    ref = ops.parse_ref(old, allow_all=False, key="OLD")
+    with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r, needing_init(12):
+        rows = ops.set_seqid(r, ref, new, bus=bus_name)
     _rows(ctx, spec, rows, as_json, f"set-seqid {old} -> {new}")
 
 

@@ -22,7 +22,7 @@ from rich.markup import escape
 
 from ucom_tools.cli import render
 from ucom_tools.cli.flashrun import run_flash
-from ucom_tools.cli.menu import OPTIONS, MenuOption, label, parse_flag, parse_level
+from ucom_tools.cli.menu import OPTIONS, MenuOption, init_advice, parse_flag, parse_level
 from ucom_tools.cli.options import connection_options
 from ucom_tools.cli.output import stderr, stdout
 from ucom_tools.errors import InputError, UcomError
@@ -185,8 +185,7 @@ class Session:
         except Cancelled as e:
             self.out.print(f"[yellow]{escape(str(e))}[/]")
         except ops.NotInitialised as e:
-            text = str(e).replace("run 'ucom init' first", "run option 2 (Init) first")
-            text = text.replace(", or add --init to this command", "")
+            text = init_advice(e.bus, option.entry.number, console=True)
             self.out.print(f"[yellow]{escape(text)}[/]")
         except UcomError as e:
             self.out.print(f"[red]{escape(str(e))}[/]")
@@ -234,13 +233,13 @@ class Session:
                 self.initialised.add(h.name)
 
     def do_info(self, board: str) -> None:
-        rows = ops.info(self.robot, ops.parse_ref(board), bus=self.bus, what=label(3))
+        rows = ops.info(self.robot, ops.parse_ref(board), bus=self.bus)
         render.print_infos(self.out, rows, "GetInfo")
 
     def do_prog_enable(self, board: str, on: str | None = None) -> None:
         ref = ops.parse_ref(board)
         rows = ops.set_status(self.robot, ref, StatusOp.PROG_ENABLE, parse_flag(on),
-                              what=label(4), bus=self.bus)
+                              bus=self.bus)
         render.print_rows(self.out, rows, "SetProgEnable")
 
     def _need_image(self) -> Image | None:
@@ -253,7 +252,7 @@ class Session:
         return self.image
 
     def _program(self, selection: Selection, target: Target, bus: str | None,
-                 force: str | None, option: int) -> None:
+                 force: str | None) -> None:
         if force is not None and force.lower() != "force":
             raise InputError(f"{force!r}: the only word allowed here is 'force'")
         image = self._need_image()
@@ -261,7 +260,7 @@ class Session:
             return
         request = FlashRequest(image, selection=selection, bus=bus, target=target, init=False,
                                force=force is not None)
-        result = run_flash(self.robot, request, what=label(option), force_hint=None)
+        result = run_flash(self.robot, request, force_hint=None)
         if selection.kind == "enabled" and not result.boards:
             self.out.print("[yellow]no board is ProgEnabled:[/] 'all' programs the boards "
                            "that option 4 enabled; use '4 all' first, or option 20 "
@@ -274,39 +273,36 @@ class Session:
     def do_program(self, board: str, force: str | None = None) -> None:
         ref = ops.parse_ref(board)
         sel = Selection("enabled") if ref.is_all else Selection("list", (ref.address.number,))
-        self._program(sel, Target.FLASH, ref.bus or self.bus, force, 5)
+        self._program(sel, Target.FLASH, ref.bus or self.bus, force)
 
     def do_extram(self, board: str, force: str | None = None) -> None:
         ref = ops.parse_ref(board)
         sel = Selection("enabled") if ref.is_all else Selection("list", (ref.address.number,))
-        self._program(sel, Target.EXTRAM, ref.bus or self.bus, force, 6)
+        self._program(sel, Target.EXTRAM, ref.bus or self.bus, force)
 
     def do_progall(self, force: str | None = None) -> None:
-        self._program(Selection("all"), Target.FLASH, self.bus, force, 20)
+        self._program(Selection("all"), Target.FLASH, self.bus, force)
 
     def do_start(self, board: str, target: str | None = None) -> None:
         where = (target or "flash").lower()
         if where not in ("flash", "extram"):
             raise InputError(f"{target!r}: start from 'flash' or 'extram'")
         rows = ops.start(self.robot, ops.parse_ref(board),
-                         Target.EXTRAM if where == "extram" else Target.FLASH, bus=self.bus,
-                         what=label(7))
+                         Target.EXTRAM if where == "extram" else Target.FLASH, bus=self.bus)
         render.print_rows(self.out, rows, "Start" + (" (ExtRAM)" if where == "extram" else ""))
 
     def do_autostart(self, board: str, on: str | None = None) -> None:
         rows = ops.set_status(self.robot, ops.parse_ref(board), StatusOp.AUTOSTART,
-                              parse_flag(on), what=label(8), bus=self.bus)
+                              parse_flag(on), bus=self.bus)
         render.print_rows(self.out, rows, "SetAutoStart")
 
     def do_xreset(self, board: str = "all") -> None:
-        rows = ops.reset(self.robot, ops.parse_ref(board), bus=self.bus, clear_autostart=True,
-                         what=label(9))
+        rows = ops.reset(self.robot, ops.parse_ref(board), bus=self.bus, clear_autostart=True)
         render.print_reset(self.out, rows, "XReset")
 
     def _pin(self, board: str, level: str, op: StatusOp, option: int) -> None:
         ref = ops.parse_ref(board, allow_all=False)
-        rows = ops.set_status(self.robot, ref, op, parse_level(level), what=label(option),
-                              bus=self.bus)
+        rows = ops.set_status(self.robot, ref, op, parse_level(level), bus=self.bus)
         render.print_rows(self.out, rows, "SetInitIn" if option == 10 else "SetInitOut")
         if rows and all(r.ok for r in rows):
             for bus, s in ops.board_status(self.robot, ref, bus=self.bus):
@@ -326,11 +322,11 @@ class Session:
         if not 1 <= value <= 31:
             raise InputError(f"{value} is not a seq ID 1-31")
         rows = ops.set_seqid(self.robot, ops.parse_ref(board, allow_all=False), value,
-                             bus=self.bus, what=label(12))
+                             bus=self.bus)
         render.print_rows(self.out, rows, "SetSeqID")
 
     def do_count(self) -> None:
-        rows = ops.info(self.robot, ops.BoardRef(None, ALL), bus=self.bus, what=label(13))
+        rows = ops.info(self.robot, ops.BoardRef(None, ALL), bus=self.bus)
         if rows:
             render.print_infos(self.out, rows, "Count")
         else:
@@ -365,7 +361,7 @@ class Session:
 
     def do_reset_one(self, board: str) -> None:
         ref = ops.parse_ref(board, allow_all=False)
-        rows = ops.reset(self.robot, ref, bus=self.bus, what=label(21))
+        rows = ops.reset(self.robot, ref, bus=self.bus)
         render.print_reset(self.out, rows, f"Reset board {ref}")
 
 

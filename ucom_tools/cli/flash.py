@@ -13,12 +13,13 @@ from rich.markup import escape
 
 from ucom_tools.cli import render
 from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
-from ucom_tools.cli.menu import BOARD, help_text, label
+from ucom_tools.cli.menu import BOARD, help_text
 from ucom_tools.cli.options import (
     connection_options,
     emit_with_connection,
     init_option,
     json_option,
+    needing_init,
     robot,
     verbosity,
 )
@@ -270,11 +271,12 @@ def _program_command(name: str, option: int, target: Target, detail: str) -> cli
                              "programming", key="BOARD")
         else:
             selection = Selection("list", (ref.address.number,))
-        with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r:
+        with robot(spec, run_init=run_init, bus=ref.bus or bus_name) as r, \
+                needing_init(option):
             try:
                 request = FlashRequest(img, selection=selection, bus=ref.bus or bus_name,
                                        target=target, init=False, force=force)
-                result = run_flash(r, request, what=label(option), verbose=verbosity(ctx))
+                result = run_flash(r, request, verbose=verbosity(ctx))
             except (KeyboardInterrupt, Cancelled) as e:
                 _cancelled(ctx, spec, e, as_json)
                 return

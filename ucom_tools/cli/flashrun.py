@@ -34,7 +34,6 @@ from ucom_tools.ops.flash_types import (
     FlashResult,
     ProgressFn,
 )
-from ucom_tools.ops.options import NotInitialised
 from ucom_tools.ops.robot import Robot
 from ucom_tools.signals import STOP_SIGNALS
 
@@ -179,30 +178,20 @@ FORCE = "--force programs it anyway"
 """What a refused board's row adds on the command line (the console says it its way)."""
 
 
-def run_flash(r: Robot, request: FlashRequest, *, what: str, force_hint: str | None = FORCE,
+def run_flash(r: Robot, request: FlashRequest, *, force_hint: str | None = FORCE,
               verbose: int = 0) -> FlashResult:
     """Run a flash operation with progress on a TTY; Ctrl-C, SIGTERM or SIGHUP stop it
-    at any step (:exc:`~ucom_tools.ops.flash_types.FlashInterrupted`).  ``what`` names
-    the operation when the boards have no seq ID; ``force_hint`` is added to the detail
-    of each board the image does not fit."""
+    at any step (:exc:`~ucom_tools.ops.flash_types.FlashInterrupted`).  ``force_hint`` is
+    added to the detail of each board the image does not fit."""
     with flash_progress(r, request.image, verbose=verbose, bus=request.bus) as report:
         try:
             result = run_cancellable(
                 lambda cancel: flash(r, request, progress=report, cancel=cancel),
                 finished=as_finished, name="ucom-flash")
-        except NotInitialised as e:
-            raise NotInitialised(not_initialised(e, what), bus=e.bus) from None
         except FlashInterrupted as e:  # raised on as it is: its cause is the signal
             e.result = with_force_hint(e.result, force_hint)
             raise
     return with_force_hint(result, force_hint)
-
-
-def not_initialised(e: NotInitialised, what: str) -> str:
-    """A flash without the init chain on a bus whose boards have no seq ID, in words."""
-    return (f"{e}. {what[:1].upper() + what[1:]} works only after a successful init chain "
-            "(option 2): run 'ucom init' first, or add --init to this command; 'ucom flash' "
-            "runs it itself.")
 
 
 def with_force_hint(result: FlashResult, hint: str | None) -> FlashResult:

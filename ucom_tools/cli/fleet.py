@@ -1,6 +1,6 @@
 """``ucom fleet show``, ``ucom fleet serve``, ``ucom fleet fault`` and ``ucom fleet
-faults``: the bundled virtual UCoM fleets, injecting a fault into a served one, and the
-mutant boards' faults."""
+defects``: the bundled virtual UCoM fleets, injecting a fault into a served one, and the
+mutant boards' defects."""
 
 from __future__ import annotations
 
@@ -171,10 +171,12 @@ def with_extra_buses(robot: Topology, names: tuple[str, ...]) -> Topology:
                    "processes than this machine has cores; 1: the whole fleet in this "
                    "process; N: the buses shared out among N processes (at most one per "
                    "bus).")
-@click.option("--fault", metavar="NAME",
-              help="Serve mutant boards: every board that names no fault in the topology "
-                   "breaks the protocol in this documented way ('ucom fleet faults' lists "
+@click.option("--defect", metavar="NAME",
+              help="Serve mutant boards: every board that names no defect in the topology "
+                   "breaks the protocol in this documented way ('ucom fleet defects' lists "
                    "them), to show that a conformance suite catches it.")
+@click.option("--fault", "old_fault", metavar="NAME", hidden=True,
+              help="The old name of --defect.")
 @click.option("--loss", type=click.FloatRange(0, 1, max_open=True), default=0.0,
               metavar="SHARE", help="Lose this share of the frames between each client and "
                                     "its bus, each way (e.g. 0.01), as a lossy link to the "
@@ -195,8 +197,9 @@ def with_extra_buses(robot: Topology, names: tuple[str, ...]) -> Topology:
                    "--loss applies as there).")
 @click.pass_context
 def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, port: int,
-          max_clients: int, processes: int | None, fault: str | None, loss: float,
-          seed: int, scenario_file: Path | None, extra_buses: tuple[str, ...]) -> None:
+          max_clients: int, processes: int | None, defect: str | None,
+          old_fault: str | None, loss: float, seed: int, scenario_file: Path | None,
+          extra_buses: tuple[str, ...]) -> None:
     """Serve TOPOLOGY's buses with the socketcand protocol, in real time.
 
     Other processes reach the boards through a socketcand client: 'ucom ... -i socketcand
@@ -212,8 +215,8 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     which each is paced.  A bus process that dies stops the whole serve (exit code 4,
     naming the bus).
 
-    --fault NAME serves mutant boards, e.g. 'ucom fleet serve armar3 --fault
-    seq-from-zero' (see 'ucom fleet faults').
+    --defect NAME serves mutant boards, e.g. 'ucom fleet serve armar3 --defect
+    seq-from-zero' (see 'ucom fleet defects').
 
     --scenario FILE injects faults as it serves (each at its time after the first MCA
     Alive on its bus; a whole-robot fault on each bus from that bus's own); 'ucom fleet
@@ -221,7 +224,7 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
 
     --extra-bus CO0 serves a channel CO0 beside the robot's buses with no boards on it,
     e.g. for 'ucom gateway canopen' and a CANopen master in other processes."""
-    mutants.check(fault, key="--fault")
+    defect = _defect(defect, old_fault)
     robot = topo.load(topology)
     scenario = None
     if scenario_file is not None:
@@ -238,12 +241,12 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     logging.getLogger("ucom.fleet").setLevel(logging.INFO)  # a scenario's faults as they come
     if count > 1:
         _serve_per_bus(robot, state_dir, host, port, max_clients, log_level, count,
-                       {**({"fault": fault} if fault else {}),
+                       {**({"defect": defect} if defect else {}),
                         **({"client_loss": loss, "seed": seed} if loss else {}),
                         **({"scenario": scenario} if scenario else {})},
                        extra=extra_buses, auto=processes is None)
         return
-    f = Fleet(robot, state_dir=state_dir, realtime=True, fault=fault, client_loss=loss,
+    f = Fleet(robot, state_dir=state_dir, realtime=True, defect=defect, client_loss=loss,
               seed=seed, scenario=scenario)
     try:
         server = FleetServer(f, host, port, max_clients=max_clients)
@@ -255,7 +258,7 @@ def serve(ctx: click.Context, topology: str, state_dir: Path | None, host: str, 
     one_core = ("one process (auto: 1 core); "
                 if processes is None and len(robot.buses) > 1 else "")
     stderr().print(f"serving {f.name} ({', '.join(f.buses)}) with socketcand on {h}:{p}; "
-                   f"{one_core}{_extra(extra_buses)}{_mutants(fault)}{_losing(loss)}"
+                   f"{one_core}{_extra(extra_buses)}{_mutants(defect)}{_losing(loss)}"
                    f"{_scenario(scenario)}"
                    f"state: {state_dir or 'not kept'}; Ctrl-C stops")
     try:
@@ -304,7 +307,7 @@ def _serve_per_bus(robot: Topology, state_dir: Path | None, host: str, port: int
                   + "; ".join(worker.label for worker in server.processes))
         stderr().print(f"serving {robot.name} ({', '.join(server.buses)}) with socketcand on "
                        f"{h}:{p}, {shares}; {_extra(extra)}"
-                       f"{_mutants(fleet_options.get('fault'))}"
+                       f"{_mutants(fleet_options.get('defect'))}"
                        f"{_losing(fleet_options.get('client_loss', 0.0))}"
                        f"{_scenario(fleet_options.get('scenario'))}"
                        f"state: {state_dir or 'not kept'}; "
@@ -333,8 +336,18 @@ def _scenario(scenario: Scenario | None) -> str:
             f"{'' if count == 1 else 's'})[/]; ")
 
 
-def _mutants(fault: str | None) -> str:
-    return "" if fault is None else f"[bold yellow]mutant boards ({escape(fault)})[/]; "
+def _defect(defect: str | None, old_fault: str | None) -> str | None:
+    """The --defect NAME asked for (checked), or --fault NAME, its old name (said on stderr)."""
+    if old_fault is not None:
+        if defect is not None:
+            raise click.UsageError("--fault is the old name of --defect: give one of them")
+        stderr().print("[yellow]--fault is the old name of --defect; it still works[/]")
+        return mutants.check(old_fault, key="--fault")
+    return mutants.check(defect, key="--defect")
+
+
+def _mutants(defect: str | None) -> str:
+    return "" if defect is None else f"[bold yellow]mutant boards ({escape(defect)})[/]; "
 
 
 @fleet.command("fault")
@@ -385,21 +398,34 @@ def fault_cmd(words: tuple[str, ...], host: str, port: int, for_s: float | None,
     stdout().print(escape(done))
 
 
-@fleet.command("faults")
-@click.option("--json", "as_json", is_flag=True, help="Print the faults as JSON.")
-def faults(as_json: bool) -> None:
-    """List the faults a mutant board can have ('fleet serve --fault NAME', a topology's
-    'fault = "NAME"'): each breaks ucom-protocol(7) in one documented way, names the
+@fleet.command("defects")
+@click.option("--json", "as_json", is_flag=True, help="Print the defects as JSON.")
+def defects(as_json: bool) -> None:
+    """List the defects a mutant board can have ('fleet serve --defect NAME', a topology's
+    'defect = "NAME"'): each breaks ucom-protocol(7) in one documented way, names the
     section it violates and what a client sees."""
     if as_json:
-        emit_json({"faults": [f.as_dict() for f in mutants.faults()]})
+        emit_json({"defects": [d.as_dict() for d in mutants.defects()]})
         return
     table = FitTable(box=None, show_header=True, header_style="bold")
-    for col in ("fault", "what the board does wrong", "violates"):
+    for col in ("defect", "what the board does wrong", "violates"):
         table.add_column(col)
-    for f in mutants.faults():
-        table.add_row(f.name, escape(f.title), escape(f.section))
+    for d in mutants.defects():
+        table.add_row(d.name, escape(d.title), escape(d.section))
     stdout().print(table)
+
+
+@fleet.command("faults", hidden=True)
+@click.option("--json", "as_json", is_flag=True, help="Print the defects as JSON.")
+@click.pass_context
+def old_faults(ctx: click.Context, as_json: bool) -> None:
+    """The old name of 'ucom fleet defects' (its JSON under the old key, "faults")."""
+    stderr().print("[yellow]'fleet faults' is the old name of 'fleet defects'; it still "
+                   "works[/]")
+    if as_json:
+        emit_json({"faults": [d.as_dict() for d in mutants.defects()]})
+        return
+    ctx.invoke(defects, as_json=False)
 
 
 def _exchange(rt: dict[str, Any] | None) -> str:

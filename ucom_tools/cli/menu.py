@@ -84,6 +84,26 @@ def label(number: int) -> str:
     return f"option {o.number} ({o.title})"
 
 
+FLASHING = frozenset({5, 6, 20})
+"""The options that program boards (``ucom flash`` runs the init chain itself)."""
+
+
+def init_advice(bus: str, number: int, *, console: bool = False) -> str:
+    """What to do when option ``number`` finds no board with a seq ID on ``bus``
+    (:class:`~ucom_tools.ops.options.NotInitialised`): on the command line, or in the
+    console (``console``), which has no --init and runs the init chain as option 2."""
+    what = label(number)
+    first = "run option 2 (Init) first" if console else "run 'ucom init' first"
+    if number in FLASHING:
+        rest = ("" if console else ", or add --init to this command") + (
+            "; 'ucom flash' runs it itself.")
+    else:
+        rest = " (the boards keep their seq IDs until power-off)" + (
+            "" if console else ", or add --init to this command") + "."
+    return (f"{bus}: no board has a seq ID yet. {what[:1].upper() + what[1:]} works only "
+            f"after a successful init chain (option 2): {first}{rest}")
+
+
 def help_text(number: int, detail: str = "") -> str:
     """The first lines of a subcommand's help, from the table."""
     o = BY_NUMBER[number]

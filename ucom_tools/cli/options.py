@@ -23,7 +23,7 @@ from rich.markup import escape
 
 from ucom_tools.cli.output import stderr
 from ucom_tools.config.topology import BUNDLED
-from ucom_tools.errors import InputError
+from ucom_tools.errors import InputError, UcomError
 from ucom_tools.ops.robot import ConnectSpec, Robot, open_robot
 from ucom_tools.trace.logs import check_log
 
@@ -203,6 +203,19 @@ def robot(spec: ConnectSpec, *, run_init: bool = False, bus: str | None = None
         raise
     finally:
         r.close()
+
+
+@contextmanager
+def needing_init(option: int) -> Iterator[None]:
+    """Words a :class:`~ucom_tools.ops.options.NotInitialised` raised inside for the
+    command line: what menu option ``option`` needs and how to get it."""
+    from ucom_tools.cli.menu import init_advice
+    from ucom_tools.ops.options import NotInitialised
+
+    try:
+        yield
+    except NotInitialised as e:
+        raise UcomError(init_advice(e.bus, option)) from None
 
 
 def environment_note() -> str:

@@ -17,7 +17,7 @@ from ucom_tools.cli.output import emit_json, json_number, stderr, stdout
 from ucom_tools.cli.tables import FitTable, shown_path
 from ucom_tools.config import attrtree
 from ucom_tools.config import topology as topology_mod
-from ucom_tools.config.attrtree import Kind
+from ucom_tools.config.attrtree import TreeEdgeKind
 from ucom_tools.ops import params as ops
 from ucom_tools.ops import params_dump, params_keep
 from ucom_tools.ops.robot import ConnectSpec
@@ -81,7 +81,7 @@ def _read_table(c: Console, readout: ops.Readout) -> None:
                       ("CI", 0), ("differ from tree", 0), ("no tree default", 2), ("result", 0)):
         t.add_column(col, drop=drop)
     for r in readout.boards:
-        par = sum(v.kind is Kind.PAR for v in r.values)
+        par = sum(v.kind is TreeEdgeKind.PAR for v in r.values)
         t.add_row(r.bus, str(r.board), escape(r.placement), escape(r.prefix),
                   str(par) if r.ok else "", str(len(r.values) - par) if r.ok else "",
                   str(sum(v.changed and v.default is not None for v in r.values))

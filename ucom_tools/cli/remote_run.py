@@ -260,7 +260,7 @@ def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], *,
         run.prepare(stack)
         refs = [(part.names.resolve(n, key="--set", kinds=(mca.Kind.CI, mca.Kind.PAR)), v)
                 for n, v in wanted]
-        run.loop([(ref, ref.raw(v, what="--set")) for ref, v in refs])
+        run.loop([(ref, ref.raw(v, key="--set")) for ref, v in refs])
         run.end()
         run.report()
     run.exit(ctx)

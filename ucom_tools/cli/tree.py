@@ -11,7 +11,7 @@ from rich.markup import escape
 from ucom_tools.cli.output import emit_json, stderr, stdout
 from ucom_tools.cli.tables import FitTable, shown_path
 from ucom_tools.config import attrtree, topology
-from ucom_tools.config.attrtree import Board, Change, Kind, RobotTrees, Tree
+from ucom_tools.config.attrtree import BoardBlock, Change, RobotTrees, Tree, TreeEdgeKind
 from ucom_tools.errors import InputError, TreeError
 from ucom_tools.ops.manifest import image_problems
 
@@ -29,7 +29,7 @@ def tree_json(t: Tree) -> dict[str, Any]:
     return {"file": t.source, "boards": [board_json(b) for b in t.boards]}
 
 
-def board_json(b: Board) -> dict[str, Any]:
+def board_json(b: BoardBlock) -> dict[str, Any]:
     return {"number": b.number, "prefix": b.prefix, "edges": [{
         "index": e.index, "kind": e.kind.value, "generic": e.generic, "unique": e.unique,
         "default": e.default.number if e.default else None,
@@ -55,10 +55,11 @@ def change_json(c: Change) -> dict[str, Any]:
 
 
 # ----------------------------------------------------------------------------- check
-def _summary(b: Board) -> str:
-    kinds = ", ".join(f"{len(b.of_kind(k))} {k}" for k in Kind)
+def _summary(b: BoardBlock) -> str:
+    kinds = ", ".join(f"{len(b.of_kind(k))} {k}" for k in TreeEdgeKind)
     return (f"board {b.number} '{b.prefix}': {len(b.edges)} edges ({kinds}), "
-            f"{len(b.defaults(Kind.PAR))} PAR + {len(b.defaults(Kind.CI))} CI defaults")
+            f"{len(b.defaults(TreeEdgeKind.PAR))} PAR + "
+            f"{len(b.defaults(TreeEdgeKind.CI))} CI defaults")
 
 
 def _fail_all(errors: Sequence[InputError]) -> None:
@@ -150,7 +151,7 @@ def show(file: str, number: int | None) -> None:
         stdout().print(_board_table(t, b))
 
 
-def _board_table(t: Tree, b: Board) -> FitTable:
+def _board_table(t: Tree, b: BoardBlock) -> FitTable:
     table = FitTable(f"{escape(shown_path(t.source))}: board {b.number} "
                      f"'{escape(b.prefix)}'", caption=escape(_summary(b)),
                      caption_justify="left")
@@ -158,10 +159,10 @@ def _board_table(t: Tree, b: Board) -> FitTable:
     table.add_column("kind", no_wrap=True, keep=True)
     for col in ("generic", "unique", "default"):
         table.add_column(col, keep=True)
-    for k in Kind:
+    for k in TreeEdgeKind:
         edges = b.of_kind(k)
         for i, e in enumerate(edges):
-            default = e.default.text if e.default else ("" if k is Kind.SO else "[dim]-[/]")
+            default = e.default.text if e.default else ("" if k is TreeEdgeKind.SO else "[dim]-[/]")
             unique = escape(e.unique) if e.unique != e.generic else f"[dim]{escape(e.unique)}[/]"
             table.add_row(str(e.index), k.value, escape(e.generic), unique, default,
                           end_section=i == len(edges) - 1)

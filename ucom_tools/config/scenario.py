@@ -4,8 +4,8 @@ An *injected fault* is something that happens to the hardware of a virtual robot
 runs (``ucom(1)``, SCENARIOS): a board loses power (``power-off``), its DSP resets
 (``reset``), its CAN controller goes bus-off (``bus-off``), a bus's cable to the PC is cut
 (``cable``), the emergency stop cuts every board's power (``estop``).  Not to be confused
-with a mutant board's *fault* (:mod:`ucom_tools.config.mutants`, ``--fault``), a protocol
-deviation a board has for life.
+with a mutant board's *defect* (:mod:`ucom_tools.config.mutants`, ``--defect``), a
+protocol deviation a board has for life.
 
 A scenario is a TOML file, one ``[[fault]]`` table per fault::
 

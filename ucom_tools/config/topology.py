@@ -4,7 +4,8 @@ TOML, bundled ones are package data (``armar3``, ``lauron4``, ``kairo2``, ``odet
 ``puma200``, ``rosi``).  Every mistake is reported with file, line and key.  A topology
 can describe wiring faults: ``init_link = "broken"`` (the init line into this board is
 cut), ``powered = false``, and two boards with the same ``fixed_id``; and mutant boards,
-``fault = "NAME"``, a documented protocol fault of :mod:`ucom_tools.virtual.board.mutants`.
+``defect = "NAME"``, a documented protocol defect of :mod:`ucom_tools.virtual.board.mutants`
+(``fault``, its old name, is still read).
 ``canopen_node = { A = 10, B = 11 }`` gives axes of a board their CANopen node IDs for
 ``ucom gateway`` (1..127, unique in the topology; :mod:`ucom_tools.gateway.joints`).
 """
@@ -105,9 +106,9 @@ class BoardSpec:
     tree_block: int | None = None
     """Which ``DSP{ <n>{ }<n> }DSP`` block of :attr:`tree` is this board's; None = the
     file's only block."""
-    fault: str | None = None
-    """The documented fault of a mutant board (:mod:`ucom_tools.virtual.board.mutants`); None =
-    the board conforms (or takes its fleet's fault)."""
+    defect: str | None = None
+    """The documented defect of a mutant board (:mod:`ucom_tools.virtual.board.mutants`); None =
+    the board conforms (or takes its fleet's defect)."""
     image: Path | None = None
     """The image this board should run (the manifest ``ucom deploy`` brings the robot to,
     with :attr:`autostart`); None = deploy leaves the board alone."""
@@ -205,9 +206,11 @@ class _Checker:
             raise self.fail(path, key, f"expected a finite number, got {value!r}")
         return value
 
-    def no_extra(self, table: dict[str, Any], path: tuple[Any, ...], allowed: set[str]) -> None:
+    def no_extra(self, table: dict[str, Any], path: tuple[Any, ...], allowed: set[str],
+                 old: frozenset[str] = frozenset()) -> None:
+        """Every key of ``table`` is ``allowed`` (or an ``old`` name of one, not listed)."""
         for key in table:
-            if key not in allowed:
+            if key not in allowed and key not in old:
                 raise self.fail(path, key, "unknown key; allowed: " + ", ".join(sorted(allowed)))
 
 
@@ -420,7 +423,7 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
         raise c.fail(path[:2], "board", "must be [[bus.board]] tables")
     c.no_extra(raw, path, {"placement", "board", "fixed_id", "serial", "program", "autostart",
                            "powered", "init_link", "joints", "fpga", "tree", "tree_block",
-                           "fault", "image", "canopen_node"})
+                           "defect", "image", "canopen_node"}, old=frozenset({"fault"}))
     placement = c.take(raw, path, "placement", str)
     board = c.take(raw, path, "board", str)
     if board not in PLUG_ON_BOARDS:
@@ -454,14 +457,23 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
     if not all(isinstance(x, str) for x in joints):
         raise c.fail(path, "joints", "expected a list of strings")
     fpga = _fpga(c, path, c.take(raw, path, "fpga", dict, {}), PLUG_ON_BOARDS[board].board_id)
-    fault = c.take(raw, path, "fault", str, None)
-    if fault is not None and fault not in mutants.BY_NAME:
-        raise c.fail(path, "fault", mutants.unknown(fault))
+    defect = _defect(c, raw, path)
     nodes = _canopen_nodes(c, raw, path)
     return BoardSpec(
         position=j, fpga=fpga, placement=placement, board=board, fixed_id=fixed_id, serial=serial,
         program=program, autostart=c.take(raw, path, "autostart", bool, False),
         powered=c.take(raw, path, "powered", bool, True), init_link_broken=link == "broken",
         joints=tuple(joints), line=c.lines.of(*path) or 0, serial_explicit="serial" in raw,
-        tree=tree, tree_block=tree_block, fault=fault, image=image, canopen_nodes=nodes,
+        tree=tree, tree_block=tree_block, defect=defect, image=image, canopen_nodes=nodes,
         canopen_line=(c.lines.of(*path, "canopen_node") or 0) if nodes else 0)
+
+
+def _defect(c: _Checker, raw: dict[str, Any], path: tuple[Any, ...]) -> str | None:
+    """A mutant board's ``defect = "NAME"`` (or ``fault``, its old name); None: it conforms."""
+    if "defect" in raw and "fault" in raw:
+        raise c.fail(path, "fault", "the old name of 'defect': give one of them")
+    key = "fault" if "fault" in raw else "defect"
+    defect = c.take(raw, path, key, str, None)
+    if defect is not None and defect not in mutants.BY_NAME:
+        raise c.fail(path, key, mutants.unknown(defect))
+    return defect

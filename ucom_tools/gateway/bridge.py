@@ -51,7 +51,7 @@ from ucom_tools.errors import InputError
 from ucom_tools.gateway import dictionary
 from ucom_tools.gateway.buses import by_bus
 from ucom_tools.gateway.cia402_objects import (
-    Fault,
+    DriveFault,
     FaultCause,
     State402,
 )
@@ -98,7 +98,7 @@ class Gateway:
         self.drives: dict[int, JointDrive] = {}
         self._groups: list[tuple[CanopenBus, list[JointDrive]]] = []
         self.runtimes: list[NodeRuntime] = []
-        self._bus_faults: dict[int, Fault | None] = {}
+        self._bus_faults: dict[int, DriveFault | None] = {}
         self._shared: dict[tuple[str, int], SharedCommand] = {}
         self._owned: list[Any] = []
         """What :meth:`serve` opened, closed with the gateway (last first)."""
@@ -285,7 +285,7 @@ class _BusCallbacks:
                              master_lost=self.master_lost, master_back=self.master_back)
 
     @property
-    def fault(self) -> Fault | None:
+    def fault(self) -> DriveFault | None:
         return self.gateway._bus_faults[self.number]
 
     def on_write(self, node_id: int, index: int, subindex: int, value: Any) -> None:
@@ -392,7 +392,7 @@ class _BusCallbacks:
         cause = (FaultCause.SYNC_TIMEOUT if "SYNC" in reason
                  else FaultCause.BUS_OFF if "bus" in reason.lower()
                  else FaultCause.MASTER_HEARTBEAT)
-        self.gateway._bus_faults[self.number] = Fault(cause)
+        self.gateway._bus_faults[self.number] = DriveFault(cause)
         self.gateway._master_event(self.number, "lost", reason)
         now, snap = _now(), self.gateway.source.latest
         for jd in self.group:

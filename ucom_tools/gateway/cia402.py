@@ -5,7 +5,7 @@ The gateway drives it once per cycle and on every write of one of its objects
 (:meth:`Drive402.update`), and at every SYNC (:meth:`Drive402.on_sync`).  Each call takes
 what the master wrote (:class:`~ucom_tools.gateway.cia402_objects.ObjectValues`), what
 the joint reports (:class:`~ucom_tools.gateway.cia402_objects.JointReport`) and the
-causes of FAULT present now (:class:`~ucom_tools.gateway.cia402_objects.Fault`), and
+causes of FAULT present now (:class:`~ucom_tools.gateway.cia402_objects.DriveFault`), and
 gives (:class:`~ucom_tools.gateway.cia402_objects.DriveOutputs`) 0x6041 statusword, 0x6061
 modes of operation display, 0x603F error code, 0x1001 error register, the EMCYs to send
 and the axis's edges of the armar3 program: ``Command``, ``Target``, ``TargetVel``,
@@ -72,7 +72,7 @@ Bits 10, 12, 13 by mode in OPERATION ENABLED (0 elsewhere).  Bit 11 "internal li
 active": the mode clamped its target (software limits 0x607D), or the joint stands
 outside 0x607D.
 
-Faults: a cause present (:class:`~ucom_tools.gateway.cia402_objects.Fault`, passed in as
+Faults: a cause present (:class:`~ucom_tools.gateway.cia402_objects.DriveFault`, passed in as
 long as it lasts; an event such as the board's Error once) takes any state to FAULT
 REACTION ACTIVE (13) and the next update to FAULT (14); FAULT holds until "fault reset"
 (0->1 of bit 7) comes while no cause is present (15; a fault reset while one is
@@ -117,9 +117,9 @@ from ucom_tools.gateway.cia402_modes import (
 from ucom_tools.gateway.cia402_objects import (
     ERROR_RESET,
     DriveConfig,
+    DriveFault,
     DriveOutputs,
     Emcy,
-    Fault,
     JointReport,
     ObjectValues,
     OperationMode,
@@ -218,8 +218,8 @@ class Drive402:
         self._mode: Mode | None = None
         self._brake: Brake | None = None
         self._controlword = 0
-        self._causes: frozenset[Fault] = frozenset()
-        self._error: Fault | None = None
+        self._causes: frozenset[DriveFault] = frozenset()
+        self._error: DriveFault | None = None
         self._disable = False
 
     @property
@@ -236,12 +236,12 @@ class Drive402:
         self._disable = True
 
     def on_sync(self, now: float, objects: ObjectValues, joint: JointReport,
-                faults: Iterable[Fault] = ()) -> DriveOutputs:
+                faults: Iterable[DriveFault] = ()) -> DriveOutputs:
         """An update at a SYNC: CSP takes 0x607A."""
         return self.update(now, objects, joint, faults, sync=True)
 
     def update(self, now: float, objects: ObjectValues, joint: JointReport,
-               faults: Iterable[Fault] = (), *, sync: bool = False) -> DriveOutputs:
+               faults: Iterable[DriveFault] = (), *, sync: bool = False) -> DriveOutputs:
         """One update at time ``now`` [s]; ``faults``: the causes present now."""
         rising = objects.controlword & ~self._controlword & 0xFFFF
         self._controlword = objects.controlword
@@ -264,7 +264,7 @@ class Drive402:
             self._state = ENDS[t]
             steps.append(t)
 
-    def _faults(self, c: Cycle, faults: tuple[Fault, ...], steps: list[int]) -> list[Emcy]:
+    def _faults(self, c: Cycle, faults: tuple[DriveFault, ...], steps: list[int]) -> list[Emcy]:
         """Transitions 13, 14 and 15, and the EMCYs of the causes newly present."""
         emcys = []
         if self._state is S.FAULT_REACTION_ACTIVE:

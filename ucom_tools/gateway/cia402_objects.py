@@ -2,7 +2,7 @@
 in raw integers as the CANopen objects and the armar3 program's edges carry them.
 
 Inputs: :class:`ObjectValues` (the 402 objects the master writes), :class:`JointReport`
-(what the joint's board reports), :class:`Fault` (a cause of FAULT now present), and the
+(what the joint's board reports), :class:`DriveFault` (a cause of FAULT now present), and the
 joint's fixed settings :class:`DriveConfig` (the edges' ranges and the tree's values).
 Outputs: :class:`DriveOutputs` (0x6041, 0x6061, 0x603F, 0x1001, the EMCYs to send and
 the axis's edges).  The EMCY code of each cause is :data:`EMCY_CODES` (the table is in
@@ -73,7 +73,7 @@ class FaultCause(IntEnum):
     BOARD_LATCHED = 5
     """The board's watchdog latched: its motors are off until it is started again."""
     BOARD_ERROR = 6
-    """The board sent an Error (:attr:`Fault.code`: its error code byte)."""
+    """The board sent an Error (:attr:`DriveFault.code`: its error code byte)."""
 
 
 EMCY_CODES: Final = {
@@ -92,9 +92,11 @@ _EMCY_DATA: Final = struct.Struct("<BI")
 
 
 @dataclass(frozen=True, slots=True)
-class Fault:
+class DriveFault:
     """A cause of FAULT present now (a level: passed in as long as it lasts; an event such
-    as a board's Error is passed in once)."""
+    as a board's Error is passed in once).  FAULT is CiA 402's word for the drive's state;
+    an injected fault of the virtual fleet may be one's cause, a mutant board's defect is
+    none of this."""
 
     cause: FaultCause
     code: int = 0

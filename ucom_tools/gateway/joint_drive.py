@@ -20,8 +20,8 @@ from ucom_tools.gateway import dictionary
 from ucom_tools.gateway.cia402 import Drive402
 from ucom_tools.gateway.cia402_objects import (
     DriveConfig,
+    DriveFault,
     DriveOutputs,
-    Fault,
     FaultCause,
     JointReport,
     ObjectValues,
@@ -162,8 +162,8 @@ class JointDrive:
         self._latched = False
         self._events_seen = 0
         self._faults_seen = 0
-        self._event_faults: list[Fault] = []
-        self._master: Fault | None = None
+        self._event_faults: list[DriveFault] = []
+        self._master: DriveFault | None = None
         self.last: DriveOutputs | None = None
         self.shared: SharedCommand | None = None
         """The board's Command edge where all its joints share it (LAURON-IV)."""
@@ -301,9 +301,9 @@ class JointDrive:
             self._moved or (self.drive.state in _TIMED
                             and now - self._last_update >= IDLE_S)))
 
-    def faults(self, snap: LoopSnapshot | None, bus_fault: Fault | None) -> list[Fault]:
+    def faults(self, snap: LoopSnapshot | None, bus_fault: DriveFault | None) -> list[DriveFault]:
         """The causes of FAULT present now (levels) and newly come (events)."""
-        out: list[Fault] = []
+        out: list[DriveFault] = []
         if bus_fault is not None:
             out.append(bus_fault)
         if snap is None:
@@ -312,12 +312,12 @@ class JointDrive:
         self._stale = lost is not None
         if lost is not None:  # detail: when it was lost (ms into the exchange), one
             ms = max(0, int(lost.since * 1000))  # value for the whole loss: one EMCY
-            out.append(Fault(FaultCause.BOARD_LOST, detail=min(ms, 0xFFFFFFFF)))
+            out.append(DriveFault(FaultCause.BOARD_LOST, detail=min(ms, 0xFFFFFFFF)))
         if snap.events_total != self._events_seen:
             for event in LoopSnapshot.newer(snap.events, snap.events_total,
                                             self._events_seen):
                 if (event.bus, event.board) == self.board:
-                    self._event_faults.append(Fault(FaultCause.BOARD_ERROR,
+                    self._event_faults.append(DriveFault(FaultCause.BOARD_ERROR,
                                                     code=int(event.code) & 0x7F))
                     if event.code is ErrorCode.WATCHDOG:
                         self._latched = True
@@ -331,13 +331,13 @@ class JointDrive:
                     self._seeded = False
             self._faults_seen = snap.faults_total
         if self._latched:
-            out.append(Fault(FaultCause.BOARD_LATCHED))
+            out.append(DriveFault(FaultCause.BOARD_LATCHED))
         if self._event_faults:
             out.extend(self._event_faults)
             self._event_faults = []
         return out
 
-    def update(self, now: float, snap: LoopSnapshot | None, bus_fault: Fault | None, *,
+    def update(self, now: float, snap: LoopSnapshot | None, bus_fault: DriveFault | None, *,
                sync: bool = False) -> DriveOutputs:
         """Run the drive: its objects into the node, its EMCYs out, its edges to the loop."""
         runtime = self.runtime

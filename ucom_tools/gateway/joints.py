@@ -29,7 +29,7 @@ from pathlib import Path
 
 from ucom_tools.config import attrtree
 from ucom_tools.config import topology as topology_mod
-from ucom_tools.config.attrtree import BoundBoard, Kind
+from ucom_tools.config.attrtree import BoundBoard, TreeEdgeKind
 from ucom_tools.config.attrtree.match import program_of
 from ucom_tools.config.topology import AXIS_LETTERS, CANOPEN_NODES, Topology
 from ucom_tools.edgelists.axes import MODELS, AxisModel, Role
@@ -42,7 +42,8 @@ FIRST_AUTO_NODE = 2
 (``bus.yml``'s ``master: node_id: 1``)."""
 
 
-_EDGE_KIND = {Kind.CI: EdgeKind.CI, Kind.SO: EdgeKind.SO, Kind.PAR: EdgeKind.PAR}
+_EDGE_KIND = {TreeEdgeKind.CI: EdgeKind.CI, TreeEdgeKind.SO: EdgeKind.SO,
+              TreeEdgeKind.PAR: EdgeKind.PAR}
 
 
 @dataclass(frozen=True)

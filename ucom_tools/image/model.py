@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from datetime import UTC, datetime
 
 from ucom_tools.errors import FrameError, ImageError
-from ucom_tools.memory import Kind, kind_of
+from ucom_tools.memory import RegionKind, kind_of
 from ucom_tools.wire.codes import Space, Target
 from ucom_tools.wire.descriptor import DESCRIPTOR_ADDRESS, ImageDescriptor
 from ucom_tools.wire.transfer import (
@@ -135,7 +135,7 @@ def region_problem(space: Space, addr: int) -> str | None:
     if space is Space.P and addr in VECTOR_WORDS:
         return None
     kind = kind_of(space, addr)
-    if kind in (Kind.PROGRAM_FLASH, Kind.DATA_FLASH):
+    if kind in (RegionKind.PROGRAM_FLASH, RegionKind.DATA_FLASH):
         return None
     return (f"word {space.name}:{addr:04X} lies in {kind.value}; only program flash "
             "P:0004-7DFF and data flash X:1000-1EFF can be programmed")

@@ -50,7 +50,7 @@ class EdgeRef:
     def qualified(self) -> str:
         return f"{self.prefix}/{self.unique}"
 
-    def raw(self, value: object, *, what: str | None = None) -> int:
+    def raw(self, value: object, *, key: str | None = None) -> int:
         """The raw number of ``value`` (a number, or text: decimal or 0x hex); InputError
         naming the edge and its range when it does not fit exactly."""
         spec = self.spec
@@ -70,7 +70,7 @@ class EdgeRef:
                 raise ValueError(f"{value!r} is not a number")
             return self.spec.raw(value)
         except (ValueError, InvalidOperation) as err:
-            raise InputError(f"{self.qualified}: {err}", key=what) from None
+            raise InputError(f"{self.qualified}: {err}", key=key) from None
 
     def value(self, raw: int) -> int | Decimal:
         """The edge's value of a raw number: an int when the edge has no decimals."""

@@ -23,7 +23,7 @@ from typing import Final
 import can
 
 from ucom_tools.config.attrtree.match import compare, program_of
-from ucom_tools.config.attrtree.model import Board, Edge, Kind
+from ucom_tools.config.attrtree.model import BoardBlock, Edge, TreeEdgeKind
 from ucom_tools.config.attrtree.robot import RobotTrees
 from ucom_tools.config.topology import BusSpec
 from ucom_tools.edgelists.model import EdgeKind
@@ -40,7 +40,8 @@ from ucom_tools.wire import mca
 from ucom_tools.wire.codes import ErrorCode
 from ucom_tools.wire.ids import ALL, Address, Function, seq
 
-_KIND: Final = {Kind.CI: mca.Kind.CI, Kind.SO: mca.Kind.SO, Kind.PAR: mca.Kind.PAR}
+_KIND: Final = {TreeEdgeKind.CI: mca.Kind.CI, TreeEdgeKind.SO: mca.Kind.SO,
+                 TreeEdgeKind.PAR: mca.Kind.PAR}
 
 
 LISTEN_MIN_S: Final = 0.25
@@ -75,7 +76,7 @@ def edge_list(edges: BoardEdges) -> list[tuple[EdgeKind, str]]:
     return [(EdgeKind(k), r.name) for k in mca.Kind for r in edges.of(k)]
 
 
-def on_board(tree: Board, edges: BoardEdges) -> Iterator[tuple[Edge, mca.Kind, int]]:
+def on_board(tree: BoardBlock, edges: BoardEdges) -> Iterator[tuple[Edge, mca.Kind, int]]:
     """Every edge of a tree block that matches the board's description ``edges``, with
     its kind and index on the board: the tree counts its edges CI, SO, PAR on, the board
     each kind from 0 (``man/ucom-tree.5``)."""
@@ -85,7 +86,7 @@ def on_board(tree: Board, edges: BoardEdges) -> Iterator[tuple[Edge, mca.Kind, i
         yield e, kind, e.index - first[kind]
 
 
-def defaults_raw(tree: Board, edges: BoardEdges, where: str, tree_file: str | None = None,
+def defaults_raw(tree: BoardBlock, edges: BoardEdges, where: str, tree_file: str | None = None,
                  ) -> list[tuple[mca.Kind, int, int, str]]:
     """(kind, per-kind index, raw value, unique name) of every default of ``tree``, in
     tree order; ExchangeError naming the tree line when a value does not fit its edge."""
@@ -104,7 +105,7 @@ def defaults_raw(tree: Board, edges: BoardEdges, where: str, tree_file: str | No
     return out
 
 
-def configure(client: McaClient, address: Address, where: str, tree: Board,
+def configure(client: McaClient, address: Address, where: str, tree: BoardBlock,
               bus_plan: BusPlan, *, tree_file: str | None = None,
               edges: BoardEdges | None = None) -> Configured:
     """Describe, check and configure one STOPPED (or LATCHED) board; it is left stopped."""
@@ -192,8 +193,7 @@ class ExchangeWatch(OtherHosts):
 
     def __init__(self, link: Link) -> None:
         super().__init__(link)
-        # set here, not as a class attribute: mypyc (this module is compiled) does not
-        # compile a class-level default of this kind, the instance would have none
+        # an instance field, not a class-level default (see compiled.py)
         self.functions = frozenset({Function.MCA_ALIVE, Function.MCA_CONTROLLER_INPUT})
 
     def judge(self, arbitration_id: int, data: bytes) -> str | None:
@@ -286,7 +286,7 @@ class BusExchange:
             self.configure_board(n, self.trees.board(self.bus.name, spec.position),
                                  tree_file=str(spec.tree) if spec.tree else None)
 
-    def configure_board(self, n: int, block: Board, *, tree_file: str | None = None,
+    def configure_board(self, n: int, block: BoardBlock, *, tree_file: str | None = None,
                         edges: BoardEdges | None = None) -> Configured:
         """Configure board ``n`` with its tree ``block`` (:func:`configure`; ``edges``: its
         description when it was already fetched), then seed the CI values the exchange
@@ -302,7 +302,7 @@ class BusExchange:
             self.ci.setdefault((n, index), 0)
         for unique, raw in c.written.items():
             e = block.edge(unique)
-            if e.kind is Kind.CI:
+            if e.kind is TreeEdgeKind.CI:
                 self.ci[(n, e.index)] = raw
         return c
 

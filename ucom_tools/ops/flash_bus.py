@@ -136,7 +136,7 @@ class BusJob:
             return enum, infos, {b.seq_id: (b.serial, b.placement) for b in enum.boards}
         infos = h.client.info_many(ALL)
         if not infos:
-            raise NotInitialised(f"{h.name}: no board has a seq ID yet", bus=h.name)
+            raise NotInitialised(h.name)
         firsts = h.client.probe()
         if len(firsts) > 1:
             serials = ", ".join(f"0x{a.serial:08X}" for a in firsts)

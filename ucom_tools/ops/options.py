@@ -1,10 +1,10 @@
 """The console's per-board operations (options 1, 3, 4, 7-17, 21) on an open robot.
 
-Every function returns rows of plain result dataclasses, one per (bus, board); commands
-that need a completed init chain explain how to get one when the boards have no seq ID.
-An operation on every board of a bus whose topology is known also returns a failed row
-for each expected board that did not answer.  ``what`` names the operation in messages
-(the CLI passes e.g. "option 7 (Start)").
+Every function returns rows of plain result dataclasses, one per (bus, board); those
+that address boards by seq ID raise :class:`NotInitialised` (naming the bus) when no board
+of a bus has one yet, and the caller says what to do about it (the command line and the
+console word it their ways).  An operation on every board of a bus whose topology is known
+also returns a failed row for each expected board that did not answer.
 """
 
 from __future__ import annotations
@@ -23,11 +23,10 @@ from ucom_tools.wire.info import BoardInfo
 
 
 class NotInitialised(UcomError):
-    """The addressed boards have no seq ID: the init chain has not run since power-on;
-    ``bus`` names the bus."""
+    """No board of ``bus`` has a seq ID: the init chain has not run since power-on."""
 
-    def __init__(self, message: str, *, bus: str | None = None) -> None:
-        super().__init__(message)
+    def __init__(self, bus: str) -> None:
+        super().__init__(f"{bus}: no board has a seq ID yet")
         self.bus = bus
 
 
@@ -50,21 +49,23 @@ class BoardRef:
 _REF = re.compile(r"^(?:(?P<bus>[^:\s]+):)?(?P<id>all|[fF]?\d{1,2})$")
 
 
-def parse_ref(text: str, *, allow_all: bool = True, what: str = "BOARD") -> BoardRef:
+def parse_ref(text: str, *, allow_all: bool = True, key: str = "BOARD") -> BoardRef:
+    """The boards ``text`` names; :class:`~ucom_tools.errors.InputError` under ``key`` (the
+    argument's name) when it names none."""
     m_ = _REF.match(text.strip())
     if not m_:
         raise InputError(f"{text!r} is not a board: expected a seq ID 1-31, F1-F31 for a fixed"
                          " ID" + (", or all" if allow_all else "") + ", optionally BUS:..",
-                         key=what)
+                         key=key)
     ident = m_.group("id").lower()
     if ident == "all":
         if not allow_all:
-            raise InputError("this command takes one board, not all", key=what)
+            raise InputError("this command takes one board, not all", key=key)
         return BoardRef(m_.group("bus"), ALL)
     fixed = ident.startswith("f")
     number = int(ident[1:] if fixed else ident)
     if not 1 <= number <= 31:
-        raise InputError(f"board number {number} is out of range 1-31", key=what)
+        raise InputError(f"board number {number} is out of range 1-31", key=key)
     return BoardRef(m_.group("bus"), Address(IdType.FIXED if fixed else IdType.SEQUENTIAL,
                                              number))
 
@@ -90,20 +91,17 @@ def _buses(robot: Robot, ref: BoardRef | None, bus: str | None) -> list[BusHandl
     return robot.select(name)
 
 
-def _require_init(h: BusHandle, ref: BoardRef, what: str) -> None:
+def _require_init(h: BusHandle, ref: BoardRef) -> None:
     """Raise :class:`NotInitialised` when no board of the bus has a seq ID."""
     if ref.address.id_type is IdType.FIXED:
         return
     if h.client.info_many(ALL):
         return
-    raise NotInitialised(
-        f"{h.name}: no board has a seq ID yet. {what[:1].upper() + what[1:]} works only "
-        "after a successful init chain (option 2): run 'ucom init' first (the boards keep "
-        "their seq IDs until power-off), or add --init to this command.", bus=h.name)
+    raise NotInitialised(h.name)
 
 
-def _missing(h: BusHandle, ref: BoardRef, what: str) -> Row:
-    _require_init(h, ref, what)
+def _missing(h: BusHandle, ref: BoardRef) -> Row:
+    _require_init(h, ref)
     return Row(h.name, ref.address, False, f"no board with {_label(ref.address)} on {h.name}")
 
 
@@ -132,14 +130,14 @@ def _reply_row(h: BusHandle, r: Reply) -> Row:
 
 # ----------------------------------------------------------------------------- options
 def reset(robot: Robot, ref: BoardRef | None = None, *, bus: str | None = None,
-          clear_autostart: bool = False, what: str = "reset") -> list[Row]:
+          clear_autostart: bool = False) -> list[Row]:
     """Options 1, 9 and 21: reset, and list who answered (= who is alive)."""
     rows = []
     target = ref or BoardRef(None, ALL)
     for h in _buses(robot, ref, bus):
         replies = h.client.reset(target.address, clear_autostart=clear_autostart)
         if not replies and not target.is_all:
-            rows.append(_missing(h, target, what))
+            rows.append(_missing(h, target))
             continue
         bus_rows = []
         for r in replies:
@@ -150,21 +148,20 @@ def reset(robot: Robot, ref: BoardRef | None = None, *, bus: str | None = None,
     return rows
 
 
-def info(robot: Robot, ref: BoardRef, *, bus: str | None = None,
-         what: str = "GetInfo") -> list[Row]:
+def info(robot: Robot, ref: BoardRef, *, bus: str | None = None) -> list[Row]:
     """Option 3 (one board) and 13 (Count: every board, ``ref`` = all)."""
     rows = []
     for h in _buses(robot, ref, bus):
         infos = h.client.info_many(ref.address)
         if not infos and not ref.is_all:
-            rows.append(_missing(h, ref, what))
+            rows.append(_missing(h, ref))
         bus_rows = [Row(h.name, address, True, "ok", inf.state, inf, inf.serial)
                     for address, inf in sorted(infos.items(), key=lambda kv: kv[0].number)]
         rows += bus_rows + (_absent(h, bus_rows) if ref.is_all else [])
     return rows
 
 
-def set_status(robot: Robot, ref: BoardRef, op: StatusOp, value: int, *, what: str,
+def set_status(robot: Robot, ref: BoardRef, op: StatusOp, value: int, *,
                bus: str | None = None) -> list[Row]:
     """Options 4 (ProgEnable), 8 (AutoStart), 10/11 (init pins), 12 (seq ID)."""
     rows = []
@@ -172,17 +169,17 @@ def set_status(robot: Robot, ref: BoardRef, op: StatusOp, value: int, *, what: s
         replies = h.client.set_status(ref.address, op, value)
         if not replies:
             if ref.is_all:
-                _require_init(h, ref, what)
+                _require_init(h, ref)
             else:
-                rows.append(_missing(h, ref, what))
+                rows.append(_missing(h, ref))
             continue
         bus_rows = [_reply_row(h, r) for r in replies]
         rows += bus_rows + (_absent(h, bus_rows) if ref.is_all else [])
     return rows
 
 
-def set_seqid(robot: Robot, ref: BoardRef, new: int, *, bus: str | None = None,
-              what: str = "SetSeqID") -> list[Row]:
+def set_seqid(robot: Robot, ref: BoardRef, new: int, *, bus: str | None = None
+              ) -> list[Row]:
     """Option 12: give the board with seq ID ``ref`` the seq ID ``new``.
 
     Refused (:class:`~ucom_tools.errors.InputError`, nothing sent) when another board of
@@ -197,7 +194,7 @@ def set_seqid(robot: Robot, ref: BoardRef, new: int, *, bus: str | None = None,
         infos = h.client.info_many(ALL)
         old = infos.get(ref.address)
         if old is None:
-            rows.append(_missing(h, ref, what))
+            rows.append(_missing(h, ref))
             continue
         if new == ref.address.number:
             rows.append(Row(h.name, ref.address, True, "already has this seq ID", old.state,
@@ -228,16 +225,16 @@ def set_seqid(robot: Robot, ref: BoardRef, new: int, *, bus: str | None = None,
 
 
 def start(robot: Robot, ref: BoardRef, target: Target = Target.FLASH, *,
-          bus: str | None = None, what: str = "Start") -> list[Row]:
+          bus: str | None = None) -> list[Row]:
     """Option 7: start the program in flash (or ExtRAM)."""
     rows = []
     for h in _buses(robot, ref, bus):
         results = h.client.start(ref.address, target)
         if not results:
             if ref.is_all:
-                _require_init(h, ref, what)
+                _require_init(h, ref)
             else:
-                rows.append(_missing(h, ref, what))
+                rows.append(_missing(h, ref))
             continue
         bus_rows = []
         for r in results:
@@ -278,7 +275,7 @@ def probe(robot: Robot, *, last: bool = False, bus: str | None = None) -> list[P
 
 def dsp_list(robot: Robot, *, bus: str | None = None) -> list[Row]:
     """Options 16 + 17: build and print the list of active boards (Info broadcast)."""
-    return info(robot, BoardRef(None, ALL), bus=bus, what="DSPListUpdate")
+    return info(robot, BoardRef(None, ALL), bus=bus)
 
 
 def board_status(robot: Robot, ref: BoardRef, *, bus: str | None = None) -> list[

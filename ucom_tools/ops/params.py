@@ -26,7 +26,7 @@ from dataclasses import dataclass, field, replace
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
 
-from ucom_tools.config.attrtree import BoundBoard, Kind, RobotTrees, Value
+from ucom_tools.config.attrtree import BoundBoard, RobotTrees, TreeEdgeKind, Value
 from ucom_tools.config.topology import Topology
 from ucom_tools.edgelists.model import EdgeSpec
 from ucom_tools.errors import BoardError, InputError, UcomTimeoutError
@@ -40,7 +40,7 @@ from ucom_tools.wire import mca
 from ucom_tools.wire.codes import BoardState
 from ucom_tools.wire.ids import ALL, seq
 
-KINDS = (Kind.CI, Kind.PAR)
+KINDS = (TreeEdgeKind.CI, TreeEdgeKind.PAR)
 """The kinds a board holds values of that the PC sets (SO values are measurements)."""
 RUNNING = (BoardState.RUNNING_FLASH, BoardState.RUNNING_EXTRAM)
 BITMASK = "(BitMask)"
@@ -106,26 +106,26 @@ def running(robot: Robot, trees: RobotTrees) -> tuple[set[tuple[str, int]], dict
 
 
 # ----------------------------------------------------------------------------- values
-def value_text(raw: int, spec: EdgeSpec, original: Value | None = None) -> str:
+def value_text(raw: int, edge_spec: EdgeSpec, original: Value | None = None) -> str:
     """How a dumped tree writes ``raw``: the original text when it denotes the same raw
     number, else hex for a bit mask, else the exact decimal (no exponent, no trailing
     zeros)."""
     if original is not None:
         try:
-            if spec.raw(original.text) == raw:
+            if edge_spec.raw(original.text) == raw:
                 return original.text
         except (ValueError, InvalidOperation):
             pass
-    if spec.name.endswith(BITMASK) and spec.exponent == 0:
+    if edge_spec.name.endswith(BITMASK) and edge_spec.exponent == 0:
         return f"-0x{-raw:X}" if raw < 0 else f"0x{raw:X}"
-    return format(spec.value(raw).normalize(), "f")
+    return format(edge_spec.value(raw).normalize(), "f")
 
 
 @dataclass(frozen=True)
 class EdgeValue:
     """One PAR or CI value a board holds."""
 
-    kind: Kind
+    kind: TreeEdgeKind
     index: int
     """The tree index (counting CI, SO, PAR)."""
     generic: str
@@ -224,10 +224,10 @@ def _values(b: BoundBoard, edges: BoardEdges, raws: Mapping[mca.Kind, Sequence[i
         if e.kind not in KINDS:
             continue
         record = edges.of(kind)[i]
-        spec = spec_of(kind, record)
+        edge_spec = spec_of(kind, record)
         raw = raws[kind][i]
         out.append(EdgeValue(e.kind, e.index, e.generic, e.unique, raw,
-                             value_text(raw, spec, e.default), record.unit,
+                             value_text(raw, edge_spec, e.default), record.unit,
                              e.default.text if e.default else None))
     return tuple(out)
 

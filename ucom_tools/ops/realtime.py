@@ -158,12 +158,11 @@ def precise_sleep() -> bool:
 
 
 def let_signals_in() -> None:
-    """Nothing, in interpreted Python, called by the compiled loop once a cycle: entering
-    it lets Python run a signal handler that is pending.  A loop compiled with mypyc never
-    passes through the interpreter otherwise, and its sleep runs the handler only when the
-    signal comes during it: a Ctrl-C that came while the loop computed (a busy machine)
-    waited for the end of the run.  (This module stays interpreted: it is not in
-    :data:`ucom_tools.compiled.MODULES`.)"""
+    """Nothing, in interpreted Python, called by the loop once a cycle: entering it lets
+    Python run a signal handler that is pending, so that a Ctrl-C that came while the
+    loop computed (a busy machine) does not wait for the end of the run.  Why a compiled
+    loop needs it, and why this module stays out of the compiled build: see
+    :mod:`ucom_tools.compiled`."""
 
 
 def like_the_loop(scheduling: RealtimeScheduling | None, time_slice: ShortSlice) -> None:

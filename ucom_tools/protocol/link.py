@@ -53,8 +53,8 @@ class Received:
     timestamp: float
 
 
-@mypyc_attr(native_class=False)  # compiled, but a plain class: a conformance case replaces
-class Link:  # send_raw on an instance (frames lost on purpose), which a native one refuses
+@mypyc_attr(native_class=False)  # a conformance case replaces send_raw on an instance
+class Link:  # (frames lost on purpose): see compiled.py
     """Send and receive UCoM messages on one bus.
 
     ``bitrate`` is the bus bitrate the deadlines assume; ``margin`` the transport margin

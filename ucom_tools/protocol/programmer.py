@@ -46,10 +46,10 @@ from ucom_tools.wire.answers import MAX_REPORTS
 from ucom_tools.wire.canbits import unstuffed_bits
 from ucom_tools.wire.codes import (
     ErrorCode,
-    PrepareFault,
+    PrepareLack,
     ReadyReason,
     ResultStatus,
-    split_prepare_fault,
+    split_prepare_lack,
 )
 from ucom_tools.wire.ids import ALL, Address, Function, data_frame_id
 from ucom_tools.wire.transfer import TransferPlan
@@ -120,11 +120,12 @@ class _Board:
         self.address = address
         self.alive = True
         self.erased = False
-        self.lacks: tuple[PrepareFault | None, int] | None = None
+        self.lacks: tuple[PrepareLack | None, int] | None = None
         """What the board's Error SEQUENCE said it lacks of the preamble."""
         self.silent = 0
         """Preamble questions to this board that brought no answer at all."""
-        self.fault: str | None = None
+        self.refusal: str | None = None
+        """The Error with which the board refused the transfer (described)."""
         self.frame_us = 100.0
         """Microseconds the board needs per data frame (its Ready ERASED)."""
         self.ring = 0
@@ -306,12 +307,12 @@ class Programmer:
             deadline = self.link.deadline(board_time, answers=len(pending))
             for got in self._until(deadline):
                 self._handle(got)
-                if all(b.erased or b.fault or b.lacks is not None for b in pending):
+                if all(b.erased or b.refusal or b.lacks is not None for b in pending):
                     break
             for b in pending:
-                if b.fault and not b.erased:
+                if b.refusal and not b.erased:
                     b.alive = False
-                    b.failure = "refused the transfer: " + b.fault
+                    b.failure = "refused the transfer: " + b.refusal
             pending = [b for b in pending if b.alive and not b.erased]
             if not pending or attempt == attempts - 1:
                 break
@@ -335,10 +336,10 @@ class Programmer:
         if lacks is None:
             b.silent += 1
             return [plan.prepare()]
-        fault, info = lacks
-        if fault is PrepareFault.META_INCOMPLETE:
+        lack, info = lacks
+        if lack is PrepareLack.META_INCOMPLETE:
             return [*(f for f in plan.meta() if info >> f.field & 1), plan.prepare()]
-        if fault is PrepareFault.ERASE_INCOMPLETE:
+        if lack is PrepareLack.ERASE_INCOMPLETE:
             return [*plan.erases(), plan.prepare()]
         return self._preamble_frames(plan)
 
@@ -528,9 +529,9 @@ class Programmer:
             b.errors.append(msg.describe())
             if msg.function == Function.PROGRAM:
                 if msg.code is ErrorCode.SEQUENCE:
-                    b.lacks = split_prepare_fault(msg.detail)
+                    b.lacks = split_prepare_lack(msg.detail)
                 elif msg.code in REFUSALS and not b.erased:
-                    b.fault = msg.describe()
+                    b.refusal = msg.describe()
         elif isinstance(msg, m.ProgramResult):
             b.result = msg
             b.reports = []

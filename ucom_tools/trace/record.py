@@ -84,7 +84,7 @@ def value_text(value: int | float | Decimal) -> str:
 
 
 def kind_text(kind: str | Enum) -> str:
-    """CI, SO or PAR from a string, ``attrtree.Kind``, ``mca.Kind`` or ``EdgeKind``."""
+    """CI, SO or PAR from a string, ``attrtree.TreeEdgeKind``, ``mca.Kind`` or ``EdgeKind``."""
     text = kind.name if isinstance(kind, Enum) else str(kind)
     if text not in KINDS:
         raise ValueError(f"kind must be one of {', '.join(KINDS)}, not {kind!r}")

@@ -7,7 +7,7 @@ from collections.abc import Callable
 from decimal import Decimal
 from typing import Any
 
-from ucom_tools.config.attrtree import Kind as TreeKind
+from ucom_tools.config.attrtree import TreeEdgeKind
 from ucom_tools.errors import FrameError
 from ucom_tools.trace.bus import (
     BusState,
@@ -377,7 +377,7 @@ class RuntimeDecoding(BusState):
         unique = prefix = None
         if bd.bound is not None:
             block = bd.bound.board
-            of_kind = block.of_kind(TreeKind[kind.name])
+            of_kind = block.of_kind(TreeEdgeKind[kind.name])
             if index < len(of_kind):
                 unique, prefix = of_kind[index].unique, block.prefix
         rec = bd.records.get((kind, index))

@@ -103,9 +103,8 @@ CONNECT_TIMEOUT_S = 3.0
 HANDSHAKE_TIMEOUT_S = 2.0
 """The default ``handshake_timeout``."""
 SEND_TIMEOUT_S = 2.0
-"""The default ``send_timeout``.  (Named constants rather than literals: mypyc cannot
-write the text signature of a method with literal defaults and ``**kwargs``, "non-default
-argument follows default argument"; with a constant it writes none.)"""
+"""The default ``send_timeout``.  (Named constants rather than literals: see
+compiled.py.)"""
 
 PINGS: Final = 4
 """``< echo >`` round trips measured after the handshake.  The first does not count: a

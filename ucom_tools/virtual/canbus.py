@@ -81,9 +81,8 @@ class HostPort:
 
 
 def _init_error(err: UcomError) -> can.CanInitializationError:
-    """python-can's error for a bus that cannot be opened, caused by ``err`` (set here
-    too: compiled, ``raise ... from err`` leaves ``__cause__`` unset, and the CLI gives
-    the cause's own exit code)."""
+    """python-can's error for a bus that cannot be opened, caused by ``err``: the CLI
+    gives the cause's own exit code (``__cause__`` set by hand: see compiled.py)."""
     error = can.CanInitializationError(str(err))
     error.__cause__ = err
     return error

@@ -1,8 +1,8 @@
 """A fleet: every bus and board of one topology, built and (optionally) persisted.
 
 ``state_dir`` keeps each board's non-volatile memory (flash, bootloader record with the
-AutoStart flag) across restarts, like power cycles of the real robot.  ``fault`` makes
-every board that does not name its own fault in the topology a mutant board
+AutoStart flag) across restarts, like power cycles of the real robot.  ``defect`` makes
+every board that does not name its own defect in the topology a mutant board
 (:mod:`~ucom_tools.virtual.board.mutants`).  ``scenario`` times injected faults (a power loss, a
 reset, bus-off, a cut cable, the emergency stop: :mod:`ucom_tools.config.scenario`) from
 each bus's first MCA Alive; :meth:`Fleet.inject` applies one at once
@@ -47,13 +47,13 @@ class Fleet:
     """The virtual boards and buses of one topology."""
 
     def __init__(self, topology: Topology, *, state_dir: Path | None = None,
-                 realtime: bool = False, fault: str | None = None,
+                 realtime: bool = False, defect: str | None = None,
                  client_loss: float = 0.0, seed: int = 0,
                  scenario: Scenario | None = None) -> None:
-        self.fault = mutants.check(fault)
+        self.defect = mutants.check(defect)
         if scenario is not None:
             scenario.check(topology)  # before anything is built: the caller's mistake
-        """The fault of every board whose topology entry names none (None: they conform)."""
+        """The defect of every board whose topology entry names none (None: they conform)."""
         if not 0.0 <= client_loss < 1.0:
             raise InputError(f"a share of frames lost must be in [0, 1), not {client_loss:g}",
                              key="--loss")
@@ -76,27 +76,27 @@ class Fleet:
         self._pending_lock = threading.Lock()
         if state_dir is not None:
             _state_dir(state_dir)
-        for spec in topology.buses:
-            sim = SimBus(spec.name, spec.bitrate, self.clock)
+        for bus_spec in topology.buses:
+            sim = SimBus(bus_spec.name, bus_spec.bitrate, self.clock)
             boards = []
-            for b in spec.boards:
+            for b in bus_spec.boards:
                 board = VirtualBoard(sim, Identity(b.position, b.placement, b.board, b.serial,
                                                    b.fixed_id, b.fpga),
                                      timing=topology.timing, powered=False,
-                                     state_file=self._state_file(spec.name, b),
-                                     fault=b.fault or fault)
+                                     state_file=self._state_file(bus_spec.name, b),
+                                     defect=b.defect or defect)
                 if b.program is not None and not board.nv.record.flash_valid:
-                    install_program(board, b, topology.source, spec.name)
+                    install_program(board, b, topology.source, bus_spec.name)
                 sim.attach(board)
                 sim.chain.append(board)
                 if b.init_link_broken:
                     sim.broken_before.add(b.position)
                 boards.append(board)
-            for board, b in zip(boards, spec.boards, strict=True):
+            for board, b in zip(boards, bus_spec.boards, strict=True):
                 if b.powered:
                     board.power_on(0.0)
-            self.buses[spec.name] = sim
-            self.boards[spec.name] = boards
+            self.buses[bus_spec.name] = sim
+            self.boards[bus_spec.name] = boards
         self.scenario = scenario
         """The timed injected faults (None: none)."""
         self.injector = Injector(topology, self.buses, self.boards, self.clock)
@@ -115,11 +115,11 @@ class Fleet:
 
     @classmethod
     def load(cls, name_or_path: str, *, state_dir: Path | None = None,
-             realtime: bool = False, fault: str | None = None,
+             realtime: bool = False, defect: str | None = None,
              scenario: Scenario | None = None) -> Fleet:
-        mutants.check(fault)  # before the topology: a wrong name is the caller's mistake
+        mutants.check(defect)  # before the topology: a wrong name is the caller's mistake
         return cls(topo.load(name_or_path), state_dir=state_dir, realtime=realtime,
-                   fault=fault, scenario=scenario)
+                   defect=defect, scenario=scenario)
 
     def inject(self, fault: InjectedFault) -> str:
         """Apply ``fault`` now (its ``at_s`` is not looked at) and return what was done in
@@ -155,10 +155,11 @@ class Fleet:
             raise outcome
         return outcome
 
-    def _state_file(self, bus: str, spec: BoardSpec) -> Path | None:
+    def _state_file(self, bus: str, board_spec: BoardSpec) -> Path | None:
         if self.state_dir is None:
             return None
-        safe = re.sub(r"[^A-Za-z0-9_-]+", "_", f"{bus}-{spec.position + 1}-{spec.placement}")
+        safe = re.sub(r"[^A-Za-z0-9_-]+", "_",
+                      f"{bus}-{board_spec.position + 1}-{board_spec.placement}")
         return self.state_dir / safe
 
     @property
@@ -306,7 +307,7 @@ class Fleet:
                     "can_errors": b.can_errors,
                     "bus_off": b.bus_off,
                     "runtime": _runtime(b),
-                    **({"fault": b.fault} if b.fault else {}),
+                    **({"defect": b.defect} if b.defect else {}),
                 } for b in self.boards[name]]
                 buses.append({
                     "name": name, "bitrate": sim.bitrate, "boards": boards,
@@ -364,31 +365,31 @@ def _send(sim: SimBus, sender: object, t: float, arbitration_id: int, data: byte
         sim.send(sender, t, arbitration_id, data)
 
 
-def install_program(board: VirtualBoard, spec: BoardSpec, source: str, bus: str) -> None:
+def install_program(board: VirtualBoard, board_spec: BoardSpec, source: str, bus: str) -> None:
     """Put a topology's initial program into a board's flash, as if flashed earlier."""
     from ucom_tools.image.formats import load_image  # the image layer is only needed here
 
-    assert spec.program is not None
+    assert board_spec.program is not None
     try:
-        stat = spec.program.stat()
-        key = (str(spec.program.resolve()), stat.st_mtime_ns, stat.st_size)
+        stat = board_spec.program.stat()
+        key = (str(board_spec.program.resolve()), stat.st_mtime_ns, stat.st_size)
         plan = _PLANS.get(key)
         if plan is None:
-            plan = load_image(spec.program).plan(when_epoch=stat.st_mtime)
+            plan = load_image(board_spec.program).plan(when_epoch=stat.st_mtime)
             if len(_PLANS) >= PLANS_KEPT:
                 _PLANS.pop(next(iter(_PLANS)))
             _PLANS[key] = plan
     except OSError as err:
         raise TopologyError(f"the S-record file it names cannot be read: "
-                            f"{err.strerror or err}", file=source, line=spec.line,
-                            key=f"{bus}, board {spec.position + 1} ({spec.placement}), "
+                            f"{err.strerror or err}", file=source, line=board_spec.line,
+                            key=f"{bus}, board {board_spec.position + 1} ({board_spec.placement}), "
                             "program") from None
     except UcomError as err:
         raise TopologyError(f"the S-record file it names is not usable: {err}", file=source,
-                            line=spec.line, key=f"{bus}, board {spec.position + 1} "
-                            f"({spec.placement}), program") from None
+                            line=board_spec.line, key=f"{bus}, board {board_spec.position + 1} "
+                            f"({board_spec.placement}), program") from None
     board.nv.install(plan)
-    board.nv.record.autostart = spec.autostart
+    board.nv.record.autostart = board_spec.autostart
 
 
 PLANS_KEPT = 8

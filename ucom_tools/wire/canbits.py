@@ -19,7 +19,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Final
 
-if TYPE_CHECKING:  # only the compiler needs it: annotations of locals are never evaluated
+if TYPE_CHECKING:  # i64 annotations (see compiled.py)
     from mypy_extensions import i64
 
 CRC15_POLY: Final = 0x4599

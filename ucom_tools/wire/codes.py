@@ -192,9 +192,10 @@ class FinishedKind(IntEnum):
     PARTIAL = 0x02
 
 
-class PrepareFault(IntEnum):
-    """What the Error SEQUENCE a board answers PREPARE (or END) with is about: bits 31-24
-    of its detail; bits 15-0 say more (:func:`prepare_fault`)."""
+class PrepareLack(IntEnum):
+    """What a board lacks of the preamble, said by the Error SEQUENCE it answers PREPARE
+    (or END) with (ucom-protocol(7), PROGRAMMING: "says what it lacks"): bits 31-24 of its
+    detail; bits 15-0 say more (:func:`prepare_lack`)."""
 
     NO_BEGIN = 1
     """No transfer: BEGIN did not arrive (or the board finished it)."""
@@ -204,16 +205,16 @@ class PrepareFault(IntEnum):
     """The ERASE frames name fewer pages than PREPARE announces."""
 
 
-def prepare_fault(fault: PrepareFault, info: int = 0) -> int:
-    """The Error detail for a PREPARE that cannot be carried out: ``fault`` in bits
+def prepare_lack(lack: PrepareLack, info: int = 0) -> int:
+    """The Error detail for a PREPARE that cannot be carried out: ``lack`` in bits
     31-24; ``info`` in bits 15-0: the META fields lacking (bit i = field i) for
     META_INCOMPLETE, the pages the board holds in its erase list for ERASE_INCOMPLETE."""
-    return (int(fault) << 24) | (info & 0xFFFF)
+    return (int(lack) << 24) | (info & 0xFFFF)
 
 
-def split_prepare_fault(detail: int) -> tuple[PrepareFault | None, int]:
+def split_prepare_lack(detail: int) -> tuple[PrepareLack | None, int]:
     try:
-        return PrepareFault(detail >> 24), detail & 0xFFFF
+        return PrepareLack(detail >> 24), detail & 0xFFFF
     except ValueError:
         return None, detail & 0xFFFF
 

@@ -17,8 +17,8 @@ of ``ucom fleet serve`` (:mod:`ucom_tools.virtual.serve.socketcand`).  The rules
 An identifier that is extended carries :data:`CAN_EFF_FLAG` here, as SocketCAN's
 ``can_id`` does (what socketcand passes to the kernel).  Nothing here does I/O; the
 functions on the per-frame paths are written for speed: one regular-expression match, or
-one scan byte by byte (:func:`plain_send`, :meth:`ElementSplitter.plain_data` where mypyc
-compiles the module: native code), and hardly an object beyond the result.
+one scan byte by byte (:func:`plain_send`, :meth:`ElementSplitter.plain_data` where the
+module is compiled), and hardly an object beyond the result.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ import re
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Final
 
-if TYPE_CHECKING:  # the native integer type where mypyc compiles this (annotations only)
+if TYPE_CHECKING:  # i64 annotations (see compiled.py)
     from mypy_extensions import i64
 
 MAX_ELEMENT = 4096

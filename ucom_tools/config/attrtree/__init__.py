@@ -4,8 +4,8 @@ controller-input defaults.
 
 Pure code (no CLI):
 
-- :func:`load` / :func:`parse` read and check a tree -> :class:`Tree` of :class:`Board` of
-  :class:`Edge` (each with its :class:`Kind` and optional default :class:`Value`); every
+- :func:`load` / :func:`parse` read and check a tree -> :class:`Tree` of :class:`BoardBlock` of
+  :class:`Edge` (each with its :class:`TreeEdgeKind` and optional default :class:`Value`); every
   mistake is a :class:`~ucom_tools.errors.TreeError` naming ``FILE:LINE:COL``.
 - :func:`dumps` / :func:`save` write the canonical form (``save`` is atomic).
 - :func:`diff` lists the :class:`Change` s between two trees.
@@ -13,7 +13,7 @@ Pure code (no CLI):
 """
 
 from ucom_tools.config.attrtree.diff import Change, ChangeKind, diff
-from ucom_tools.config.attrtree.model import KIND_ORDER, Board, Edge, Kind, Tree, Value
+from ucom_tools.config.attrtree.model import KIND_ORDER, BoardBlock, Edge, Tree, TreeEdgeKind, Value
 from ucom_tools.config.attrtree.parser import load, parse
 from ucom_tools.config.attrtree.robot import (
     BoundBoard,
@@ -27,14 +27,14 @@ from ucom_tools.config.attrtree.writer import dumps, save
 
 __all__ = [
     "KIND_ORDER",
-    "Board",
+    "BoardBlock",
     "BoundBoard",
     "Change",
     "ChangeKind",
     "Edge",
-    "Kind",
     "RobotTrees",
     "Tree",
+    "TreeEdgeKind",
     "Value",
     "bind",
     "bind_present",

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import StrEnum
 
-from ucom_tools.config.attrtree.model import Board, Edge, Tree
+from ucom_tools.config.attrtree.model import BoardBlock, Edge, Tree
 
 
 class ChangeKind(StrEnum):
@@ -58,7 +58,7 @@ def diff(a: Tree, b: Tree) -> tuple[Change, ...]:
     return tuple(out)
 
 
-def _board(a: Board, b: Board) -> list[Change]:
+def _board(a: BoardBlock, b: BoardBlock) -> list[Change]:
     out: list[Change] = []
     n = a.number
     if a.prefix != b.prefix:

@@ -12,11 +12,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from ucom_tools.config.attrtree.model import Board, Kind
+from ucom_tools.config.attrtree.model import BoardBlock, TreeEdgeKind
 from ucom_tools.edgelists import known
 from ucom_tools.edgelists.model import EdgeKind, ProgramSpec
 
-_KIND = {EdgeKind.CI: Kind.CI, EdgeKind.SO: Kind.SO, EdgeKind.PAR: Kind.PAR}
+_KIND = {EdgeKind.CI: TreeEdgeKind.CI, EdgeKind.SO: TreeEdgeKind.SO, EdgeKind.PAR: TreeEdgeKind.PAR}
 
 
 @dataclass(frozen=True)
@@ -28,7 +28,7 @@ class Mismatch:
     """Line of the tree's mapping (0: the block as a whole)."""
 
 
-def differences(board: Board, edges: Sequence[tuple[EdgeKind, str]]) -> list[Mismatch]:
+def differences(board: BoardBlock, edges: Sequence[tuple[EdgeKind, str]]) -> list[Mismatch]:
     """Every difference between a tree block and a program's edges (kind, generic name),
     index by index: a different edge (named, or of another kind, or moved: the order
     differs), an edge the tree lacks, an edge the board lacks."""
@@ -56,7 +56,7 @@ def differences(board: Board, edges: Sequence[tuple[EdgeKind, str]]) -> list[Mis
     return out
 
 
-def compare(board: Board, edges: Sequence[tuple[EdgeKind, str]]) -> Mismatch | None:
+def compare(board: BoardBlock, edges: Sequence[tuple[EdgeKind, str]]) -> Mismatch | None:
     """The first difference between a tree block and a program's edges (kind, generic
     name) in tree order; None when they agree."""
     found = differences(board, edges)
@@ -67,7 +67,7 @@ def spec_edges(spec: ProgramSpec) -> list[tuple[EdgeKind, str]]:
     return [(e.kind, e.name) for e in spec.edges]
 
 
-def program_of(board: Board) -> ProgramSpec | None:
+def program_of(board: BoardBlock) -> ProgramSpec | None:
     """The known program whose edges the block maps, if any."""
     for spec in known().values():
         if compare(board, spec_edges(spec)) is None:

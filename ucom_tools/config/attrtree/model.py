@@ -3,7 +3,7 @@
 The dissertation's *Attribute-Tree* (B.5) maps the generic edge names of a board's program
 (``armar3.fl.S`` names them the same on every board) to robot-wide unique names and gives
 default values for parameters and controller inputs.  Here a :class:`Tree` holds one
-:class:`Board` per ``DSP{ <n>{ }<n> }DSP`` block; each edge carries its own default, so the
+:class:`BoardBlock` per ``DSP{ <n>{ }<n> }DSP`` block; each edge carries its own default, so the
 order of the default lines in a file is not part of the data (``man/ucom-tree.5``).
 """
 
@@ -17,8 +17,10 @@ from enum import StrEnum
 from functools import cached_property
 
 
-class Kind(StrEnum):
-    """The MCA2 edge kind of a mapping (set by the ``# CI``, ``# SO``, ``# PAR`` markers)."""
+class TreeEdgeKind(StrEnum):
+    """The MCA2 edge kind of a mapping (set by the ``# CI``, ``# SO``, ``# PAR`` markers) as
+    a tree names it (the program's is :class:`~ucom_tools.edgelists.model.EdgeKind`, the
+    wire's :class:`~ucom_tools.wire.mca.Kind`)."""
 
     CI = "CI"
     """Controller Input: set points and commands from the PC (may have a default)."""
@@ -33,8 +35,9 @@ class Kind(StrEnum):
         return _SECTION[self]
 
 
-_SECTION = {Kind.CI: "ControllerInput", Kind.SO: None, Kind.PAR: "Parameter"}
-KIND_ORDER = (Kind.CI, Kind.SO, Kind.PAR)
+_SECTION = {TreeEdgeKind.CI: "ControllerInput", TreeEdgeKind.SO: None,
+            TreeEdgeKind.PAR: "Parameter"}
+KIND_ORDER = (TreeEdgeKind.CI, TreeEdgeKind.SO, TreeEdgeKind.PAR)
 """The order of the kind markers in a MappingTable."""
 
 _VALUE = re.compile(r"-?(?:0x[0-9A-Fa-f]+|[0-9]+(?:\.[0-9]+)?)\Z", re.ASCII)
@@ -95,7 +98,7 @@ class Edge:
     """One line of a MappingTable, ``<index>:<generic> ==> <unique>``, with its default."""
 
     index: int
-    kind: Kind
+    kind: TreeEdgeKind
     generic: str
     """The program's name of the edge (the same on every board running that program)."""
     unique: str
@@ -109,8 +112,9 @@ class Edge:
 
 
 @dataclass(frozen=True)
-class Board:
-    """One ``<n>{ ... }<n>`` block: the configuration of one board's program."""
+class BoardBlock:
+    """One ``<n>{ ... }<n>`` block: the configuration of one board's program (a block of a
+    tree, bound to a board of the robot by :mod:`~ucom_tools.config.attrtree.robot`)."""
 
     number: int
     """The block's number, unique within the file; it says nothing about the bus or the
@@ -141,10 +145,10 @@ class Board:
         """The edge with this generic (program) name; KeyError if none."""
         return self._by_generic[name]
 
-    def of_kind(self, kind: Kind) -> tuple[Edge, ...]:
+    def of_kind(self, kind: TreeEdgeKind) -> tuple[Edge, ...]:
         return tuple(e for e in self.edges if e.kind is kind)
 
-    def defaults(self, kind: Kind | None = None) -> dict[str, Value]:
+    def defaults(self, kind: TreeEdgeKind | None = None) -> dict[str, Value]:
         """Unique name -> default, in index order (of one kind, or all)."""
         return {e.unique: e.default for e in self.edges
                 if e.default is not None and (kind is None or e.kind is kind)}
@@ -154,11 +158,11 @@ class Board:
 class Tree:
     """A whole attribute tree file: its boards in file order."""
 
-    boards: tuple[Board, ...]
+    boards: tuple[BoardBlock, ...]
     source: str = field(default="", compare=False)
     """The file name it was read from (for messages)."""
 
-    def board(self, number: int) -> Board:
+    def board(self, number: int) -> BoardBlock:
         """The board block with this number; KeyError if none."""
         for b in self.boards:
             if b.number == number:

@@ -17,12 +17,12 @@ from pathlib import Path
 from typing import NoReturn
 
 from ucom_tools import fileio
-from ucom_tools.config.attrtree.model import KIND_ORDER, Board, Edge, Kind, Tree, Value
+from ucom_tools.config.attrtree.model import KIND_ORDER, BoardBlock, Edge, Tree, TreeEdgeKind, Value
 from ucom_tools.errors import TreeError
 
 BLANKS = " \t"
 _CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")
-_MARKERS = {k.value: k for k in Kind}
+_MARKERS = {k.value: k for k in TreeEdgeKind}
 _NAME_FORBIDDEN = re.compile(r"[:{}]")
 
 
@@ -40,7 +40,7 @@ class _Block(Enum):
     CONTROLLER_INPUT = "ControllerInput"
 
 
-_DEFAULTS_OF = {_Block.PARAMETER: Kind.PAR, _Block.CONTROLLER_INPUT: Kind.CI}
+_DEFAULTS_OF = {_Block.PARAMETER: TreeEdgeKind.PAR, _Block.CONTROLLER_INPUT: TreeEdgeKind.CI}
 _SECTIONS = {"MappingTable": _Block.MAPPING, "Parameter": _Block.PARAMETER,
              "ControllerInput": _Block.CONTROLLER_INPUT}
 
@@ -67,8 +67,8 @@ class _BoardDraft:
     edges: list[Edge] = field(default_factory=list)
     by_unique: dict[str, int] = field(default_factory=dict)
     by_generic: dict[str, int] = field(default_factory=dict)
-    kind: Kind | None = None
-    markers: dict[Kind, int] = field(default_factory=dict)
+    kind: TreeEdgeKind | None = None
+    markers: dict[TreeEdgeKind, int] = field(default_factory=dict)
     sections: dict[_Block, int] = field(default_factory=dict)
     defaults: dict[int, tuple[Value, int]] = field(default_factory=dict)
 
@@ -120,7 +120,7 @@ class _Parser:
     def __init__(self, source: str) -> None:
         self.source = source
         self.stack: list[_Open] = [_Open(_Block.ROOT, "", 0, 0)]
-        self.boards: list[Board] = []
+        self.boards: list[BoardBlock] = []
         self.numbers: dict[int, int] = {}
         self.prefixes: dict[str, int] = {}
         self.board: _BoardDraft | None = None
@@ -238,7 +238,7 @@ class _Parser:
         edges = tuple(e if (dv := d.defaults.get(e.index)) is None else
                       Edge(e.index, e.kind, e.generic, e.unique, dv[0], e.line, dv[1])
                       for e in d.edges)
-        self.boards.append(Board(d.number, d.prefix, edges, d.line, d.column, *d.prefix_at))
+        self.boards.append(BoardBlock(d.number, d.prefix, edges, d.line, d.column, *d.prefix_at))
         self.board = None
 
     # ------------------------------------------------------------------ lines
@@ -353,7 +353,7 @@ class _Parser:
         if name[0] == "#":
             raise self.fail("a name must not begin with '#'", col)
 
-    def default(self, s: str, col: int, kind: Kind) -> None:
+    def default(self, s: str, col: int, kind: TreeEdgeKind) -> None:
         d = self.board
         assert d is not None
         section = self.stack[-1].name
@@ -372,7 +372,7 @@ class _Parser:
             raise self.fail(f"'{name}' is not a unique name of board {d.number}{hint}", col)
         edge = d.edges[index]
         if edge.kind is not kind:
-            what = "SO edges take no defaults" if edge.kind is Kind.SO else \
+            what = "SO edges take no defaults" if edge.kind is TreeEdgeKind.SO else \
                 f"{edge.kind} defaults belong in {edge.kind.section}"
             raise self.fail(f"'{name}' is a {edge.kind} edge (index {index}); {section} takes "
                             f"{kind} edges only ({what})", col)

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from ucom_tools.config.attrtree.model import Board, Edge, Tree
+from ucom_tools.config.attrtree.model import BoardBlock, Edge, Tree
 from ucom_tools.config.attrtree.parser import load
 from ucom_tools.config.topology import BoardSpec, Topology
 from ucom_tools.errors import InputError, TreeError
@@ -26,7 +26,7 @@ class BoundBoard:
     bus: str
     spec: BoardSpec
     file: Path
-    board: Board
+    board: BoardBlock
 
     @property
     def where(self) -> str:
@@ -48,7 +48,7 @@ class RobotTrees:
     def ok(self) -> bool:
         return not self.problems
 
-    def board(self, bus: str, position: int) -> Board:
+    def board(self, bus: str, position: int) -> BoardBlock:
         """The tree block of the board at 0-based ``position`` on ``bus``; KeyError if none."""
         for b in self.boards:
             if b.bus == bus and b.spec.position == position:
@@ -63,8 +63,8 @@ class RobotTrees:
         raise KeyError((prefix, unique))
 
 
-def _where(bus: str, spec: BoardSpec) -> str:
-    return f"{bus} board {spec.position + 1} ({spec.placement})"
+def _where(bus: str, board_spec: BoardSpec) -> str:
+    return f"{bus} board {board_spec.position + 1} ({board_spec.placement})"
 
 
 def check(topology: Topology) -> RobotTrees:
@@ -75,31 +75,33 @@ def check(topology: Topology) -> RobotTrees:
     trees: dict[Path, Tree | TreeError] = {}
     prefixes: dict[str, BoundBoard] = {}
     for bus in topology.buses:
-        for spec in bus.boards:
-            if spec.tree is None:
-                problems.append(_fail(topology, spec, f"{_where(bus.name, spec)} has no "
+        for board_spec in bus.boards:
+            if board_spec.tree is None:
+                problems.append(_fail(topology, board_spec,
+                                      f"{_where(bus.name, board_spec)} has no "
                                       "attribute tree (set tree = \"FILE\" in its "
                                       "[[bus.board]] table)"))
                 continue
-            if spec.tree not in trees:
+            if board_spec.tree not in trees:
                 try:
-                    trees[spec.tree] = load(spec.tree)
+                    trees[board_spec.tree] = load(board_spec.tree)
                 except TreeError as err:
-                    trees[spec.tree] = err
+                    trees[board_spec.tree] = err
                     problems.append(err)
-            tree = trees[spec.tree]
+            tree = trees[board_spec.tree]
             if isinstance(tree, TreeError):
                 continue
-            board = _block(tree, spec)
+            board = _block(tree, board_spec)
             if isinstance(board, str):
-                problems.append(_fail(topology, spec, f"{_where(bus.name, spec)}: {board}"))
+                problems.append(_fail(topology, board_spec,
+                                      f"{_where(bus.name, board_spec)}: {board}"))
                 continue
-            b = BoundBoard(bus.name, spec, spec.tree, board)
+            b = BoundBoard(bus.name, board_spec, board_spec.tree, board)
             if (other := prefixes.get(board.prefix)) is not None:
                 problems.append(TreeError(
                     f"prefix '{board.prefix}' of {b.where} is also {other.where}'s "
                     f"({other.file}): (prefix, unique name) must name an edge robot-wide",
-                    file=str(spec.tree), line=board.prefix_line, column=board.prefix_column))
+                    file=str(board_spec.tree), line=board.prefix_line, column=board.prefix_column))
                 continue
             prefixes[board.prefix] = b
             bound.append(b)
@@ -107,23 +109,24 @@ def check(topology: Topology) -> RobotTrees:
     return RobotTrees(topology, tuple(bound), loaded, tuple(problems))
 
 
-def _fail(topology: Topology, spec: BoardSpec, message: str) -> TreeError:
+def _fail(topology: Topology, board_spec: BoardSpec, message: str) -> TreeError:
     """A problem of a board's binding, at its [[bus.board]] table in the topology."""
-    return TreeError(message, file=topology.source, line=spec.line or None)
+    return TreeError(message, file=topology.source, line=board_spec.line or None)
 
 
-def _block(tree: Tree, spec: BoardSpec) -> Board | str:
+def _block(tree: Tree, board_spec: BoardSpec) -> BoardBlock | str:
     """The board's block of ``tree``, or why there is none."""
     numbers = ", ".join(map(str, tree.numbers))
-    if spec.tree_block is None:
+    if board_spec.tree_block is None:
         if len(tree.boards) != 1:
-            return (f"{spec.tree} has {len(tree.boards)} board blocks ({numbers}); set "
+            return (f"{board_spec.tree} has {len(tree.boards)} board blocks ({numbers}); set "
                     "tree_block to the one of this board")
         return tree.boards[0]
     try:
-        return tree.board(spec.tree_block)
+        return tree.board(board_spec.tree_block)
     except KeyError:
-        return f"tree_block {spec.tree_block} is not in {spec.tree} (its blocks: {numbers})"
+        return (f"tree_block {board_spec.tree_block} is not in {board_spec.tree} "
+                f"(its blocks: {numbers})")
 
 
 def bind(topology: Topology) -> RobotTrees:

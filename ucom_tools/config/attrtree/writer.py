@@ -12,7 +12,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ucom_tools import fileio
-from ucom_tools.config.attrtree.model import Board, Kind, Tree
+from ucom_tools.config.attrtree.model import BoardBlock, Tree, TreeEdgeKind
 
 INDENT = "  "
 
@@ -28,17 +28,17 @@ def dumps(tree: Tree) -> str:
     return "\n".join(out) + "\n"
 
 
-def _board(out: list[str], board: Board) -> None:
+def _board(out: list[str], board: BoardBlock) -> None:
     i1, i2, i3 = INDENT, INDENT * 2, INDENT * 3
     out += [f"{i1}{board.number}{{", f"{i2}Prefix : {board.prefix}", f"{i2}MappingTable{{"]
-    kind: Kind | None = None
+    kind: TreeEdgeKind | None = None
     for e in board.edges:
         if e.kind is not kind:
             kind = e.kind
             out.append(f"{i3}# {kind}")
         out.append(f"{i3}{e.index}:{e.generic} ==> {e.unique}")
     out.append(f"{i2}}}MappingTable")
-    for kind in (Kind.PAR, Kind.CI):
+    for kind in (TreeEdgeKind.PAR, TreeEdgeKind.CI):
         section = kind.section
         defaults = [e for e in board.edges if e.kind is kind and e.default is not None]
         if defaults and section:

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ucom_tools.config.attrtree.match import differences, program_of
-from ucom_tools.config.attrtree.model import Board
+from ucom_tools.config.attrtree.model import BoardBlock
 from ucom_tools.config.attrtree.robot import RobotTrees
 from ucom_tools.errors import BoardError, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import EdgeRef, spec_of
@@ -90,7 +90,7 @@ def _with(base: BoardCheck, **changes: object) -> BoardCheck:
     return replace(base, **changes)  # type: ignore[arg-type]
 
 
-def _refs_of(bus: str, n: int, where: str, block: Board, edges: BoardEdges,
+def _refs_of(bus: str, n: int, where: str, block: BoardBlock, edges: BoardEdges,
              ) -> Iterator[EdgeRef]:
     """The edges of one board whose tree block matches its description."""
     for e, kind, index in on_board(block, edges):

@@ -85,7 +85,7 @@ _sleep: Final = time.sleep
 """Bound once: the loop's wait calls them every cycle."""
 RECENT_SAMPLES: Final = 2_000
 """The cycles a running view's lateness figures are taken over (the last 2 s at 1 kHz)."""
-@mypyc_attr(allow_interpreted_subclasses=True)  # RemotePart (ops/remote/part.py, from source)
+@mypyc_attr(allow_interpreted_subclasses=True)  # RemotePart extends it (see compiled.py)
 class RemoteLoop(RemoteValues):
     """The loop over the exchanges of ``robot``'s buses at one period (see the module
     docstring); :meth:`_start_loop` begins it, :meth:`_end_loop` ends it."""

@@ -25,7 +25,7 @@ from ucom_tools.wire import mca
 from ucom_tools.wire.ids import seq
 
 
-@mypyc_attr(allow_interpreted_subclasses=True)  # RemoteLoop, RemotePart (from source)
+@mypyc_attr(allow_interpreted_subclasses=True)  # RemotePart extends it (see compiled.py)
 class RemoteValues:
     """The values of the boards of ``exchanges`` (one per bus of ``robot``) by name;
     :attr:`names` knows the edges once the boards are checked, :meth:`_bind_values`
@@ -223,7 +223,7 @@ class RemoteValues:
         if ref.kind is mca.Kind.SO:
             raise InputError(f"{ref.qualified} is a sensor output; only CI and PAR edges "
                              "can be set", key=key)
-        raw = ref.raw(value, what=key)
+        raw = ref.raw(value, key=key)
         lost = self._lost.get((ref.bus, ref.board))
         if lost is not None:
             raise LostBoardWrite(f"{ref.qualified}: {lost.where} is lost since "

@@ -5,5 +5,5 @@ Status, Info and the reports), the programming transfer
 its non-volatile memory (:mod:`~ucom_tools.virtual.board.nvmem`), the DSP program it starts
 (:mod:`~ucom_tools.virtual.board.application`) and that program's side of the run-time
 exchange (:mod:`~ucom_tools.virtual.board.runtime`); what those parts may use of the board
-(:mod:`~ucom_tools.virtual.board.port`); and mutant boards, with documented faults
+(:mod:`~ucom_tools.virtual.board.port`); and mutant boards, with documented defects
 (:mod:`~ucom_tools.virtual.board.mutants`)."""

@@ -40,13 +40,13 @@ class DspProgram:
     """A started program: checks compatibility, then runs (announcing itself)."""
 
     def __init__(self, board: ProgramHost, target: Target, name: str, progid: int, *,
-                 fault: str | None = None) -> None:
+                 defect: str | None = None) -> None:
         self.board = board
         self.target = target
         self.name = name
         self.progid = progid
-        self.fault = fault
-        """The board's fault (:mod:`~ucom_tools.virtual.board.mutants`), handed to the run time."""
+        self.defect = defect
+        """The board's defect (:mod:`~ucom_tools.virtual.board.mutants`), handed to the run time."""
         self.runtime: McaRuntime | None = None
 
     def start(self, t: float) -> None:
@@ -99,7 +99,7 @@ class DspProgram:
         spec, model, plant = make_model(program, board, board.placement, board.plant)
         if plant is not None:
             board.bind_plant(plant, t)  # the board's plant, resumed (or a new one)
-        self.runtime = McaRuntime(board, spec, model, plant, t, fault=self.fault)
+        self.runtime = McaRuntime(board, spec, model, plant, t, defect=self.defect)
 
     def end(self) -> None:
         """The board leaves the program (reset, power loss, its own end)."""

@@ -44,12 +44,12 @@ class Bootloader:
     """The init chain, Set Status, Info and the reports of one virtual board."""
 
     def __init__(self, board: BootloaderHost, nv: NonVolatile, programming: BoardProgramming,
-                 *, fault: str | None = None) -> None:
+                 *, defect: str | None = None) -> None:
         self.board = board
         self.nv = nv
         self.programming = programming
-        self.fault = fault
-        """The board's fault (:mod:`~ucom_tools.virtual.board.mutants`), None if it conforms."""
+        self.defect = defect
+        """The board's defect (:mod:`~ucom_tools.virtual.board.mutants`), None if it conforms."""
         self.chain_active = False
         """An init chain is under way (from BEGIN to END, a reset or a program's start)."""
         self.claimed = False
@@ -102,7 +102,7 @@ class Bootloader:
             if board.bus.init_in_set(board.identity.position):
                 return
             board.seq_id = number
-            if self.fault == mutants.SEQ_FROM_ZERO:
+            if self.defect == mutants.SEQ_FROM_ZERO:
                 board.seq_id, self.claimed = number - 1, True
             self._init_ack(InitAckKind.ASSIGNED, t)
         return sample
@@ -110,7 +110,7 @@ class Bootloader:
     def _chain_number(self) -> int:
         """The number this board holds in the init chain: its seq ID (seq-from-zero:
         one more, once it has claimed one)."""
-        if self.fault == mutants.SEQ_FROM_ZERO and self.claimed:
+        if self.defect == mutants.SEQ_FROM_ZERO and self.claimed:
             return self.board.seq_id + 1
         return self.board.seq_id
 
@@ -140,7 +140,7 @@ class Bootloader:
                         | BOOTLOADER_VERSION[1], board.identity.serial)
         addr = board.reply_address() or Address(IdType.SEQUENTIAL, 0)
         board.send(t + board.stagger_us, ack, address=addr)
-        if self.fault == mutants.INIT_TWICE and kind is InitAckKind.ASSIGNED:
+        if self.defect == mutants.INIT_TWICE and kind is InitAckKind.ASSIGNED:
             board.send(t + board.stagger_us, ack, address=addr)
 
     # ================================================================= status
@@ -148,7 +148,7 @@ class Bootloader:
         board = self.board
         op, value = msg.op, msg.value
         now = t
-        if self.fault == mutants.LATE_ANSWER:
+        if self.defect == mutants.LATE_ANSWER:
             t += mutants.LATE_US  # done at once, answered late (t only times the answers)
         if op is StatusOp.PROG_ENABLE:
             if board.runs_program:
@@ -166,7 +166,7 @@ class Bootloader:
         elif op is StatusOp.INIT_IN:
             board.in_drive = bool(value)
         elif op is StatusOp.INIT_OUT:
-            if self.fault != mutants.IGNORE_INITOUT:
+            if self.defect != mutants.IGNORE_INITOUT:
                 board.out_drive = bool(value)
         elif op is StatusOp.SEQ_ID:
             board.seq_id = value
@@ -177,9 +177,9 @@ class Bootloader:
     def answer_info(self, t: float, via_fixed: bool) -> None:
         """Info Request: the Info record, sent at ``t`` (the board's reply time)."""
         info = self.info()
-        if self.fault == mutants.INFO_SWAPPED:
+        if self.defect == mutants.INFO_SWAPPED:
             info = replace(info, serial=info.progid, progid=info.serial)
-        if self.fault == mutants.LATE_ANSWER:
+        if self.defect == mutants.LATE_ANSWER:
             t += mutants.LATE_US
         for frame in info.to_frames():
             self.board.send(t, frame, via_fixed=via_fixed)

@@ -1,21 +1,21 @@
-"""Mutant boards: documented faults a virtual UCoM can be given, to prove a conformance
-suite (issue 12: a suite is only as good as the faults it catches).
+"""Mutant boards: documented defects a virtual UCoM can be given, to prove a conformance
+suite (issue 12: a suite is only as good as the defects it catches).
 
-Each :class:`Fault` names one deviation from ``man/ucom-protocol.7``: a one-line title,
+Each :class:`Defect` names one deviation from ``man/ucom-protocol.7``: a one-line title,
 the section of the page it violates and the symptom a host observes on the bus.  A board
-gets a fault from its topology (``fault = "NAME"`` in its ``[[bus.board]]`` table) or
-from its fleet (``Fleet(topology, fault="NAME")``, ``ucom fleet serve --fault NAME``:
-every board that does not name its own); :func:`faults` lists the catalogue.
+gets a defect from its topology (``defect = "NAME"`` in its ``[[bus.board]]`` table) or
+from its fleet (``Fleet(topology, defect="NAME")``, ``ucom fleet serve --defect NAME``:
+every board that does not name its own); :func:`defects` lists the catalogue.
 
-A fault changes only what its title says; everything else the board does stays as the
-page specifies.  Without a fault a board behaves exactly as before: the hooks in
+A defect changes only what its title says; everything else the board does stays as the
+page specifies.  Without a defect a board behaves exactly as before: the hooks in
 :mod:`~ucom_tools.virtual.board.ucom`, :mod:`~ucom_tools.virtual.board.programming` and
-:mod:`~ucom_tools.virtual.board.runtime` compare the board's fault with the names here and
+:mod:`~ucom_tools.virtual.board.runtime` compare the board's defect with the names here and
 fall through to the conforming code when it is not theirs.
 
 The catalogue itself (names, titles, sections, symptoms) is
 :mod:`ucom_tools.config.mutants`, where the topology parser checks names; it is
-re-exported here.  This module adds the faults' figures and the hooks' helpers.
+re-exported here.  This module adds the defects' figures and the hooks' helpers.
 """
 
 from __future__ import annotations
@@ -44,9 +44,9 @@ from ucom_tools.config.mutants import (
     UNKNOWN_FUNCTION_SILENT,
     WRONG_PROGID,
     XRESET_KEEPS_AUTOSTART,
-    Fault,
+    Defect,
     check,
-    faults,
+    defects,
     listing,
     unknown,
 )
@@ -78,9 +78,9 @@ __all__ = [
     "UNKNOWN_FUNCTION_SILENT",
     "WRONG_PROGID",
     "XRESET_KEEPS_AUTOSTART",
-    "Fault",
+    "Defect",
     "check",
-    "faults",
+    "defects",
     "listing",
     "shifted_values",
     "so_slow_step",

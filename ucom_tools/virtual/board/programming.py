@@ -26,12 +26,12 @@ from ucom_tools.wire.codes import (
     BoardState,
     ErrorCode,
     MetaField,
-    PrepareFault,
+    PrepareLack,
     ReadyReason,
     ResultStatus,
     Space,
     Target,
-    prepare_fault,
+    prepare_lack,
 )
 from ucom_tools.wire.ids import Function
 from ucom_tools.wire.transfer import bytes_to_words
@@ -42,11 +42,11 @@ _PROGRAM: Final = int(Function.PROGRAM)
 class BoardProgramming:
     """The programming part of one virtual board's bootloader."""
 
-    def __init__(self, port: BoardPort, nv: NonVolatile, *, fault: str | None = None) -> None:
+    def __init__(self, port: BoardPort, nv: NonVolatile, *, defect: str | None = None) -> None:
         self.port = port
         self.nv = nv
-        self.fault = fault
-        """The board's fault (:mod:`~ucom_tools.virtual.board.mutants`), None if it conforms."""
+        self.defect = defect
+        """The board's defect (:mod:`~ucom_tools.virtual.board.mutants`), None if it conforms."""
         self.enabled = False
         """ProgEnable (SetStatus): broadcast Program frames are taken only when set."""
         self.reception: Reception | None = None
@@ -97,7 +97,7 @@ class BoardProgramming:
             return
         if rx is None:
             if isinstance(msg, m.ProgramPrepare | m.ProgramEnd):
-                port.error(t, ErrorCode.SEQUENCE, _PROGRAM, prepare_fault(PrepareFault.NO_BEGIN),
+                port.error(t, ErrorCode.SEQUENCE, _PROGRAM, prepare_lack(PrepareLack.NO_BEGIN),
                            via_fixed)
             return  # the rest of a preamble whose BEGIN was lost
         if isinstance(msg, m.ProgramMeta):
@@ -177,9 +177,9 @@ class BoardProgramming:
             return  # still erasing: Ready(ERASED) follows when done
         detail = None
         if not rx.meta_complete():
-            detail = prepare_fault(PrepareFault.META_INCOMPLETE, rx.meta_lacking())
+            detail = prepare_lack(PrepareLack.META_INCOMPLETE, rx.meta_lacking())
         elif rx.target is Target.FLASH and len(rx.erase_pages) != msg.pages:
-            detail = prepare_fault(PrepareFault.ERASE_INCOMPLETE, len(rx.erase_pages))
+            detail = prepare_lack(PrepareLack.ERASE_INCOMPLETE, len(rx.erase_pages))
         if detail is not None:
             port.error(t, ErrorCode.SEQUENCE, _PROGRAM, detail, via_fixed)
             return
@@ -259,10 +259,10 @@ class BoardProgramming:
             result, reports = rx.result(memory)
             self.overruns += rx.overruns
             rx.overruns = 0
-            if self.fault == mutants.WRONG_PROGID and result.status is ResultStatus.VERIFIED:
+            if self.defect == mutants.WRONG_PROGID and result.status is ResultStatus.VERIFIED:
                 result = replace(result, progid=(result.progid + 1) & 0xFFFFFFFF)
             if result.status is ResultStatus.VERIFIED or (
-                    self.fault == mutants.ACCEPT_BAD_PROGID
+                    self.defect == mutants.ACCEPT_BAD_PROGID
                     and result.status is ResultStatus.PROGID_MISMATCH):
                 self._commit(rx)
                 self.finished = result
@@ -278,7 +278,7 @@ class BoardProgramming:
         name = b"".join(meta.get(MetaField.NAME_0 + i, b"") for i in range(7))
         name_s = name.rstrip(b"\0").decode("latin-1")
         progid = rx.expected_progid()
-        if self.fault == mutants.WRONG_PROGID:
+        if self.defect == mutants.WRONG_PROGID:
             progid = (progid + 1) & 0xFFFFFFFF
         if rx.target is Target.FLASH:
             rec = self.nv.record

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import Final
 
 from ucom_tools.config.topology import Timing
-from ucom_tools.memory import PROTECTED_KINDS, Kind, first_unprogrammable, page_refusal
+from ucom_tools.memory import PROTECTED_KINDS, RegionKind, first_unprogrammable, page_refusal
 from ucom_tools.virtual.board.nvmem import Memory
 from ucom_tools.wire.answers import MAX_REPORTS
 from ucom_tools.wire.codes import ErrorCode, MetaField, ResultStatus, Space, Target
@@ -48,7 +48,7 @@ class RejectedBlock(Exception):
         self.detail = detail
 
 
-def refusal_code(kind: Kind) -> ErrorCode:
+def refusal_code(kind: RegionKind) -> ErrorCode:
     return ErrorCode.PROTECTED_ADDRESS if kind in PROTECTED_KINDS else ErrorCode.UNMAPPED_ADDRESS
 
 

@@ -117,14 +117,14 @@ class McaRuntime:
     """The run-time exchange of one running program."""
 
     def __init__(self, port: BoardPort, spec: ProgramSpec, model: ProgramModel,
-                 plant: Plant | None, t: float, *, fault: str | None = None) -> None:
+                 plant: Plant | None, t: float, *, defect: str | None = None) -> None:
         self.port = port
-        self.fault = fault
-        """The board's fault (:mod:`~ucom_tools.virtual.board.mutants`), None if it conforms."""
-        self._watchdog = fault != mutants.IGNORE_ALIVE
-        self._range_check = fault != mutants.NO_RANGE_CHECK
-        self._refuse_latched = fault != mutants.CI_WHILE_LATCHED
-        self._so_slow = fault == mutants.SO_SLOW
+        self.defect = defect
+        """The board's defect (:mod:`~ucom_tools.virtual.board.mutants`), None if it conforms."""
+        self._watchdog = defect != mutants.IGNORE_ALIVE
+        self._range_check = defect != mutants.NO_RANGE_CHECK
+        self._refuse_latched = defect != mutants.CI_WHILE_LATCHED
+        self._so_slow = defect == mutants.SO_SLOW
         self.spec = spec
         self.model = model
         self.plant = plant
@@ -323,7 +323,7 @@ class McaRuntime:
 
     def _ready(self, t: float, answers: int, echo: bytes) -> None:
         k = self._kinds
-        so = len(k[mca.Kind.SO]) + (1 if self.fault == mutants.READY_COUNTS_WRONG else 0)
+        so = len(k[mca.Kind.SO]) + (1 if self.defect == mutants.READY_COUNTS_WRONG else 0)
         self.port.send(t + self.port.timing.reply_us, mca.McaReady(
             self.state, answers, echo, len(k[mca.Kind.CI]), so,
             len(k[mca.Kind.PAR]), self.flags))
@@ -399,7 +399,7 @@ class McaRuntime:
         for kind, index in wanted:
             e = self._kinds[kind][index]
             name = e.name[:mutants.DESCR_NAME_CHARS] \
-                if self.fault == mutants.DESCR_TRUNCATED else e.name
+                if self.defect == mutants.DESCR_TRUNCATED else e.name
             record = mca.EdgeRecord(e.width, e.signed, e.exponent, e.minimum, e.maximum,
                                     name, e.unit)
             for segment in record.segments(kind, index):
@@ -425,7 +425,7 @@ class McaRuntime:
     def _send_dump(self, t: float, kind: mca.Kind, first: int, edges: list[EdgeSpec],
                    values: list[int]) -> None:
         specs = [(e.width, e.signed) for e in edges]
-        raws = values[first:first + len(edges)] if self.fault != mutants.DUMP_OFF_BY_ONE \
+        raws = values[first:first + len(edges)] if self.defect != mutants.DUMP_OFF_BY_ONE \
             else mutants.shifted_values(values, first, specs)
         data = mca.pack_values(specs, raws)
         self.port.send(t, mca.DumpValues(kind, first, data))

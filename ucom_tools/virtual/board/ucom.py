@@ -67,7 +67,7 @@ _SET_STATUS: Final = int(Function.SET_STATUS)
 class VirtualBoard:
     """One UCoM with its bootloader, on one bus, at one position of the init chain.
 
-    ``fault`` makes it a mutant board: a fault of :mod:`~ucom_tools.virtual.board.mutants`
+    ``defect`` makes it a mutant board: a defect of :mod:`~ucom_tools.virtual.board.mutants`
     (InputError for an unknown name), fixed for the board's life."""
 
     takes_board_frames: ClassVar[bool] = False
@@ -76,11 +76,11 @@ class VirtualBoard:
 
     def __init__(self, bus: SimBus, identity: Identity, *, timing: Timing | None = None,
                  powered: bool = True, state_file: Path | None = None,
-                 fault: str | None = None) -> None:
+                 defect: str | None = None) -> None:
         self.bus = bus
         self.identity = identity
-        self.fault = mutants.check(fault)
-        """The documented fault this board has (None: it conforms)."""
+        self.defect = mutants.check(defect)
+        """The documented defect this board has (None: it conforms)."""
         self.timing = timing or Timing()
         self.nv = NonVolatile()
         self.state_file = state_file
@@ -105,8 +105,8 @@ class VirtualBoard:
         self.in_drive = False
         self.out_drive = False
         self.seq_id = 0
-        self.programming = BoardProgramming(self, self.nv, fault=self.fault)
-        self.bootloader = Bootloader(self, self.nv, self.programming, fault=self.fault)
+        self.programming = BoardProgramming(self, self.nv, defect=self.defect)
+        self.bootloader = Bootloader(self, self.nv, self.programming, defect=self.defect)
         self.application: DspProgram | None = None
         self.stagger_us = (identity.serial & 0x3F) * bus.us_per_bit
         plug = PLUG_ON_BOARDS[identity.board].board_id
@@ -167,7 +167,7 @@ class VirtualBoard:
         self._rx = self._tx = not self.bus_off
         self.seq_id = 0
         self.bootloader.claimed = False
-        if self.fault == mutants.AUTOSTART_LOST and self.nv.record.autostart:
+        if self.defect == mutants.AUTOSTART_LOST and self.nv.record.autostart:
             self.nv.record.autostart = False  # the flag did not survive the power cycle
             self.persist(record_only=True)
         self._boot(t)
@@ -197,9 +197,9 @@ class VirtualBoard:
         self._suppress_autostart = False
 
     def _reset(self, t: float, clear_autostart: bool) -> None:
-        lost = self.fault == mutants.AUTOSTART_LOST  # the flag does not survive a reset
+        lost = self.defect == mutants.AUTOSTART_LOST  # the flag does not survive a reset
         if (clear_autostart or lost) and self.nv.record.autostart and \
-                (self.fault != mutants.XRESET_KEEPS_AUTOSTART or lost):
+                (self.defect != mutants.XRESET_KEEPS_AUTOSTART or lost):
             self.nv.record.autostart = False
             self.persist(record_only=True)
         self._end_application()
@@ -389,12 +389,12 @@ class VirtualBoard:
             mine = bool(self.identity.fixed_id) and number == self.identity.fixed_id
             via_fixed = True
         if not mine and not (function == _SET_STATUS and id_type == 0
-                             and self.fault == mutants.PROMISCUOUS):
+                             and self.defect == mutants.PROMISCUOUS):
             if function == _PROGRAM and data and data[0] == ProgramOp.BLOCK:
                 self.programming.other_block()
             return
         if function > 27:
-            if not broadcast and self.fault != mutants.UNKNOWN_FUNCTION_SILENT:
+            if not broadcast and self.defect != mutants.UNKNOWN_FUNCTION_SILENT:
                 self.error(t, ErrorCode.UNKNOWN_FUNCTION, function, via_fixed=via_fixed)
             return
         if function in _MCA_FROM_HOST:
@@ -520,7 +520,7 @@ class VirtualBoard:
             ext = self.programming.extram
             assert ext is not None
             name, progid = ext.name, ext.progid
-        self.application = DspProgram(self, target, name, progid, fault=self.fault)
+        self.application = DspProgram(self, target, name, progid, defect=self.defect)
         if announce:
             self.send(t, m.Ready(ReadyReason.STARTED, self.state, target), via_fixed=via_fixed)
         self.application.start(t)

@@ -131,7 +131,7 @@ class FleetClock:
             seq = self._next_seq
             self._next_seq = seq + 1
             when = t if t > now else now
-            # a concatenation: the compiled (when, *args) builds a list first
+            # a concatenation, not (when, *args): see compiled.py
             call = (when,) + args if args else ()  # noqa: RUF005
             self._push(_Scheduled(when, tier, seq, callback, call))
         else:

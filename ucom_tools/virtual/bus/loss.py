@@ -10,8 +10,9 @@
   socketcand client and its bus, each client with its own seeded generator
   (:class:`~ucom_tools.virtual.serve.connection.Connection` asks it for every frame).
 
-(A *fault*, in ucom-tools, is something else: a mutant board's documented deviation
-from the protocol, :mod:`ucom_tools.virtual.board.mutants`.)
+(Neither is a lost frame a mutant board's *defect*, a documented deviation from the
+protocol, :mod:`ucom_tools.virtual.board.mutants`, nor an injected *fault*,
+:mod:`ucom_tools.virtual.injected`.)
 """
 
 from __future__ import annotations

@@ -157,8 +157,8 @@ class LegPlant:
     @staticmethod
     def key_of(params: Sequence[AxisParams], ground_z: float | None, foot_sensor: bool,
                marks: Sequence[float | None], supply_v: float) -> tuple[object, ...]:
-        """The :attr:`key` of a leg made with these arguments (all given: a compiled
-        caller in another module does not see this module's constants as defaults)."""
+        """The :attr:`key` of a leg made with these arguments (all given: see
+        compiled.py)."""
         return (tuple(params), ground_z, foot_sensor, tuple(marks), supply_v)
 
     def resume(self, fpga: VirtualFpga, adc: list[int], dead_us: float) -> None:

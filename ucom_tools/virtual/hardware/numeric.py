@@ -3,10 +3,9 @@
 (:func:`clamp`), and :func:`round_half_even`, the same value as the builtin ``round`` for
 every float.
 
-Why not ``round``: mypyc compiles ``round(x)`` into a call of the builtin through the interpreter,
-which looks up ``float.__round__`` and builds a bound method each time (some 600
-instructions; ARMAR-III's axes round about 120 times a virtual millisecond);
-:func:`round_half_even` is a few compiled comparisons.  ``tests/test_numeric.py`` holds
+Why not ``round``: compiled, it goes through the interpreter (some 600 instructions, see
+:mod:`ucom_tools.compiled`), and ARMAR-III's axes round about 120 times a virtual
+millisecond; :func:`round_half_even` is a few comparisons.  ``tests/test_numeric.py`` holds
 it to ``round`` (ties, signs, the last float below a half, the edges of exact integers,
 random values of every magnitude).
 """

@@ -215,7 +215,7 @@ class Armar3Model:
     def _repeat(self, quiet: _Quiet) -> float:
         """The cycle again with the same inputs (:class:`_Quiet`)."""
         dt_us = quiet.dt_us
-        axes, settlings = self.axes, quiet.settling  # (index loops: mypyc compiles no zip)
+        axes, settlings = self.axes, quiet.settling  # (index loops, no zip: see compiled.py)
         for k in range(len(axes)):
             a = axes[k]
             a.since_us = a.since_us + dt_us

@@ -241,7 +241,7 @@ class Lauron4Model:
     :data:`ucom_tools.edgelists.lauron4.SPEC`."""
 
     def __init__(self, hardware: Hardware) -> None:
-        self.spec: ProgramSpec = SPEC  # an instance field: mypyc has no class-level default
+        self.spec: ProgramSpec = SPEC  # an instance field (see compiled.py)
         self.hw = hardware
         self.ci = [e.default for e in SPEC.of(EdgeKind.CI)]
         self.so = [e.default for e in SPEC.of(EdgeKind.SO)]

@@ -260,8 +260,8 @@ class Connection:
 
     def _take_returned(self) -> BaseException | None:
         """What :meth:`_give_back` left, cleared (a method of its own: read where the field
-        was just set to None, a type checker - and mypyc - would take it for None still,
-        although the driver's thread set it meanwhile)."""
+        was just set to None, it would be taken for None still, although the driver's
+        thread set it meanwhile: see compiled.py)."""
         returned, self._returned = self._returned, None
         return returned
 

@@ -1,6 +1,7 @@
 """What a user on a real robot meets (issue 8, A): the bus the command line names is the
 bus used, missing boards fail the job, a taken seq ID is refused, tables are never cut
-short, exit codes mean one thing each, and no user mistake ends in a traceback."""
+short, exit codes mean one thing each, and no user error (a mistake in what the user gives
+ucom) ends in a traceback."""
 
 from __future__ import annotations
 
@@ -235,7 +236,7 @@ def test_a_corrupt_or_unreadable_state_is_bad_input_naming_the_file(tmp_path: Pa
         assert "Traceback" not in r.stderr
 
 
-def test_topology_mistakes_name_the_topology_file_line_and_board(tmp_path: Path) -> None:
+def test_topology_errors_name_the_topology_file_line_and_board(tmp_path: Path) -> None:
     bad = tmp_path / "bad.toml"
     readme = Path("README.md").resolve()
     bad.write_text('name = "x"\n[[bus]]\nname = "CAN0"\n[[bus.board]]\nplacement = "a"\n'
