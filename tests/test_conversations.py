@@ -4,23 +4,12 @@ writes of one edge one after the other, the last one asked for winning."""
 
 from __future__ import annotations
 
-from typing import Any, cast
+from typing import Any
 
+from ucom_tools.edgelists.model import EdgeKind, EdgeSpec
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.remote.conversations import Conversations
-
-
-class _Client:
-    def __init__(self) -> None:
-        self.forgotten = 0
-
-    def forget(self) -> None:
-        self.forgotten += 1
-
-
-class _Exchange:
-    def __init__(self) -> None:
-        self.mca = _Client()
+from ucom_tools.wire import mca
 
 
 class _Talk:
@@ -55,17 +44,18 @@ class _Loop:
     """What the loop is told (its state, as the part calls it back)."""
 
     def __init__(self, virtual: bool = True) -> None:
-        self.exchanges: dict[str, Any] = {"CAN0": _Exchange(), "CAN1": _Exchange()}
+        self.forgotten: list[str] = []
         self.ended: list[_Talk] = []
         self.values: dict[EdgeRef, int] = {}
         self.failed: list[tuple[EdgeRef, int, str]] = []
-        self.talks = Conversations(self.exchanges, virtual, self.ended.append,
-                                   self.values.get, self.values.__setitem__)
+        self.talks = Conversations(virtual, self.ended.append, self.values.get,
+                                   self.values.__setitem__, self.forgotten.append)
         self.talks.par_failed = lambda ref, raw, how: self.failed.append((ref, raw, how))
 
 
 def _ref() -> EdgeRef:
-    return cast(EdgeRef, object())  # a key only: the part never looks inside
+    spec = EdgeSpec(EdgeKind.PAR, "Gain", width=2, signed=True)
+    return EdgeRef("CAN0", 1, "CAN0 board 1", "P", "P Gain", "Gain", mca.Kind.PAR, 0, spec)
 
 
 def test_a_rejoin_that_ended_is_handed_to_the_loop_and_its_client_forgets() -> None:
@@ -80,7 +70,7 @@ def test_a_rejoin_that_ended_is_handed_to_the_loop_and_its_client_forgets() -> N
     assert [(t.bus, t.board) for t in loop.ended] == [("CAN0", 1), ("CAN1", 2)]
     assert loop.talks.under_way == []
     assert log == ["CAN01", "CAN12", "CAN01", "CAN12"]  # virtual time: in order, each turn
-    assert loop.exchanges["CAN0"].mca.forgotten == 2
+    assert loop.forgotten == ["CAN0", "CAN1", "CAN0", "CAN1"]  # after every turn, each
 
 
 def test_on_the_wall_clock_each_cycle_another_one_has_the_first_turn() -> None:

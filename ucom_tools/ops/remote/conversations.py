@@ -16,7 +16,6 @@ from collections.abc import Callable
 from typing import Any, Final
 
 from ucom_tools.ops.edges import EdgeRef
-from ucom_tools.ops.exchange import BusExchange
 
 REJOIN_MARGIN_S: Final = 0.0003
 """On the wall clock a rejoin's step ends this long before the loop's next deadline at the
@@ -28,16 +27,17 @@ class Conversations:
     """The loop's conversations (see the module docstring).  ``ended`` is called with a
     rejoin that ended (the loop brings its board back, or says why not); ``held`` and
     ``hold`` read and set the raw value the PC holds for an edge (a write that fails puts
-    the one before back)."""
+    the one before back); ``forget`` drops the copies of a conversation's answers that
+    the run time's own client of that bus got."""
 
-    def __init__(self, exchanges: dict[str, BusExchange], virtual: bool,
-                 ended: Callable[[Any], None], held: Callable[[EdgeRef], int | None],
-                 hold: Callable[[EdgeRef, int], None]) -> None:
-        self.exchanges = exchanges
+    def __init__(self, virtual: bool, ended: Callable[[Any], None],
+                 held: Callable[[EdgeRef], int | None], hold: Callable[[EdgeRef, int], None],
+                 forget: Callable[[str], None]) -> None:
         self.virtual = virtual
         self.ended = ended
         self.held = held
         self.hold = hold
+        self.forget = forget
         self.under_way: list[Any] = []
         """The conversations stepped after each cycle's drain: rejoins, and PAR writes the
         loop does not wait for."""
@@ -105,7 +105,7 @@ class Conversations:
             # the run time's own client got a copy of every answer the conversation
             # had: dropped here, between its requests (kept, they piled up to the
             # dispatcher's limit: megabytes over a day of faults)
-            self.exchanges[r.bus].mca.forget()
+            self.forget(r.bus)
 
     def write_later(self, ref: EdgeRef, raw: int) -> bool:
         """Write ``raw`` to ``ref`` as a conversation (False: no writer, write it now)."""

@@ -124,8 +124,8 @@ class RemoteLoop(RemoteValues):
         self._newly: list[BoardFault] = []
         self._halt: BoardLost | None = None
         self.virtual = robot.virtual_time
-        self.conversations = Conversations(exchanges, self.virtual, self._rejoin_ended,
-                                           self._held, self._hold)
+        self.conversations = Conversations(self.virtual, self._rejoin_ended, self._held,
+                                           self._hold, self._forget_answers)
         """The rejoins and the writes the loop steps (:mod:`~ucom_tools.ops.remote.
         conversations`)."""
         self.stats = LoopStats(self.period_s)
@@ -538,6 +538,9 @@ class RemoteLoop(RemoteValues):
         self.faults.append(fault)
         for hook in self.fault_hooks:
             hook(fault)
+
+    def _forget_answers(self, bus: str) -> None:
+        self.exchanges[bus].mca.forget()
 
     def _write_later(self, ref: EdgeRef, raw: int) -> bool:
         return self._running and self.conversations.write_later(ref, raw)
