@@ -1,4 +1,5 @@
-"""Small units (issue 37): no module of the package over 600 lines, no function over 80.
+"""Small units (issue 37): no module of the package or of the benchmarks over 600 lines,
+no function over 80.
 
 The units still over a bound are listed in :data:`OVER` with their size today: none may
 grow, a new one fails, and one that shrinks under its bound must leave the list (so the
@@ -14,14 +15,22 @@ ROOT = Path(__file__).resolve().parent.parent
 MODULE_LINES = 600
 FUNCTION_LINES = 80
 
-OVER: dict[str, int] = {}
+OVER: dict[str, int] = {
+    "benchmarks/consumers.py:main": 112,
+    "benchmarks/faults.py:main": 89,
+    "benchmarks/gateway.py": 616,
+    "benchmarks/network.py:main": 82,
+    "benchmarks/soak.py": 678,
+    "benchmarks/soak.py:analyse": 113,
+    "benchmarks/soak.py:main": 88,
+}
 """What is still too long, and how long it is: the debt to pay."""
 
 
 def _units() -> dict[str, int]:
     """Every module's lines and every function's (``path:Class.function``)."""
     out: dict[str, int] = {}
-    for path in sorted((ROOT / "ucom_tools").rglob("*.py")):
+    for path in sorted([*(ROOT / "ucom_tools").rglob("*.py"), *(ROOT / "benchmarks").glob("*.py")]):
         rel = path.relative_to(ROOT).as_posix()
         text = path.read_text(encoding="utf-8")
         out[rel] = len(text.splitlines())

@@ -198,13 +198,13 @@ def plan(robot: Robot, request: DeployRequest) -> Plan:
     image (and with the journal of an unfinished deploy); the boards not in
     ``request.only`` are shown up to date or not, never changed."""
     manifest, journal, only = request.manifest, request.journal, request.only
-    part = robot_for(robot, manifest)
+    selected = robot_for(robot, manifest)
 
     def one(h: BusHandle) -> tuple[BusEnumeration, list[PlanRow]]:
         enum = enumerate_bus(h)
         return enum, _plan_bus(h, enum, manifest, journal)
 
-    done = part.each(one)
+    done = selected.each(one)
     rows = [r for _, bus_rows in done for r in bus_rows]
     if only is not None:
         rows = [r if r.key in only or r.action == UP_TO_DATE else

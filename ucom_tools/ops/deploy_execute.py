@@ -60,10 +60,10 @@ from ucom_tools.wire.info import BoardInfo
 
 @dataclass(frozen=True)
 class _Run:
-    """One execution of a plan: the robot part it works on, where it records, how it is
-    told to stop and what it tells."""
+    """One execution of a plan: the robot it works on (the buses its manifest names),
+    where it records, how it is told to stop and what it tells."""
 
-    part: Robot
+    selected: Robot
     plan: Plan
     journal: Journal
     progress: ProgressFn | None
@@ -88,7 +88,7 @@ def _one_block(tree: attrtree.Tree, number: int) -> attrtree.Tree:
     return replace(tree, boards=tuple(b for b in tree.boards if b.number == number))
 
 
-def _dump(part: Robot, manifest: Manifest, journal: Journal, rows: list[PlanRow],
+def _dump(selected: Robot, manifest: Manifest, journal: Journal, rows: list[PlanRow],
           events: EventFn) -> dict[str, str]:
     """Record ``rows`` in the journal, with the parameters of the boards to program that
     run a program and have a tree (and none saved by an earlier, unfinished deploy);
@@ -101,7 +101,7 @@ def _dump(part: Robot, manifest: Manifest, journal: Journal, rows: list[PlanRow]
     files: dict[str, str] = {}
     if trees is not None:
         events(f"reading the parameters of {len(trees.boards)} board(s)")
-        readout = params_ops.read_values(part, trees, running_only=True)
+        readout = params_ops.read_values(selected, trees, running_only=True)
         by_source = {t.source: t for t in trees.trees}
         for read in readout.boards:
             key = f"{read.bus}:{read.board}"
@@ -151,7 +151,7 @@ def _program_bus(h: BusHandle, run: _Run, rows: list[PlanRow]) -> dict[str, str]
                f"{', '.join(map(str, numbers))}")
         request = FlashRequest(w.image, selection=Selection("list", numbers), bus=h.name,
                                init=False, verify=True, plan=w.plan)
-        result = flash(run.part, request, progress=run.progress, cancel=run.cancel)
+        result = flash(run.selected, request, progress=run.progress, cancel=run.cancel)
         by_seq = {b.seq_id: b for b in result.boards}
         for r in group:
             b = by_seq.get(r.seq_id)
@@ -167,7 +167,7 @@ def _program_bus(h: BusHandle, run: _Run, rows: list[PlanRow]) -> dict[str, str]
     return out
 
 
-def _restore(part: Robot, manifest: Manifest, journal: Journal, keys: list[str],
+def _restore(selected: Robot, manifest: Manifest, journal: Journal, keys: list[str],
              events: EventFn) -> dict[str, Params]:
     """Load the saved parameters of the boards ``keys`` back (their programs started)."""
     out: dict[str, Params] = {}
@@ -187,7 +187,7 @@ def _restore(part: Robot, manifest: Manifest, journal: Journal, keys: list[str],
         return {k: Params("failed", 0, f"the saved parameters cannot be used: {err}")
                 for k in keys if journal.boards.get(k, {}).get("params")}
     chosen = params_ops.select_prefixes(given, prefixes)
-    result = params_ops.load_values(part, chosen, strict=False)
+    result = params_ops.load_values(selected, chosen, strict=False)
     for b in result.boards:
         key = f"{b.bus}:{b.board}"
         if b.ok:
@@ -233,7 +233,7 @@ def _finish_bus(h: BusHandle, manifest: Manifest, rows: list[PlanRow],
     return out
 
 
-def _after(part: Robot, manifest: Manifest, rows: list[PlanRow]
+def _after(selected: Robot, manifest: Manifest, rows: list[PlanRow]
            ) -> dict[str, BoardInfo]:
     """The Info of the boards of ``rows`` as the deploy leaves them."""
     def one(h: BusHandle) -> dict[str, BoardInfo]:
@@ -244,8 +244,8 @@ def _after(part: Robot, manifest: Manifest, rows: list[PlanRow]
         return {r.key: infos[seq(r.seq_id)] for r in mine if seq(r.seq_id) in infos}
 
     out: dict[str, BoardInfo] = {}
-    for part_out in part.each(one):
-        out.update(part_out)
+    for outcome_of in selected.each(one):
+        out.update(outcome_of)
     return out
 
 
@@ -286,19 +286,19 @@ def _work(run: _Run, work: list[PlanRow], check: Callable[[str], None]
           ) -> tuple[dict[str, str], dict[str, Params]]:
     """The steps that change boards, for the rows that need work: why each board that
     failed did, and what became of the parameters of each."""
-    part, manifest, journal, say = run.part, run.manifest, run.journal, run.say
+    selected, manifest, journal, say = run.selected, run.manifest, run.journal, run.say
     failed: dict[str, str] = {}
     to_program = [r for r in work if r.action == PROGRAM]
-    failed.update(_dump(part, manifest, journal, work, say))
+    failed.update(_dump(selected, manifest, journal, work, say))
     to_program = [r for r in to_program if r.key not in failed]
     programmed: dict[str, str] = {}
     if to_program:
-        buses = sorted({r.bus for r in to_program}, key=lambda b: list(part.buses).index(b))
+        buses = sorted({r.bus for r in to_program}, key=lambda b: list(selected.buses).index(b))
         # another host programming: BusError, nothing programmed
         check(LISTENING)
-        listen_first(replace(part, buses={n: part.buses[n] for n in buses}))
+        listen_first(replace(selected, buses={n: selected.buses[n] for n in buses}))
         check(PROGRAMMING)
-        for outcome in part.each(lambda h: _program_bus(
+        for outcome in selected.each(lambda h: _program_bus(
                 h, run, [r for r in to_program if r.bus == h.name])
                 if h.name in buses else {}, cancel=run.cancel):
             programmed.update(outcome)
@@ -307,14 +307,14 @@ def _work(run: _Run, work: list[PlanRow], check: Callable[[str], None]
             failed[k] = f"not verified: {v}"
     ready = [r for r in work if r.key not in failed]
     check(RESTORING)
-    params = _restore(part, manifest, journal, [r.key for r in ready], say)
+    params = _restore(selected, manifest, journal, [r.key for r in ready], say)
     for k, p in params.items():
         if p.outcome == "failed":
             failed[k] = f"parameters {p.detail}"
     ready = [r for r in ready if r.key not in failed]
     check(FINISHING)
     say("setting AutoStart and starting the programs")
-    for outcome in part.each(lambda h: _finish_bus(
+    for outcome in selected.each(lambda h: _finish_bus(
             h, manifest, [r for r in ready if r.bus == h.name], run.cancel), cancel=run.cancel):
         failed.update(outcome)
     check(CHECKING)
@@ -326,7 +326,7 @@ def _outcome(run: _Run, rows: list[PlanRow], work: list[PlanRow], failed: dict[s
     """How every board ended (its Info read again), the journal removed when the robot
     matches its manifest."""
     manifest, journal = run.manifest, run.journal
-    after = _after(run.part, manifest, work) if work else {}
+    after = _after(run.selected, manifest, work) if work else {}
     boards = []
     for r in rows:
         w = manifest.board(r.bus, r.position)
@@ -351,7 +351,7 @@ def _outcome(run: _Run, rows: list[PlanRow], work: list[PlanRow], failed: dict[s
     skipped = {b.row.key for b in boards if b.outcome == SKIPPED}
     left: Path | None = journal.directory
     if all(b.ok for b in boards) and not skipped & set(journal.boards):
-        journal.remove()  # the robot (the selected part of it) matches its manifest
+        journal.remove()  # the robot (the buses selected) matches its manifest
         left = None
     elif work:
         journal.save()
@@ -365,7 +365,7 @@ def _interrupted(run: _Run, rows: list[PlanRow], work: list[PlanRow], step: str
     """After an interrupt in ``step``: on every bus, no board the deploy works on left
     ProgEnabled or in a transfer (:func:`~ucom_tools.ops.leave.put_back`), and per board
     what it was left with; the journal is kept (the next deploy finishes the work)."""
-    part, journal = run.part, run.journal
+    selected, journal = run.selected, run.journal
 
     def one(h: BusHandle) -> tuple[dict[int, BoardInfo], list[str]]:
         mine = [r.seq_id for r in work if r.bus == h.name and r.seq_id]
@@ -375,8 +375,8 @@ def _interrupted(run: _Run, rows: list[PlanRow], work: list[PlanRow], step: str
         # one whose transfer failed before the interrupt) is cleared by what its Info says
         return leave.put_back(h, abort=step == PROGRAMMING, enabled=[], ask=mine)
 
-    done = part.each(one)
-    handles = part.select(None)
+    done = selected.each(one)
+    handles = selected.select(None)
     infos = {h.name: got for h, (got, _) in zip(handles, done, strict=True)}
     notes = {h.name: bus_notes for h, (_, bus_notes) in zip(handles, done, strict=True)}
     boards = []
