@@ -45,7 +45,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -149,13 +149,21 @@ def child(code: str, *args: str, where: tuple[str, ...] = ()) -> tuple[
     return proc, lines, ready
 
 
-def end(proc: subprocess.Popen[str]) -> None:
+def end(proc: subprocess.Popen[str], cycle: Callable[[], object] | None = None) -> None:
+    """Close ``proc``'s input and wait (10 s at most) for it to end, the loop cycling
+    meanwhile where ``cycle`` is given (a loop that waited would let every board's
+    watchdog stop it, and the run would end with its boards lost)."""
     if proc.stdin is not None:
         proc.stdin.close()
-    try:
-        proc.wait(timeout=10)
-    except subprocess.TimeoutExpired:
+    deadline = time.monotonic() + 10
+    while proc.poll() is None and time.monotonic() < deadline:
+        if cycle is not None:
+            cycle()
+        else:
+            time.sleep(0.01)
+    if proc.poll() is None:
         proc.kill()
+        proc.wait()
 
 
 def loop(port: int, seconds: float, zenoh: str | None, publish_hz: float,
@@ -196,7 +204,7 @@ def loop(port: int, seconds: float, zenoh: str | None, publish_hz: float,
         stops = sum(1 for e in part.events if e.stopped_motors)
         got = list(lines)
         if sub is not None:
-            end(sub)
+            end(sub, part.cycle)
         if zenoh and setpoints:
             ident, offset, signed = ci_slot(part, TARGET)
             listener, frames, heard = child(CI_LISTENER, str(port), str(ident), str(offset),
@@ -216,7 +224,7 @@ def loop(port: int, seconds: float, zenoh: str | None, publish_hz: float,
             stop_at = time.monotonic() + 0.1  # the last frame's way to the listener
             while time.monotonic() < stop_at:
                 part.cycle()
-            end(writer)
+            end(writer, part.cycle)
             listener.kill()
             listener.wait()
     lat = [float(x) for x in got if x[:1].isdigit()]
