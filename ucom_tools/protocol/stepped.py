@@ -209,3 +209,33 @@ class Stepped:
         while clock() < until:
             self._park(lambda: clock() >= until)
 
+
+class SteppedJob:
+    """A :class:`Stepped` conversation as a loop holds it among others: :attr:`done`,
+    :meth:`busy`, :meth:`step`, :meth:`cancel`; at its end :attr:`ok`, else :attr:`how`
+    says why not (:attr:`FAILED` in front of the error that ended the worker, or of "the
+    run ended")."""
+
+    FAILED = ""
+
+    def __init__(self, work: Callable[[], Any], name: str) -> None:
+        self.ok = False
+        self.how = ""
+        self._stepped = Stepped(work, name)
+
+    @property
+    def done(self) -> bool:
+        return self._stepped.done
+
+    def busy(self) -> bool:
+        """Its worker computes beside the loop (see :meth:`Stepped.busy`)."""
+        return self._stepped.busy()
+
+    def step(self, budget: float | None = None) -> None:
+        self._stepped.step(budget)
+        if self._stepped.done and not self.ok and not self.how:
+            err = self._stepped.error
+            self.how = self.FAILED + (str(err) if err is not None else "the run ended")
+
+    def cancel(self) -> None:
+        self._stepped.cancel()

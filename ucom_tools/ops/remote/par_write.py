@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Protocol
 from ucom_tools.errors import BoardError, BusError, UcomTimeoutError
 from ucom_tools.ops.realtime import like_the_loop
 from ucom_tools.protocol.mca import McaClient
-from ucom_tools.protocol.stepped import Stepped
+from ucom_tools.protocol.stepped import SteppedJob
 from ucom_tools.wire import mca
 from ucom_tools.wire.ids import seq
 
@@ -50,7 +50,7 @@ class ParHost(Protocol):
     def time_slice(self) -> ShortSlice: ...
 
 
-class ParWrite:
+class ParWrite(SteppedJob):
     """One edge's acknowledged write (a PAR, or a CI outside the maps), stepped by the
     loop (see the module docstring); the loop holds it among its conversations until
     :attr:`done`, then :attr:`ok` or :attr:`how` (why not)."""
@@ -64,25 +64,7 @@ class ParWrite:
         self.bus = ref.bus
         self.board = ref.board
         self.raw = raw
-        self.ok = False
-        self.how = ""
-        self._stepped = Stepped(self._run, f"ucom-par-{ref.bus}-{ref.board}-{ref.index}")
-
-    @property
-    def done(self) -> bool:
-        return self._stepped.done
-
-    def busy(self) -> bool:
-        return self._stepped.busy()
-
-    def step(self, budget: float | None = None) -> None:
-        self._stepped.step(budget)
-        if self._stepped.done and not self.ok and not self.how:
-            err = self._stepped.error
-            self.how = str(err) if err is not None else "the run ended"
-
-    def cancel(self) -> None:
-        self._stepped.cancel()
+        super().__init__(self._run, f"ucom-par-{ref.bus}-{ref.board}-{ref.index}")
 
     def _run(self) -> None:
         part, ref = self.part, self.ref

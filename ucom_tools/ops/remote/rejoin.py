@@ -45,7 +45,7 @@ from ucom_tools.ops.remote.check import tree_file
 from ucom_tools.ops.remote.faults import REJOIN_EVERY_S
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.mca import BoardEdges, McaClient
-from ucom_tools.protocol.stepped import Stepped
+from ucom_tools.protocol.stepped import SteppedJob
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import ErrorCode, Target
@@ -104,13 +104,14 @@ class Held:
     """The run state its program was in when it answered (before the PC stopped it)."""
 
 
-class Rejoin:
+class Rejoin(SteppedJob):
     """Brings board ``board`` of bus ``bus`` of ``part`` back (see the module docstring):
     the loop steps it (:meth:`step`) until :attr:`done`; then :attr:`ok`, :attr:`how`
     (what was done, or why not), :attr:`answered` (when it first answered REJOIN, on the
     bus clock)."""
 
     is_rejoin = True  # (the loop steps PAR writes among its conversations too)
+    FAILED = "cannot rejoin: "
 
     def __init__(self, part: RejoinHost, bus: str, board: int, delay: float = 0.0) -> None:
         self.part = part
@@ -119,28 +120,8 @@ class Rejoin:
         self.delay = delay
         """Seconds before the first question (boards lost together are asked apart)."""
         self.answered: float | None = None
-        self.ok = False
-        self.how = ""
         self.held: Held | None = None
-        self._stepped = Stepped(self._run, f"ucom-rejoin-{bus}-{board}")
-
-    @property
-    def done(self) -> bool:
-        return self._stepped.done
-
-    def busy(self) -> bool:
-        """Its conversation computes beside the loop (see :meth:`Stepped.busy`)."""
-        return self._stepped.busy()
-
-    def step(self, budget: float | None = None) -> None:
-        self._stepped.step(budget)
-        if self._stepped.done and not self.how:
-            err = self._stepped.error
-            self.how = (f"cannot rejoin: {err}" if err is not None
-                        else "cannot rejoin: the run ended")
-
-    def cancel(self) -> None:
-        self._stepped.cancel()
+        super().__init__(self._run, f"ucom-rejoin-{bus}-{board}")
 
     # ------------------------------------------------------------------ the worker
     def _status(self, text: str) -> None:
