@@ -46,26 +46,24 @@ def _series(path: str, label: str, *, dashed: bool = False) -> fl.PlotSeries:
 
 def joint_panels(joint: Joint) -> list[fl.BasePanel]:
     """The joint's plots: position against target; velocity (against its target)."""
-    panels: list[fl.BasePanel] = []
-    position = [s for s in (
-        (_path(joint, Role.JOINT_SENSOR), "position", False),
-        (_path(joint, Role.TARGET), "target", True)) if s[0] is not None]
-    if position:
-        panels.append(fl.PlotPanel(title=f"{joint.name}: position", config=fl.PlotConfig(
-            paths=[_series(p, f"{joint.name} {label}", dashed=d) for p, label, d in position
-                   if p is not None],
-            show_legend=True, legend_display="top", time_window_mode="sliding",
-            following_view_width=10.0)))
-    velocity = [s for s in (
-        (_path(joint, Role.VELOCITY), "velocity", False),
-        (_path(joint, Role.TARGET_VEL), "velocity target", True)) if s[0] is not None]
-    if velocity:
-        panels.append(fl.PlotPanel(title=f"{joint.name}: velocity", config=fl.PlotConfig(
-            paths=[_series(p, f"{joint.name} {label}", dashed=d) for p, label, d in velocity
-                   if p is not None],
-            show_legend=True, legend_display="top", time_window_mode="sliding",
-            following_view_width=10.0)))
-    return panels
+    panels = [_plot(joint, "position", ((Role.JOINT_SENSOR, "position", False),
+                                        (Role.TARGET, "target", True))),
+              _plot(joint, "velocity", ((Role.VELOCITY, "velocity", False),
+                                        (Role.TARGET_VEL, "velocity target", True)))]
+    return [p for p in panels if p is not None]
+
+
+def _plot(joint: Joint, what: str, series: tuple[tuple[Role, str, bool], ...],
+          ) -> fl.PlotPanel | None:
+    """A plot of the joint's edges of ``series`` (role, label, dashed) that it has."""
+    paths = [_series(path, f"{joint.name} {label}", dashed=dashed)
+             for role, label, dashed in series
+             if (path := _path(joint, role)) is not None]
+    if not paths:
+        return None
+    return fl.PlotPanel(title=f"{joint.name}: {what}", config=fl.PlotConfig(
+        paths=paths, show_legend=True, legend_display="top", time_window_mode="sliding",
+        following_view_width=10.0))
 
 
 def _column(panels: list[fl.BasePanel]) -> Any:
