@@ -357,7 +357,7 @@ class _BusCallbacks:
         self.sync_gap, self.last_sync = now - self.last_sync, now
         if self.number not in self.gateway._load_warned:
             self.check_rate(now)
-        snap, now, fault = self.observe(), _now(), self.fault
+        snap, fault = self.observe(), self.fault
         for jd in self.group:
             jd.update(now, snap, fault, sync=True)
 
