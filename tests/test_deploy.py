@@ -454,9 +454,12 @@ def test_a_killed_deploy_says_it_resumes_and_restores_saved_values_without_a_pro
             str(tmp_path / "journal"))
     new = manifest_file(tmp_path, "armar3", every=f"{ROOT}/firmware_images/armar3_fpga1.1.fl.S")
     Killer(tmp_path, env, (str(new), *conn)).run("CAN0: programming", 1000)
-    saved = json.loads((tmp_path / "journal" / "journal.json").read_text())
-    assert saved["boards"]["CAN0:1"]["stage"] == "programming"
-    assert (tmp_path / "journal" / saved["boards"]["CAN0:1"]["params"]).is_file()
+    saved = json.loads((tmp_path / "journal" / "journal.json").read_text())["boards"]
+    # CAN0:1 may be verified already (see PROGRAMMING); some board of the four buses,
+    # whose transfers run together, is still being programmed
+    stuck = [key for key, entry in saved.items() if entry["stage"] == "programming"]
+    assert stuck, saved
+    assert all((tmp_path / "journal" / saved[key]["params"]).is_file() for key in stuck)
     done = ucom(env, "deploy", str(new), *conn)
     assert done.returncode == 0, done.stderr
     assert "resuming the deploy that did not finish" in done.stderr
