@@ -29,6 +29,7 @@ import pytest
 from rich.console import Console
 
 from tests.helpers import terminate
+from ucom_tools.cli.browse_tty import split_keys
 from ucom_tools.cli.browse_view import (
     Action,
     Catalog,
@@ -36,7 +37,6 @@ from ucom_tools.cli.browse_view import (
     Model,
     age_text,
     render,
-    split_keys,
     tree_rows,
     value_of,
 )

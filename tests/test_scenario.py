@@ -137,12 +137,15 @@ def test_a_file_that_cannot_be_read_is_named(tmp_path: Path) -> None:
 def test_a_fault_by_hand_must_fit_its_target() -> None:
     assert injected("estop", "robot", 2) == InjectedFault(FaultKind.ESTOP, None, None, 2.0)
     assert injected("reset", "CAN1/2", None).for_s == 0.0
+    # a board as every other command names it (BUS:N) is the same board
+    assert injected("reset", "CAN1:2", None) == injected("reset", "CAN1/2", None)
     for kind, target, message in [
             ("power-off", "CAN0", "TARGET: power-off acts on a board: give BUS/BOARD"),
             ("cable", "CAN0/3", "TARGET: cable acts on a bus: give BUS"),
             ("estop", "CAN0", "TARGET: estop acts on a robot: give robot"),
             ("melt", "CAN0/3", "KIND: 'melt' is no fault kind"),
-            ("reset", "CAN0/x", "TARGET: 'CAN0/x': the board after '/' is its seq ID"),
+            ("reset", "CAN0/x", "TARGET: 'CAN0/x': the board after the bus is its seq ID"),
+            ("reset", "CAN0:x", "TARGET: 'CAN0:x': the board after the bus is its seq ID"),
             ("reset", "CAN 0", "TARGET: 'CAN 0': expected BUS/BOARD")]:
         with pytest.raises(InputError, match=message):
             injected(kind, target, 1.0)

@@ -1,5 +1,6 @@
 """``ucom browse`` on a terminal: the robot's tree, live (:mod:`.browse_view` draws it and
-reads the keys; this module owns the terminal and the connection).
+says what the keys do; this module owns the terminal, whose bytes it turns into keys'
+names (:func:`split_keys`), and the connection).
 
 The terminal is put in cbreak mode (keys come one by one, not echoed) and the alternate
 screen; both are restored on every way out: ``q``, Ctrl-C, SIGTERM and SIGHUP (raised as
@@ -35,7 +36,6 @@ from ucom_tools.cli.browse_view import (
     Keys,
     Model,
     render,
-    split_keys,
     value_of,
     window_lines,
 )
@@ -47,6 +47,46 @@ RETRY_S = 0.2
 the connect timeout itself)."""
 
 Inbox = queue.SimpleQueue[tuple[Any, ...]]
+
+
+_CSI = {"A": "up", "B": "down", "C": "right", "D": "left", "H": "home", "F": "end",
+        "1~": "home", "7~": "home", "4~": "end", "8~": "end", "5~": "pgup", "6~": "pgdn",
+        "3~": "delete", "Z": "backtab"}
+_CONTROL = {"\r": "enter", "\n": "enter", "\t": "tab", "\x7f": "backspace",
+            "\x08": "backspace", "\x15": "ctrl-u"}
+
+
+def split_keys(data: str) -> list[str]:
+    """Keys' names from what a terminal in cbreak mode sent: characters as they are,
+    ``enter``, ``tab``, ``backspace``, ``esc``, ``ctrl-u``, ``up``, ``down``, ``pgup``,
+    ``pgdn``, ``home``, ``end`` (xterm's and VT100's escape sequences; others ``?``)."""
+    out: list[str] = []
+    i = 0
+    while i < len(data):
+        c = data[i]
+        if c == "\x1b" and data[i + 1:i + 2] == "[":
+            j = i + 2
+            while j < len(data) and "\x20" <= data[j] <= "\x3f":
+                j += 1  # parameters (and intermediates): 5~, 1;5A
+            params, final = data[i + 2:j], data[j:j + 1]
+            out.append(_CSI.get(params + "~" if final == "~" else final, "?"))
+            i = j + 1
+            continue
+        if c == "\x1b" and data[i + 1:i + 2] == "O" and i + 2 < len(data):
+            out.append(_CSI.get(data[i + 2], "?"))
+            i += 3
+            continue
+        if c == "\x1b":
+            out.append("esc")
+        elif c == "\n" and i > 0 and data[i - 1] == "\r":
+            pass  # CR LF: one Enter
+        elif c in _CONTROL:
+            out.append(_CONTROL[c])
+        elif c.isprintable():
+            out.append(c)
+        i += 1
+    return out
+
 
 
 def interactive(*streams: Any) -> bool:

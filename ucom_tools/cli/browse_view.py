@@ -14,21 +14,22 @@ import contextlib
 import difflib
 from dataclasses import dataclass, field
 from decimal import Decimal, InvalidOperation
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.console import Group
 from rich.text import Text
 
 from ucom_tools.cli.ages import age_text
 
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
+
 KINDS = ("CI", "SO", "PAR")
 MAX_FPS = 20.0
 """The view refreshes at the robot's publishing rate, at most this often (a terminal, or
 a person, gains nothing from more)."""
-HEADER_LINES = 1
-FOOTER_LINES = 3
-NAME_WIDTH = 44
-UNIT_WIDTH = 16
+HEADER_LINES, FOOTER_LINES = 1, 3
+NAME_WIDTH, UNIT_WIDTH = 44, 16
 HELP = "/ filter  s set  x stop  \u2191\u2193 PgUp PgDn scroll  q quit"
 
 
@@ -55,15 +56,15 @@ class Model:
 
     endpoint: str
     structure: dict[str, Any] | None = None
-    samples: dict[tuple[str, int], tuple[float, dict[str, Any]]] = field(default_factory=dict)
+    samples: dict[BoardKey, tuple[float, dict[str, Any]]] = field(default_factory=dict)
     """(bus, board) -> (when it came, the board's latest ``values`` document)."""
-    running: dict[tuple[str, int], bool] = field(default_factory=dict)
-    """(bus, board) -> whether its liveliness token is there."""
-    stopped_by: dict[tuple[str, int], str] = field(default_factory=dict)
+    running: dict[BoardKey, bool] = field(default_factory=dict)
+    """-> whether its liveliness token is there."""
+    stopped_by: dict[BoardKey, str] = field(default_factory=dict)
     """(bus, board) -> the Error that stopped its motors (its watchdog, say)."""
-    status: dict[tuple[str, int], dict[str, Any]] = field(default_factory=dict)
+    status: dict[BoardKey, dict[str, Any]] = field(default_factory=dict)
     """(bus, board) -> its latest ``status`` document (LEDs, CAN error counters)."""
-    lost_at: dict[tuple[str, int], float] = field(default_factory=dict)
+    lost_at: dict[BoardKey, float] = field(default_factory=dict)
     """(bus, board) -> when the first sample came that said it is lost (its values are
     stale until one says it is valid again)."""
     connection: str = "connecting"
@@ -448,7 +449,7 @@ class Keys:
     """The keys' state machine.  ``mode``: ``view`` (the tree: scroll, or start one of the
     prompts), ``filter`` (the filter applies as it is typed), ``name`` and ``value`` (the
     set prompt), ``stop`` (the stop's confirmation).  :meth:`feed` takes one key name
-    (:func:`split_keys`) and answers the actions for the application."""
+    (:func:`~ucom_tools.cli.browse_tty.split_keys`) and answers the actions for the application."""
 
     def __init__(self, catalog: Catalog | None = None) -> None:
         self.catalog = catalog or Catalog(None)
@@ -554,45 +555,6 @@ class Keys:
             return [Action("set", self.name, value)]
         self._edit(key)
         return []
-
-
-_CSI = {"A": "up", "B": "down", "C": "right", "D": "left", "H": "home", "F": "end",
-        "1~": "home", "7~": "home", "4~": "end", "8~": "end", "5~": "pgup", "6~": "pgdn",
-        "3~": "delete", "Z": "backtab"}
-_CONTROL = {"\r": "enter", "\n": "enter", "\t": "tab", "\x7f": "backspace",
-            "\x08": "backspace", "\x15": "ctrl-u"}
-
-
-def split_keys(data: str) -> list[str]:
-    """Keys' names from what a terminal in cbreak mode sent: characters as they are,
-    ``enter``, ``tab``, ``backspace``, ``esc``, ``ctrl-u``, ``up``, ``down``, ``pgup``,
-    ``pgdn``, ``home``, ``end`` (xterm's and VT100's escape sequences; others ``?``)."""
-    out: list[str] = []
-    i = 0
-    while i < len(data):
-        c = data[i]
-        if c == "\x1b" and data[i + 1:i + 2] == "[":
-            j = i + 2
-            while j < len(data) and "\x20" <= data[j] <= "\x3f":
-                j += 1  # parameters (and intermediates): 5~, 1;5A
-            params, final = data[i + 2:j], data[j:j + 1]
-            out.append(_CSI.get(params + "~" if final == "~" else final, "?"))
-            i = j + 1
-            continue
-        if c == "\x1b" and data[i + 1:i + 2] == "O" and i + 2 < len(data):
-            out.append(_CSI.get(data[i + 2], "?"))
-            i += 3
-            continue
-        if c == "\x1b":
-            out.append("esc")
-        elif c == "\n" and i > 0 and data[i - 1] == "\r":
-            pass  # CR LF: one Enter
-        elif c in _CONTROL:
-            out.append(_CONTROL[c])
-        elif c.isprintable():
-            out.append(c)
-        i += 1
-    return out
 
 
 def window_lines(height: int) -> int:

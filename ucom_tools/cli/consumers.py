@@ -26,7 +26,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import can
 
@@ -37,6 +37,9 @@ from ucom_tools.ops.remote.mirror import Mirror
 from ucom_tools.ops.remote.publish import LoopSnapshot
 from ucom_tools.protocol.traffic import ERROR, EXTENDED, REMOTE, SENT, SinkEntry
 from ucom_tools.wire import mca
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 READY_S = 30.0
 """How long the loop's process waits for this one to open the recording and the network."""
@@ -148,7 +151,7 @@ class Consumers:
         self.foxglove: Any = None
         self._canopen: list[Any] = []
         """The gateway's CANopen buses, opened in :meth:`open`."""
-        self._stale: dict[tuple[str, int], tuple[float, bool]] = {}
+        self._stale: dict[BoardKey, tuple[float, bool]] = {}
         """(bus, board) -> since when it is lost (the frames' time base) and whether it
         rejoined, while its values in the recording are stale."""
 

@@ -364,7 +364,8 @@ def fault_cmd(words: tuple[str, ...], host: str, port: int, for_s: float | None,
               as_json: bool) -> None:
     """Inject a fault into a running 'ucom fleet serve', at once, and print what it did.
 
-    TARGET is a board (CAN0/3: bus and seq ID), a bus (CAN0) or robot; KIND is one of:
+    TARGET is a board (CAN0/3 or CAN0:3: bus and seq ID), a bus (CAN0) or robot;
+    KIND is one of:
 
     \b
       power-off  the board loses power for --for seconds (its RAM, seq ID, FPGA

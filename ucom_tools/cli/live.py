@@ -19,7 +19,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Iterable
 from decimal import Decimal
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from prompt_toolkit.application import Application
 from prompt_toolkit.buffer import Buffer
@@ -40,6 +40,9 @@ from ucom_tools.ops.remote.image import PartImage
 from ucom_tools.ops.remote.loop import RECENT_SAMPLES
 from ucom_tools.ops.remote.publish import LoopSnapshot
 from ucom_tools.wire import mca
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 REFRESH_S = 0.1
 NAME_WIDTH = 32
@@ -181,7 +184,7 @@ class LiveView:
         self._events_seen = 0
         self._faults_seen = 0
         self._app: Application[None] | None = None
-        self.boards: dict[tuple[str, int], list[EdgeRef]] = {}
+        self.boards: dict[BoardKey, list[EdgeRef]] = {}
         for ref in image.refs:
             if ref.kind is mca.Kind.SO:
                 self.boards.setdefault((ref.bus, ref.board), []).append(ref)

@@ -5,7 +5,7 @@ faults and the network's writes, as text or as ``--json``'s fields."""
 from __future__ import annotations
 
 from decimal import Decimal
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from rich.markup import escape
 
@@ -17,6 +17,9 @@ from ucom_tools.ops.remote.feed import LoopFeed
 from ucom_tools.ops.remote.report import BoardEvent, CheckReport, LoopStats, Summary, WriteEvent
 from ucom_tools.wire import mca
 from ucom_tools.wire.codes import ErrorCode
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 WARN_LOAD = 0.70
 """A planned bus load above this is warned of at the start."""
@@ -169,7 +172,7 @@ def print_loop_away(part: RemotePart) -> None:
 
 
 def watchdog_stops(events: list[BoardEvent], faults: list[BoardFault],
-                    ) -> list[tuple[str, int]]:
+                    ) -> list[BoardKey]:
     """The boards whose watchdog stopped them and that did not rejoin after it."""
     out = set()
     for e in events:

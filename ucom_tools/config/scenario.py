@@ -141,23 +141,26 @@ def _seconds(value: float) -> str:
 
 
 def parse_target(text: str) -> tuple[str | None, int | None]:
-    """``CAN0/3`` -> (``CAN0``, 3); ``CAN0`` -> (``CAN0``, None); ``robot`` -> (None,
-    None); :class:`InputError` (key ``TARGET``) when malformed."""
+    """``CAN0/3`` or ``CAN0:3`` (as every other command names a board) -> (``CAN0``, 3);
+    ``CAN0`` -> (``CAN0``, None); ``robot`` -> (None, None); :class:`InputError` (key
+    ``TARGET``) when malformed."""
     if text == ROBOT:
         return None, None
     bus, sep, board = text.partition("/")
+    if not sep and ":" in text:
+        bus, sep, board = text.rpartition(":")
     if not bus or not _NAME.fullmatch(bus):
-        raise InputError(f"{text!r}: expected BUS/BOARD (e.g. CAN0/3), BUS (e.g. CAN0) or "
-                         f"{ROBOT}", key="TARGET")
+        raise InputError(f"{text!r}: expected BUS/BOARD (e.g. CAN0/3 or CAN0:3), BUS (e.g. "
+                         f"CAN0) or {ROBOT}", key="TARGET")
     if not sep:
         return bus, None
     if not board.isdigit() or not 1 <= int(board) <= MAX_BOARDS:
-        raise InputError(f"{text!r}: the board after '/' is its seq ID, 1-{MAX_BOARDS}",
+        raise InputError(f"{text!r}: the board after the bus is its seq ID, 1-{MAX_BOARDS}",
                          key="TARGET")
     return bus, int(board)
 
 
-_NAME: Final = re.compile(r"[A-Za-z0-9_.:-]+")
+_NAME: Final = re.compile(r"[A-Za-z0-9_.-]+")
 """A bus name as a target may give it (a topology's bus names are such words)."""
 
 

@@ -21,7 +21,7 @@ import zlib
 from dataclasses import dataclass, fields, replace
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias
 
 from ucom_tools import fileio
 from ucom_tools.config import mutants
@@ -62,6 +62,11 @@ CANOPEN_NODES = range(1, 128)
 MAX_BUSES = 16
 """Buses one topology can have (ARMAR-III has 4; a PC rarely carries more than 16 CAN
 channels): a larger file is a mistake, and each bus costs a thread or a process."""
+
+BoardKey: TypeAlias = tuple[str, int]
+"""A board of a robot, as every layer above this one keys it: its bus's name and its seq
+ID (its place on that bus's init line, from 1): ``("CAN0", 3)``, written ``CAN0:3`` on the
+command line (a fault's target also ``CAN0/3``)."""
 
 BITRATES = (10_000, 20_000, 50_000, 100_000, 125_000, 250_000, 500_000, 800_000, 1_000_000)
 

@@ -21,13 +21,16 @@ import struct
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from operator import itemgetter
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ucom_tools.net import keys
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.remote.image import PartImage
 from ucom_tools.ops.remote.report import RawSnapshot
 from ucom_tools.wire import mca
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 Conv = Callable[[int], Any] | None
 """How a raw value is written: None for ``%d`` of the raw number itself, else a function
@@ -254,9 +257,9 @@ class BoardEncoder:
                 f'{write(conv, raw)},"valid":{"true" if valid else "false"}}}').encode()
 
 
-def encoders(image: PartImage, robot: str) -> dict[tuple[str, int], BoardEncoder]:
+def encoders(image: PartImage, robot: str) -> dict[BoardKey, BoardEncoder]:
     """A :class:`BoardEncoder` for every board the part names edges of (checked)."""
-    by_board: dict[tuple[str, int], list[EdgeRef]] = {}
+    by_board: dict[BoardKey, list[EdgeRef]] = {}
     for ref in image.refs:
         by_board.setdefault((ref.bus, ref.board), []).append(ref)
     return {b: BoardEncoder(image, robot, b[0], b[1], refs) for b, refs in by_board.items()}

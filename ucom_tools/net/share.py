@@ -39,7 +39,7 @@ from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import zenoh
 
@@ -59,6 +59,9 @@ from ucom_tools.ops.remote.requests import Applied
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.ids import Direction, IdType
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 JSON = zenoh.Encoding.APPLICATION_JSON
 RESEND_S = 1.0
@@ -185,7 +188,7 @@ class RunSource(Protocol):
 
     def stop(self, origin: str) -> Future[Applied]: ...
 
-    def poll_status(self, boards: list[tuple[str, int]]) -> None: ...
+    def poll_status(self, boards: list[BoardKey]) -> None: ...
 
     @property
     def status_sinks(self) -> list[Callable[[str, int, bytes, float], None]]: ...
@@ -234,20 +237,20 @@ class RobotShare:
             self._latest: dict[str, bytes] = {}
             self._edge_latest: dict[str, bytes] = {}
             self._put_at: dict[str, float] = {}
-            self._encoders: dict[tuple[str, int], BoardEncoder] | None = None
+            self._encoders: dict[BoardKey, BoardEncoder] | None = None
             self._declared = False
             self._lock = threading.Lock()
             self._closing = threading.Event()
-            self._board_tokens: dict[tuple[str, int], zenoh.LivelinessToken] = {}
+            self._board_tokens: dict[BoardKey, zenoh.LivelinessToken] = {}
             self._edge_pubs: dict[EdgeRef, tuple[str, zenoh.Publisher]] = {}
             self._edge_by_key: dict[str, tuple[EdgeRef, zenoh.Publisher]] = {}
             self._listeners: list[Any] = []
-            self._board_pubs: dict[tuple[str, int], tuple[str, zenoh.Publisher]] = {}
+            self._board_pubs: dict[BoardKey, tuple[str, zenoh.Publisher]] = {}
             self._structure: bytes | None = None
             self._status_frames: deque[tuple[str, int, bytes, float]] = deque()
             """The Status report frames the loop's thread saw (bus, identifier, data,
             time), for the publishing thread to decode."""
-            self._status_pubs: dict[tuple[str, int], zenoh.Publisher] = {}
+            self._status_pubs: dict[BoardKey, zenoh.Publisher] = {}
             self._events_seen = 0
             self._writes_seen = 0
             self._faults_seen = 0
@@ -323,7 +326,7 @@ class RobotShare:
         report = image.report
         checks = {(b.bus, b.board): b for b in (report.boards if report else ())}
         buses: dict[str, dict[str, Any]] = {}
-        boards: dict[tuple[str, int], dict[str, Any]] = {}
+        boards: dict[BoardKey, dict[str, Any]] = {}
         for name, bitrate in image.bitrates.items():
             buses[name] = {"name": name, "bitrate": bitrate, "boards": []}
         for ref in image.refs:
@@ -496,7 +499,7 @@ class RobotShare:
             pub.put(edge)
             self.published += 1
 
-    def _alive(self, board: tuple[str, int], alive: bool) -> None:
+    def _alive(self, board: BoardKey, alive: bool) -> None:
         """The board's liveliness token: there while it runs, gone while it is lost or
         stopped."""
         token = self._board_tokens.pop(board, None)

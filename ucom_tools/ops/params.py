@@ -25,9 +25,10 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from decimal import Decimal, InvalidOperation
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ucom_tools.config.attrtree import BoundBoard, RobotTrees, TreeEdgeKind, Value
-from ucom_tools.config.topology import Topology
+from ucom_tools.config.topology import BoardKey, Topology
 from ucom_tools.edgelists.model import EdgeSpec
 from ucom_tools.errors import BoardError, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import spec_of
@@ -39,6 +40,9 @@ from ucom_tools.protocol.mca import BoardEdges, McaClient
 from ucom_tools.wire import mca
 from ucom_tools.wire.codes import BoardState
 from ucom_tools.wire.ids import ALL, seq
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 KINDS = (TreeEdgeKind.CI, TreeEdgeKind.PAR)
 """The kinds a board holds values of that the PC sets (SO values are measurements)."""
@@ -79,13 +83,13 @@ def _part_of(robot: Robot, trees: RobotTrees) -> Robot:
     return replace(robot, buses=buses, topology=topology)
 
 
-def running(robot: Robot, trees: RobotTrees) -> tuple[set[tuple[str, int]], dict[
-        tuple[str, int], str]]:
+def running(robot: Robot, trees: RobotTrees) -> tuple[set[BoardKey], dict[
+        BoardKey, str]]:
     """Which boards of ``trees`` run a program now (init chain and Info, nothing
     started): (bus, seq ID) of those, and why each other board does not count."""
     part = _part_of(robot, trees)
-    found: set[tuple[str, int]] = set()
-    why: dict[tuple[str, int], str] = {}
+    found: set[BoardKey] = set()
+    why: dict[BoardKey, str] = {}
     for name, h in part.buses.items():
         init = h.client.init_chain()
         infos = h.client.info_many(ALL, expect=[seq(n) for n in init.numbers])
@@ -240,12 +244,12 @@ def read_values(robot: Robot, trees: RobotTrees, *, bus: str | None = None,
     back.  A board that fails does not stop the others."""
     trees = on_bus(trees, bus)
     bound = {(b.bus, b.spec.position + 1): b for b in trees.boards}
-    skipped: dict[tuple[str, int], str] = {}
+    skipped: dict[BoardKey, str] = {}
     if running_only:
         found, skipped = running(robot, trees)
         trees = replace(trees, boards=tuple(b for b in trees.boards
                                             if (b.bus, b.spec.position + 1) in found))
-    reads: dict[tuple[str, int], BoardRead] = {}
+    reads: dict[BoardKey, BoardRead] = {}
     for key, why in skipped.items():
         b = bound[key]
         reads[key] = BoardRead(b.bus, key[1], b.where, b.spec.placement, b.board.prefix,
@@ -345,11 +349,11 @@ def load_values(robot: Robot, trees: RobotTrees, *, bus: str | None = None,
     (``flash --keep-params``) each board that passes is written, whatever the others."""
     trees = on_bus(trees, bus)
     bound = {(b.bus, b.spec.position + 1): b for b in trees.boards}
-    loads: dict[tuple[str, int], BoardLoad] = {}
+    loads: dict[BoardKey, BoardLoad] = {}
     sent = False
     with RemotePart(_part_of(robot, trees), trees) as part:
         checks = part.check().boards
-        plans: dict[tuple[str, int], list[tuple[mca.Kind, int, int, str]]] = {}
+        plans: dict[BoardKey, list[tuple[mca.Kind, int, int, str]]] = {}
         for check in checks:
             key = (check.bus, check.board)
             b = bound[key]

@@ -11,6 +11,7 @@ import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ucom_tools.config import attrtree
 from ucom_tools.config.attrtree import RobotTrees
@@ -18,6 +19,9 @@ from ucom_tools.errors import InputError
 from ucom_tools.ops.params import BoardRead, Readout, load_values, read_values, select_prefixes
 from ucom_tools.ops.params_dump import DumpTarget, write_dump
 from ucom_tools.ops.robot import Robot
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 
 @dataclass(frozen=True)
@@ -106,13 +110,13 @@ def keep_refused(kept: Kept) -> KeepResult:
         for r in kept.readout.boards), None)
 
 
-def keep_after(robot: Robot, kept: Kept, programmed: Mapping[tuple[str, int], str]) -> KeepResult:
+def keep_after(robot: Robot, kept: Kept, programmed: Mapping[BoardKey, str]) -> KeepResult:
     """Load the kept values back into their boards (each program started if needed).
     ``programmed`` gives the flash outcome of every board of the job by (bus, seq ID);
     a board whose flash failed is not loaded (its values stay in the directory).  The
     temporary directory is removed when every board that was read got its values back;
     otherwise the result names it."""
-    out: dict[tuple[str, int], KeptBoard] = {}
+    out: dict[BoardKey, KeptBoard] = {}
     load: list[BoardRead] = []
     for r in kept.readout.boards:
         key = (r.bus, r.board)

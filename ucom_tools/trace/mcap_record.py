@@ -34,7 +34,7 @@ import time
 from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from ucom_tools import __version__
 from ucom_tools.errors import InputError, WriteError
@@ -55,6 +55,9 @@ from ucom_tools.trace.mcapfile import (
     stamp_json,
     wall_offset,
 )
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 WRITE_EVERY_S = 0.05
 """How often the recorder's thread writes what came."""
@@ -120,7 +123,7 @@ def layout(refs: Iterable[Any]) -> list[Board]:
     """The boards of an image's edges (:attr:`PartImage.refs`), each with its edges'
     keys (unique within the board: a second ``X`` is ``X_2``) and a topic of its own
     (``/<Prefix>/values``, ``/<bus>/<board>/values`` where two boards share a prefix)."""
-    by_board: dict[tuple[str, int], Board] = {}
+    by_board: dict[BoardKey, Board] = {}
     for ref in refs:
         b = by_board.get((ref.bus, ref.board))
         if b is None:
@@ -222,7 +225,7 @@ class McapRecorder:
         self._slots: dict[Any, tuple[Board, int]] = {}
         self._joints: list[JointSlots] = []
         self._next: float | None = None
-        self._timeline: list[tuple[float, tuple[str, int], bool]] = []
+        self._timeline: list[tuple[float, BoardKey, bool]] = []
         self._seen = [0, 0, 0]
         self._last_log: dict[str, int] = {}
         self._failure: BaseException | None = None

@@ -21,7 +21,7 @@ import threading
 import time
 from collections import deque
 from concurrent.futures import TimeoutError as FutureTimeout
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 from ucom_tools.errors import BusError, InputError, UcomError
 from ucom_tools.net.keys import number
@@ -34,6 +34,9 @@ from ucom_tools.protocol.traffic import SinkEntry
 from ucom_tools.viewers import foxglove_msgs as fm
 from ucom_tools.viewers.foxglove import FoxgloveServer
 from ucom_tools.wire import mca
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 WRITE_S: Final = 2.0
 """How long a client's write waits for the loop's answer."""
@@ -241,7 +244,7 @@ class BrowseFoxglove:
         s = self.server = FoxgloveServer(host, port, name=f"ucom {client.robot} (browse)",
                                          allow_writes=allow_writes)
         boards = fm.layout(list(client.names))
-        self._boards: dict[tuple[str, int], tuple[Any, dict[str, str]]] = {
+        self._boards: dict[BoardKey, tuple[Any, dict[str, str]]] = {
             (b.bus, b.board): (s.channel(b.topic, fm.values_schema(b)),
                                {r.unique: k for k, r in zip(b.keys, b.edges, strict=True)})
             for b in boards}
@@ -249,7 +252,7 @@ class BrowseFoxglove:
         self._joint_boards = {(j.position.bus, j.position.board) for j in self._joint_list}
         self._joints = (s.channel(fm.JOINTS_TOPIC, fm.JOINTS_SCHEMA)
                         if self._joint_list else None)
-        self._latest: dict[tuple[tuple[str, int], str], Any] = {}
+        self._latest: dict[tuple[BoardKey, str], Any] = {}
         self._joints_period = 1.0 / float(client.structure.get("publish_hz") or 100.0)
         self._joints_t = float("-inf")
         s.writer = self._write

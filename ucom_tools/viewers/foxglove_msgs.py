@@ -21,7 +21,7 @@ import json
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 from ucom_tools.errors import InputError
 from ucom_tools.net.encode import Conv, conv_of, write
@@ -42,6 +42,9 @@ from ucom_tools.trace.mcapfile import (
     wall_offset,
 )
 from ucom_tools.wire import mca
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 DEFAULT_HOST: Final = "127.0.0.1"
 DEFAULT_PORT: Final = 8765
@@ -194,7 +197,7 @@ class JointStates:
         return ns, f'{{"timestamp":{time_json(ns)},"joints":[{",".join(items)}]}}'
 
 
-def joint_states_of(latest: dict[tuple[tuple[str, int], str], Any],
+def joint_states_of(latest: dict[tuple[BoardKey, str], Any],
                     joints: Sequence[JointRefs], ns: int) -> str:
     """The ``/joints`` message of the latest values of the joints' boards, by (bus and
     board, unique name) (``browse``: from the boards' samples)."""

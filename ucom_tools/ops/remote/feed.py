@@ -47,7 +47,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 import can
 
@@ -67,6 +67,9 @@ from ucom_tools.ops.remote.requests import (
 )
 from ucom_tools.protocol.routing import Subscription
 from ucom_tools.protocol.traffic import SinkEntry
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 FLUSH_EVERY_S: Final = 0.01
 """The longest frames and value changes wait on the loop's side (a snapshot goes at once)."""
@@ -530,7 +533,7 @@ class LocalRun:
         (:class:`~ucom_tools.ops.remote.requests.DriveWrites`)."""
         self._requests.put(("drive", items))
 
-    def poll_status(self, boards: list[tuple[str, int]]) -> None:
+    def poll_status(self, boards: list[BoardKey]) -> None:
         """Ask ``boards`` for their Status reports in turn; they come to
         :attr:`status_sinks` (on the loop's thread: a sink only keeps them)."""
         self._poll = StatusPoll(self.part, boards)

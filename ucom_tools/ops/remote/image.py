@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ucom_tools.edgelists.model import EdgeSpec
 from ucom_tools.ops.edges import EdgeRef, Names
@@ -22,6 +22,9 @@ from ucom_tools.ops.remote.report import CheckReport, RawSnapshot, Value
 from ucom_tools.protocol.mca import BoardEdges, values_of
 from ucom_tools.protocol.plan import BusPlan, SoMapPlan
 from ucom_tools.wire import mca
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 Record = tuple[int, bool, int, int, int, str, str]
 """An :class:`~ucom_tools.wire.mca.EdgeRecord` as plain data: width, signed, exponent,
@@ -51,12 +54,12 @@ class PartImage:
     edges: list[Edge]
     """Every named edge, in the part's order (``part.names``)."""
     plans: dict[str, BusPlan]
-    boards: dict[tuple[str, int], tuple[list[Record], list[Record], list[Record]]]
+    boards: dict[BoardKey, tuple[list[Record], list[Record], list[Record]]]
     """(bus, board) -> the CI, SO and PAR edges it described, of the boards named."""
     report: CheckReport | None = None
     cyclic_edges: set[tuple[str, int, int, int]] = field(default_factory=set)
     """(bus, board, kind, index) of every edge that travels in a map."""
-    serials: dict[tuple[str, int], int] = field(default_factory=dict)
+    serials: dict[BoardKey, int] = field(default_factory=dict)
     """(bus, board) -> the board's serial number, as its Init Ack gave it at the start."""
 
     @classmethod
@@ -65,7 +68,7 @@ class PartImage:
         thread, or before it runs)."""
         topology = part.robot.topology
         edges: list[Edge] = []
-        boards: dict[tuple[str, int], tuple[list[Record], list[Record], list[Record]]] = {}
+        boards: dict[BoardKey, tuple[list[Record], list[Record], list[Record]]] = {}
         cyclic: set[tuple[str, int, int, int]] = set()
         for ref in part.names:
             edges.append((ref.bus, ref.board, ref.where, ref.prefix, ref.unique, ref.generic,
@@ -93,7 +96,7 @@ class PartImage:
     def __post_init__(self) -> None:
         self._refs: list[EdgeRef] | None = None
         self._names: Names | None = None
-        self._described: dict[tuple[str, int], BoardEdges] = {}
+        self._described: dict[BoardKey, BoardEdges] = {}
         self._map_refs: list[tuple[str, SoMapPlan, list[mca.EdgeRecord],
                                    list[EdgeRef | None]]] | None = None
         self._raw_plans: dict[frozenset[EdgeRef], list[tuple[
@@ -212,9 +215,9 @@ class PartImage:
         return out
 
 
-def boards_of(refs: Sequence[EdgeRef]) -> Mapping[tuple[str, int], list[EdgeRef]]:
+def boards_of(refs: Sequence[EdgeRef]) -> Mapping[BoardKey, list[EdgeRef]]:
     """The edges by board, in order."""
-    out: dict[tuple[str, int], list[EdgeRef]] = {}
+    out: dict[BoardKey, list[EdgeRef]] = {}
     for ref in refs:
         out.setdefault((ref.bus, ref.board), []).append(ref)
     return out

@@ -31,7 +31,7 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Callable, Mapping
-from typing import Any, Final, Self
+from typing import TYPE_CHECKING, Any, Final, Self
 
 import can
 
@@ -63,6 +63,9 @@ from ucom_tools.wire import mca
 from ucom_tools.wire import messages as wire_messages
 from ucom_tools.wire.codes import ErrorCode, ReadyReason
 from ucom_tools.wire.ids import ALL, Function
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 SPIN_S: Final = 0.0001
 """The most the loop spins before a deadline.  A sleep wakes a little late (the thread's
@@ -108,7 +111,7 @@ class RemoteLoop(RemoteValues):
         self.fault_hooks: list[Callable[[BoardFault], None]] = []
         """Called on the loop's thread with every fault event as it happens (a board lost,
         rejoined); what is called here must not wait for anything."""
-        self._notes: dict[tuple[str, int], tuple[float, str]] = {}
+        self._notes: dict[BoardKey, tuple[float, str]] = {}
         """What each board said last besides its maps (an Error, its bootloader's Ready,
         its program's unsolicited MCA Ready), with when (the watch's ``present``): what a
         lost event names."""

@@ -17,7 +17,7 @@ import os
 import threading
 from collections.abc import Callable
 from concurrent.futures import Future
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.remote.faults import BoardFault, LostBoard
@@ -27,6 +27,9 @@ from ucom_tools.ops.remote.publish import LateChunks, LoopFigures, LoopSnapshot,
 from ucom_tools.ops.remote.report import BoardEvent, RawSnapshot, Value, WriteEvent
 from ucom_tools.ops.remote.requests import Applied
 from ucom_tools.protocol.traffic import SinkEntry
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 FrameSink = Callable[[str, list[SinkEntry]], None]
 ChangeSink = Callable[[float, EdgeRef, Value], None]
@@ -67,7 +70,7 @@ class Mirror(Snapshots):
         self._late = LateChunks()
         self._par: dict[EdgeRef, int] = {}
         self._by_key: dict[tuple[str, int, int, int], EdgeRef] = {}
-        self._lost: dict[tuple[str, int], LostBoard] = {}
+        self._lost: dict[BoardKey, LostBoard] = {}
         self._thread = threading.Thread(target=self._run, name="ucom-mirror", daemon=True)
 
     def start(self) -> None:
@@ -231,7 +234,7 @@ class Mirror(Snapshots):
         """End the run (the view was quit): the loop stops the boards."""
         self._send(("quit",))
 
-    def poll_status(self, boards: list[tuple[str, int]]) -> None:
+    def poll_status(self, boards: list[BoardKey]) -> None:
         """Ask ``boards`` for their Status reports in turn (about once a second each);
         the reports come to :attr:`status_sinks`."""
         self._send(("poll", boards))

@@ -37,7 +37,7 @@ from collections.abc import Callable, Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import can
 
@@ -56,6 +56,9 @@ from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.mca import BoardEdges
 from ucom_tools.wire import mca
 from ucom_tools.wire.ids import seq
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 
 class RemotePart(RemoteLoop):
@@ -91,8 +94,8 @@ class RemotePart(RemoteLoop):
                          on_fault=on_fault, rejoin=rejoin)
         self.trees = trees
         self.report: CheckReport | None = None
-        self._described: dict[tuple[str, int], BoardEdges] = {}
-        self._serials: dict[tuple[str, int], int] = {}
+        self._described: dict[BoardKey, BoardEdges] = {}
+        self._serials: dict[BoardKey, int] = {}
         """(bus, seq ID) -> the board's serial number, from the start's init chain."""
         if rejoin:
             from ucom_tools.ops.remote.rejoin import Rejoin

@@ -35,11 +35,14 @@ import time
 import weakref
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Final, Generic, TypeVar
+from typing import TYPE_CHECKING, Any, Final, Generic, TypeVar
 
 from ucom_tools.ops.remote.faults import BoardFault, LostBoard
 from ucom_tools.ops.remote.loop import RECENT_SAMPLES, RemoteLoop
 from ucom_tools.ops.remote.report import BoardEvent, RawSnapshot, WriteEvent
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 READ_LEASE_S: Final = 1.0
 """A hand-over goes on publishing this long (of the loop's time) after a consumer last
@@ -123,7 +126,7 @@ class LoopSnapshot:
     faults: tuple[BoardFault, ...]
     """The newest boards lost or rejoined."""
     faults_total: int
-    lost: Mapping[tuple[str, int], LostBoard]
+    lost: Mapping[BoardKey, LostBoard]
     """(bus, board) -> the board (since when, what was seen last) for every board lost at
     that moment: its values are stale."""
     traffic: Mapping[str, tuple[float, int, int]]
@@ -167,7 +170,7 @@ class LoopSnapshot:
 
 
 # ---------------------------------------------------------------------- faults
-def lost_of(part: RemoteLoop) -> Mapping[tuple[str, int], LostBoard]:
+def lost_of(part: RemoteLoop) -> Mapping[BoardKey, LostBoard]:
     """The boards lost now (``part.lost``, a copy: (bus, board) -> since when, what was
     seen last, what the PC does about it)."""
     return part.lost

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import contextlib
 from dataclasses import dataclass
-from typing import Any, Final
+from typing import TYPE_CHECKING, Any, Final
 
 import can
 
@@ -22,6 +22,9 @@ from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import ReportChannel
 from ucom_tools.wire.ids import Function, seq
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 STATUS_PERIOD_S: Final = 1.0
 """Each board's Status report is asked for about this often, the boards in turn."""
@@ -125,7 +128,7 @@ class StatusPoll:
     every :data:`STATUS_PERIOD_S` (a Report Request every 91 ms on ARMAR-III's busiest
     bus: 0.1 % of its capacity); a board that is lost is skipped."""
 
-    def __init__(self, part: Any, boards: list[tuple[str, int]]) -> None:
+    def __init__(self, part: Any, boards: list[BoardKey]) -> None:
         self.part = part
         self.boards = list(boards)
         self._every = max(1, round(STATUS_PERIOD_S / part.period_s / max(1, len(boards))))

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import struct
 from collections.abc import Callable, Iterator, Mapping, Sequence
+from typing import TYPE_CHECKING
 
 from ucom_tools.errors import InputError
 from ucom_tools.native import mypyc_attr
@@ -23,6 +24,9 @@ from ucom_tools.ops.robot import Robot
 from ucom_tools.protocol.mca import ProcessImage, values_of
 from ucom_tools.wire import mca
 from ucom_tools.wire.ids import seq
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 
 @mypyc_attr(allow_interpreted_subclasses=True)  # RemotePart extends it (see compiled.py)
@@ -41,11 +45,11 @@ class RemoteValues:
         self._par: dict[EdgeRef, int] = {}
         self._map_refs: dict[tuple[str, int], list[EdgeRef | None]] = {}
         """(bus, SO map number) -> the edge of each of its slots (None: not named)."""
-        self._seen: dict[tuple[str, int], int] = {}
+        self._seen: dict[BoardKey, int] = {}
         self._last_raw: dict[EdgeRef, int] = {}
         self._feeds: list[_SoFeed] = []
         """Per SO map with named slots, what :meth:`_report_so` needs (:meth:`_bind_values`)."""
-        self._lost: dict[tuple[str, int], LostBoard] = {}
+        self._lost: dict[BoardKey, LostBoard] = {}
         """(bus, board) -> the board, while it is lost (its values are stale, writes to
         it refused): replaced, never changed in place, so other threads may copy it."""
         self.on_values: Callable[[float, EdgeRef, Value], None] | None = None
@@ -265,7 +269,7 @@ class RemoteValues:
 
     # ------------------------------------------------------------------ validity
     @property
-    def lost(self) -> dict[tuple[str, int], LostBoard]:
+    def lost(self) -> dict[BoardKey, LostBoard]:
         """The boards lost now, (bus, board) -> since when, what was seen last, what the
         PC does about it (``man/ucom-protocol.7``, RUN TIME, Faults); a copy."""
         return dict(self._lost)

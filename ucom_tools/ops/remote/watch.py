@@ -17,11 +17,14 @@ of :class:`~ucom_tools.ops.remote.loop.RemoteLoop`, which decides what a loss me
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import Final
+from typing import TYPE_CHECKING, Final
 
 from ucom_tools.ops.exchange import BusExchange
 from ucom_tools.ops.remote.faults import lost_after
 from ucom_tools.protocol.mca import ProcessImage
+
+if TYPE_CHECKING:
+    from ucom_tools.config.topology import BoardKey
 
 QUIET_MIN_S: Final = 0.5
 """A board from which nothing at all came for this long of the loop's running time (or
@@ -126,7 +129,7 @@ class SilenceWatch:
         """The clock when :attr:`present` last moved on."""
         self.watches: list[BoardWatch] = []
         """Every watched board ..."""
-        self.watched: dict[tuple[str, int], BoardWatch] = {}
+        self.watched: dict[BoardKey, BoardWatch] = {}
         """... by (bus, seq ID) ..."""
         self.groups: list[list[BoardWatch]] = []
         """... and by bus."""
