@@ -82,7 +82,7 @@ def targets(figures: dict[str, object]) -> dict[str, dict[str, object]]:
 
 def robot(topology: Topology, alive_ms: int = 50,
           ) -> tuple[Fleet, list[BusExchange], list[VirtualUcomBus]]:
-    fleet = Fleet(topology.with_program(IMAGE))
+    fleet = Fleet(topology.with_flashed(IMAGE))
     trees = bind(fleet.topology)
     exchanges, interfaces = [], []
     for bus in fleet.topology.buses:

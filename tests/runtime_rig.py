@@ -26,7 +26,7 @@ IMAGES = {"armar3": "firmware_images/armar3.fl.S", "lauron4": "firmware_images/l
 
 def programmed(topology: str = "armar3", *, autostart: bool = False) -> Fleet:
     """The bundled robot with its program already in every board's flash."""
-    return Fleet(load(topology).with_program(SOURCE_ROOT / IMAGES[topology],
+    return Fleet(load(topology).with_flashed(SOURCE_ROOT / IMAGES[topology],
                                              autostart=autostart))
 
 

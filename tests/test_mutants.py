@@ -125,7 +125,7 @@ def bench() -> Iterator[Callable[..., Bench]]:
              state_dir: Path | None = None) -> Bench:
         topo = parse(topology_text(n, defects), "<mutants>")
         if program:
-            topo = topo.with_program(ARMAR3, autostart=autostart)
+            topo = topo.with_flashed(ARMAR3, autostart=autostart)
         b = Bench(Fleet(topo, defect=defect, state_dir=state_dir))
         opened.append(b)
         return b

@@ -96,7 +96,9 @@ class BoardSpec:
     board: str
     fixed_id: int
     serial: int
-    program: Path | None
+    flashed: Path | None
+    """The image in its flash when the virtual fleet first powers it on (the topology's
+    ``program``); None = an empty flash."""
     autostart: bool
     powered: bool
     init_link_broken: bool
@@ -145,11 +147,11 @@ class Topology:
                 return b
         raise KeyError(name)
 
-    def with_program(self, program: Path, *, autostart: bool = False) -> Topology:
-        """The same robot with ``program`` already in every board's flash (as a robot
-        comes from its last flashing); boards that name their own program keep it."""
+    def with_flashed(self, image: Path, *, autostart: bool = False) -> Topology:
+        """The same robot with ``image``'s program already in every board's flash (as a
+        robot comes from its last flashing); boards that name their own program keep it."""
         buses = tuple(replace(bus, boards=tuple(
-            b if b.program is not None else replace(b, program=program, autostart=autostart)
+            b if b.flashed is not None else replace(b, flashed=image, autostart=autostart)
             for b in bus.boards)) for bus in self.buses)
         return replace(self, buses=buses)
 
@@ -446,7 +448,7 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
     if serial in serials:
         raise c.fail(path, "serial", f"0x{serial:08X} is used by another board")
     serials.add(serial)
-    program = _file(c, raw, path, "program", base, "S-record file")
+    flashed = _file(c, raw, path, "program", base, "S-record file")
     image = _file(c, raw, path, "image", base, "firmware image", IMAGE_FOLDERS)
     tree = _file(c, raw, path, "tree", base, "attribute tree file")
     tree_block = c.take(raw, path, "tree_block", int, None)
@@ -466,7 +468,7 @@ def _board(c: _Checker, topo: str, bus: str, i: int, j: int, raw: Any, base: Pat
     nodes = _canopen_nodes(c, raw, path)
     return BoardSpec(
         position=j, fpga=fpga, placement=placement, board=board, fixed_id=fixed_id, serial=serial,
-        program=program, autostart=c.take(raw, path, "autostart", bool, False),
+        flashed=flashed, autostart=c.take(raw, path, "autostart", bool, False),
         powered=c.take(raw, path, "powered", bool, True), init_link_broken=link == "broken",
         joints=tuple(joints), line=c.lines.of(*path) or 0, serial_explicit="serial" in raw,
         tree=tree, tree_block=tree_block, defect=defect, image=image, canopen_nodes=nodes,

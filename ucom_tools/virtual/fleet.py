@@ -85,7 +85,7 @@ class Fleet:
                                      timing=topology.timing, powered=False,
                                      state_file=self._state_file(bus_spec.name, b),
                                      defect=b.defect or defect)
-                if b.program is not None and not board.nv.record.flash_valid:
+                if b.flashed is not None and not board.nv.record.flash_valid:
                     install_program(board, b, topology.source, bus_spec.name)
                 sim.attach(board)
                 sim.chain.append(board)
@@ -369,13 +369,13 @@ def install_program(board: VirtualBoard, board_spec: BoardSpec, source: str, bus
     """Put a topology's initial program into a board's flash, as if flashed earlier."""
     from ucom_tools.image.formats import load_image  # the image layer is only needed here
 
-    assert board_spec.program is not None
+    assert board_spec.flashed is not None
     try:
-        stat = board_spec.program.stat()
-        key = (str(board_spec.program.resolve()), stat.st_mtime_ns, stat.st_size)
+        stat = board_spec.flashed.stat()
+        key = (str(board_spec.flashed.resolve()), stat.st_mtime_ns, stat.st_size)
         plan = _PLANS.get(key)
         if plan is None:
-            plan = load_image(board_spec.program).plan(when_epoch=stat.st_mtime)
+            plan = load_image(board_spec.flashed).plan(when_epoch=stat.st_mtime)
             if len(_PLANS) >= PLANS_KEPT:
                 _PLANS.pop(next(iter(_PLANS)))
             _PLANS[key] = plan
