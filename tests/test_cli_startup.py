@@ -108,11 +108,11 @@ def test_help_and_version_import_click_and_nothing_else(args: list[str]) -> None
 
 
 @pytest.mark.parametrize("args", [["init", "--help"], ["flash", "--help"],
+                                  ["program", "--help"],
                                   ["init", "--virtual", "armar3", "--no-info"]])
 def test_a_bootloader_command_imports_what_it_uses(args: list[str]) -> None:
     imports = ucom_imports(*args)
-    module = "ucom_tools.cli.flash" if args[0] == "flash" else "ucom_tools.cli.commands"
-    assert imports.has(module) and imports.has("can")
+    assert imports.has(f"ucom_tools.cli.{COMMANDS[args[0]].module}") and imports.has("can")
     assert not imports.unwanted(list(NOT_FOR_A_BOOTLOADER_COMMAND))
     if "--virtual" in args:
         assert imports.has("ucom_tools.virtual.fleet")  # it did run the command
@@ -132,12 +132,19 @@ USES = {"gateway": ("canopen",)}
 """The heavy libraries a command's module needs to define its commands."""
 
 
+OPTION_MODULES = frozenset(f"ucom_tools.cli.{e.module}" for e in COMMANDS.values()
+                           if e.module.startswith("commands."))
+"""The modules of the console options' commands (``cli/commands/``, a module each)."""
+
+
 @pytest.mark.parametrize("name", sorted({e.module: n for n, e in COMMANDS.items()}.values()))
 def test_no_help_imports_a_library_its_command_does_not_use(name: str) -> None:
     imports = ucom_imports(name, "--help")
-    assert imports.has(f"ucom_tools.cli.{COMMANDS[name].module}")
+    own = f"ucom_tools.cli.{COMMANDS[name].module}"
+    assert imports.has(own)
     allowed = USES.get(name, ())
     assert not imports.unwanted([h for h in HEAVY if h not in allowed])
+    assert not imports.unwanted(sorted(OPTION_MODULES - {own}))  # only its own option's
 
 
 def _reachable(command: click.Command) -> list[click.Command]:
@@ -153,7 +160,7 @@ def test_the_table_names_every_command_and_only_commands() -> None:
         assert command.name == name
     reachable = {id(c) for name in COMMANDS for c in _reachable(cli.commands[name])}
     reachable.add(id(cli))
-    for found in pkgutil.iter_modules(ucom_tools.cli.__path__, "ucom_tools.cli."):
+    for found in pkgutil.walk_packages(ucom_tools.cli.__path__, "ucom_tools.cli."):
         module = importlib.import_module(found.name)
         stray = [attr for attr, value in vars(module).items()
                  if isinstance(value, click.Command) and id(value) not in reachable]

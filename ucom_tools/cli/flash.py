@@ -1,6 +1,9 @@
 """``ucom flash`` (an image into the boards of every bus, verified; ``--keep-params``),
-and the console's options 5 and 6 as ``ucom program`` and ``ucom extram-load``: what they
-ask of :mod:`ucom_tools.ops.flash`, what they say, and how an interrupted one ends."""
+and what the console's options 5 and 6 share with it: what they ask of
+:mod:`ucom_tools.ops.flash`, what they say (:func:`flash_out`), how an interrupted one
+ends (:func:`cancelled`), and the factory of their commands (:func:`program_command`),
+called once each in :mod:`ucom_tools.cli.commands.program` (``ucom program``) and
+:mod:`ucom_tools.cli.commands.extram_load` (``ucom extram-load``)."""
 
 from __future__ import annotations
 
@@ -13,7 +16,7 @@ from rich.markup import escape
 
 from ucom_tools.cli import render
 from ucom_tools.cli.exitcodes import EXIT_FAILED, EXIT_INTERRUPTED
-from ucom_tools.cli.menu import BOARD, help_text
+from ucom_tools.cli.menu import help_text
 from ucom_tools.cli.options import (
     connection_options,
     emit_with_connection,
@@ -35,8 +38,12 @@ if TYPE_CHECKING:  # imported where used, so that the other commands start witho
     from ucom_tools.ops import params_keep
     from ucom_tools.ops.flash_types import FlashRequest, FlashResult
 
-def _flash_out(ctx: click.Context, spec: ConnectSpec, result: FlashResult,
-               as_json: bool, kept: params_keep.KeepResult | None = None) -> None:
+
+def flash_out(ctx: click.Context, spec: ConnectSpec, result: FlashResult,
+              as_json: bool, kept: params_keep.KeepResult | None = None) -> None:
+    """A finished flash (``flash``, ``program``, ``extram-load``): the table or JSON, the
+    boards that failed on stderr, exit code 1 unless every selected board verified (and,
+    with ``--keep-params``, got its values back)."""
     from ucom_tools.cli import params as params_cli
 
     if as_json:
@@ -62,7 +69,7 @@ def _flash_out(ctx: click.Context, spec: ConnectSpec, result: FlashResult,
         ctx.exit(EXIT_FAILED)
 
 
-def _cancelled(ctx: click.Context, spec: ConnectSpec, e: BaseException, as_json: bool) -> None:
+def cancelled(ctx: click.Context, spec: ConnectSpec, e: BaseException, as_json: bool) -> None:
     """An interrupted flash: per board what it was left with (the table, or ``--json``
     with ``interrupted``), one line on stderr, the signal's exit code."""
     from ucom_tools.cli.flashrun import NotBegun
@@ -176,13 +183,13 @@ def flash_cmd(ctx: click.Context, image: str, boards: str, autostart: bool,
             if out.kept is not None and out.kept.directory is not None:
                 stderr().print(f"[yellow]the values read before programming are in "
                                f"{escape(str(out.kept.directory))}[/]", soft_wrap=True)
-            _cancelled(ctx, spec, e, as_json)
+            cancelled(ctx, spec, e, as_json)
             return
         if done.result is None:
             assert done.kept is not None
             _keep_refused(ctx, spec, done.kept, as_json)
             return
-    _flash_out(ctx, spec, done.result, as_json, done.restored)
+    flash_out(ctx, spec, done.result, as_json, done.restored)
 
 
 def _flash_job(r: Robot, request: FlashRequest, out: _Flashed, keep_params: bool,
@@ -245,7 +252,9 @@ def _keep_refused(ctx: click.Context, spec: ConnectSpec, kept: params_keep.Kept,
     ctx.exit(EXIT_FAILED)
 
 
-def _program_command(name: str, option: int, target: Target, detail: str) -> click.Command:
+def program_command(name: str, option: int, target: Target, detail: str) -> click.Command:
+    """Option ``option`` (5, Program, or 6, ExtRAMLoad): an image into ``target`` of one
+    board, or of every ProgEnabled board, verified like ``flash``."""
     @click.command(name, help=help_text(option, detail))
     @click.argument("board")
     @click.argument("image", type=click.Path())
@@ -278,17 +287,8 @@ def _program_command(name: str, option: int, target: Target, detail: str) -> cli
                                        target=target, init=False, force=force)
                 result = run_flash(r, request, verbose=verbosity(ctx))
             except (KeyboardInterrupt, Cancelled) as e:
-                _cancelled(ctx, spec, e, as_json)
+                cancelled(ctx, spec, e, as_json)
                 return
-        _flash_out(ctx, spec, result, as_json)
+        flash_out(ctx, spec, result, as_json)
     return cmd
 
-
-program_cmd = _program_command(
-    "program", 5, Target.FLASH,
-    "Programs IMAGE into board BOARD, or with 'all' into every ProgEnabled board (see "
-    "prog-enable); verified like 'flash'.\n\n" + BOARD)
-extram_cmd = _program_command(
-    "extram-load", 6, Target.EXTRAM,
-    "Loads IMAGE into external RAM of BOARD instead of flash (gone after reset; start it "
-    "with 'start --extram').\n\n" + BOARD)

@@ -2,11 +2,11 @@
 
 Every error a user can cause ends here as one line on stderr and an exit code of
 :mod:`ucom_tools.cli.exitcodes`; a traceback only with ``-vv``.  The subcommands live in
-their own modules (commands, console, srec, fleet, tree, ...), which never import this
-one; each is imported when its command is looked up (:class:`LazyCommands`), and
-:data:`COMMANDS` lists them all.  ``ucom --help`` and ``--version`` import click and no
-more (rich neither: it is imported where a command or an error prints), so that they
-start as fast as click does (``tests/test_cli_startup.py``).
+their own modules (``commands/``: a module per console option; flash, console, srec,
+fleet, tree, ...), which never import this one; each is imported when its command is
+looked up (:class:`LazyCommands`), and :data:`COMMANDS` lists them all.  ``ucom --help``
+and ``--version`` import click and no more (rich neither: it is imported where a command
+or an error prints), so that they start as fast as click does (``tests/test_cli_startup.py``).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ class Entry(NamedTuple):
     """One subcommand of ``ucom``: where it is and its line in ``ucom --help``."""
 
     module: str
-    """Its module in :mod:`ucom_tools.cli`."""
+    """Its module in :mod:`ucom_tools.cli` (``commands.init`` is ``cli/commands/init.py``)."""
     attr: str
     """The command's name in that module."""
     summary: str
@@ -47,44 +47,51 @@ class Entry(NamedTuple):
 
 
 COMMANDS: dict[str, Entry] = {
-    # the options of dsp_console2can, in its menu's order, and flash
-    "reset": Entry("commands", "reset_cmd",
+    # the options of dsp_console2can, in its menu's order, a module each in cli/commands/
+    "reset": Entry("commands.reset", "reset_cmd",
                    "Option 1, Reset All: reset every board and list who answered."),
-    "init": Entry("commands", "init_cmd", "Option 2, Init: number the boards along the "
-                  "init line, check the wiring."),
-    "info": Entry("commands", "info_cmd", "Option 3, GetInfo: program name, date, ProgID, "
-                  "flags of a board (needs init: option 2, or --init)."),
-    "prog-enable": Entry("commands", "prog_enable_cmd", "Option 4, SetProgEnable: enable "
-                         "programming of a board or all (needs init: option 2, or --init)."),
-    "program": Entry("flash", "program_cmd", "Option 5, Program: program a board, or all "
-                     "ProgEnabled boards (needs init: option 2, or --init)."),
-    "extram-load": Entry("flash", "extram_cmd", "Option 6, ExtRAMLoad: load the image "
-                         "into external RAM (needs init: option 2, or --init)."),
-    "start": Entry("commands", "start_cmd", "Option 7, Start: start the program in flash or "
-                   "ExtRAM (needs init: option 2, or --init)."),
-    "autostart": Entry("commands", "autostart_cmd", "Option 8, SetAutoStart: start the flash "
-                       "program after every reset (needs init: option 2, or --init)."),
-    "xreset": Entry("commands", "xreset_cmd", "Option 9, XReset: clear AutoStart and reset."),
-    "set-init-in": Entry("commands", "set_init_in_cmd", "Option 10, SetInitIn: drive a "
-                         "board's init input (needs init: option 2, or --init)."),
-    "set-init-out": Entry("commands", "set_init_out_cmd", "Option 11, SetInitOut: drive a "
-                          "board's init output (needs init: option 2, or --init)."),
-    "set-seqid": Entry("commands", "set_seqid_cmd", "Option 12, SetSeqID: give a board "
-                       "another seq ID (needs init: option 2, or --init)."),
-    "count": Entry("commands", "count_cmd", "Option 13, Count: GetInfo of every board that "
-                   "has a number."),
-    "first": Entry("commands", "first_cmd", "Option 14, Get First: which board is first on "
-                   "the init line."),
-    "last": Entry("commands", "last_cmd", "Option 15, Get Last: which board is last on the "
-                  "init line."),
-    "list": Entry("commands", "list_cmd", "Option 16, DSPListUpdate: build the list of "
-                  "active boards."),
-    "reset-one": Entry("commands", "reset_one_cmd", "Option 21, Reset Specific: reset one "
-                       "board (needs init: option 2, or --init)."),
+    "init": Entry("commands.init", "init_cmd", "Option 2, Init: number the boards along "
+                  "the init line, check the wiring."),
+    "info": Entry("commands.info", "info_cmd", "Option 3, GetInfo: program name, date, "
+                  "ProgID, flags of a board (needs init: option 2, or --init)."),
+    "prog-enable": Entry("commands.prog_enable", "prog_enable_cmd", "Option 4, "
+                         "SetProgEnable: enable programming of a board or all (needs init: "
+                         "option 2, or --init)."),
+    "program": Entry("commands.program", "program_cmd", "Option 5, Program: program a "
+                     "board, or all ProgEnabled boards (needs init: option 2, or --init)."),
+    "extram-load": Entry("commands.extram_load", "extram_load_cmd", "Option 6, ExtRAMLoad: "
+                         "load the image into external RAM (needs init: option 2, or "
+                         "--init)."),
+    "start": Entry("commands.start", "start_cmd", "Option 7, Start: start the program in "
+                   "flash or ExtRAM (needs init: option 2, or --init)."),
+    "autostart": Entry("commands.autostart", "autostart_cmd", "Option 8, SetAutoStart: "
+                       "start the flash program after every reset (needs init: option 2, "
+                       "or --init)."),
+    "xreset": Entry("commands.xreset", "xreset_cmd",
+                    "Option 9, XReset: clear AutoStart and reset."),
+    "set-init-in": Entry("commands.set_init_in", "set_init_in_cmd", "Option 10, SetInitIn: "
+                         "drive a board's init input (needs init: option 2, or --init)."),
+    "set-init-out": Entry("commands.set_init_out", "set_init_out_cmd", "Option 11, "
+                          "SetInitOut: drive a board's init output (needs init: option 2, "
+                          "or --init)."),
+    "set-seqid": Entry("commands.set_seqid", "set_seqid_cmd", "Option 12, SetSeqID: give a "
+                       "board another seq ID (needs init: option 2, or --init)."),
+    "count": Entry("commands.count", "count_cmd", "Option 13, Count: GetInfo of every board "
+                   "that has a number."),
+    "first": Entry("commands.first", "first_cmd", "Option 14, Get First: which board is "
+                   "first on the init line."),
+    "last": Entry("commands.last", "last_cmd", "Option 15, Get Last: which board is last on "
+                  "the init line."),
+    "list": Entry("commands.dsp_list", "list_cmd", "Option 16, DSPListUpdate: build the "
+                  "list of active boards."),
+    "reset-one": Entry("commands.reset_one", "reset_one_cmd", "Option 21, Reset Specific: "
+                       "reset one board (needs init: option 2, or --init)."),
+    # flash (cli/flash.py, which also holds what program and extram-load share with it),
+    # and check, built of the options' steps
     "flash": Entry("flash", "flash_cmd", "Program IMAGE (S-record or Intel HEX) into the "
                    "boards of every bus, verified."),
-    "check": Entry("commands", "check_cmd", "Compatibility matrix: plug-on board, FPGA and "
-                   "stored DSP program of every board."),
+    "check": Entry("commands.check", "check_cmd", "Compatibility matrix: plug-on board, "
+                   "FPGA and stored DSP program of every board."),
     # the rest, a module each
     "console": Entry("console", "console", "The interactive console of dsp_console2can: "
                      "options 1-21 and q."),
