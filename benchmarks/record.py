@@ -19,6 +19,13 @@ to one kind); ``mcap_mb_per_min`` (the file's size per minute of ARMAR-III);
 ``delivery_p50_ms`` / ``delivery_p99_ms`` of the values channels (target p99 <= 20 ms at
 100 Hz values) and of everything (``delivery_all_p99_ms``).  ``--json`` prints them;
 without node and its client the delivery figures are null and say why.
+
+Both runs are made twice (``--mode``, default both, in turn): with the loop's thread at
+normal priority, as anyone runs it, and with ``--realtime`` (SCHED_FIFO), as a robot's PC
+runs its 1 kHz loop; ``--json`` prints the figures of each under ``normal`` and
+``realtime``.  On two cores the consumers' process, the node client and the served fleet
+share the loop's processors: at normal priority the loop waits for them now and then,
+with ``--realtime`` it does not, and they get what it leaves.
 """
 
 from __future__ import annotations
@@ -86,12 +93,12 @@ def until_listening(port: int, deadline: float) -> bool:
     return False
 
 
-def measure(seconds: float) -> dict[str, Any]:
+def measure(seconds: float, loop: list[str]) -> dict[str, Any]:
     out: dict[str, Any] = {"cores": os.cpu_count(), "seconds": seconds}
     modules = node_modules()
     node = shutil.which("node")
     with served_armar3() as port, tempfile.TemporaryDirectory() as tmp:
-        base, base_cpu = run(port, seconds, [])
+        base, base_cpu = run(port, seconds, loop)
         fox = free_port()
         mcap = Path(tmp) / "run.mcap"
         client = None
@@ -103,7 +110,7 @@ def measure(seconds: float) -> dict[str, Any]:
         runner = subprocess.Popen(
             ucom("remote", "run", "armar3", "-i", "socketcand", "--host", "127.0.0.1",
                  "--port", str(port), "--for", str(seconds), "--json", "--record",
-                 str(mcap), "--foxglove", f"127.0.0.1:{fox}"),
+                 str(mcap), "--foxglove", f"127.0.0.1:{fox}", *loop),
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         if node and modules:
             if until_listening(fox, time.monotonic() + 60):  # before the boards start
@@ -164,36 +171,55 @@ def targets(f: dict[str, Any]) -> list[tuple[str, bool | None]]:
             ("delivery p99 <= 20 ms (values)", None if p99 is None else p99 <= 20.0)]
 
 
+MODES = {"normal": [], "realtime": ["--realtime"]}
+"""How the loop's thread is scheduled, in both runs of a mode: at normal priority (any
+user) and with ``remote run --realtime`` (SCHED_FIFO, as a robot's PC runs its 1 kHz
+loop; it needs the privilege, and a refusal is reported by the run)."""
+
+
+def say(mode: str, seconds: float, f: dict[str, Any], met: list[tuple[str, bool | None]]
+        ) -> None:
+    print(f"ARMAR-III at 1 kHz over fleet serve, {seconds:g} s, {f['cores']} cores, the loop "
+          f"at {mode} priority: with --record run.mcap --foxglove and a client subscribed "
+          f"to everything, lateness p99 {f['lateness_p99_ms']} ms against "
+          f"{f['baseline_p99_ms']} ms without ({f['lateness_ratio']}x); missed "
+          f"{f['missed_pct']} % against {f['baseline_missed_pct']} %")
+    print(f"  CPU {f['cpu_s']} s against {f['baseline_cpu_s']} s: "
+          f"{f['cpu_us_per_frame']} us per recorded frame ({f['frames_recorded']}), "
+          f"{f['cpu_us_per_value']} us per published values message "
+          f"({f['values_encoded']}); MCAP {f['mcap_mb_per_min']} MB a minute")
+    if f.get("delivery_p99_ms") is not None:
+        print(f"  delivery to the client: values p50 {f['delivery_p50_ms']} ms, p99 "
+              f"{f['delivery_p99_ms']} ms; everything p99 {f['delivery_all_p99_ms']} ms "
+              f"({f['delivered']} messages)")
+    else:
+        print(f"  delivery: not measured ({f.get('delivery_why', 'no figures')})")
+    for name, ok in met:
+        print(f"  target {name}: " + ("not measured" if ok is None else "MET" if ok
+                                      else "NOT MET"))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=20.0)
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--mode", choices=[*MODES, "both"], default="both",
+                    help="how the loop's thread is scheduled (default: both, in turn)")
     args = ap.parse_args()
-    f = measure(args.seconds)
-    met = targets(f)
-    f["targets_met"] = {name: ok for name, ok in met}
+    modes = list(MODES) if args.mode == "both" else [args.mode]
+    out: dict[str, Any] = {}
+    ok = True
+    for mode in modes:
+        f = measure(args.seconds, MODES[mode])
+        met = targets(f)
+        f["targets_met"] = {name: done for name, done in met}
+        ok = ok and all(done is not False for _, done in met)
+        out[mode] = f
+        if not args.json:
+            say(mode, args.seconds, f, met)
     if args.json:
-        print(json.dumps(f))
-    else:
-        print(f"ARMAR-III at 1 kHz over fleet serve, {args.seconds:g} s, {f['cores']} cores: "
-              f"with --record run.mcap --foxglove and a client subscribed to everything, "
-              f"lateness p99 {f['lateness_p99_ms']} ms against {f['baseline_p99_ms']} ms "
-              f"without ({f['lateness_ratio']}x); missed {f['missed_pct']} % against "
-              f"{f['baseline_missed_pct']} %")
-        print(f"  CPU {f['cpu_s']} s against {f['baseline_cpu_s']} s: "
-              f"{f['cpu_us_per_frame']} us per recorded frame ({f['frames_recorded']}), "
-              f"{f['cpu_us_per_value']} us per published values message "
-              f"({f['values_encoded']}); MCAP {f['mcap_mb_per_min']} MB a minute")
-        if f.get("delivery_p99_ms") is not None:
-            print(f"  delivery to the client: values p50 {f['delivery_p50_ms']} ms, p99 "
-                  f"{f['delivery_p99_ms']} ms; everything p99 {f['delivery_all_p99_ms']} ms "
-                  f"({f['delivered']} messages)")
-        else:
-            print(f"  delivery: not measured ({f.get('delivery_why', 'no figures')})")
-        for name, ok in met:
-            print(f"  target {name}: "
-                  + ("not measured" if ok is None else "MET" if ok else "NOT MET"))
-    return 0 if all(ok is not False for _, ok in met) else 1
+        print(json.dumps(out))
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":
