@@ -449,7 +449,7 @@ def median(values: list[float]) -> float | None:
     return round(statistics.median(values), 3) if values else None
 
 
-def main() -> int:
+def arguments() -> argparse.Namespace:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=20)
     ap.add_argument("--seconds", type=float, default=10.0)
@@ -461,35 +461,27 @@ def main() -> int:
                     help="rounds of the thread-or-process measurement (0: none)")
     ap.add_argument("--skip-costs", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--json", action="store_true")
-    args = ap.parse_args()
-    figures_costs: dict[str, Any] = {}
-    if args.realtime:
-        REALTIME.append("--realtime")
-    with_runs: list[dict[str, Any]] = []
-    without_runs: list[dict[str, Any]] = []
-    if not args.skip_costs:
-        figures_costs = costs()
-    with tempfile.TemporaryDirectory() as tmp, served_armar3() as port, hogs(args.hogs):
-        figures_decision = decision(args.decision_rounds, 3.0) if args.decision_rounds \
-            else {}
-        for k in range(args.runs):
-            with_runs.append(run_with(port, args.seconds, Path(tmp)))
-            without_runs.append(run_without(port, args.seconds))
-            if not args.json:
-                w, o = with_runs[-1], without_runs[-1]
-                print(f"  run {k + 1:2}: with p99 {w['p99_ms']} ms"
-                      f"{' WATCHDOG' if w['stopped'] else ''}"
-                      f"{' LOST ' + str(w['lost']) if w['lost'] else ''}"
-                      f"{' EXCEPTION' if w['exception'] else ''}, {w['renders_per_s']} "
-                      f"screens/s, {w['rows']} rows, zenoh {'ok' if w['zenoh'] else 'NO'}"
-                      f"; without p99 {o['p99_ms']} ms{' WATCHDOG' if o['stopped'] else ''}"
-                      f"{' LOST ' + str(o['lost']) if o['lost'] else ''}"
-                      f"{' EXCEPTION' if o['exception'] else ''}", flush=True)
-        load = os.getloadavg()[0]
+    return ap.parse_args()
+
+
+def say_run(k: int, w: dict[str, Any], o: dict[str, Any]) -> None:
+    print(f"  run {k + 1:2}: with p99 {w['p99_ms']} ms"
+          f"{' WATCHDOG' if w['stopped'] else ''}"
+          f"{' LOST ' + str(w['lost']) if w['lost'] else ''}"
+          f"{' EXCEPTION' if w['exception'] else ''}, {w['renders_per_s']} "
+          f"screens/s, {w['rows']} rows, zenoh {'ok' if w['zenoh'] else 'NO'}"
+          f"; without p99 {o['p99_ms']} ms{' WATCHDOG' if o['stopped'] else ''}"
+          f"{' LOST ' + str(o['lost']) if o['lost'] else ''}"
+          f"{' EXCEPTION' if o['exception'] else ''}", flush=True)
+
+
+def figures_of(args: argparse.Namespace, with_runs: list[dict[str, Any]],
+               without_runs: list[dict[str, Any]], costs_: dict[str, Any],
+               decision_: dict[str, Any], load: float) -> dict[str, Any]:
     p_with = [r["p99_ms"] for r in with_runs if r["p99_ms"] is not None]
     p_without = [r["p99_ms"] for r in without_runs if r["p99_ms"] is not None]
     m_with, m_without = median(p_with), median(p_without)
-    figures: dict[str, Any] = {
+    return {
         "runs": args.runs, "seconds": args.seconds, "hogs": args.hogs,
         "realtime": args.realtime,
         "run_time": compiled.status().reason,
@@ -509,10 +501,13 @@ def main() -> int:
         "recorded_rows": median([r["rows"] for r in with_runs]),
         "zenoh_reads": sum(r["zenoh"] for r in with_runs),
         "load_average": round(load, 2),
-        "costs": figures_costs, "decision": figures_decision,
+        "costs": costs_, "decision": decision_,
         "failures": [r["tail"] for r in with_runs + without_runs if r["tail"]][:3],
     }
-    targets = {
+
+
+def targets_of(figures: dict[str, Any], with_runs: list[dict[str, Any]]) -> dict[str, bool]:
+    return {
         "0 watchdog stops with view, share and record": figures["watchdog_stops"] == 0,
         "0 exceptions": figures["exceptions"] == 0,
         "lateness p99 <= 1.5x without": figures["ratio"] is not None
@@ -521,15 +516,14 @@ def main() -> int:
             r["started"] and r["renders_per_s"] >= 5 and r["rows"] > 0 and r["zenoh"]
             for r in with_runs),
     }
-    figures["targets_met"] = {k: bool(v) for k, v in targets.items()}
-    code = 0 if all(targets.values()) else 1
-    if args.json:
-        print(json.dumps(figures, indent=2))
-        return code
+
+
+def say(args: argparse.Namespace, figures: dict[str, Any], targets: dict[str, bool]) -> None:
     print(f"ARMAR-III over fleet serve, {args.runs} runs of {args.seconds:g} s with live "
           f"view + --zenoh + --record and without, {args.hogs} CPU-bound processes beside, "
           f"run time {figures['run_time']}:")
-    print(f"  lateness p99 (median of the runs) {m_with} ms with, {m_without} ms without: "
+    print(f"  lateness p99 (median of the runs) {figures['p99_ms_with']} ms with, "
+          f"{figures['p99_ms_without']} ms without: "
           f"{figures['ratio']}x (worst {figures['worst_p99_ms_with']} / "
           f"{figures['worst_p99_ms_without']} ms); missed {figures['missed_with']} / "
           f"{figures['missed_without']} cycles")
@@ -548,19 +542,43 @@ def main() -> int:
               f"{c['feed_us_per_cycle']} us a cycle ({c['frames_per_cycle']} frames a cycle, "
               "100 snapshots a second)")
     d = figures["decision"]
-    if d:
-        for prio in ("fifo", "normal"):
-            if f"{prio}_none_p99_ms" in d:
-                print(f"  a 1 kHz loop ({'SCHED_FIFO' if prio == 'fifo' else 'normal'}) "
-                      "beside 30 % of a core of Python work: "
-                      + ", ".join(f"{m} p99 {d[f'{prio}_{m}_p99_ms']} ms (gap "
-                                  f"{d[f'{prio}_{m}_gap_ms']} ms)"
-                                  for m in ("none", "thread", "process")))
+    for prio in ("fifo", "normal"):
+        if f"{prio}_none_p99_ms" in d:
+            print(f"  a 1 kHz loop ({'SCHED_FIFO' if prio == 'fifo' else 'normal'}) "
+                  "beside 30 % of a core of Python work: "
+                  + ", ".join(f"{m} p99 {d[f'{prio}_{m}_p99_ms']} ms (gap "
+                              f"{d[f'{prio}_{m}_gap_ms']} ms)"
+                              for m in ("none", "thread", "process")))
     for tail in figures["failures"]:
         print("  --- a failed run's end:\n" + tail)
     for name, ok in targets.items():
         print(f"  target {name}: {'MET' if ok else 'NOT MET'}")
-    return code
+
+
+def main() -> int:
+    args = arguments()
+    if args.realtime:
+        REALTIME.append("--realtime")
+    with_runs: list[dict[str, Any]] = []
+    without_runs: list[dict[str, Any]] = []
+    figures_costs = {} if args.skip_costs else costs()
+    with tempfile.TemporaryDirectory() as tmp, served_armar3() as port, hogs(args.hogs):
+        figures_decision = decision(args.decision_rounds, 3.0) if args.decision_rounds \
+            else {}
+        for k in range(args.runs):
+            with_runs.append(run_with(port, args.seconds, Path(tmp)))
+            without_runs.append(run_without(port, args.seconds))
+            if not args.json:
+                say_run(k, with_runs[-1], without_runs[-1])
+        load = os.getloadavg()[0]
+    figures = figures_of(args, with_runs, without_runs, figures_costs, figures_decision, load)
+    targets = targets_of(figures, with_runs)
+    figures["targets_met"] = {k: bool(v) for k, v in targets.items()}
+    if args.json:
+        print(json.dumps(figures, indent=2))
+    else:
+        say(args, figures, targets)
+    return 0 if all(targets.values()) else 1
 
 
 if __name__ == "__main__":

@@ -345,7 +345,12 @@ def main() -> None:
     figures["targets_met"] = {k: bool(v) for k, v in targets.items()}
     if args.json:
         print(json.dumps(figures, indent=2))
-        return
+    else:
+        say(args, figures, targets, remote)
+
+
+def say(args: argparse.Namespace, figures: dict[str, Any], targets: dict[str, bool],
+        remote: str) -> None:
     print(f"ARMAR-III CAN0 at 1 kHz over socketcand, {args.seconds:g} s each, values shared "
           f"on Zenoh at {args.publish_rate:g} Hz and at 1000 Hz:")
     print(f"  loop      without sharing: {figures['missed_pct']} % missed, p99 "
