@@ -90,14 +90,20 @@ import sys
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.runtime import percentile, served_armar3  # noqa: E402
+from benchmarks.lib.soak_analysis import (  # noqa: E402
+    HOLD_S,
+    JUMP_COUNTS,
+    Injected,
+    Seen,
+    analyse,
+)
+from benchmarks.runtime import served_armar3  # noqa: E402
 from ucom_tools import compiled  # noqa: E402
 from ucom_tools.errors import UcomError  # noqa: E402
 from ucom_tools.ops.edges import EdgeRef  # noqa: E402
@@ -106,7 +112,6 @@ from ucom_tools.ops.remote import RemotePart  # noqa: E402
 from ucom_tools.ops.remote.faults import BoardFault, LostBoardWrite  # noqa: E402
 from ucom_tools.signals import stop_signals  # noqa: E402
 from ucom_tools.transport.fault_request import request_fault  # noqa: E402
-from ucom_tools.wire.codes import ErrorCode  # noqa: E402
 
 KINDS = ("power-off", "reset", "bus-off", "cable", "estop")
 """The fault kinds, in the order they rotate."""
@@ -120,16 +125,10 @@ RSS_AFTER_S = 60.0
 """The RSS at the start is taken this long after the warm-up (the first minute)."""
 RSS_EVERY_S = 30.0
 """``rss_mb_curve``: the RSS every this often (from the end of the warm-up)."""
-HOLD_S = 1.0
-"""After a board's rejoin its joints are watched (their targets untouched) this long."""
-JUMP_COUNTS = 50
-"""A joint sensor further than this from its value at the loss after the rejoin jumped."""
 SETTLE_S = 10.0
 """No fault is injected later than this before the end (time to come back)."""
 END_WAIT_S = 20.0
 """At the end, how long the loop runs on (at most) until every board is back."""
-STRAY_S = 5.0
-"""A watchdog stop of a board this long after a fault that hit it ended is the fault's."""
 AMPLITUDE = 300
 """Of each joint's sine (raw counts, around where it stood at the start)."""
 STALL_S = 0.02
@@ -137,37 +136,6 @@ STALL_S = 0.02
 BIN_S = 1e-5
 """The lateness histogram's bin (10 us; up to 0.1 s, longer in the last bin)."""
 BINS = 10_000
-
-
-@dataclass
-class Injected:
-    """One injected fault: when it was asked for (``sent``, ``done``: time.monotonic()),
-    what the fleet answered, the boards it hits."""
-
-    kind: str
-    target: str
-    for_s: float
-    boards: list[tuple[str, int]]
-    sent: float = 0.0
-    done: float = 0.0
-    answer: str = ""
-    ok: bool = False
-
-
-@dataclass
-class Seen:
-    """A fault event as the loop's hook saw it: the event, time.monotonic() then, and for
-    a lost board the time since its last frame and its joint sensors' (and targets')
-    raw values at that moment."""
-
-    fault: BoardFault
-    at: float
-    since_frame: float | None = None
-    sensors: dict[EdgeRef, int] = field(default_factory=dict)
-    targets: dict[EdgeRef, int] = field(default_factory=dict)
-    worst: dict[EdgeRef, tuple[int, int, float]] = field(default_factory=dict)
-    """After the rejoin: each joint sensor's largest difference from its value here, the
-    value, when (seconds after the rejoin)."""
 
 
 def proc_counts() -> tuple[float, int, int]:
@@ -399,130 +367,6 @@ class Soak:
                 "max": round(self.late_max * 1e3, 3)}
 
 
-def stats(values: list[float]) -> dict[str, float | None]:
-    """p50, p99, max of seconds, in ms."""
-    if not values:
-        return {"p50": None, "p99": None, "max": None, "n": 0}
-    return {"p50": round(percentile(values, 50) * 1e3, 2),
-            "p99": round(percentile(values, 99) * 1e3, 2),
-            "max": round(max(values) * 1e3, 2), "n": len(values)}
-
-
-def analyse(soak: Soak, started_clock: float, still_lost: dict[tuple[str, int], Any],
-            events: list[Any]) -> dict[str, Any]:
-    """Each injected fault matched to the lost and rejoined events of the boards it hit
-    (those after its request and before the next fault's); the rest."""
-    part = soak.part
-    injected = [f for f in soak.faults if f.sent]
-    used: set[int] = set()
-    detect: list[float] = []
-    detect_inj: list[float] = []
-    by_kind: dict[str, list[float]] = {}
-    rejoin: list[float] = []
-    back: list[float] = []
-    how = {"rejoin": 0, "maps again": 0}
-    undetected: list[str] = []
-    never: list[str] = []
-    stopped: list[str] = []
-    gaps: list[int] = []
-    worst: list[int] = []
-    jumps: list[str] = []
-    rows: list[dict[str, Any]] = []
-    where = {(b.bus, b.board): b.where for b in part.report.boards} if part.report else {}
-    for i, f in enumerate(injected):
-        until = injected[i + 1].sent if i + 1 < len(injected) else math.inf
-        end = f.sent + f.for_s
-        detected = rejoined = 0
-        for key in f.boards:
-            name = where.get(key, f"{key[0]} board {key[1]}")
-            loss = next((j for j, s in enumerate(soak.seen) if j not in used
-                         and s.fault.event == "lost" and (s.fault.bus, s.fault.board) == key
-                         and f.sent - 0.05 <= s.at < until), None)
-            if loss is None:
-                undetected.append(f"{name} ({f.kind} at {f.sent - soak.start:.1f} s)")
-                continue
-            detected += 1
-            lost = soak.seen[loss]
-            used.add(loss)
-            detect_inj.append(lost.at - f.sent)
-            if lost.since_frame is not None:
-                detect.append(lost.since_frame)
-                by_kind.setdefault(f.kind, []).append(lost.since_frame)
-            for sensor, target in lost.targets.items():
-                if sensor in lost.sensors:
-                    gaps.append(abs(target - lost.sensors[sensor]))
-            for j, s in enumerate(soak.seen):  # losses again before it was back: its own
-                if j not in used and (s.fault.bus, s.fault.board) == key and \
-                        lost.at <= s.at < until and s.fault.event == "lost":
-                    used.add(j)
-            back_at = next((s for s in soak.seen if s.fault.event == "rejoined"
-                            and (s.fault.bus, s.fault.board) == key
-                            and lost.at <= s.at < until), None)
-            if back_at is None or (key in still_lost and until == math.inf):
-                never.append(f"{name} ({f.kind} at {f.sent - soak.start:.1f} s)")
-                continue
-            rejoined += 1
-            back.append(back_at.at - end)
-            if back_at.fault.answered is not None:
-                how["rejoin"] += 1
-                rejoin.append(back_at.fault.time - back_at.fault.answered)
-            else:
-                how["maps again"] += 1
-                rejoin.append(max(0.0, back_at.at - end))
-            for ref, (d, raw, after) in lost.worst.items():
-                worst.append(d)
-                if d > JUMP_COUNTS:
-                    jumps.append(f"{part.names.name_of(ref)} ({f.kind} at "
-                                 f"{f.sent - soak.start:.1f} s): {lost.sensors[ref]} at the "
-                                 f"loss, {raw} {after:.3f} s after the rejoin")
-            for e in events:
-                t = started_clock + e.time
-                if (e.bus, e.board) == key and back_at.at <= t < min(
-                        until, back_at.at + 2 * HOLD_S) and e.code in (
-                        ErrorCode.WATCHDOG, ErrorCode.LATCHED):
-                    stopped.append(f"{name} ({f.kind} at {f.sent - soak.start:.1f} s): "
-                                   f"{e.text} at {t - soak.start:.3f} s")
-                    break
-        rows.append({"at_s": round(f.sent - soak.start, 2), "kind": f.kind,
-                     "target": f.target, "for_s": f.for_s, "answer": f.answer,
-                     "ok": f.ok, "boards": len(f.boards), "detected": detected,
-                     "rejoined": rejoined})
-    spurious = [f"{s.fault.where} at {s.at - soak.start:.3f} s: {s.fault.seen}"
-                for j, s in enumerate(soak.seen) if s.fault.event == "lost" and j not in used]
-    stops = [e for e in events if e.code is ErrorCode.WATCHDOG]
-    outside = [e for e in stops if not any(
-        (e.bus, e.board) in f.boards
-        and f.sent <= started_clock + e.time <= f.sent + f.for_s + STRAY_S
-        for f in injected)]
-    return {
-        "faults_injected": rows,
-        "faults": len(injected),
-        "boards_hit": sum(len(f.boards) for f in injected),
-        "undetected": undetected, "spurious": spurious[:20],
-        "spurious_count": len(spurious),
-        "detect_ms": stats(detect),
-        "detect_ms_by_kind": {k: stats(v) for k, v in by_kind.items()},
-        "detect_from_injection_ms": stats(detect_inj),
-        "rejoin_ms": stats(rejoin), "back_ms": stats(back), "rejoined_how": how,
-        "never_rejoined": never + [f"{v.where} (lost at the end: {v.status})"
-                                   for v in still_lost.values()],
-        "joints_checked": len(worst),
-        "joint_jump_max_counts": max(worst, default=None),
-        "jumps": jumps[:20],
-        "jumps_after_spurious": [
-            f"{part.names.name_of(ref)} ({s.fault.where} lost at {s.at - soak.start:.1f} "
-            f"s without a fault): {s.sensors[ref]} at the loss, {raw} {after:.3f} s after "
-            "the rejoin" for j, s in enumerate(soak.seen) if j not in used
-            for ref, (d, raw, after) in s.worst.items() if d > JUMP_COUNTS][:20],
-        "target_gap_max_counts": max(gaps, default=None),
-        "stopped_after_rejoin": stopped,
-        "watchdog_stops": len(stops),
-        "watchdog_stops_outside_faults": len(outside),
-        "watchdog_stops_outside": [f"{e.where} at {started_clock + e.time - soak.start:.3f}"
-                                   f" s" for e in outside][:10],
-    }
-
-
 def run(port: int, minutes: float, every: float, realtime: bool) -> dict[str, Any]:
     injector = Injector(port)
     try:
@@ -621,11 +465,19 @@ def main() -> int:
         == 0,
     }
     figures["targets_met"] = {k: bool(v) for k, v in targets.items()}
-    code = 0 if all(targets.values()) else 1
     if args.json:
         print(json.dumps(figures, indent=2))
-        return code
-    f = figures
+    else:
+        say(args, figures, targets)
+    return 0 if all(targets.values()) else 1
+
+
+def ms(s: dict[str, Any]) -> str:
+    return (f"p50 {s['p50']} ms, p99 {s['p99']} ms, max {s['max']} ms (n {s['n']})"
+            if s["n"] else "none")
+
+
+def say(args: argparse.Namespace, f: dict[str, Any], targets: dict[str, bool]) -> None:
     print(f"ARMAR-III at 1 kHz over socketcand (fleet serve --loss {LOSS}), "
           f"{args.minutes:g} min, a fault every {args.every:g} s, --on-fault hold --rejoin, "
           f"loop scheduling {f['realtime']}, run time {f['run_time']}:")
@@ -633,10 +485,6 @@ def main() -> int:
         print(f"  {r['at_s']:8.1f} s  {r['kind']:9} {r['target']:6} {r['for_s']:g} s: "
               f"{r['detected']}/{r['boards']} detected, {r['rejoined']}/{r['boards']} "
               f"rejoined{'' if r['ok'] else '  (REFUSED: ' + r['answer'] + ')'}")
-
-    def ms(s: dict[str, Any]) -> str:
-        return (f"p50 {s['p50']} ms, p99 {s['p99']} ms, max {s['max']} ms (n {s['n']})"
-                if s["n"] else "none")
     print(f"  faults      {f['faults']} injected, {f['boards_hit']} boards hit; "
           f"undetected {len(f['undetected'])}, lost without a fault "
           f"{f['spurious_count']}")
@@ -670,7 +518,6 @@ def main() -> int:
             print(f"  {what.replace('_', ' ')}: {item}")
     for name, ok in targets.items():
         print(f"  target {name}: {'MET' if ok else 'NOT MET'}")
-    return code
 
 
 if __name__ == "__main__":

@@ -17,10 +17,6 @@ FUNCTION_LINES = 80
 
 OVER: dict[str, int] = {
     "benchmarks/faults.py:main": 89,
-    "benchmarks/gateway.py": 616,
-    "benchmarks/soak.py": 678,
-    "benchmarks/soak.py:analyse": 113,
-    "benchmarks/soak.py:main": 88,
 }
 """What is still too long, and how long it is: the debt to pay."""
 
@@ -28,7 +24,8 @@ OVER: dict[str, int] = {
 def _units() -> dict[str, int]:
     """Every module's lines and every function's (``path:Class.function``)."""
     out: dict[str, int] = {}
-    for path in sorted([*(ROOT / "ucom_tools").rglob("*.py"), *(ROOT / "benchmarks").glob("*.py")]):
+    for path in sorted([*(ROOT / "ucom_tools").rglob("*.py"),
+                        *(ROOT / "benchmarks").rglob("*.py")]):
         rel = path.relative_to(ROOT).as_posix()
         text = path.read_text(encoding="utf-8")
         out[rel] = len(text.splitlines())
