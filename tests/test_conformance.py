@@ -74,7 +74,7 @@ def test_junit_report_and_traces_of_the_whole_fleet(tmp_path: Path) -> None:
     frames = list(can.LogReader(str(trace)))
     assert frames and {f.arbitration_id >> 6 for f in frames} >= {
         Function.INIT_REQUEST, Function.INIT_ACK}
-    assert "108 passed, 0 failed, 0 skipped" in out
+    assert "112 passed, 0 failed, 0 skipped" in out
 
 
 def test_list_and_only_select_cases() -> None:

@@ -34,6 +34,8 @@ CATCHES = {
     mutants.UNKNOWN_FUNCTION_SILENT: "bad.unknown-function",
     mutants.DUMP_OFF_BY_ONE: "mca.dump",
     mutants.READY_COUNTS_WRONG: "mca.ready",
+    mutants.DIGEST_UNKNOWN: "mca.digest",
+    mutants.DIGEST_WRONG: "mca.digest",
 }
 """Each defect and the case that must catch it."""
 

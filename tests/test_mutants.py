@@ -33,6 +33,7 @@ from ucom_tools.virtual.fleet import Fleet
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import BoardState, ErrorCode, InitOp, ReadyReason, StatusOp
+from ucom_tools.wire.digest import digest_of
 from ucom_tools.wire.ids import ALL, Function, encode_id, seq
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -453,6 +454,29 @@ def test_ready_counts_wrong(bench, defect) -> None:
         assert len(b.mca.describe(seq(1)).so) == so
 
 
+@both(mutants.DIGEST_UNKNOWN)
+def test_digest_unknown(bench, defect) -> None:
+    b = bench(defect=defect, program=True)
+    b.started()
+    want = digest_of(RECORDS[mca.Kind.CI] + RECORDS[mca.Kind.SO] + RECORDS[mca.Kind.PAR])
+    if defect:  # an older program: DLC 1 is a wrong length; the records are still there
+        assert b.mca.digest(seq(1)) is None
+        assert b.mca_error() is ErrorCode.BAD_LENGTH
+        assert b.mca.errors[-1][1].function == Function.MCA_DUMPIO_DESCR_REQUEST
+    else:
+        assert b.mca.digest(seq(1)) == want == 0x0E506B11
+    assert b.mca.describe(seq(1)).digest() == want
+
+
+@both(mutants.DIGEST_WRONG)
+def test_digest_wrong(bench, defect) -> None:
+    b = bench(defect=defect, program=True)
+    b.started()
+    want = b.mca.describe(seq(1)).digest()
+    assert b.mca.digest(seq(1)) == (want ^ 1 if defect else want)
+    assert b.mca.errors == []
+
+
 # ============================================================================ wiring
 def test_the_topology_key_makes_a_board_a_mutant(tmp_path: Path) -> None:
     path = tmp_path / "robot.toml"
@@ -533,7 +557,7 @@ def test_the_catalogue_lists_exactly_the_implemented_defects() -> None:
         "ignore-alive", "so-slow", "late-answer", "promiscuous", "ignore-initout",
         "descr-truncated", "no-range-check", "ci-while-latched", "autostart-lost",
         "xreset-keeps-autostart", "unknown-function-silent", "dump-off-by-one",
-        "ready-counts-wrong")
+        "ready-counts-wrong", "digest-unknown", "digest-wrong")
     assert set(mutants.NAMES) == TESTED  # each has its test above
     assert mutants.defects() == mutants.CATALOGUE
     page = (ROOT / "man" / "ucom-protocol.7").read_text()

@@ -26,10 +26,15 @@ from ucom_tools.virtual.board import application, runtime
 from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.codes import ErrorCode, ReportChannel
+from ucom_tools.wire.digest import DescrDigest, DigestRequest, digest_of
 from ucom_tools.wire.ids import ALL, Address, Direction, Function, seq
 
 PAGE = Path(__file__).resolve().parent.parent / "man" / "ucom-protocol.7"
 B3 = seq(3)
+ARMAR3_DIGEST = digest_of(mca.EdgeRecord(e.width, e.signed, e.exponent, e.minimum, e.maximum,
+                                         e.name, e.unit) for k in EdgeKind
+                          for e in armar3.SPEC.of(k))
+"""The armar3 program's description digest (the page prints it: 0x0E506B11)."""
 
 
 # ----------------------------------------------------------------------------- parsing
@@ -109,6 +114,8 @@ EXAMPLES: list[Example] = [
     _ready(Function.MCA_READY, b"\0\0", words=("unsolicited", "13 CI", "20 SO", "38 PAR")),
     Example(mca.DescrRequest(), B3, ("MCA DumpIO Descr Request", "every edge")),
     Example(mca.DescrRequest(mca.Kind.PAR, 3), B3, ("MCA DumpIO Descr Request", "PAR 3")),
+    Example(DigestRequest(), B3, ("MCA DumpIO Descr Request", "digest")),
+    Example(DescrDigest(ARMAR3_DIGEST), B3, ("kind 3", "0x0E506B11", "CRC-32")),
     *_set_joint_segments(),
     Example(mca.EdgeWrite(mca.Kind.PAR, 0, _s16(1000, 14000, 0)), B3,
             ("MCA Parameter", "PAR 0", "LoopTime(ms)", "1000", "14000")),
@@ -206,7 +213,7 @@ def test_every_example_frame_decodes_to_what_the_page_says_and_encodes_back() ->
 
 def test_the_descr_example_carries_the_longest_b5_name_whole() -> None:
     segments = [mca.DescrSegment.decode(data) for (arb, data), _ in _page_examples()
-                if arb >> 6 == Function.MCA_DUMPIO_DESCR]
+                if arb >> 6 == Function.MCA_DUMPIO_DESCR and data[0] >> 6 != 3]
     assert [s.segment for s in segments] == list(range(len(segments)))
     assert segments[-1].last and not any(s.last for s in segments[:-1])
     record = mca.EdgeRecord.decode(b"".join(s.data for s in segments))
@@ -274,6 +281,8 @@ def test_virtual_boards_answer_the_example_requests_with_the_example_frames() ->
             mca.Kind.PAR, 0)) for e in armar3.SPEC.edges)
         assert answers(request(mca.DescrRequest(mca.Kind.PAR, 3))) == [
             _on_page(e) for e in _set_joint_segments()]
+        assert answers(request(DigestRequest())) == [
+            _on_page(request(DescrDigest(ARMAR3_DIGEST)))]
         par, ci = mca.Kind.PAR, mca.Kind.CI
         for write, echo in (((par, 0, _s16(1000, 14000, 0)), bytes((0, 3))),
                             ((par, 6, _s32(500)), bytes((6, 0))),

@@ -55,6 +55,8 @@ XRESET_KEEPS_AUTOSTART = "xreset-keeps-autostart"
 UNKNOWN_FUNCTION_SILENT = "unknown-function-silent"
 DUMP_OFF_BY_ONE = "dump-off-by-one"
 READY_COUNTS_WRONG = "ready-counts-wrong"
+DIGEST_UNKNOWN = "digest-unknown"
+DIGEST_WRONG = "digest-wrong"
 
 CATALOGUE: tuple[Defect, ...] = (
     Defect(SEQ_FROM_ZERO, "the init chain numbering starts at 0",
@@ -126,6 +128,14 @@ CATALOGUE: tuple[Defect, ...] = (
            "RUN TIME, Messages (20 MCA Ready: [5] number of SO edges)",
            "every MCA Ready says one SO edge more (armar3: 21 instead of 20); describing "
            "that edge gets Error UNKNOWN_EDGE"),
+    Defect(DIGEST_UNKNOWN, "the program does not know the description's digest (an older "
+           "program)", "RUN TIME, Messages (22 MCA DumpIO Descr Request, DLC 1: the digest)",
+           "MCA DumpIO Descr Request with DLC 1 gets Error BAD_LENGTH instead of the digest; "
+           "a rejoining board's records are read again, four edges at a time"),
+    Defect(DIGEST_WRONG, "the description's digest is not the CRC-32 of the records the "
+           "board describes", "RUN TIME, Messages (23 MCA DumpIO Descr: the digest)",
+           "the digest answer carries the CRC-32 of the records with its lowest bit "
+           "inverted: a host that compares it with the records it read finds them different"),
 )
 
 BY_NAME: dict[str, Defect] = {f.name: f for f in CATALOGUE}

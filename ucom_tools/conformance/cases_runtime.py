@@ -90,6 +90,20 @@ def mca_descr(b: Bench) -> None:
                      got[diff] if diff < len(got) else "no edge")
 
 
+@case("mca.digest", "run time",
+      "RUN TIME, Messages (22 MCA DumpIO Descr Request DLC 1, 23 the digest)",
+      writes="the run-time program into external RAM (gone after reset)")
+def mca_digest(b: Bench) -> None:
+    """The description's digest is the CRC-32 of the records DumpIO Descr describes."""
+    n, _, edges = _running(b)
+    want = edges.digest()
+    got = b.mca.digest(seq(n))
+    refusal = [e.describe() for a, e in b.mca.errors if a == seq(n)
+               and e.function == Function.MCA_DUMPIO_DESCR_REQUEST]
+    b.expect(got == want, "the digest (DumpIO Descr Request DLC 1)", f"0x{want:08X}",
+             f"0x{got:08X}" if got is not None else (refusal[-1] if refusal else "no answer"))
+
+
 @case("mca.par-write", "run time", "RUN TIME, Values; RUN TIME, Bad input",
       writes="the run-time program into external RAM (gone after reset)")
 def mca_par_write(b: Bench) -> None:

@@ -24,6 +24,7 @@ from ucom_tools.wire import mca
 from ucom_tools.wire import messages as m
 from ucom_tools.wire.answers import AppReport
 from ucom_tools.wire.codes import ReportChannel
+from ucom_tools.wire.digest import DescrDigest, DigestRequest, digest_of
 from ucom_tools.wire.ids import ALL, Address, Function
 
 _ANSWERS: Final = frozenset({Function.MCA_READY, Function.MCA_DUMPIO_DESCR, Function.MCA_DSP_CI,
@@ -52,6 +53,11 @@ class BoardEdges:
 
     def of(self, kind: mca.Kind) -> tuple[mca.EdgeRecord, ...]:
         return (self.ci, self.so, self.par)[kind]
+
+    def digest(self) -> int:
+        """The description's digest (:func:`ucom_tools.wire.digest.digest_of`): what the
+        board's program answers to :meth:`McaClient.digest` if it is this description."""
+        return digest_of(self.ci + self.so + self.par)
 
 
 MASK_TABLE: Final = bytes(b ^ mca.MAP_MASK for b in range(256))
@@ -259,6 +265,27 @@ class McaClient:
             raise UcomTimeoutError(f"board {address}: {len(wanted - done.keys())} edge "
                                    "descriptions did not arrive")
         return BoardEdges(*(tuple(done[(k, i)] for i in range(counts[k])) for k in mca.Kind))
+
+    def digest(self, address: Address) -> int | None:
+        """The description's digest (MCA DumpIO Descr Request DLC 1), or None when the
+        board refuses the request (a program that does not know it answers Error
+        BAD_LENGTH) or does not answer within the reply time.  Asked once: None only
+        costs the caller the reading of the records (:meth:`describe`), which it falls
+        back to, where asking again would cost a program that stays silent the reply
+        time twice more."""
+        sent = self.link.dispatcher.stamp()
+        self._send(DigestRequest(), address)
+        deadline = self.link.deadline(self.timeouts.reply, answers=1)
+        while (got := self._next(deadline, after=sent)) is not None:
+            source, msg = got
+            if source != address:
+                continue
+            if isinstance(msg, DescrDigest):
+                return msg.value
+            if isinstance(msg, m.Error) and \
+                    msg.function == Function.MCA_DUMPIO_DESCR_REQUEST:
+                return None
+        return None
 
     def _gather(self, address: Address, wanted: set[tuple[int, int]],
                 ask: list[mca.DescrRequest], parts: dict[tuple[int, int], dict[int, bytes]],

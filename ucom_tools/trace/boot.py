@@ -35,6 +35,7 @@ from ucom_tools.wire.codes import (
     ReportChannel,
     StatusOp,
 )
+from ucom_tools.wire.digest import DescrDigest
 from ucom_tools.wire.ids import Function
 from ucom_tools.wire.info import INFO_FRAMES, BoardInfo
 
@@ -337,6 +338,8 @@ class BootDecoding(BusState):
             if flags:
                 text += f", flags {'+'.join(flags)}"
             return text, jsonable(message)
+        if isinstance(message, DescrDigest):
+            return f"digest 0x{message.value:08X}", {"digest": f"0x{message.value:08X}"}
         if isinstance(message, mca.DumpValues):
             text, values = self._values_text(bd, message.kind, message.index, message.data)
             return text, {"kind": message.kind.name, "index": message.index,

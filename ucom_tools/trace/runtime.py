@@ -32,6 +32,7 @@ from ucom_tools.trace.text import (
     jsonable,
 )
 from ucom_tools.wire import mca
+from ucom_tools.wire.digest import DescrDigest, DigestRequest
 from ucom_tools.wire.ids import Function
 
 
@@ -77,31 +78,8 @@ class RuntimeDecoding(BusState):
 
             self.expect(f"{label} {msg.op.name}{_to(board)}", fn, target, reply,
                         acked(int(msg.op)), key=(msg.op,), on_answer=state)
-        elif isinstance(msg, mca.DescrRequest):
-            what = "every edge" if msg.kind is None else f"{msg.kind.name} {msg.index}"
-            self.add(board, label, what, {"kind": msg.kind, "index": msg.index},
-                     direction=PC_TO_BOARD)
-            kind, index = msg.kind, msg.index
-            have: set[tuple[mca.Kind, int]] = set()
-
-            def described(b: str, a: object, _t: float) -> None:
-                # complete with the last record the board's counts announce
-                bd_ = self.board(b)
-                if not isinstance(a, mca.DescrSegment) or not a.last:
-                    return
-                have.add((a.kind, a.index))
-                wanted = {(kind, index)} if kind is not None else {
-                    (k, i) for k, n in zip(mca.Kind, bd_.counts or (), strict=False)
-                    for i in range(n)} if bd_.counts is not None else None
-                if wanted is not None and wanted <= have:
-                    for e in self.expects:
-                        if e.key == (fn, target, kind, index):
-                            e.done = True
-
-            self.expect(f"{label} ({what}){_to(board)}", fn, target, reply,
-                        lambda _b, a: isinstance(a, mca.DescrSegment) and
-                        (kind is None or (a.kind is kind and a.index == index)),
-                        needed=None, key=(kind, index), on_answer=described)
+        elif isinstance(msg, (mca.DescrRequest, DigestRequest)):
+            self._descr_request(board, target, label, fn, msg)
         elif isinstance(msg, mca.DumpRequest):
             last = msg.index + msg.count - 1
             self.add(board, label, f"{msg.kind.name} {msg.index}-{last} ({msg.count} values)",
@@ -116,6 +94,41 @@ class RuntimeDecoding(BusState):
             self._admin(board, target, msg, acked)
         else:
             self.add(board, label, "", direction=PC_TO_BOARD)
+
+    def _descr_request(self, board: str, target: str | None, label: str, fn: int,
+                       msg: mca.DescrRequest | DigestRequest) -> None:
+        """MCA DumpIO Descr Request: the records it asks for (complete with the last one
+        the board's counts announce), or the description's digest."""
+        reply = self.owner.timeouts.reply
+        if isinstance(msg, DigestRequest):
+            self.add(board, label, "the description's digest", direction=PC_TO_BOARD)
+            self.expect(f"{label} (digest){_to(board)}", fn, target, reply,
+                        lambda _b, a: isinstance(a, DescrDigest), key=("digest",))
+            return
+        what = "every edge" if msg.kind is None else f"{msg.kind.name} {msg.index}"
+        self.add(board, label, what, {"kind": msg.kind, "index": msg.index},
+                 direction=PC_TO_BOARD)
+        kind, index = msg.kind, msg.index
+        have: set[tuple[mca.Kind, int]] = set()
+
+        def described(b: str, a: object, _t: float) -> None:
+            # complete with the last record the board's counts announce
+            bd_ = self.board(b)
+            if not isinstance(a, mca.DescrSegment) or not a.last:
+                return
+            have.add((a.kind, a.index))
+            wanted = {(kind, index)} if kind is not None else {
+                (k, i) for k, n in zip(mca.Kind, bd_.counts or (), strict=False)
+                for i in range(n)} if bd_.counts is not None else None
+            if wanted is not None and wanted <= have:
+                for e in self.expects:
+                    if e.key == (fn, target, kind, index):
+                        e.done = True
+
+        self.expect(f"{label} ({what}){_to(board)}", fn, target, reply,
+                    lambda _b, a: isinstance(a, mca.DescrSegment) and
+                    (kind is None or (a.kind is kind and a.index == index)),
+                    needed=None, key=(kind, index), on_answer=described)
 
     def _admin(self, board: str, target: str | None, msg: mca.AdminData,
                acked: Callable[[int], Callable[[str, object], bool]]) -> None:

@@ -24,6 +24,7 @@ from enum import IntEnum
 from typing import ClassVar, Final
 
 from ucom_tools.errors import FrameError
+from ucom_tools.wire.digest import DIGEST_KIND, DescrDigest, DigestRequest
 from ucom_tools.wire.fields import check_enum, check_length, check_range
 from ucom_tools.wire.ids import Address, Function, IdType, decode_id, encode_id
 
@@ -505,7 +506,7 @@ class MapFrame:
 
 
 McaMessage = (EdgeWrite | McaReady | McaStart | DescrRequest | DescrSegment | DumpRequest
-              | DumpValues | AdminData | Alive | MapFrame)
+              | DumpValues | AdminData | Alive | MapFrame | DigestRequest | DescrDigest)
 
 _FUNCTIONS: Final = {int(f): f for f in Function}
 """Each function by its code (an enum's call costs some microseconds a frame)."""
@@ -553,10 +554,22 @@ def decode(arbitration_id: int, data: bytes) -> tuple[Address | None, McaMessage
     return address, _DECODERS[function](data)
 
 
+def _descr_request(data: bytes) -> DescrRequest | DigestRequest:
+    """22: DLC 0 or 2 the records, DLC 1 the digest (:mod:`ucom_tools.wire.digest`)."""
+    return DigestRequest.decode(data) if len(data) == 1 else DescrRequest.decode(data)
+
+
+def _descr(data: bytes) -> DescrSegment | DescrDigest:
+    """23: a record's segment, or (kind 3) the digest."""
+    if data and data[0] >> 6 == DIGEST_KIND:
+        return DescrDigest.decode(data)
+    return DescrSegment.decode(data)
+
+
 _DECODERS: Final[dict[Function, Callable[[bytes], McaMessage]]] = {
     Function.MCA_READY: McaReady.decode, Function.MCA_START: McaStart.decode,
-    Function.MCA_DUMPIO_DESCR_REQUEST: DescrRequest.decode,
-    Function.MCA_DUMPIO_DESCR: DescrSegment.decode, Function.MCA_DUMP_CI: DumpRequest.decode,
+    Function.MCA_DUMPIO_DESCR_REQUEST: _descr_request,
+    Function.MCA_DUMPIO_DESCR: _descr, Function.MCA_DUMP_CI: DumpRequest.decode,
     Function.MCA_ADMIN_DATA: AdminData.decode, Function.MCA_ALIVE: Alive.decode,
     Function.MCA_DSP_CI: DumpValues.decode,
 }

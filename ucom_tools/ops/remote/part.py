@@ -95,6 +95,7 @@ class RemotePart(RemoteLoop):
         self.trees = trees
         self.report: CheckReport | None = None
         self._described: dict[BoardKey, BoardEdges] = {}
+        self._digests: dict[BoardKey, int | None] = {}
         self._serials: dict[BoardKey, int] = {}
         """(bus, seq ID) -> the board's serial number, from the start's init chain."""
         if rejoin:
@@ -218,6 +219,7 @@ class RemotePart(RemoteLoop):
             boards += bus.boards
             refs += bus.refs
             self._described.update({(h.name, n): e for n, e in bus.described.items()})
+            self._digests.clear()
             self._serials.update({(h.name, n): s for n, s in bus.serials.items()})
         self.report = CheckReport(tuple(boards))
         order = {(b.bus, b.board): i for i, b in enumerate(boards)}
@@ -227,6 +229,15 @@ class RemotePart(RemoteLoop):
     def described(self, bus: str, board: int) -> BoardEdges | None:
         """The edges board ``board`` of ``bus`` described in :meth:`check`."""
         return self._described.get((bus, board))
+
+    def digest(self, bus: str, board: int) -> int | None:
+        """The digest of the edges board ``board`` of ``bus`` described in :meth:`check`
+        (computed once: a rejoin compares the board's with it), None if it described none."""
+        key = (bus, board)
+        if key not in self._digests:
+            edges = self._described.get(key)
+            self._digests[key] = None if edges is None else edges.digest()
+        return self._digests[key]
 
     def serial(self, bus: str, board: int) -> int:
         """The serial number of board ``board`` of ``bus``, as its Init Ack gave it in

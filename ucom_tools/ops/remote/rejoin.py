@@ -8,10 +8,15 @@ the serial number the start's init chain gave) every
 1. MCA Start QUERY.  Error NOT_RUNNING: it is in its bootloader; Start (12) its program
    and take its MCA Ready.  A program that runs (RUNNING, LATCHED, or STOPPED after an
    AutoStart): MCA Start STOP first unless it is STOPPED.
-2. Its descriptions (MCA DumpIO Descr, a few edges at a time, each asked for on its own:
-   the whole description at once would hold a running bus, and MCA Alive with it) must
-   be those it gave at the start, which matched its tree; otherwise it stays lost and
-   the PC says why.
+2. Its descriptions must be those it gave at the start, which matched its tree:
+   first asked by their digest (MCA DumpIO Descr Request DLC 1, one frame each way:
+   :meth:`~ucom_tools.protocol.mca.McaClient.digest`), compared with the digest of the
+   start's descriptions (:meth:`RejoinHost.digest`, computed once a board).  Equal: they
+   are, nothing more is read.  Different, or no digest (a program that does not know
+   the request answers Error, or nothing): the descriptions themselves (MCA DumpIO
+   Descr, a few edges at a time, each asked for on its own: the whole description at
+   once would hold a running bus, and MCA Alive with it), which must be equal; otherwise
+   it stays lost and the PC says why (where they differ).
 3. Its present values (MCA Dump CI of its SO and CI edges) seed the CI values the PC
    holds for it (:meth:`~ucom_tools.edgelists.model.ProgramSpec.seed_of`: a position
    target takes its joint sensor's reading, a velocity target 0, a homing command is
@@ -77,6 +82,7 @@ class RejoinHost(Protocol):
     @property
     def time_slice(self) -> ShortSlice: ...
     def described(self, bus: str, board: int) -> BoardEdges | None: ...
+    def digest(self, bus: str, board: int) -> int | None: ...
     def serial(self, bus: str, board: int) -> int: ...
     def par_values(self, bus: str, board: int) -> list[tuple[EdgeRef, int]]: ...
     def _set_lost_status(self, bus: str, board: int, status: str) -> None: ...
@@ -185,10 +191,7 @@ class Rejoin(SteppedJob):
         if (ready.ci, ready.so, ready.par) != counts:
             raise Refused(f"{where} now runs a program with {ready.ci}/{ready.so}/"
                           f"{ready.par} edges, at the start {'/'.join(map(str, counts))}")
-        edges = client.describe(address, counts, at_a_time=DESCRIBE_AT_A_TIME)
-        if edges != described:
-            raise Refused(f"{where}'s edges are not those it described at the start "
-                          "(another program?)")
+        edges = self._edges(client, address, counts, described, where)
         ci = self._seeds(client, address, program, edges)
         x.ci.update({(n, i): raw for i, raw in ci.items()})  # before its CI maps exist
         done = configure(client, address, where, block, x.plan,
@@ -209,6 +212,20 @@ class Rejoin(SteppedJob):
         if after.state is not mca.RunState.RUNNING:
             raise BoardError(f"{where}: MCA Start left it {after.state.name}")
         return Held(ci, started, state)
+
+    def _edges(self, client: McaClient, address: Address, counts: tuple[int, int, int],
+               described: BoardEdges, where: str) -> BoardEdges:
+        """Its descriptions, when they are those of the start (step 2): by their digest
+        if it answers the start's, else read and compared (Refused, saying where they
+        differ, if they are not)."""
+        digest = client.digest(address)
+        if digest is not None and digest == self.part.digest(self.bus, self.board):
+            return described
+        edges = client.describe(address, counts, at_a_time=DESCRIBE_AT_A_TIME)
+        if edges != described:
+            raise Refused(f"{where}'s edges are not those it described at the start "
+                          f"({_difference(described, edges)}): another program?")
+        return edges
 
     def _running_program(self, boot: BootloaderClient, client: McaClient, address: Address,
                          where: str) -> tuple[mca.McaReady, bool]:
@@ -285,6 +302,18 @@ class Rejoin(SteppedJob):
         spec = self.part.exchanges[self.bus].bus.boards[self.board - 1]
         program = program_of(self.part.trees.board(self.bus, spec.position))
         return Seed.KEEP if program is None else program.seed_of(generic).seed
+
+
+def _difference(start: BoardEdges, now: BoardEdges) -> str:
+    """Where two descriptions of a board first differ, e.g. "PAR 3: 'Set Joint Moving
+    Direction(BitMask)' then, 'Set Joint Moving' now" (the records when the names agree)."""
+    for kind in mca.Kind:
+        for i, (a, b) in enumerate(zip(start.of(kind), now.of(kind), strict=True)):
+            if a != b:
+                was = a.name if a.name != b.name else a
+                is_ = b.name if a.name != b.name else b
+                return f"{kind.name} {i}: {was!r} then, {is_!r} now"
+    return "the same records"
 
 
 Rejoiner = Callable[[str, int, float], Rejoin]

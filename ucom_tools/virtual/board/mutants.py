@@ -29,6 +29,8 @@ from ucom_tools.config.mutants import (
     CATALOGUE,
     CI_WHILE_LATCHED,
     DESCR_TRUNCATED,
+    DIGEST_UNKNOWN,
+    DIGEST_WRONG,
     DUMP_OFF_BY_ONE,
     IGNORE_ALIVE,
     IGNORE_INITOUT,
@@ -60,6 +62,9 @@ __all__ = [
     "CI_WHILE_LATCHED",
     "DESCR_NAME_CHARS",
     "DESCR_TRUNCATED",
+    "DIGEST_FLIP",
+    "DIGEST_UNKNOWN",
+    "DIGEST_WRONG",
     "DUMP_OFF_BY_ONE",
     "IGNORE_ALIVE",
     "IGNORE_INITOUT",
@@ -97,6 +102,8 @@ SO_SLOW_TENTHS = 11
 """``so-slow``: an SO map's interval in tenths of its period (1.1 x)."""
 DESCR_NAME_CHARS = 16
 """``descr-truncated``: the characters of an edge name that are described."""
+DIGEST_FLIP = 0x1
+"""``digest-wrong``: the bits of the description's digest that are inverted."""
 
 # ---------------------------------------------------------------------- helpers of hooks
 def so_slow_step(countdown: int, period: int) -> tuple[bool, int]:

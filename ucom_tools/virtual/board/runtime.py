@@ -29,6 +29,7 @@ from ucom_tools.virtual.programs.base import Plant, ProgramModel
 from ucom_tools.wire import mca
 from ucom_tools.wire.answers import AppReport
 from ucom_tools.wire.codes import ErrorCode
+from ucom_tools.wire.digest import DescrDigest, DigestRequest, digest_of
 from ucom_tools.wire.ids import Function
 
 _FORMAT: Final = {(2, True): "h", (2, False): "H", (4, True): "i", (4, False): "I"}
@@ -143,6 +144,8 @@ class McaRuntime:
         self.latched_at: float | None = None
         """Fleet time (us) of the last watchdog latch."""
         self.stopped = False
+        self.digest: int | None = None
+        """The description's digest, once asked for (:meth:`_digest`)."""
         self.last_tick = t
         """When the loop last ran (and moved the plant)."""
         self._on_tick: Callable[[float], None] = self._tick
@@ -314,6 +317,8 @@ class McaRuntime:
             self._start(msg, t)
         elif isinstance(msg, mca.DescrRequest):
             self._describe(msg, t)
+        elif isinstance(msg, DigestRequest):
+            self._digest(t)
         elif isinstance(msg, mca.DumpRequest):
             self._dump(msg, t)
         elif isinstance(msg, mca.AdminData):
@@ -397,13 +402,30 @@ class McaRuntime:
             wanted = [(msg.kind, msg.index)]
         when = t + self.port.timing.reply_us
         for kind, index in wanted:
-            e = self._kinds[kind][index]
-            name = e.name[:mutants.DESCR_NAME_CHARS] \
-                if self.defect == mutants.DESCR_TRUNCATED else e.name
-            record = mca.EdgeRecord(e.width, e.signed, e.exponent, e.minimum, e.maximum,
-                                    name, e.unit)
-            for segment in record.segments(kind, index):
+            for segment in self._record(kind, index).segments(kind, index):
                 self.port.send(when, segment)
+
+    def _record(self, kind: mca.Kind, index: int) -> mca.EdgeRecord:
+        """The record of an edge as MCA DumpIO Descr sends it."""
+        e = self._kinds[kind][index]
+        name = e.name[:mutants.DESCR_NAME_CHARS] \
+            if self.defect == mutants.DESCR_TRUNCATED else e.name
+        return mca.EdgeRecord(e.width, e.signed, e.exponent, e.minimum, e.maximum, name,
+                              e.unit)
+
+    def _digest(self, t: float) -> None:
+        """The description's digest (a constant of the program, computed once: the DSP's
+        program carries it with its record table), in one frame at the reply time."""
+        if self.defect == mutants.DIGEST_UNKNOWN:  # an older program: DLC 1 is no request
+            self.can_error(t)
+            self.port.error(t, ErrorCode.BAD_LENGTH, Function.MCA_DUMPIO_DESCR_REQUEST)
+            return
+        if self.digest is None:
+            self.digest = digest_of([self._record(k, i) for k in mca.Kind
+                                     for i in range(len(self._kinds[k]))])
+        value = self.digest ^ mutants.DIGEST_FLIP if self.defect == mutants.DIGEST_WRONG \
+            else self.digest
+        self.port.send(t + self.port.timing.reply_us, DescrDigest(value))
 
     def _dump(self, msg: mca.DumpRequest, t: float) -> None:
         edges = self._edges(msg.kind, msg.index, msg.count, t, Function.MCA_DUMP_CI)
