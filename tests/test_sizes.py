@@ -15,10 +15,9 @@ ROOT = Path(__file__).resolve().parent.parent
 MODULE_LINES = 600
 FUNCTION_LINES = 80
 
-OVER: dict[str, int] = {
-    "benchmarks/faults.py:main": 89,
-}
-"""What is still too long, and how long it is: the debt to pay."""
+OVER: dict[str, int] = {}
+"""What is still too long, and how long it is: the debt to pay (none left: a unit that
+grows over its bound fails, none may be added here)."""
 
 
 def _units() -> dict[str, int]:
