@@ -262,7 +262,8 @@ def test_dump_refuses_existing_files_unless_force_and_a_file_for_several_trees(
     existing.write_text("mine\n")
     r = run("params", "dump", "armar3", "-o", tmp_path, "--virtual", "armar3", "--bus", "CAN0")
     assert r.exit_code == 3
-    assert "head_right.tree exists; --force replaces them" in r.stderr
+    # one file: "replaces it" (the operation says the fact, the CLI names --force)
+    assert "-o: " in r.stderr and "head_right.tree exists; --force replaces it" in r.stderr
     assert existing.read_text() == "mine\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["head_right.tree"]
     r = run("params", "dump", "armar3", "-o", existing, "--virtual", "armar3", "--force")

@@ -109,7 +109,7 @@ def test_only_one_bus_refuses_an_unknown_bus_or_a_channel_count_that_fits_nothin
     armar3 = topology.load("armar3")
     with pytest.raises(InputError, match="has no bus 'CAN9'; its buses: CAN0, CAN1"):
         _only(armar3, "CAN9", [])
-    with pytest.raises(InputError, match="--bus CAN1 with 2 channels"):
+    with pytest.raises(InputError, match="bus CAN1 chosen with 2 channels"):
         _only(armar3, "CAN1", ["a", "b"])
 
 

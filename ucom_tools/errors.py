@@ -21,7 +21,13 @@ class FrameError(UcomError):
 
 
 class InputError(UcomError):
-    """Bad user input (a file, an argument); nothing was sent or written."""
+    """Bad user input (a file, an argument); nothing was sent or written.
+
+    ``key`` names the input as the API names it (a parameter such as ``bus`` or
+    ``rate_hz``, or a field of a file such as ``bus[1].board[2].tree``) and ``reason``
+    says the fact and what was expected, naming no command-line option: the CLI words the
+    error from these fields (``ucom_tools/cli/errortext.py``), ``str()`` is
+    ``FILE:LINE: key: reason`` for a Python caller."""
 
     def __init__(
         self, message: str, *, file: str | None = None, line: int | None = None,
@@ -43,6 +49,20 @@ class InputError(UcomError):
         self.reason = message
 
 
+class MissingInput(InputError):
+    """An input the operation needs was not given (``key`` names it); the CLI adds which
+    options give it."""
+
+
+class OutputExists(InputError):
+    """Outputs that exist and would be replaced (``paths``); replaced only when the
+    caller asks for it (a ``force`` parameter), which the CLI names."""
+
+    def __init__(self, paths: list[str], *, key: str | None = None) -> None:
+        super().__init__(f"{', '.join(paths)} exist{'s' * (len(paths) == 1)}", key=key)
+        self.paths = tuple(paths)
+
+
 class TopologyError(InputError):
     """A topology file that cannot be used (file, line and key are named)."""
 
@@ -56,9 +76,13 @@ class WriteError(UcomError):
     an I/O error.  What was written before is kept whole; nothing is left half-written
     (``man/ucom.1``, FILES)."""
 
-    def __init__(self, message: str, *, path: str | None = None) -> None:
-        super().__init__(message)
+    def __init__(self, message: str, *, path: str | None = None,
+                 key: str | None = None) -> None:
+        super().__init__(f"{key}: {message}" if key is not None else message)
         self.path = path
+        self.key = key
+        """The output as the API names it (a parameter such as ``journal``), if named."""
+        self.reason = message
 
 
 class BusError(UcomError):

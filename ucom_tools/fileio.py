@@ -15,7 +15,9 @@ Writing (:class:`Output`, :func:`write_bytes`, :func:`write_text`, :class:`Batch
 A target that cannot be written at all (its directory missing, a directory in its place,
 a read-only file system) is :class:`~ucom_tools.errors.InputError` raised before anything
 is sent or written (exit code 3); a failure while writing or committing (a full disk, an
-I/O error) is :class:`~ucom_tools.errors.WriteError` (exit code 5).
+I/O error) is :class:`~ucom_tools.errors.WriteError` (exit code 5).  The ``option``
+parameters name the output or input as the caller's API does (``journal``, ``output``):
+the errors' ``key``, which the CLI words as its option.
 
 Reading (:func:`read_input`): input files are regular files (or ``-`` where a command
 documents it), never FIFOs or devices that would block or never end, read with a size cap.
@@ -70,10 +72,6 @@ def reason(err: BaseException) -> str:
     if isinstance(err, OSError) and err.strerror:
         return err.strerror
     return str(err) or type(err).__name__
-
-
-def _where(path: str, option: str | None) -> str:
-    return f"{option}: {path}" if option else path
 
 
 class _Staged:
@@ -177,8 +175,7 @@ class Output(_Staged):
 
     def failed(self, err: BaseException) -> WriteError:
         """The error for a failure while writing this output."""
-        return WriteError(f"{_where(self.name, self.option)}: {reason(err)}",
-                          path=self.name)
+        return WriteError(f"{self.name}: {reason(err)}", path=self.name, key=self.option)
 
     # ------------------------------------------------------------------ writing
     def open(self, mode: str = "w", **kwargs: Any) -> IO[Any]:
@@ -358,8 +355,7 @@ class Batch(_Staged):
                         os.close(fd)
         except OSError as err:
             self.discard()
-            raise WriteError(f"{self.option + ': ' if self.option else ''}{reason(err)}; "
-                             "nothing was written") from None
+            raise WriteError(f"{reason(err)}; nothing was written", key=self.option) from None
         for out in self.outputs:
             out.commit()
 

@@ -11,6 +11,7 @@ import click
 from rich.markup import escape
 
 from ucom_tools import fileio
+from ucom_tools.cli.errortext import describe
 from ucom_tools.cli.exitcodes import EXIT_BUS, EXIT_FAILED
 from ucom_tools.cli.options import connection_json, connection_options, json_option, robot
 from ucom_tools.cli.output import emit_json, stderr, stdout
@@ -197,5 +198,5 @@ def _error_lines(errors: list[BaseException]) -> None:
     for err in errors:
         label = "bad input" if isinstance(err, InputError) else \
             "cannot write" if isinstance(err, WriteError) else "error"
-        stderr().print(f"[bold red]ucom: {label}:[/] {escape(str(err))}", highlight=False,
-                       soft_wrap=True)
+        stderr().print(f"[bold red]ucom: {label}:[/] {escape(describe(err, 'conformance'))}",
+                       highlight=False, soft_wrap=True)

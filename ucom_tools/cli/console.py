@@ -23,7 +23,7 @@ from rich.markup import escape
 from ucom_tools.cli import render
 from ucom_tools.cli.flashrun import run_flash
 from ucom_tools.cli.menu import OPTIONS, MenuOption, init_advice, parse_flag, parse_level
-from ucom_tools.cli.options import connection_options
+from ucom_tools.cli.options import connection_options, describe
 from ucom_tools.cli.output import stderr, stdout
 from ucom_tools.errors import InputError, UcomError
 from ucom_tools.image.formats import load_image
@@ -129,7 +129,7 @@ class Session:
             lines.append(f"{o.number:>3}{mark} {o.title:<20} [dim]{o.name}[/]")
         half = (len(lines) + 1) // 2
         self.out.print("[bold]dsp_console2can[/] - UCoM console      "
-                       f"[dim]{self.robot.spec.describe()}[/]")
+                       f"[dim]{describe(self.robot.spec)}[/]")
         for i in range(half):
             right = lines[i + half] if i + half < len(lines) else ""
             self.out.print(f"{lines[i]:<60}{right}")

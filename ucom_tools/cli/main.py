@@ -214,14 +214,16 @@ class UcomGroup(click.Group):
         from rich.markup import escape
 
         from ucom_tools.cli import output
+        from ucom_tools.cli.errortext import describe
 
         if (ctx.obj or {}).get("verbose", 0) >= 2:
             traceback.print_exc(file=sys.stderr)
-        output.stderr().print(f"[bold red]ucom: {label}:[/] {escape(str(e))}", highlight=False,
+        text = describe(e, ctx.invoked_subcommand)
+        output.stderr().print(f"[bold red]ucom: {label}:[/] {escape(text)}", highlight=False,
                        soft_wrap=True)
         if "--json" in ctx.meta.get("ucom.argv", ()) and not output.json_emitted():
             # a program reading --json gets a document on standard output in any case
-            output.emit_json({"error": {"kind": label, "message": str(e),
+            output.emit_json({"error": {"kind": label, "message": text,
                                         "exit_code": code}})
         ctx.exit(code)
 

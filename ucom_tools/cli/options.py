@@ -125,12 +125,28 @@ def connection_options(f: Callable[..., Any]) -> Callable[..., Any]:
                            values["topology"], state_dir, pace, origin=origin,
                            ignored=tuple(ignored), log=log_file, scenario=scenario)
         if ignored:
-            stderr().print(f"[yellow]ucom: using {escape(spec.describe())} from the "
+            stderr().print(f"[yellow]ucom: using {escape(describe(spec))} from the "
                            f"{origin}; ignored from the environment: "
                            f"{escape(', '.join(ignored))}[/]", soft_wrap=True)
         return f(*args, spec=spec, **kwargs)
 
     return wrapper
+
+
+def describe(spec: ConnectSpec) -> str:
+    """The bus of ``spec`` as the options that name it (``--virtual armar3``)."""
+    if spec.virtual:
+        return f"--virtual {spec.virtual}" + (
+            f" --scenario {spec.scenario}" if spec.scenario else "")
+    parts = [f"-i {spec.interface}"] if spec.interface else []
+    if spec.host and spec.port:
+        parts.append(f"{spec.host}:{spec.port}")
+    elif spec.host or spec.port:
+        parts.append(f"--host {spec.host}" if spec.host else f"--port {spec.port}")
+    parts += [f"-c {c}" for c in spec.channels]
+    if spec.topology:
+        parts.append(f"--topology {spec.topology}")
+    return " ".join(parts) or "no bus"
 
 
 def _given(values: dict[str, Any], name: str) -> bool:
@@ -187,7 +203,7 @@ def json_option(f: Callable[..., Any]) -> Callable[..., Any]:
 
 def connection_json(spec: ConnectSpec) -> dict[str, Any]:
     """Which bus a command used (and which environment variables it ignored), for --json."""
-    return {"bus": spec.describe(), "from": spec.origin, "ignored": list(spec.ignored)}
+    return {"bus": describe(spec), "from": spec.origin, "ignored": list(spec.ignored)}
 
 
 @contextmanager

@@ -188,7 +188,7 @@ def robot_for(robot: Robot, manifest: Manifest) -> Robot:
         h = robot.buses.get(bus.name)
         if h is None:
             raise InputError(f"{manifest.topology.name} has boards on bus {bus.name}; the "
-                             f"connection has {', '.join(robot.buses) or 'none'}", key="--bus")
+                             f"connection has {', '.join(robot.buses) or 'none'}", key="bus")
         buses[bus.name] = replace(h, expected=bus)
     return replace(robot, buses=buses, topology=manifest.topology)
 

@@ -57,6 +57,11 @@ class NoProgram(BoardError):
     NO_PROGRAM)."""
 
 
+class ExchangeElsewhere(BusError):
+    """Another host runs the cyclic exchange on a bus; nothing was sent.  The caller may
+    start all the same (``force``)."""
+
+
 class ExchangeError(InputError):
     """A board cannot join the exchange (its edges differ from its tree, a default does
     not fit its edge); nothing was written to it."""
@@ -213,11 +218,11 @@ class ExchangeWatch(OtherHosts):
         return max(link.budget(alive_ms / 1000, answers=1), floor)
 
     def check(self, bus: str) -> None:
-        """BusError naming what was seen, if another host runs an exchange on ``bus``."""
+        """:class:`ExchangeElsewhere` naming what was seen, if another host runs an
+        exchange on ``bus``."""
         if self.seen:
-            raise BusError(f"another host runs the cyclic exchange on {bus} (frames from "
-                           f"another host: {self.summary()}); nothing was sent; --force "
-                           "starts anyway")
+            raise ExchangeElsewhere(f"another host runs the cyclic exchange on {bus} (frames "
+                                    f"from another host: {self.summary()}); nothing was sent")
 
 
 class BusExchange:

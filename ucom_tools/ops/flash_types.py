@@ -62,9 +62,9 @@ class Selection:
             nums = tuple(sorted({int(x) for x in text.split(",") if x.strip()}))
         except ValueError:
             raise InputError(f"{text!r}: expected 'all' or seq IDs like 1,3,5",
-                             key="--boards") from None
+                             key="boards") from None
         if not nums or not all(1 <= n <= 31 for n in nums):
-            raise InputError(f"{text!r}: seq IDs are 1-31", key="--boards")
+            raise InputError(f"{text!r}: seq IDs are 1-31", key="boards")
         return cls("list", nums)
 
 @dataclass(frozen=True)

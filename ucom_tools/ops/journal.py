@@ -61,17 +61,17 @@ class Journal:
         if not path.exists():
             return cls(directory, robot)
         data = fileio.read_input(path, limit=fileio.TEXT_LIMIT, what="a deploy journal",
-                                 option="--journal")
+                                 option="journal")
         try:
             doc = json.loads(data)
             if doc.get("version") != JOURNAL_VERSION or not isinstance(doc.get("boards"), dict):
                 raise ValueError("not a deploy journal of this version")
         except (ValueError, AttributeError) as err:
             raise InputError(f"{path}: {err}; remove it to start afresh",
-                             key="--journal") from None
+                             key="journal") from None
         if doc.get("robot") != robot:
             raise InputError(f"{path} is the journal of {doc.get('robot')!r}, not of "
-                             f"{robot!r}; give another --journal", key="--journal")
+                             f"{robot!r}; give another journal directory", key="journal")
         return cls(directory, robot, doc["boards"], resumed=True)
 
     def entry(self, key: str, serial: int | None) -> dict[str, Any] | None:
@@ -89,11 +89,11 @@ class Journal:
         """Write ``journal.json`` (and ``files``, names relative to the directory, e.g.
         ``params/CAN0-1.tree``): all or none."""
         with self._lock:
-            fileio.prepare_directory(self.directory, option="--journal")
+            fileio.prepare_directory(self.directory, option="journal")
             if files:
-                fileio.prepare_directory(self.directory / PARAMS_DIR, option="--journal")
+                fileio.prepare_directory(self.directory / PARAMS_DIR, option="journal")
             doc = {"version": JOURNAL_VERSION, "robot": self.robot, "boards": self.boards}
-            with fileio.Batch(option="--journal") as batch:
+            with fileio.Batch(option="journal") as batch:
                 for name, text in (files or {}).items():
                     batch.write_text(self.directory / name, text)
                 batch.write_text(self.path, json.dumps(doc, indent=1, sort_keys=True) + "\n")

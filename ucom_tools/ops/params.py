@@ -60,7 +60,7 @@ def on_bus(trees: RobotTrees, bus: str | None) -> RobotTrees:
     if not boards:
         have = sorted({b.bus for b in trees.boards})
         raise InputError(f"no board of {trees.topology.name} with an attribute tree is on "
-                         f"bus {bus!r} (buses with trees: {', '.join(have)})", key="--bus")
+                         f"bus {bus!r} (buses with trees: {', '.join(have)})", key="bus")
     return replace(trees, boards=boards)
 
 
@@ -75,10 +75,10 @@ def _part_of(robot: Robot, trees: RobotTrees) -> Robot:
         if h is None:
             have = ", ".join(robot.buses) or "none"
             every = ", ".join(dict.fromkeys(b.bus for b in trees.boards))
-            hint = (f": give a channel for each of its buses ({every}), or --bus "
-                    f"{next(iter(robot.buses))} for that bus alone" if robot.buses else "")
+            hint = (f": it needs a channel for each of its buses ({every}), or bus "
+                    f"{next(iter(robot.buses))} chosen alone" if robot.buses else "")
             raise InputError(f"{topology.name} ({topology.source}) has boards on bus "
-                             f"{name}; the connection has {have}{hint}", key="--bus")
+                             f"{name}; the connection has {have}{hint}", key="bus")
         buses[name] = replace(h, expected=topology.bus(name))
     return replace(robot, buses=buses, topology=topology)
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from ucom_tools import fileio
 from ucom_tools.config import attrtree
 from ucom_tools.config.attrtree import RobotTrees, Tree, Value
-from ucom_tools.errors import InputError, UcomError
+from ucom_tools.errors import InputError, OutputExists, UcomError
 from ucom_tools.ops.params import BoardRead, Readout, on_bus
 
 
@@ -55,28 +55,27 @@ def dump_targets(trees: RobotTrees, output: Path, *, force: bool = False,
         for b in trees.boards:
             if b.bus != bus and str(b.file) in files:
                 raise InputError(f"{b.file} also holds the block of {b.where}; dump every bus "
-                                 "(without --bus) to write it", key="--bus")
+                                 "to write it", key="bus")
     by_source = {t.source: t for t in trees.trees}
     chosen = [by_source[f] for f in files]
     directory = len(chosen) > 1 or output.is_dir() or str(output).endswith(("/", "\\"))
     if directory and output.exists() and not output.is_dir():
         raise InputError(f"{len(chosen)} tree files are dumped, but {output} is a file: give "
-                         "a directory", key="-o")
+                         "a directory", key="output")
     if not directory and not output.parent.is_dir():
-        raise InputError(f"directory {output.parent} does not exist", key="-o")
+        raise InputError(f"directory {output.parent} does not exist", key="output")
     out: list[DumpTarget] = []
     names: dict[str, Tree] = {}
     for t in chosen:
         name = Path(t.source).name
         if directory and name in names:
             raise InputError(f"{t.source} and {names[name].source} have the same base name; "
-                             "dump them separately (--bus) or rename one", key="-o")
+                             "dump them one bus at a time or rename one", key="output")
         names[name] = t
         out.append(DumpTarget(t, output / name if directory else output))
     existing = [str(d.path) for d in out if d.path.exists()]
     if existing and not force:
-        raise InputError(f"{', '.join(existing)} exist{'s' * (len(existing) == 1)}; "
-                         "--force replaces them", key="-o")
+        raise OutputExists(existing, key="output")
     return out
 
 
@@ -92,8 +91,8 @@ def write_dump(readout: Readout, targets: Sequence[DumpTarget]) -> list[Path]:
             raise UcomError(f"{d.path}: the dumped tree does not read back as written")
         rendered.append((tree, d.path))
     for directory in sorted({p.parent for _, p in rendered}):
-        fileio.prepare_directory(directory, option="-o")
-    with fileio.Batch(option="-o") as batch:  # every tree or none (ucom(1), FILES)
+        fileio.prepare_directory(directory, option="output")
+    with fileio.Batch(option="output") as batch:  # every tree or none (ucom(1), FILES)
         for tree, path in rendered:
             batch.write_text(path, attrtree.dumps(tree))
     return [p for _, p in rendered]

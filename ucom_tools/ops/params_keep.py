@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 from ucom_tools.config import attrtree
 from ucom_tools.config.attrtree import RobotTrees
-from ucom_tools.errors import InputError
+from ucom_tools.errors import MissingInput
 from ucom_tools.ops.params import BoardRead, Readout, load_values, read_values, select_prefixes
 from ucom_tools.ops.params_dump import DumpTarget, write_dump
 from ucom_tools.ops.robot import Robot
@@ -41,8 +41,8 @@ def keep_before(robot: Robot, *, bus: str | None = None) -> Kept:
     matched against its tree (the robot's topology binds them), and dump them into a new
     temporary directory.  InputError when the robot has no topology or no trees."""
     if robot.topology is None:
-        raise InputError("--keep-params needs the robot's topology (which tree each board "
-                         "has): give --topology FILE or --virtual NAME", key="--keep-params")
+        raise MissingInput("keeping the parameters needs the robot's topology (which tree "
+                           "each board has)", key="topology")
     trees = attrtree.bind_present(robot.topology)
     readout = read_values(robot, trees, bus=bus, running_only=True)
     if not readout.read:

@@ -21,7 +21,7 @@ import can
 
 from ucom_tools.config import topology as topo_mod
 from ucom_tools.config.topology import BusSpec, Topology
-from ucom_tools.errors import BusError, InputError, UcomError, WriteError
+from ucom_tools.errors import BusError, InputError, MissingInput, UcomError, WriteError
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
 from ucom_tools.protocol.timeouts import DEFAULT, Timeouts
@@ -60,20 +60,6 @@ class ConnectSpec:
     scenario: Path | None = None
     """With :attr:`virtual`: a scenario of injected faults for the in-process fleet
     (``--scenario FILE``; ``ucom(1)``, SCENARIOS)."""
-
-    def describe(self) -> str:
-        if self.virtual:
-            return f"--virtual {self.virtual}" + (
-                f" --scenario {self.scenario}" if self.scenario else "")
-        parts = [f"-i {self.interface}"] if self.interface else []
-        if self.host and self.port:
-            parts.append(f"{self.host}:{self.port}")
-        elif self.host or self.port:
-            parts.append(f"--host {self.host}" if self.host else f"--port {self.port}")
-        parts += [f"-c {c}" for c in self.channels]
-        if self.topology:
-            parts.append(f"--topology {self.topology}")
-        return " ".join(parts) or "no bus"
 
 
 TRANSPORT_MARGIN = {"virtual": 0.0, "socketcand": 0.25}
@@ -141,7 +127,7 @@ class Robot:
         if name is None:
             return list(self.buses.values())
         if name not in self.buses:
-            raise InputError(f"no bus {name!r}; buses: {', '.join(self.buses)}", key="--bus")
+            raise InputError(f"no bus {name!r}; buses: {', '.join(self.buses)}", key="bus")
         return [self.buses[name]]
 
     def each(self, work: Callable[[BusHandle], T], name: str | None = None, *,
@@ -223,7 +209,7 @@ class Robot:
 def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:
     """Open every bus of ``spec``; raises :class:`BusError` with one clear line.  With
     ``spec.log`` every frame of every bus is recorded until :meth:`Robot.close` (the file
-    is checked before any bus is opened: InputError, key ``--log``)."""
+    is checked before any bus is opened: InputError, key ``log``)."""
     log = FrameLog(spec.log) if spec.log is not None else None
     try:
         robot = _open(spec, timeouts)
@@ -233,7 +219,7 @@ def open_robot(spec: ConnectSpec, timeouts: Timeouts = DEFAULT) -> Robot:
         raise
     if log is not None:
         try:
-            check_buses(log.extension, robot.buses, log.path, "--log")
+            check_buses(log.extension, robot.buses, log.path, "log")
         except InputError:
             robot.close(keep_log=False)
             log.discard()
@@ -249,13 +235,11 @@ def _open(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
         return _open_virtual(spec, timeouts)
     if spec.scenario is not None:
         raise InputError("a scenario of injected faults is for the in-process virtual fleet "
-                         "(--virtual); a served fleet takes it as 'ucom fleet serve "
-                         "--scenario FILE'", key="--scenario")
+                         "(a served fleet is given its scenario where it is served)",
+                         key="scenario")
     topology = topo_mod.load(spec.topology) if spec.topology else None
     if not spec.interface:
-        raise InputError("no CAN interface given: use --virtual NAME for the virtual fleet, or "
-                         "-i/--interface (e.g. socketcan, pcan, socketcand) with -c/--channel",
-                         key="--interface")
+        raise MissingInput("no CAN interface given", key="interface")
     channels = list(spec.channels)
     expected: list[BusSpec | None]
     if topology is not None and spec.only is not None:
@@ -265,12 +249,11 @@ def _open(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
             channels = [b.name for b in topology.buses]
         if len(channels) > len(topology.buses):
             raise InputError(f"{len(channels)} channels given, topology {topology.name!r} has "
-                             f"{len(topology.buses)} buses", key="--channel")
+                             f"{len(topology.buses)} buses", key="channels")
         expected = list(topology.buses[:len(channels)])
     else:
         if not channels:
-            raise InputError("no channel given: use -c/--channel (repeat it for several buses) "
-                             "or --topology FILE", key="--channel")
+            raise MissingInput("no channel given", key="channels")
         expected = [None] * len(channels)
     kwargs: dict[str, Any] = {}
     if spec.bitrate:
@@ -281,7 +264,7 @@ def _open(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
         kwargs["port"] = spec.port
     socketcand = spec.interface == "socketcand"
     if socketcand and (not spec.host or not spec.port):
-        raise InputError("the socketcand interface needs --host and --port", key="--host")
+        raise MissingInput("the socketcand interface needs a host and a port", key="host")
     buses: dict[str, BusHandle] = {}
     with _closed_on_failure(buses):
         for channel, exp in zip(channels, expected, strict=True):
@@ -311,11 +294,11 @@ def _open(spec: ConnectSpec, timeouts: Timeouts) -> Robot:
 
 def _only(topology: Topology, name: str, channels: list[str],
           ) -> tuple[list[str], list[BusSpec | None]]:
-    """The channel and the bus of ``--bus NAME`` (see :attr:`ConnectSpec.only`)."""
+    """The channel and the bus of :attr:`ConnectSpec.only`."""
     names = [b.name for b in topology.buses]
     if name not in names:
         raise InputError(f"{topology.name!r} has no bus {name!r}; its buses: "
-                         + ", ".join(names), key="--bus")
+                         + ", ".join(names), key="only")
     index = names.index(name)
     if not channels:
         channel = name
@@ -324,9 +307,9 @@ def _only(topology: Topology, name: str, channels: list[str],
     elif len(channels) == len(names):
         channel = channels[index]
     else:
-        raise InputError(f"--bus {name} with {len(channels)} channels: give its channel "
+        raise InputError(f"bus {name} chosen with {len(channels)} channels: give its channel "
                          f"alone, or one for each of the {len(names)} buses in order",
-                         key="--channel")
+                         key="channels")
     return [channel], [topology.buses[index]]
 
 

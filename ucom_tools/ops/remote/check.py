@@ -112,4 +112,4 @@ def check_periods(periods: dict[str, int], trees: RobotTrees) -> None:
             hint = f"; did you mean {' or '.join(repr(c) for c in close)}?" if close else ""
             raise InputError(f"no program edge called {name!r} (periods name the programs' "
                              f"generic edges, as in the trees' mapping tables){hint}",
-                             key="--period")
+                             key="periods")

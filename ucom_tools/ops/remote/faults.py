@@ -98,7 +98,7 @@ def check_policy(on_fault: str, rejoin: bool) -> None:
     """InputError for a policy that is none, or a rejoin without ``hold``."""
     if on_fault not in POLICIES:
         raise InputError(f"on_fault must be {' or '.join(POLICIES)}, not {on_fault!r}",
-                         key="--on-fault")
+                         key="on_fault")
     if rejoin and on_fault != HOLD:
-        raise InputError("rejoin needs the hold policy (--on-fault hold): under stop a lost "
-                         "board ends the run", key="--rejoin")
+        raise InputError(f"rejoin needs the hold policy ({HOLD!r}), not {on_fault!r}: under "
+                         "stop a lost board ends the run", key="rejoin")

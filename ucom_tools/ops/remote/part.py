@@ -43,7 +43,7 @@ import can
 
 from ucom_tools.config import topology as topo_mod
 from ucom_tools.config.attrtree.robot import RobotTrees, bind, with_files
-from ucom_tools.errors import InputError, UcomError
+from ucom_tools.errors import InputError, MissingInput, UcomError
 from ucom_tools.ops.edges import EdgeRef, Names
 from ucom_tools.ops.exchange import LISTEN_MIN_S, BusExchange, ExchangeWatch
 from ucom_tools.ops.remote.check import BusCheck, check_bus, check_periods, tree_file
@@ -69,11 +69,10 @@ class RemotePart(RemoteLoop):
                  periods: dict[str, int] | None = None, realtime: bool = False,
                  on_fault: str = STOP, rejoin: bool = False) -> None:
         if robot.topology is None:
-            raise InputError("the run time needs the robot's topology (which board runs "
-                             "which tree): give --topology FILE or a robot name",
-                             key="--topology")
+            raise MissingInput("the run time needs the robot's topology (which board runs "
+                               "which tree)", key="topology")
         if not 1 <= rate_hz <= 10_000:
-            raise InputError(f"rate must be 1..10000 Hz, not {rate_hz:g}", key="--rate")
+            raise InputError(f"rate must be 1..10000 Hz, not {rate_hz:g}", key="rate_hz")
         period_ms = 1000.0 / rate_hz
         if period_ms > alive_ms / 2:  # MCA Alive goes out with the cycles, at most
             raise InputError(
@@ -82,7 +81,7 @@ class RemotePart(RemoteLoop):
                 f"ms: the boards would stop their motors; raise the rate to "
                 f"{2000.0 / alive_ms:g} Hz or more"
                 + (f", or the watchdog to {math.ceil(2 * period_ms)} ms or more"
-                   if 2 * period_ms <= mca.ALIVE_MAX_MS else ""), key="--rate")
+                   if 2 * period_ms <= mca.ALIVE_MAX_MS else ""), key="rate_hz")
         if periods:
             check_periods(periods, trees)
         exchanges: dict[str, BusExchange] = {}
@@ -363,8 +362,8 @@ def robot_trees(robot: Robot, files: Sequence[str | Path] = ()) -> RobotTrees:
     """The robot's trees (its topology names them), with the blocks of ``files`` in place
     of the robot's blocks of the same Prefix."""
     if robot.topology is None:
-        raise InputError("the run time needs the robot's topology (which board runs which "
-                         "tree)", key="--topology")
+        raise MissingInput("the run time needs the robot's topology (which board runs "
+                           "which tree)", key="topology")
     return with_files(bind(robot.topology), files)
 
 
