@@ -277,7 +277,7 @@ def test_a_port_in_use_ends_the_run_before_the_boards_start(flashed: Path,  # no
         r = _ucom("remote", "run", "armar3", "--virtual", "armar3", "--state",
                   str(flashed), "--for", "1", "--foxglove", f"127.0.0.1:{port}")
     assert r.returncode == 4, r.stderr
-    assert f"--foxglove 127.0.0.1:{port}: cannot serve there" in r.stderr
+    assert f"the Foxglove server on 127.0.0.1:{port}: cannot serve there" in r.stderr
     assert "in use" in r.stderr and "Traceback" not in r.stderr
     assert "cycles at" not in r.stdout + r.stderr  # the loop never ran
 

@@ -89,6 +89,12 @@ class BusError(UcomError):
     """A CAN bus could not be opened or failed while in use."""
 
 
+class BusTaken(BusError):
+    """Another host uses the bus or the network as this one would (its cyclic exchange,
+    its robot's loop); nothing was sent.  The caller may go on all the same (a ``force``
+    parameter), which the CLI names."""
+
+
 class UcomTimeoutError(UcomError, TimeoutError):
     """A board did not answer in time."""
 

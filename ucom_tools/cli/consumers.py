@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 import can
 
+from ucom_tools.cli.errortext import describe
 from ucom_tools.errors import BusError, InputError, UcomError, WriteError
 from ucom_tools.ops.remote.faults import BoardFault
 from ucom_tools.ops.remote.feed import LoopFeed, Unpacker, pack
@@ -344,14 +345,14 @@ class Consumers:
                 else:
                     self.recorder.close()
             except WriteError as err:
-                return 5, str(err), None
+                return 5, describe(err), None
             except BaseException:
                 self.recorder.discard()
                 raise
         failure = self.mirror.error
         if failure is not None:
             if isinstance(failure, WriteError):
-                return 5, str(failure), None
+                return 5, describe(failure), None
             return 1, f"the consumers' process failed: {failure!r}", None
         return outcome
 
@@ -378,7 +379,7 @@ def main(argv: list[str]) -> int:
         mirror.finished(3, err.reason, err.key)
         return 3
     except BusError as err:
-        mirror.finished(4, str(err))
+        mirror.finished(4, describe(err))
         return 4
     except UcomError as err:
         mirror.finished(1, str(err))
@@ -391,7 +392,7 @@ def main(argv: list[str]) -> int:
     except InputError as err:  # the gateway could not start: the run ends with its error
         failure = (3, err.reason, err.key)
     except BusError as err:
-        failure = (4, str(err), None)
+        failure = (4, describe(err), None)
     except UcomError as err:
         failure = (1, str(err), None)
     except Exception as err:  # a fault of this process's own: the run must not go on

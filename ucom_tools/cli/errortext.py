@@ -10,14 +10,15 @@ and its field, which are printed as they are.
 
 from __future__ import annotations
 
-from ucom_tools.errors import BusError, InputError, MissingInput, OutputExists, WriteError
+from ucom_tools.errors import BusTaken, InputError, MissingInput, OutputExists, WriteError
 
 OPTIONS: dict[str, str] = {
     "bus": "--bus", "only": "--bus", "channels": "--channel", "interface": "--interface",
     "host": "--host", "port": "--port", "topology": "--topology", "virtual": "--virtual",
     "scenario": "--scenario", "log": "--log", "rate_hz": "--rate", "periods": "--period",
     "on_fault": "--on-fault", "rejoin": "--rejoin", "boards": "--boards",
-    "journal": "--journal", "output": "-o",
+    "journal": "--journal", "output": "-o", "zenoh": "--zenoh",
+    "zenoh_config": "--zenoh-config", "publish_hz": "--publish-rate", "foxglove": "--foxglove",
 }
 """The option of each input the API names (a key an error below ``cli/`` gives)."""
 
@@ -54,9 +55,6 @@ def describe(err: BaseException, command: str | None = None) -> str:
         return text
     if isinstance(err, WriteError) and err.key is not None:
         return f"{option_of(err.key)}: {err.reason}"
-    if isinstance(err, BusError):
-        from ucom_tools.ops.exchange import ExchangeElsewhere  # on an error only
-
-        if isinstance(err, ExchangeElsewhere):
-            return f"{err}; --force starts anyway"
+    if isinstance(err, BusTaken):
+        return f"{err}; --force starts anyway"
     return str(err)

@@ -154,8 +154,8 @@ class RobotClient:
             s = open_session(config(listen=[], connect=[where] if endpoint else None,
                                     file=config_file, connect_timeout_s=timeout), where)
         except BusError:
-            raise BusError(f"no robot on {where}: nothing answers there (is 'ucom remote "
-                           "run ... --zenoh' running, on that address?)") from None
+            raise BusError(f"no robot on {where}: nothing answers there (is a robot's loop "
+                           "shared on the network, on that address?)") from None
         try:
             name = cls._find(s, robot, where, deadline, timeout)
             structure = cls._structure(s, name, where, deadline)

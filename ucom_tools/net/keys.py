@@ -40,10 +40,10 @@ _ESCAPED = "%/*$?#"
 
 
 def check_rate(publish_hz: float, loop_hz: float) -> None:
-    """InputError unless 0 < ``publish_hz`` <= ``loop_hz`` (``--publish-rate``)."""
+    """InputError unless 0 < ``publish_hz`` <= ``loop_hz``."""
     if not 0 < publish_hz <= loop_hz * 1.0001:
         raise InputError(f"the publishing rate must be more than 0 and at most the loop's "
-                         f"rate ({loop_hz:g} Hz), not {publish_hz:g}", key="--publish-rate")
+                         f"rate ({loop_hz:g} Hz), not {publish_hz:g}", key="publish_hz")
 
 
 def robot_id(source: str, name: str) -> str:

@@ -14,7 +14,7 @@ from typing import Any
 
 import zenoh
 
-from ucom_tools.errors import BusError
+from ucom_tools.errors import BusError, BusTaken
 from ucom_tools.net import keys
 from ucom_tools.net.session import address_in_use, config, open_session
 
@@ -39,8 +39,8 @@ def open_listening(robot: str, endpoint: str | None, config_file: str | Path | N
             raise BusError(f"cannot listen on {endpoint}: the address is in use "
                            "(and no ucom robot of that name answers there)") from None
         if not force:
-            raise BusError(refusal(robot, endpoint, other)) from None
-        # --force: join that network as a peer
+            raise BusTaken(refusal(robot, endpoint, other)) from None
+        # forced: join that network as a peer
         return open_session(config(listen=[], connect=[endpoint], file=config_file,
                                    connect_timeout_s=PROBE_S), endpoint), endpoint
 
@@ -91,4 +91,4 @@ def refusal(robot: str, endpoint: str | None, other: dict[str, Any]) -> str:
     return (f"robot {robot!r} already runs its loop on this Zenoh network"
             f"{' (' + who + when + ')' if who or when else ''}, reached on "
             f"{endpoint or 'the configured endpoints'}: one robot, one loop; stop "
-            "that one first (or --force)")
+            "that one first")

@@ -27,7 +27,7 @@ RETRY_S = 1.0
 backs off up to 4 s by default)."""
 
 
-def check_endpoint(endpoint: str, *, key: str = "--zenoh") -> str:
+def check_endpoint(endpoint: str, *, key: str = "zenoh") -> str:
     """``proto/address`` (``tcp/127.0.0.1:7447``, ``tcp/[::1]:7447``, ``udp/...``)."""
     proto, sep, address = endpoint.strip().partition("/")
     if not sep or not proto or not address:
@@ -48,8 +48,8 @@ def config(*, listen: list[str] | None = None, connect: list[str] | None = None,
         try:
             c = zenoh.Config.from_file(str(file))
         except (OSError, zenoh.ZError, ValueError) as err:
-            raise InputError(f"not a Zenoh configuration: {err}", file=str(file),
-                             key="--zenoh-config") from None
+            raise InputError(f"{file}: not a Zenoh configuration: {err}",
+                             key="zenoh_config") from None
     else:
         c = zenoh.Config()
         c.insert_json5("mode", json.dumps("peer"))

@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import zenoh
 
-from ucom_tools.errors import BusError, FrameError, UcomError
+from ucom_tools.errors import BusTaken, FrameError, UcomError
 from ucom_tools.net import keys, one_loop
 from ucom_tools.net.encode import BoardEncoder, encoders
 from ucom_tools.net.keys import check_rate
@@ -227,7 +227,7 @@ class RobotShare:
             if not force:
                 other = one_loop.other_loop(self.session, robot)
                 if other is not None:
-                    raise BusError(one_loop.refusal(robot, self.endpoint, other))
+                    raise BusTaken(one_loop.refusal(robot, self.endpoint, other))
             self._out: queue.SimpleQueue[Doorbell | _Answer] = queue.SimpleQueue()
             """What the publishing thread does next: the loop's doorbell (a snapshot to
             publish) or an answer to a write."""
@@ -380,7 +380,7 @@ class RobotShare:
             query.reply_err(keys.dumps({
                 "ok": False, "error": "forbidden",
                 "message": f"robot {self.robot!r} does not allow other hosts to {what} (its "
-                           "loop runs without --allow-writes)"}), encoding=JSON)
+                           "loop does not allow writes)"}), encoding=JSON)
             return
         latest = self.source.latest
         if self._closing.is_set() or (latest is not None and not latest.running):

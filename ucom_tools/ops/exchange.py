@@ -27,7 +27,7 @@ from ucom_tools.config.attrtree.model import BoardBlock, Edge, TreeEdgeKind
 from ucom_tools.config.attrtree.robot import RobotTrees
 from ucom_tools.config.topology import BusSpec
 from ucom_tools.edgelists.model import EdgeKind
-from ucom_tools.errors import BoardError, BusError, InputError, UcomTimeoutError
+from ucom_tools.errors import BoardError, BusTaken, InputError, UcomTimeoutError
 from ucom_tools.ops.edges import spec_of
 from ucom_tools.protocol.bootloader import BootloaderClient
 from ucom_tools.protocol.link import Link
@@ -55,11 +55,6 @@ a listen of its own watchdog time, 50 ms)."""
 class NoProgram(BoardError):
     """A board refused Start: it holds no complete, verified program (Error
     NO_PROGRAM)."""
-
-
-class ExchangeElsewhere(BusError):
-    """Another host runs the cyclic exchange on a bus; nothing was sent.  The caller may
-    start all the same (``force``)."""
 
 
 class ExchangeError(InputError):
@@ -218,11 +213,11 @@ class ExchangeWatch(OtherHosts):
         return max(link.budget(alive_ms / 1000, answers=1), floor)
 
     def check(self, bus: str) -> None:
-        """:class:`ExchangeElsewhere` naming what was seen, if another host runs an
-        exchange on ``bus``."""
+        """:class:`~ucom_tools.errors.BusTaken` naming what was seen, if another host runs
+        an exchange on ``bus``."""
         if self.seen:
-            raise ExchangeElsewhere(f"another host runs the cyclic exchange on {bus} (frames "
-                                    f"from another host: {self.summary()}); nothing was sent")
+            raise BusTaken(f"another host runs the cyclic exchange on {bus} (frames from "
+                           f"another host: {self.summary()}); nothing was sent")
 
 
 class BusExchange:

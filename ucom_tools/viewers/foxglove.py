@@ -92,8 +92,7 @@ class FoxgloveServer:
     ``port`` once constructed (BusError where it cannot: the address is in use, the
     host is not this machine's)."""
 
-    def __init__(self, host: str, port: int, *, name: str, allow_writes: bool,
-                 option: str = "--foxglove") -> None:
+    def __init__(self, host: str, port: int, *, name: str, allow_writes: bool) -> None:
         import foxglove
         from foxglove.websocket import Capability
 
@@ -118,8 +117,8 @@ class FoxgloveServer:
                 supported_encodings=["json"], server_listener=_Listener(self))
         except RuntimeError as err:
             why = str(err).removeprefix("FoxgloveError: ")
-            raise BusError(f"{option} {address_text(host, port)}: cannot serve there: "
-                           f"{why}") from None
+            raise BusError(f"the Foxglove server on {address_text(host, port)}: cannot "
+                           f"serve there: {why}") from None
         self.port = self.server.port
         self.events = self.channel(fm.EVENTS_TOPIC, fm.LOG_SCHEMA)
         self._log = _ToEvents(self)  # the SDK's own warnings: on /events, not the terminal
@@ -167,8 +166,8 @@ class FoxgloveServer:
                               f"NUMBER}}, got name {name!r}, value {value!r}")
         elif not self.allow_writes or self.writer is None:
             applied = Applied("forbidden", f"set {name} = {value} from {origin} refused: "
-                              "this run takes no writes from Foxglove (run it with "
-                              "--allow-writes)")
+                              "this run takes no writes from Foxglove (it was started "
+                              "without allowing them)")
         else:
             applied = self.writer(name, value, origin)
         if applied.ok:

@@ -57,12 +57,12 @@ LOG_INFO, LOG_WARNING, LOG_ERROR = (LOG_LEVELS[k] for k in ("info", "warning", "
 
 SET_SCHEMA: Final[dict[str, Any]] = {
     "title": "ucom.Set", "type": "object",
-    "description": "Set a CI or PAR edge (needs --allow-writes)",
+    "description": "Set a CI or PAR edge (where the run allows writes)",
     "properties": {"name": {"type": "string"}, "value": {"type": "number"}},
     "required": ["name", "value"]}
 
 
-def parse_address(text: str, key: str = "--foxglove") -> tuple[str, int]:
+def parse_address(text: str, key: str = "foxglove") -> tuple[str, int]:
     """``HOST:PORT`` (``[::1]:8765`` for IPv6) as (host, port); InputError naming
     ``key`` otherwise.  Port 0 takes any free one."""
     host, sep, port = text.rpartition(":")
