@@ -174,7 +174,7 @@ def test_the_format_is_chosen_by_extension_then_by_content(tmp_path: Path) -> No
     assert load_image(tmp_path / "fw.S").format == "srec"
     (tmp_path / "odd.S").write_text(text)  # content decides where the name does not
     assert load_image(tmp_path / "odd.S").format == "ihex"
-    with pytest.raises(ImageError, match="--addressing word is for S-record files"):
+    with pytest.raises(ImageError, match="word addressing is for S-record files"):
         load_image(tmp_path / "fw.hex", addressing="word")
     (tmp_path / "dir.hex").mkdir()
     with pytest.raises(ImageError, match="is a directory, not an Intel HEX file"):

@@ -610,5 +610,5 @@ def test_loss_must_be_a_share_below_one() -> None:
     assert result.exit_code == 2 and "--loss" in result.output
     from ucom_tools.errors import InputError
     from ucom_tools.virtual.fleet import Fleet
-    with pytest.raises(InputError, match="--loss: a share of frames lost must be in"):
+    with pytest.raises(InputError, match="client_loss: a share of frames lost must be in"):
         Fleet(ARMAR3, client_loss=-0.1)

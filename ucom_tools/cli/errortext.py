@@ -19,6 +19,7 @@ OPTIONS: dict[str, str] = {
     "on_fault": "--on-fault", "rejoin": "--rejoin", "boards": "--boards",
     "journal": "--journal", "output": "-o", "zenoh": "--zenoh",
     "zenoh_config": "--zenoh-config", "publish_hz": "--publish-rate", "foxglove": "--foxglove",
+    "for_s": "--for", "client_loss": "--loss", "state_dir": "--state",
 }
 """The option of each input the API names (a key an error below ``cli/`` gives)."""
 

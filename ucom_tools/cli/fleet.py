@@ -14,6 +14,7 @@ from typing import Any
 import click
 from rich.markup import escape
 
+from ucom_tools.cli.errortext import describe
 from ucom_tools.cli.output import emit_json, leds, stderr, stdout
 from ucom_tools.cli.tables import FitTable
 from ucom_tools.config import mutants
@@ -391,7 +392,7 @@ def fault_cmd(words: tuple[str, ...], host: str, port: int, for_s: float | None,
     try:
         asked = injected(kind, target, for_s)  # refuses what cannot fit, before connecting
     except InputError as err:
-        raise click.UsageError(str(err)) from None
+        raise click.UsageError(describe(err)) from None
     done = request_fault(host, port, asked.target, asked.kind.value, asked.for_s)
     if as_json:
         emit_json({"server": f"{host}:{port}", **asked.as_dict(), "done": done})

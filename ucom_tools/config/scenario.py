@@ -167,7 +167,7 @@ _NAME: Final = re.compile(r"[A-Za-z0-9_.-]+")
 def injected(kind: str, target: str, for_s: float | None) -> InjectedFault:
     """The fault ``kind`` on ``target`` (:func:`parse_target`) for ``for_s`` seconds
     (None: the kind's default), as ``ucom fleet fault`` and its wire give it;
-    :class:`InputError` naming ``KIND``, ``TARGET`` or ``--for`` when they do not fit."""
+    :class:`InputError` naming ``KIND``, ``TARGET`` or ``for_s`` when they do not fit."""
     try:
         fault_kind = FaultKind(kind)
     except ValueError:
@@ -180,7 +180,7 @@ def injected(kind: str, target: str, for_s: float | None) -> InjectedFault:
                    "robot": ROBOT}[wanted]
         raise InputError(f"{kind} acts on a {wanted}: give {example}, not {target!r}",
                          key="TARGET")
-    seconds = _duration(fault_kind, for_s, "--for")
+    seconds = _duration(fault_kind, for_s, "for_s")
     return InjectedFault(fault_kind, bus, board, seconds)
 
 

@@ -46,7 +46,7 @@ def load_image(path: str | Path, *, addressing: str = "auto") -> Image:
     if fmt == "ihex":
         if addressing == "word":
             binary.close()
-            raise ImageError("Intel HEX addresses count bytes; --addressing word is for "
+            raise ImageError("Intel HEX addresses count bytes; word addressing is for "
                              "S-record files", file=source)
         return ihex.load_stream(binary, source)
     return srec.load_stream(binary, source, addressing=addressing)

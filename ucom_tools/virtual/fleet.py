@@ -56,7 +56,7 @@ class Fleet:
         """The defect of every board whose topology entry names none (None: they conform)."""
         if not 0.0 <= client_loss < 1.0:
             raise InputError(f"a share of frames lost must be in [0, 1), not {client_loss:g}",
-                             key="--loss")
+                             key="client_loss")
         self.client_loss = client_loss
         """The share of frames lost between each served client and its bus, each way
         (``fleet serve --loss``: a lossy link to the PC, as in the tests' LossyBus)."""
@@ -345,8 +345,8 @@ def _state_dir(path: Path) -> None:
     try:
         path.mkdir(parents=True, exist_ok=True)
     except FileExistsError:
-        raise InputError("--state must name a directory; this is a file", file=str(path)) \
-            from None
+        raise InputError(f"{path}: must name a directory; this is a file",
+                         key="state_dir") from None
     except OSError as err:
         raise InputError(f"cannot create the state directory: {err.strerror or err}",
                          file=str(path)) from None

@@ -566,7 +566,7 @@ class Connection:
     def log_end(self) -> None:
         """Say how the client went (once its connection is closed and its slot free)."""
         if self.loss is not None:
-            log.info("client %s: %d frames lost on their way to it, %d from it (--loss)",
+            log.info("client %s: %d frames lost on their way to it, %d from it (as asked)",
                      self.peer, self.loss.counts["to"], self.loss.counts["from"])
         if self._dropped:
             log.warning("dropped client %s: %s", self.peer, self._reason)
