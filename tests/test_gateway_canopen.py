@@ -493,4 +493,4 @@ def test_an_unreachable_canopen_bus_ends_the_run_before_the_boards_start(
     assert result.exit_code == 4, result.output  # bus error
     doc = json.loads(result.stdout)
     assert doc["error"]["exit_code"] == 4 and "started" not in doc
-    assert f"--canopen {dead}: cannot open the bus" in doc["error"]["message"]
+    assert f"CANopen bus {dead}: cannot open the bus" in doc["error"]["message"]

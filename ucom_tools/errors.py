@@ -58,8 +58,8 @@ class OutputExists(InputError):
     """Outputs that exist and would be replaced (``paths``); replaced only when the
     caller asks for it (a ``force`` parameter), which the CLI names."""
 
-    def __init__(self, paths: list[str], *, key: str | None = None) -> None:
-        super().__init__(f"{', '.join(paths)} exist{'s' * (len(paths) == 1)}", key=key)
+    def __init__(self, paths: list[str], *, key: str | None = None, detail: str = "") -> None:
+        super().__init__(f"{', '.join(paths)} exist{'s' * (len(paths) == 1)}{detail}", key=key)
         self.paths = tuple(paths)
 
 

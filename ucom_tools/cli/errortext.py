@@ -20,6 +20,7 @@ OPTIONS: dict[str, str] = {
     "journal": "--journal", "output": "-o", "zenoh": "--zenoh",
     "zenoh_config": "--zenoh-config", "publish_hz": "--publish-rate", "foxglove": "--foxglove",
     "for_s": "--for", "client_loss": "--loss", "state_dir": "--state",
+    "canopen": "--canopen", "master_node": "--master-node", "directory": "-o",
 }
 """The option of each input the API names (a key an error below ``cli/`` gives)."""
 

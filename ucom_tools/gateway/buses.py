@@ -41,8 +41,8 @@ class CanopenSpec:
         return self.text.split("=", 1)[1] if self.ucom_buses else self.text
 
 
-def parse(text: str, *, key: str = "--canopen") -> CanopenSpec:
-    """A ``--canopen`` value; InputError saying the form where it does not fit."""
+def parse(text: str, *, key: str = "canopen") -> CanopenSpec:
+    """A CANopen bus as text; InputError saying the form where it does not fit."""
     m = _SPEC.match(text.strip())
     if m is None:
         raise InputError(f"'{text}': expected [UCOM_BUS=]INTERFACE:CHANNEL, e.g. "
@@ -63,16 +63,16 @@ def parse(text: str, *, key: str = "--canopen") -> CanopenSpec:
 
 
 def check(specs: Sequence[CanopenSpec], ucom_buses: Sequence[str], *,
-          key: str = "--canopen") -> None:
+          key: str = "canopen") -> None:
     """The specs together: each UCoM bus named once and known, at most one spec without
     UCoM buses, every bus opened once."""
     if not specs:
-        raise InputError("the gateway needs a CANopen bus: give --canopen, e.g. "
+        raise InputError("the gateway needs a CANopen bus, e.g. "
                          "socketcand:CO0@127.0.0.1:29536", key=key)
     seen: dict[str, str] = {}
     catch_all = [s for s in specs if not s.ucom_buses]
     if len(catch_all) > 1:
-        raise InputError(f"'{catch_all[1].text}': only one --canopen may leave out its UCoM "
+        raise InputError(f"'{catch_all[1].text}': only one CANopen bus may leave out its UCoM "
                          f"buses (it takes every joint the others do not; "
                          f"'{catch_all[0].text}' does already)", key=key)
     where: dict[str, str] = {}
@@ -93,8 +93,8 @@ def check(specs: Sequence[CanopenSpec], ucom_buses: Sequence[str], *,
         missing = [b for b in ucom_buses if b not in seen]
         if missing:
             raise InputError(f"the joints of {', '.join(missing)} have no CANopen bus: "
-                             "name them in a --canopen, or give one --canopen without "
-                             "UCoM buses for the rest", key=key)
+                             "name them with a CANopen bus, or give one CANopen bus "
+                             "without UCoM buses for the rest", key=key)
 
 
 class Carries(Protocol):
@@ -135,7 +135,7 @@ def open_bus(spec: CanopenSpec, *, connect_timeout: float = 5.0) -> can.BusABC:
     except BusError:
         raise
     except (can.CanError, OSError, ValueError, ImportError, NotImplementedError) as err:
-        raise BusError(f"--canopen {spec.text}: cannot open the bus: {err}") from err
+        raise BusError(f"CANopen bus {spec.text}: cannot open the bus: {err}") from err
 
 
 __all__ = ["CanopenSpec", "Carries", "by_bus", "check", "open_bus", "parse"]

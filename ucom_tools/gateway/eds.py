@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from ucom_tools import __version__, fileio
-from ucom_tools.errors import InputError
+from ucom_tools.errors import InputError, OutputExists
 from ucom_tools.gateway import dictionary as od
 from ucom_tools.gateway.dictionary import DataType, Dictionary, Entry, ObjectType
 from ucom_tools.gateway.joints import Joint, RobotJoints, Role
@@ -135,12 +135,12 @@ def _quoted(text: str) -> str:
 
 def bus_yml(robot: RobotJoints, *, master_node: int = MASTER_NODE,
             dcf_path: str | None = None) -> str:
-    """The bus.yml of ``robot``'s joints; InputError (``--master-node``) when a joint has
-    the master's node ID."""
+    """The bus.yml of ``robot``'s joints; InputError (key ``master_node``) when a joint
+    has the master's node ID."""
     for j in robot.joints:
         if j.node_id == master_node:
             raise InputError(f"node {master_node} is {j.name}'s ({j.where}, axis "
-                             f"{j.letter}); give the master another ID", key="--master-node")
+                             f"{j.letter}); give the master another ID", key="master_node")
     lines = [f"# ros2_canopen bus configuration: the joints of {robot.topology.name} as "
              "CiA 402 drives,",
              f"# written by 'ucom gateway eds' (ucom-tools {__version__}); see "
@@ -216,10 +216,11 @@ class Written:
 
 def write(files: Sequence[OutputFile], directory: Path, *, force: bool = False) -> Written:
     """Write ``files`` into ``directory`` (made if missing), all or none, each atomically.
-    A file there with other content is refused (InputError, ``-o``, nothing written)
-    unless ``force``; one with the same content is left as it is."""
+    A file there with other content is refused (OutputExists, key ``directory``, nothing
+    written) unless ``force``; one with the same content is left as it is."""
     if directory.exists() and not directory.is_dir():
-        raise InputError(f"{directory}: is not a directory; nothing was written", key="-o")
+        raise InputError(f"{directory}: is not a directory; nothing was written",
+                         key="directory")
     changed: list[tuple[Path, bytes]] = []
     same: list[Path] = []
     differ: list[str] = []
@@ -233,12 +234,10 @@ def write(files: Sequence[OutputFile], directory: Path, *, force: bool = False) 
             differ.append(str(path))
         changed.append((path, data))
     if differ:
-        one = len(differ) == 1
-        raise InputError(f"{', '.join(differ)} exist{'s' * one} with other content; --force "
-                         f"replaces {'it' if one else 'them'} (nothing was written)", key="-o")
+        raise OutputExists(differ, key="directory", detail=" with other content")
     if changed:
-        fileio.prepare_directory(directory, option="-o")
-        with fileio.Batch(option="-o") as batch:
+        fileio.prepare_directory(directory, option="directory")
+        with fileio.Batch(option="directory") as batch:
             for path, data in changed:
                 batch.write_bytes(path, data)
     return Written(tuple(p for p, _ in changed), tuple(same))
@@ -250,7 +249,7 @@ def _content(path: Path) -> bytes | None:
     if not path.exists() and not path.is_symlink():
         return None
     if path.is_dir():
-        raise InputError(f"{path}: is a directory; nothing was written", key="-o")
+        raise InputError(f"{path}: is a directory; nothing was written", key="directory")
     try:
         return fileio.read_input(path, limit=fileio.TEXT_LIMIT, what="a file")
     except InputError:
