@@ -149,8 +149,10 @@ def test_a_fault_by_hand_must_fit_its_target() -> None:
             ("reset", "CAN 0", "TARGET: 'CAN 0': expected BUS/BOARD")]:
         with pytest.raises(InputError, match=message):
             injected(kind, target, 1.0)
-    with pytest.raises(InputError, match="--for: bus-off needs a duration"):
-        injected("bus-off", "CAN0/1", None)
+    with pytest.raises(InputError, match="for_s: bus-off needs a duration") as caught:
+        injected("bus-off", "CAN0/1", None)  # the parameter; the command line's --for:
+    from ucom_tools.cli.errortext import describe
+    assert describe(caught.value).startswith("--for: bus-off needs a duration")
 
 
 def test_the_cli_refuses_a_bad_scenario_before_anything_runs(tmp_path: Path) -> None:
