@@ -380,7 +380,7 @@ class RobotShare:
             query.reply_err(keys.dumps({
                 "ok": False, "error": "forbidden",
                 "message": f"robot {self.robot!r} does not allow other hosts to {what} (its "
-                           "loop does not allow writes)"}), encoding=JSON)
+                           "loop runs without --allow-writes)"}), encoding=JSON)
             return
         latest = self.source.latest
         if self._closing.is_set() or (latest is not None and not latest.running):

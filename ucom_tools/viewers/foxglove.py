@@ -166,8 +166,8 @@ class FoxgloveServer:
                               f"NUMBER}}, got name {name!r}, value {value!r}")
         elif not self.allow_writes or self.writer is None:
             applied = Applied("forbidden", f"set {name} = {value} from {origin} refused: "
-                              "this run takes no writes from Foxglove (it was started "
-                              "without allowing them)")
+                              "this run takes no writes from Foxglove (run it with "
+                              "--allow-writes)")
         else:
             applied = self.writer(name, value, origin)
         if applied.ok:

@@ -57,7 +57,7 @@ LOG_INFO, LOG_WARNING, LOG_ERROR = (LOG_LEVELS[k] for k in ("info", "warning", "
 
 SET_SCHEMA: Final[dict[str, Any]] = {
     "title": "ucom.Set", "type": "object",
-    "description": "Set a CI or PAR edge (where the run allows writes)",
+    "description": "Set a CI or PAR edge (needs --allow-writes)",
     "properties": {"name": {"type": "string"}, "value": {"type": "number"}},
     "required": ["name", "value"]}
 
