@@ -40,7 +40,7 @@ const finish = () => {
   const all = [];
   for (const [topic, xs] of lat) {
     out[topic] = { count: xs.length, p50_ms: pct(xs, 50), p99_ms: pct(xs, 99) };
-    all.push(...xs);
+    for (const x of xs) all.push(x); // (a spread of 250,000 arguments overflows the stack)
   }
   out.all = { count: all.length, p50_ms: pct(all, 50), p99_ms: pct(all, 99) };
   process.stdout.write(JSON.stringify(out) + "\n");

@@ -131,6 +131,8 @@ def measure(seconds: float, loop: list[str]) -> dict[str, Any]:
             got, _ = client.communicate(timeout=30)
             lines = [ln for ln in got.splitlines() if ln.startswith("{")]
             lat = json.loads(lines[-1]) if lines else {}
+            if not lines:
+                out["delivery_why"] = f"the client printed no figures (exit {client.returncode})"
             values = [v for k, v in lat.items() if k.endswith("/values")]
             out["delivery_p50_ms"] = max((v["p50_ms"] for v in values if v["p50_ms"]),
                                          default=None)
