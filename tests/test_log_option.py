@@ -150,7 +150,10 @@ def test_a_recording_that_cannot_be_written_leaves_no_file(
     assert os.listdir(tmp_path) == []
 
 
-def test_check_log_names_the_option() -> None:
+def test_check_log_names_the_input_and_the_command_line_its_option() -> None:
+    from ucom_tools.cli.errortext import describe
+
     with pytest.raises(logs_mod.InputError) as e:
         logs_mod.check_log("x.nope")
-    assert e.value.key == "--log"
+    assert e.value.key == "log"
+    assert describe(e.value).startswith("--log: x.nope: '.nope' is not a CAN log format")

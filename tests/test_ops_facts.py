@@ -62,18 +62,7 @@ def test_no_string_in_ops_tells_the_user_to_run_a_ucom_command_first() -> None:
 PACKAGE = OPS.parent
 OPTION = re.compile(r"(?<![\w-])--[a-z]")
 """A command-line option (``--bus``) inside a string."""
-NOT_YET: dict[str, str] = {
-    "conformance/junit.py": "the report's output key (--junit)",
-    "conformance/restore.py": "a ValueError naming --host/--port",
-    "conformance/runner.py": "--only and --trace-dir: the result's stop text is reported "
-                             "as it is (the JSON 'stopped')",
-    "trace/dbc.py": "--output keys",
-    "trace/decode.py": "--trees key",
-    "trace/logs.py": "--log/--record keys, passed in by cli/ as well",
-    "trace/mcap_record.py": "--record option",
-    "trace/mcap_values.py": "'remote run --record' in a message",
-    "trace/record.py": "--record keys and messages",
-}
+NOT_YET: dict[str, str] = {}
 """Modules below cli/ still to be converted (issue 37): each still names an option (the
 test says when one no longer does, to take it off)."""
 ALLOWED: dict[str, tuple[str, str]] = {
@@ -197,7 +186,7 @@ def test_a_missing_input_is_named_and_the_command_line_says_how_to_give_it(
 def test_every_key_the_command_line_words_is_one_of_its_options() -> None:
     import click
 
-    from ucom_tools.cli.errortext import MISSING, MISSING_IN, OPTIONS
+    from ucom_tools.cli.errortext import ADVICE_IN, MISSING, MISSING_IN, OPTIONS
     from ucom_tools.cli.main import cli
 
     def options(command: click.Command) -> set[str]:
@@ -211,6 +200,48 @@ def test_every_key_the_command_line_words_is_one_of_its_options() -> None:
 
     every = options(cli)
     assert set(OPTIONS.values()) <= every, set(OPTIONS.values()) - every
-    for advice in [*MISSING.values(), *MISSING_IN.values()]:
+    for advice in [*MISSING.values(), *MISSING_IN.values(), *ADVICE_IN.values()]:
         named = set(re.findall(r"(?<![\w-])--?[a-z][a-z-]*", advice))
         assert named and named <= every, (advice, named - every)
+
+
+def test_trace_and_conformance_name_their_inputs_and_the_command_line_words_them(
+        tmp_path: Path) -> None:
+    """The keys of trace/ and conformance/ (the DBC file, the decoder's trees, a case
+    pattern) and how ``ucom dbc``, ``ucom decode`` and ``ucom conformance`` word them."""
+    from ucom_tools.cli.errortext import describe
+    from ucom_tools.conformance.runner import select
+    from ucom_tools.errors import InputError, OutputExists
+    from ucom_tools.trace import dbc
+    from ucom_tools.trace.decode import load_trees
+
+    (tmp_path / "old.dbc").write_text("x")
+    with pytest.raises(OutputExists) as exists:
+        dbc.write(tmp_path / "old.dbc")
+    assert str(exists.value) == f"dbc_file: {tmp_path / 'old.dbc'} exists"
+    assert describe(exists.value, "dbc") == \
+        f"--output: {tmp_path / 'old.dbc'} exists; --force replaces it"
+    with pytest.raises(InputError) as trees:
+        load_trees(["a.tree"])
+    assert trees.value.key == "trees" and describe(trees.value, "decode").startswith(
+        "--trees: give one robot")
+    with pytest.raises(InputError) as none:
+        select("nothing-like-this")
+    assert str(none.value) == "pattern: no case matches 'nothing-like-this'"
+    assert describe(none.value, "conformance") == \
+        "--only: no case matches 'nothing-like-this' (see --list)"
+
+
+def test_the_stop_of_the_suite_is_worded_by_its_reader() -> None:
+    """A trace that could not be written stops the suite: a Python caller reads the
+    parameter (trace_dir), the command line, its JSON and its report the option."""
+    from ucom_tools.cli.conformance import _words
+    from ucom_tools.conformance.runner import SuiteResult
+    from ucom_tools.errors import WriteError
+
+    result = SuiteResult(stopped=WriteError("t/CAN0: not a directory", key="trace_dir"))
+    assert result.stop_text == "cannot write: trace_dir: t/CAN0: not a directory"
+    assert result.describe_stop(_words) == \
+        "cannot write: --trace-dir: t/CAN0: not a directory"
+    assert SuiteResult(stopped=KeyboardInterrupt()).describe_stop(_words) == \
+        "interrupted (SIGINT)"

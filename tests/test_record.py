@@ -234,7 +234,7 @@ def test_unsupported_extension_is_refused_before_anything_is_written(
         tmp_path: Path, name: str) -> None:
     with pytest.raises(InputError) as e:
         RunRecorder(tmp_path / name)
-    assert e.value.key == "--record"
+    assert e.value.key == "record"
     assert ".asc" in str(e.value) and ".blf" in str(e.value) and ".log" in str(e.value)
     assert os.listdir(tmp_path) == []
 
@@ -242,7 +242,7 @@ def test_unsupported_extension_is_refused_before_anything_is_written(
 def test_missing_directory_is_refused(tmp_path: Path) -> None:
     with pytest.raises(InputError) as e:
         RunRecorder(tmp_path / "no" / "such" / "run.blf")
-    assert e.value.key == "--record" and "does not exist" in str(e.value)
+    assert e.value.key == "record" and "does not exist" in str(e.value)
     assert os.listdir(tmp_path) == []
 
 

@@ -52,10 +52,15 @@ def _list(pattern: str | None, as_json: bool) -> None:
                 out.print(escape(line), soft_wrap=True)
 
 
+def _words(err: BaseException) -> str:
+    """An error as this command line words it (its options, not the API's keys)."""
+    return describe(err, "conformance")
+
+
 def _json(result: SuiteResult, spec: ConnectSpec) -> dict[str, Any]:
     return {"connection": connection_json(spec), "ok": result.ok,
             "counts": result.counts(), "bus_failure": result.bus_failure,
-            "stopped": result.stop_text,
+            "stopped": result.describe_stop(_words),
             "left_as_found": not result.not_restored, "not_restored": result.not_restored,
             "cases": [{"id": o.case.id, "group": o.case.group, "bus": o.bus,
                        "section": o.case.section, "status": o.status,
@@ -78,10 +83,10 @@ def _print(result: SuiteResult) -> None:
         if o.frames:
             stdout().print(escape(o.frames), highlight=False)
     c = result.counts()
+    stop_text = result.describe_stop(_words)
     stdout().print(f"\n{c['passed']} passed, {c['failed']} failed, {c['skipped']} skipped"
                    + (f", {c['error']} errors" if c["error"] else "")
-                   + (f"; [yellow]stopped:[/] {escape(result.stop_text)}"
-                      if result.stop_text else "")
+                   + (f"; [yellow]stopped:[/] {escape(stop_text)}" if stop_text else "")
                    + ("" if not result.not_restored else
                       f"; [red]not left as found:[/] {escape('; '.join(result.not_restored))}"))
 
@@ -128,7 +133,7 @@ def conformance(ctx: click.Context, junit_file: Path | None, trace_dir: Path | N
     if not runtime_image.is_file():
         raise InputError(f"{runtime_image}: no such file", key="--runtime-image")
     # the report's target is checked (and its temporary file made) before anything is sent
-    report = fileio.Output(junit_file, option="--junit", allow_stdout=True) \
+    report = fileio.Output(junit_file, option="junit", allow_stdout=True) \
         if junit_file is not None else None
 
     def progress(o: Outcome) -> None:
@@ -141,7 +146,7 @@ def conformance(ctx: click.Context, junit_file: Path | None, trace_dir: Path | N
 
     try:
         if trace_dir is not None:
-            fileio.prepare_directory(trace_dir, option="--trace-dir")
+            fileio.prepare_directory(trace_dir, option="trace_dir")
         with robot(spec) as r:
             result = run_suite(r, cases, trace_dir=trace_dir, runtime_image=runtime_image,
                                progress=progress, buses=[h.name for h in r.select(bus_name)],
@@ -161,7 +166,7 @@ def _finish(ctx: click.Context, result: SuiteResult, spec: ConnectSpec,
     report_error: UcomError | None = None
     if report is not None:
         try:
-            junit.write(result, report)
+            junit.write(result, report, _words)
         except UcomError as err:
             report_error = err
     if as_json:

@@ -21,6 +21,8 @@ OPTIONS: dict[str, str] = {
     "zenoh_config": "--zenoh-config", "publish_hz": "--publish-rate", "foxglove": "--foxglove",
     "for_s": "--for", "client_loss": "--loss", "state_dir": "--state",
     "canopen": "--canopen", "master_node": "--master-node", "directory": "-o",
+    "junit": "--junit", "trace_dir": "--trace-dir", "pattern": "--only",
+    "dbc_file": "--output", "trees": "--trees", "record": "--record",
 }
 """The option of each input the API names (a key an error below ``cli/`` gives)."""
 
@@ -39,6 +41,12 @@ MISSING_IN: dict[tuple[str, str], str] = {
 """The advice of :data:`MISSING` where a command (the first word after ``ucom``) has its
 own way of giving the input."""
 
+ADVICE_IN: dict[tuple[str, str], str] = {
+    ("conformance", "pattern"): "see --list",
+}
+"""Where to look when an input of a command was not right (any other
+:class:`~ucom_tools.errors.InputError` of the key), added in parentheses."""
+
 
 def option_of(key: str) -> str:
     """The option that carries the API's input ``key`` (``key`` itself when none does)."""
@@ -54,7 +62,8 @@ def describe(err: BaseException, command: str | None = None) -> str:
             return f"{text}: {advice}" if advice else text
         if isinstance(err, OutputExists):
             return f"{text}; --force replaces {'it' if len(err.paths) == 1 else 'them'}"
-        return text
+        advice = ADVICE_IN.get((command or "", err.key))
+        return f"{text} ({advice})" if advice else text
     if isinstance(err, WriteError) and err.key is not None:
         return f"{option_of(err.key)}: {err.reason}"
     if isinstance(err, BusTaken):

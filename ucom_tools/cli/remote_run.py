@@ -248,7 +248,7 @@ def run_robot(ctx: click.Context, robot_or_trees: tuple[str, ...], *,
         raise InputError("writes from the network need the network: give --zenoh or "
                          "--foxglove", key="--allow-writes")
     if o.record is not None:  # checked up front; the file is written by the consumers
-        log_extension(o.record, key="--record")
+        log_extension(o.record, key="record")
     _check_record_rate(o.record, o.record_hz, o.rate)
     view = o.seconds is None and sys.stdout.isatty() and not o.as_json
     spec = one_bus(o.spec, o.bus_name)
@@ -289,8 +289,12 @@ class _Run:
         if o.sharing or self.fox is not None:
             check_rate(o.publish_hz, 1.0 / part.period_s)
         if o.record is not None:  # exit 3 before the exchange starts
-            check_buses(log_extension(o.record, key="--record"), part.robot.buses,
-                        Path(o.record), "--record")
+            try:
+                check_buses(log_extension(o.record, key="record"), part.robot.buses,
+                            Path(o.record), "record")
+            except InputError as err:
+                raise InputError(f"{err.reason} (or --bus for one bus)",
+                                 key="record") from None
         if not o.as_json:
             say.plan_notes(part)
         if o.record is not None or o.sharing or self.view or self.extra is not None \

@@ -12,10 +12,12 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from ucom_tools import fileio
-from ucom_tools.conformance.runner import SuiteResult
+from ucom_tools.conformance.runner import SuiteResult, Words
 
 
-def to_xml(result: SuiteResult, name: str = "ucom conformance") -> ET.ElementTree:
+def to_xml(result: SuiteResult, name: str = "ucom conformance",
+           words: Words = str) -> ET.ElementTree:
+    """The report of ``result``; ``words`` words the error that stopped the suite."""
     counts = result.counts()
     suite = ET.Element("testsuite", {
         "name": name, "tests": str(len(result.outcomes)),
@@ -41,23 +43,25 @@ def to_xml(result: SuiteResult, name: str = "ucom conformance") -> ET.ElementTre
             + ([f"trace: {o.trace}"] if o.trace else []))
     if result.not_restored or result.bus_failure or result.stopped is not None:
         err = ET.SubElement(suite, "system-err")
-        err.text = "\n".join(([f"stopped: {result.stop_text}"] if result.stop_text else [])
+        stop_text = result.describe_stop(words)
+        err.text = "\n".join(([f"stopped: {stop_text}"] if stop_text else [])
                              + ([f"bus failure: {result.bus_failure}"]
                                 if result.bus_failure else [])
                              + [f"not left as found: {p}" for p in result.not_restored])
     return ET.ElementTree(suite)
 
 
-def write(result: SuiteResult, path: Path | fileio.Output) -> None:
+def write(result: SuiteResult, path: Path | fileio.Output, words: Words = str) -> None:
     """Write the report by the rules of ``ucom(1)``, FILES (a regular file atomically,
     mode 0644 under the umask or the old file's; a device or FIFO written through; ``-``
     standard output).  ``path`` may be an :class:`~ucom_tools.fileio.Output` prepared
     before the suite ran (so that an unwritable target is found before anything is sent).
+    ``words`` words the error that stopped the suite.
     :class:`~ucom_tools.errors.WriteError` when writing fails."""
-    tree = to_xml(result)
+    tree = to_xml(result, words=words)
     ET.indent(tree)
     out = path if isinstance(path, fileio.Output) else \
-        fileio.Output(path, option="--junit", allow_stdout=True)
+        fileio.Output(path, option="junit", allow_stdout=True)
     with out:
         try:
             with out.open("wb") as fh:

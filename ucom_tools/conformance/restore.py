@@ -246,7 +246,7 @@ def _open(robot: Robot, channel: str, timeout: float) -> can.BusABC:
     spec = robot.spec
     if spec.interface == "socketcand":
         if not spec.host or not spec.port:
-            raise ValueError("socketcand without --host and --port")
+            raise ValueError("the socketcand interface needs a host and a port")
         return SocketcandBus(channel, spec.host, spec.port, connect_timeout=timeout)
     kwargs: dict[str, Any] = {"bitrate": spec.bitrate} if spec.bitrate else {}
     return can.Bus(interface=spec.interface, channel=channel, **kwargs)

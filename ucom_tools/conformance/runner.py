@@ -49,6 +49,9 @@ from ucom_tools.errors import BusError, InputError, UcomError, WriteError
 from ucom_tools.ops.robot import Robot
 from ucom_tools.signals import Terminated
 
+Words = Callable[[BaseException], str]
+"""How an error is worded for whoever reads it (``str``, or the command line's words)."""
+
 RENDER_FRAMES = 40
 """A failure shows the last frames of its case, decoded."""
 
@@ -88,8 +91,14 @@ class SuiteResult:
 
     @property
     def stop_text(self) -> str | None:
-        """Why the suite stopped early, in words (None: it did not)."""
-        return None if self.stopped is None else describe_stop(self.stopped)
+        """Why the suite stopped early, in words (None: it did not); an error's own
+        text, which names its input as the API does (see :func:`describe_stop`)."""
+        return self.describe_stop()
+
+    def describe_stop(self, words: Words = str) -> str | None:
+        """Why the suite stopped early with each error worded by ``words`` (None: it did
+        not)."""
+        return None if self.stopped is None else describe_stop(self.stopped, words)
 
     def counts(self) -> dict[str, int]:
         out = {"passed": 0, "failed": 0, "skipped": 0, "error": 0}
@@ -107,7 +116,7 @@ def select(pattern: str | None) -> list[Case]:
     chosen = [c for c in cases if fnmatch.fnmatch(c.id, pattern) or
               fnmatch.fnmatch(c.group, pattern) or pattern in c.id]
     if not chosen:
-        raise InputError(f"no case matches {pattern!r} (see --list)", key="--only")
+        raise InputError(f"no case matches {pattern!r}", key="pattern")
     return chosen
 
 
@@ -123,16 +132,17 @@ def render(frames: Sequence[can.Message]) -> str:
                          for f in frames)
 
 
-def describe_stop(stop: BaseException) -> str:
+def describe_stop(stop: BaseException, words: Words = str) -> str:
     """``interrupted (SIGINT)``, ``terminated (SIGTERM)``, ``cannot write: ...``, or the
-    error's text."""
+    error's text; ``words`` words an error (its ``str()``, naming its input as the API
+    does, unless the caller words it otherwise, as the command line does its options)."""
     if isinstance(stop, Terminated):
         return f"terminated ({stop.name})"
     if isinstance(stop, KeyboardInterrupt):
         return "interrupted (SIGINT)"
     if isinstance(stop, WriteError):
-        return f"cannot write: {stop}"
-    return str(stop)
+        return f"cannot write: {words(stop)}"
+    return words(stop)
 
 
 class _NotWritten(Exception):
@@ -280,7 +290,7 @@ def _trace(trace_dir: Path, bus: str, case_id: str, frames: list[can.Message]) -
         where = os.fspath(err.filename) if err.filename else str(trace_dir / bus)
         why = "not a directory" if isinstance(err, FileExistsError | NotADirectoryError) \
             else err.strerror or str(err)
-        raise _NotWritten(WriteError(f"--trace-dir: {where}: {why}", path=where)) from err
+        raise _NotWritten(WriteError(f"{where}: {why}", path=where, key="trace_dir")) from err
 
 
 def _write_trace(trace_dir: Path, bus: str, case_id: str, frames: list[can.Message]) -> str:
@@ -289,10 +299,10 @@ def _write_trace(trace_dir: Path, bus: str, case_id: str, frames: list[can.Messa
     try:  # once the suite runs, an output that cannot be written is a write error
         directory = fileio.prepare_directory(trace_dir / bus)
     except InputError as err:
-        raise WriteError(f"--trace-dir: {err.reason.removesuffix('; nothing was written')}",
-                         path=str(trace_dir / bus)) from None
+        raise WriteError(err.reason.removesuffix("; nothing was written"),
+                         path=str(trace_dir / bus), key="trace_dir") from None
     path = directory / f"{case_id}.log"
-    with fileio.Output(path, option="--trace-dir", suffix=".log") as out:
+    with fileio.Output(path, option="trace_dir", suffix=".log") as out:
         log = can.Logger(out.write_path)
         try:
             for f in frames:

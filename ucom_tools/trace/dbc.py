@@ -58,7 +58,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ucom_tools import __version__, fileio
-from ucom_tools.errors import InputError
+from ucom_tools.errors import InputError, OutputExists
 from ucom_tools.wire import mca
 from ucom_tools.wire.codes import (
     BoardState,
@@ -476,14 +476,14 @@ def write(path: str | os.PathLike[str], *, force: bool = False) -> int:
                           allow_stdout=True)
         return len(entries())
     if target.is_dir():
-        raise InputError(f"{os.fspath(target)} is a directory", key="--output")
+        raise InputError(f"{os.fspath(target)} is a directory", key="dbc_file")
     if not target.parent.is_dir():
         raise InputError(f"{os.fspath(target)}: directory {os.fspath(target.parent)} does "
-                         "not exist", key="--output")
+                         "not exist", key="dbc_file")
     if target.is_file() and not force:
-        raise InputError(f"{os.fspath(target)} exists; --force replaces it", key="--output")
+        raise OutputExists([os.fspath(target)], key="dbc_file")
     text = dumps()
-    fileio.write_text(target, text, encoding="cp1252", newline=None, option="--output",
+    fileio.write_text(target, text, encoding="cp1252", newline=None, option="dbc_file",
                       allow_stdout=True)
     return len(entries())
 

@@ -314,7 +314,7 @@ def load_trees(args: Sequence[str]) -> RobotTrees:
                          "file naming its boards' trees)" + (f", not {len(robots)}: "
                                                              f"{', '.join(robots)}"
                                                              if robots else ""),
-                         key="--trees")
+                         key="trees")
     return with_files(bind(topo.load(robots[0])), files)
 
 

@@ -61,8 +61,7 @@ def check_buses(extension: str, buses: Iterable[str], path: str | os.PathLike[st
     if extension in ONE_BUS and len(names) > 1:
         raise InputError(f"{os.fspath(path)}: {extension} has no channel column: the frames "
                          f"of {', '.join(names)} could not be told apart; use .asc, .blf, "
-                         ".log or .trc" + (" (or --bus for one bus)" if key == "--record"
-                                           else ""), key=key)
+                         ".log or .trc", key=key)
 
 
 def channel_number(channels: dict[str, int], name: str) -> int:
@@ -86,7 +85,7 @@ def log_writer(out: Output) -> MessageWriter:
     if out.target.lower().endswith(MCAP):
         from ucom_tools.trace.mcapfile import McapFile, McapFrameWriter
 
-        mcap = McapFrameWriter(McapFile(out.name, out.option or "--log", out))
+        mcap = McapFrameWriter(McapFile(out.name, out.option or "log", out))
         return mcap  # type: ignore[return-value]  # what FrameWriter calls of one
     writer: MessageWriter = can.Logger(out.write_path)
     if isinstance(writer, can.TRCWriter) and out.kind != "stdout":
@@ -148,7 +147,7 @@ def supported_extensions() -> list[str]:
     return sorted(exts) + sorted(f"{e}.gz" for e in _GZIP_OK)
 
 
-def log_extension(path: str | os.PathLike[str], key: str = "--record") -> str:
+def log_extension(path: str | os.PathLike[str], key: str = "record") -> str:
     """The format extension of ``path`` (lower case, ``.asc.gz`` for compressed ones);
     InputError (naming ``key``) listing the supported ones when python-can cannot write
     it."""
@@ -208,13 +207,23 @@ class Tapped(Protocol):
 
 
 class LogError(WriteError):
-    """The ``--log`` recording could not be written (a full disk, a lost directory); the
-    partial file was removed and a file it would have replaced keeps its content."""
+    """A recording (``--log``, ``--record``) could not be written (a full disk, a lost
+    directory); the partial file was removed and a file it would have replaced keeps its
+    content."""
 
 
-def check_log(path: str | os.PathLike[str], key: str = "--log") -> str:
-    """Check ``--log FILE`` (or ``key``'s) before anything is opened: a format ucom
-    writes, in a directory that exists, not a directory itself.  Returns the extension."""
+def not_kept(err: WriteError) -> LogError:
+    """``err`` (a recording's file that could not be committed) as the recording's
+    :class:`LogError`: nothing was kept."""
+    text = err.reason if err.reason.endswith("nothing was kept") else \
+        f"{err.reason}; nothing was kept"
+    return LogError(text, path=err.path, key=err.key)
+
+
+def check_log(path: str | os.PathLike[str], key: str = "log") -> str:
+    """Check a log file (``key`` names it, the robot's ``log`` by default) before
+    anything is opened: a format ucom writes, in a directory that exists, not a directory
+    itself.  Returns the extension."""
     ext = log_extension(path, key=key)
     p = Path(path)
     if not p.parent.is_dir():
@@ -332,13 +341,13 @@ class FrameLog:
         self._taps: dict[str, Callable[[can.Message], None]] = {}
         self._lock = threading.Lock()
         self._closed = False
-        self._out = Output(self.path, option="--log", suffix=self.extension)
+        self._out = Output(self.path, option="log", suffix=self.extension)
         try:
             self._frames = FrameWriter(self._out, self.extension)
         except Exception as err:
             self._out.discard()
             raise InputError(f"cannot write {os.fspath(self.path)}: {reason(err)}",
-                             key="--log") from None
+                             key="log") from None
 
     @property
     def frames(self) -> int:
@@ -381,10 +390,10 @@ class FrameLog:
                     self._out.commit()
                     return
                 except WriteError as err:
-                    raise LogError(f"{err}; nothing was kept", path=err.path) from None
+                    raise not_kept(err) from None
             self._out.discard()
-            raise LogError(f"--log: {os.fspath(self.path)}: "
-                           f"{reason(failure)}; nothing was kept", path=os.fspath(self.path))
+            raise LogError(f"{os.fspath(self.path)}: {reason(failure)}; nothing was kept",
+                           path=os.fspath(self.path), key="log")
 
     def discard(self) -> None:
         """End the recording and keep nothing (idempotent; after :meth:`close` the file

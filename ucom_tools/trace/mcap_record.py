@@ -40,7 +40,7 @@ from ucom_tools import __version__
 from ucom_tools.errors import InputError, WriteError
 from ucom_tools.fileio import reason
 from ucom_tools.protocol.traffic import ERROR, EXTENDED, REMOTE, SENT
-from ucom_tools.trace.logs import LogError
+from ucom_tools.trace.logs import LogError, not_kept
 from ucom_tools.trace.mcapfile import (
     EVENTS_TOPIC,
     FRAME_SCHEMA,
@@ -205,7 +205,7 @@ class McapRecorder:
     (LogError, and no file, when writing failed), :meth:`discard` keeps nothing."""
 
     def __init__(self, path: str, *, rate_hz: float | None = None,
-                 loop_hz: float = 1000.0, option: str = "--record") -> None:
+                 loop_hz: float = 1000.0, option: str = "record") -> None:
         self.path = path
         self.rate_hz = float(rate_hz or loop_hz)
         self.loop_hz = loop_hz
@@ -471,8 +471,8 @@ class McapRecorder:
         """LogError when writing failed (cheap: the consumers' process asks often)."""
         err = self._failure or self.file.failure
         if err is not None:
-            raise LogError(f"{self.option}: {self.path}: {reason(err)}; nothing was kept",
-                           path=self.path) from err
+            raise LogError(f"{self.path}: {reason(err)}; nothing was kept",
+                           path=self.path, key=self.option) from err
 
     def _stop_thread(self) -> None:
         self._stopping.set()
@@ -500,15 +500,13 @@ class McapRecorder:
             self.file.commit()
         except WriteError as err:
             self.file.discard()
-            raise LogError(f"{err}; nothing was kept"
-                           if not str(err).endswith("nothing was kept") else str(err),
-                           path=self.path) from None
+            raise not_kept(err) from None
         except BaseException as err:
             self.file.discard()
             if isinstance(err, InputError | LogError):
                 raise
-            raise LogError(f"{self.option}: {self.path}: {reason(err)}; nothing was kept",
-                           path=self.path) from err
+            raise LogError(f"{self.path}: {reason(err)}; nothing was kept",
+                           path=self.path, key=self.option) from err
 
     def discard(self) -> None:
         """End the recording and keep nothing (idempotent)."""

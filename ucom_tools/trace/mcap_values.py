@@ -61,8 +61,8 @@ def read_mcap_values(path: str | os.PathLike[str]) -> Values:
         for key, s in slots:
             _point(s, t, valid, body.get(key), since)
     if not keys:
-        raise InputError("no values in the file: an MCAP file of 'remote run --record' has "
-                         f"a {VALUES_SCHEMA_PREFIX}* channel per board", file=file)
+        raise InputError("no values in the file: the MCAP recording of a run has a "
+                         f"{VALUES_SCHEMA_PREFIX}* channel per board", file=file)
     for name, t in since.items():
         series[name].stale.append((t, None))
     return Values(file, series, start, end)

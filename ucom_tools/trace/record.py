@@ -46,7 +46,13 @@ import can
 from ucom_tools import fileio
 from ucom_tools.errors import InputError, WriteError
 from ucom_tools.fileio import Batch, Output, reason
-from ucom_tools.trace.logs import FrameWriter, LogError, check_buses, log_extension
+from ucom_tools.trace.logs import (
+    FrameWriter,
+    LogError,
+    check_buses,
+    log_extension,
+    not_kept,
+)
 
 VALUES_SUFFIX = ".values.csv"
 """Appended to the full name of the frame log: run.blf -> run.blf.values.csv."""
@@ -114,7 +120,7 @@ class RunRecorder(can.Listener):
         written whatever it is), its prefix, kind and text."""
         self._closed = False
         self._failure: BaseException | None = None
-        self._batch = Batch(option="--record")
+        self._batch = Batch(option="record")
         self._frames: FrameWriter | None = None
         self._values_file: IO[str] | None = None
         try:
@@ -126,11 +132,11 @@ class RunRecorder(can.Listener):
             self._csv.writerow(VALUES_HEADER)
         except WriteError as err:
             self._discard()
-            raise InputError(str(err).removeprefix("--record: "), key="--record") from None
+            raise InputError(err.reason, key="record") from None
         except OSError as err:
             self._discard()
             raise InputError(f"cannot write {os.fspath(self.path)}: {reason(err)}",
-                             key="--record") from None
+                             key="record") from None
         except BaseException:
             self._discard()
             raise
@@ -165,7 +171,7 @@ class RunRecorder(can.Listener):
     # --------------------------------------------------------------------- frames
     def check_buses(self, buses: Iterable[str]) -> None:
         """InputError when this recording's format cannot keep ``buses`` apart."""
-        check_buses(self.extension, buses, self.path, "--record")
+        check_buses(self.extension, buses, self.path, "record")
 
     def on_message_received(self, msg: can.Message) -> None:
         """Record one frame (its ``channel``, the bus name, is kept: verbatim in the
@@ -250,8 +256,8 @@ class RunRecorder(can.Listener):
     def _raise_failure(self) -> None:
         err = self._failure or (self._frames.failure if self._frames is not None else None)
         if err is not None:
-            raise LogError(f"--record: {self.path}: {reason(err)}; nothing was kept",
-                              path=str(self.path)) from err
+            raise LogError(f"{self.path}: {reason(err)}; nothing was kept",
+                           path=str(self.path), key="record") from err
 
     # --------------------------------------------------------------------- end
     def close(self) -> None:
@@ -278,7 +284,7 @@ class RunRecorder(can.Listener):
             except WriteError as err:
                 self._failure = err
                 self._discard()
-                raise LogError(f"{err}; nothing was kept", path=err.path) from None
+                raise not_kept(err) from None
 
     def discard(self) -> None:
         """End the recording without keeping anything (idempotent; after :meth:`close`
