@@ -213,12 +213,12 @@ class RemotePart(RemoteLoop):
         found = self._each_bus(lambda h, x: check_bus(h, x, self.trees))
         boards: list[BoardCheck] = []
         refs: list[EdgeRef] = []
+        self._digests.clear()  # (of the descriptions read before, if any)
         for (h, _), bus in zip(self._handles(), found, strict=True):
             assert isinstance(bus, BusCheck)
             boards += bus.boards
             refs += bus.refs
             self._described.update({(h.name, n): e for n, e in bus.described.items()})
-            self._digests.clear()
             self._serials.update({(h.name, n): s for n, s in bus.serials.items()})
         self.report = CheckReport(tuple(boards))
         order = {(b.bus, b.board): i for i, b in enumerate(boards)}
