@@ -101,20 +101,25 @@ class RunFoxglove:
                     item = self._queue.get(timeout=0.05)
                 except queue.Empty:
                     continue
-                snap: LoopSnapshot | None = None
-                while True:  # behind: every frame, only the latest snapshot
-                    if isinstance(item, Doorbell):
-                        snap = item.answer()
-                    try:
-                        item = self._queue.get_nowait()
-                    except queue.Empty:
-                        break
-                if snap is not None:
-                    self._snapshot(snap)
+                self._take(item)
                 self._send_frames()
                 self._ask_frames()
         except BaseException as err:  # the server ends; the run goes on
             self.error = err
+
+    def _take(self, item: object) -> None:
+        """``item`` and whatever else is queued: the latest snapshot's values sent (behind,
+        only the latest; the frames' token needs nothing, :meth:`_send_frames` follows)."""
+        snap: LoopSnapshot | None = None
+        while True:
+            if isinstance(item, Doorbell):
+                snap = item.answer()
+            try:
+                item = self._queue.get_nowait()
+            except queue.Empty:
+                break
+        if snap is not None:
+            self._snapshot(snap)
 
     def _ask_frames(self) -> None:
         """The loop hands the frames over only while a client watches a bus's frames
@@ -171,13 +176,19 @@ class RunFoxglove:
                 s.send(ch, ns, text)
 
     def _send_frames(self) -> None:
+        """Every queued batch of frames; a snapshot that comes meanwhile is sent between
+        two batches, so that the values never wait behind a backlog of frames."""
+        s, frames, waiting = self.server, self._frames, self._queue
         self._frames_rung = False
-        s, frames = self.server, self._frames
         while frames:
+            self._frames_rung = False  # before the pop: a batch after it rings again
             bus, entries = frames.popleft()
             ch = self._frame_channels[bus]
             for entry in entries:
                 s.send(ch, s.clock.ns(entry[2]), fm.frame_json(entry))
+            if not waiting.empty():
+                with contextlib.suppress(queue.Empty):
+                    self._take(waiting.get_nowait())
 
     # ------------------------------------------------------------------ writes (SDK threads)
     def _write(self, name: str, value: object, origin: str) -> Applied:
