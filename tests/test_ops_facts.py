@@ -97,21 +97,21 @@ def _docstrings(tree: ast.AST) -> set[int]:
 
 def _options_named(path: Path) -> list[str]:
     """Each string constant of ``path`` that names an option (docstrings exempt), and
-    each ``key=``/``option=`` (argument or default) that starts with ``-``."""
+    each ``key=`` (argument or default) that starts with ``-``."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
     docs = _docstrings(tree)
     named = [f"{node.lineno}: {node.value!r}" for node in ast.walk(tree)
              if isinstance(node, ast.Constant) and isinstance(node.value, str)
              and id(node) not in docs and OPTION.search(node.value)]
     for node in ast.walk(tree):
-        values = [k.value for k in node.keywords if k.arg in ("key", "option")] \
+        values = [k.value for k in node.keywords if k.arg == "key"] \
             if isinstance(node, ast.Call) else []
         if isinstance(node, ast.arguments):
             params = list(zip(node.args[len(node.args) - len(node.defaults):],
                               node.defaults, strict=True))
             params += [(a, d) for a, d in zip(node.kwonlyargs, node.kw_defaults, strict=True)
                        if d is not None]
-            values = [d for a, d in params if a.arg in ("key", "option")]
+            values = [d for a, d in params if a.arg == "key"]
         named += [f"{v.lineno}: key {v.value!r}" for v in values
                   if isinstance(v, ast.Constant) and isinstance(v.value, str)
                   and v.value.startswith("-")]
@@ -140,7 +140,7 @@ def test_the_guard_sees_an_option_in_a_message_a_key_and_a_default(tmp_path: Pat
     bad = tmp_path / "bad.py"
     for source in ('raise InputError("give --bus NAME")\n', 'raise InputError("x", key="-o")\n',
                    'def f(key: str = "--rate") -> None: ...\n',
-                   'fileio.Batch(option="--journal")\n'):
+                   'fileio.Batch(key="--journal")\n'):
         bad.write_text(source)
         assert _options_named(bad), source
     bad.write_text('"""Module doc: --bus is fine here."""\nX = 1\n"""And --rate here."""\n'

@@ -15,7 +15,7 @@ Writing (:class:`Output`, :func:`write_bytes`, :func:`write_text`, :class:`Batch
 A target that cannot be written at all (its directory missing, a directory in its place,
 a read-only file system) is :class:`~ucom_tools.errors.InputError` raised before anything
 is sent or written (exit code 3); a failure while writing or committing (a full disk, an
-I/O error) is :class:`~ucom_tools.errors.WriteError` (exit code 5).  The ``option``
+I/O error) is :class:`~ucom_tools.errors.WriteError` (exit code 5).  The ``key``
 parameters name the output or input as the caller's API does (``journal``, ``output``):
 the errors' ``key``, which the CLI words as its option.
 
@@ -102,10 +102,10 @@ class Output(_Staged):
     (python-can picks a log's format by it); ``allow_stdout`` lets ``-`` mean standard
     output."""
 
-    def __init__(self, path: str | os.PathLike[str], *, option: str | None = None,
+    def __init__(self, path: str | os.PathLike[str], *, key: str | None = None,
                  suffix: str = "", allow_stdout: bool = False) -> None:
         self.name = os.fspath(path)
-        self.option = option
+        self.key = key
         self.kind: Kind
         self._tmp: str | None = None
         self._mode = DEFAULT_MODE
@@ -171,11 +171,11 @@ class Output(_Staged):
 
     def _input(self, text: str) -> InputError:
         return InputError(f"cannot write {self.name}: {text}; nothing was written",
-                          key=self.option)
+                          key=self.key)
 
     def failed(self, err: BaseException) -> WriteError:
         """The error for a failure while writing this output."""
-        return WriteError(f"{self.name}: {reason(err)}", path=self.name, key=self.option)
+        return WriteError(f"{self.name}: {reason(err)}", path=self.name, key=self.key)
 
     # ------------------------------------------------------------------ writing
     def open(self, mode: str = "w", **kwargs: Any) -> IO[Any]:
@@ -282,25 +282,25 @@ def _sync_directory(directory: str) -> None:
         os.close(fd)
 
 
-def write_bytes(path: str | os.PathLike[str], data: bytes, *, option: str | None = None,
+def write_bytes(path: str | os.PathLike[str], data: bytes, *, key: str | None = None,
                 allow_stdout: bool = False) -> None:
     """Write ``data`` to ``path`` by the module's rules, whole or not at all."""
-    with Output(path, option=option, allow_stdout=allow_stdout) as out:
+    with Output(path, key=key, allow_stdout=allow_stdout) as out:
         _write_all(out, data, "wb")
 
 
 def write_text(path: str | os.PathLike[str], text: str, *, encoding: str = "utf-8",
-               newline: str | None = "\n", option: str | None = None,
+               newline: str | None = "\n", key: str | None = None,
                allow_stdout: bool = False) -> None:
     """Write ``text`` to ``path`` by the module's rules, whole or not at all."""
     try:
         data = text.encode(encoding)
     except UnicodeEncodeError as err:
         raise InputError(f"{os.fspath(path)}: {err.reason} in {encoding}; nothing was "
-                         "written", key=option) from None
+                         "written", key=key) from None
     if newline not in (None, "\n"):
         data = data.replace(b"\n", newline.encode(encoding))
-    write_bytes(path, data, option=option, allow_stdout=allow_stdout)
+    write_bytes(path, data, key=key, allow_stdout=allow_stdout)
 
 
 def _write_all(out: Output, data: bytes, mode: str) -> None:
@@ -320,18 +320,18 @@ class Batch(_Staged):
 
     ::
 
-        with Batch(option="-o") as batch:
+        with Batch(key="-o") as batch:
             for name, text in trees.items():
                 batch.write_text(directory / name, text)
         # here every file is in place, or (after an exception) none was touched
     """
 
-    def __init__(self, *, option: str | None = None) -> None:
-        self.option = option
+    def __init__(self, *, key: str | None = None) -> None:
+        self.key = key
         self.outputs: list[Output] = []
 
     def output(self, path: str | os.PathLike[str], *, suffix: str = "") -> Output:
-        out = Output(path, option=self.option, suffix=suffix)
+        out = Output(path, key=self.key, suffix=suffix)
         self.outputs.append(out)
         return out
 
@@ -355,7 +355,7 @@ class Batch(_Staged):
                         os.close(fd)
         except OSError as err:
             self.discard()
-            raise WriteError(f"{reason(err)}; nothing was written", key=self.option) from None
+            raise WriteError(f"{reason(err)}; nothing was written", key=self.key) from None
         for out in self.outputs:
             out.commit()
 
@@ -366,22 +366,22 @@ class Batch(_Staged):
 
 
 
-def prepare_directory(path: str | os.PathLike[str], *, option: str | None = None,
+def prepare_directory(path: str | os.PathLike[str], *, key: str | None = None,
                       create: bool = True) -> Path:
     """A directory to write files into: created (with its parents) when ``create``;
     :class:`InputError` when it cannot be, or a non-directory is in its place."""
     p = Path(path)
     if p.exists() and not p.is_dir():
         raise InputError(f"{os.fspath(p)}: is not a directory; nothing was written",
-                         key=option)
+                         key=key)
     if not p.exists():
         if not create:
-            raise InputError(f"{os.fspath(p)}: directory does not exist", key=option)
+            raise InputError(f"{os.fspath(p)}: directory does not exist", key=key)
         try:
             p.mkdir(parents=True, exist_ok=True)
         except OSError as err:
             raise InputError(f"{os.fspath(p)}: cannot create the directory: {reason(err)}; "
-                             "nothing was written", key=option) from None
+                             "nothing was written", key=key) from None
     return p
 
 
@@ -390,18 +390,18 @@ Refusal = Callable[[str], InputError]
 """Makes the error for an input that cannot be read, from the reason (without the path)."""
 
 
-def _refusal(name: str, option: str | None) -> Refusal:
-    return lambda text: InputError(f"{name}: {text}", key=option)
+def _refusal(name: str, key: str | None) -> Refusal:
+    return lambda text: InputError(f"{name}: {text}", key=key)
 
 
 def open_input(path: str | os.PathLike[str], *, limit: int, what: str = "a file",
-               option: str | None = None, error: Refusal | None = None) -> BinaryIO:
+               key: str | None = None, error: Refusal | None = None) -> BinaryIO:
     """Input file ``path`` opened for reading: a regular file of at most ``limit`` bytes.
     A FIFO, device, socket or directory is refused without blocking on it (it is opened
     non-blocking and looked at first).  ``error`` makes the exception (default: an
-    :class:`InputError` naming ``option`` and the path)."""
+    :class:`InputError` naming ``key`` and the path)."""
     name = os.fspath(path)
-    refuse = error or _refusal(name, option)
+    refuse = error or _refusal(name, key)
     try:
         fd = os.open(name, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0)
                      | getattr(os, "O_NOCTTY", 0))
@@ -433,20 +433,20 @@ def open_input(path: str | os.PathLike[str], *, limit: int, what: str = "a file"
 
 
 def read_input(path: str | os.PathLike[str], *, limit: int, what: str = "a file",
-               option: str | None = None, allow_stdin: bool = False,
+               key: str | None = None, allow_stdin: bool = False,
                error: Refusal | None = None) -> bytes:
     """The bytes of input file ``path`` (see :func:`open_input`), or of standard input
     for ``-`` where ``allow_stdin``; at most ``limit`` bytes, also if it grows while it
     is read."""
     name = os.fspath(path)
-    refuse = error or _refusal(name, option)
+    refuse = error or _refusal(name, key)
     if name == STDOUT and allow_stdin:
         data = sys.stdin.buffer.read(limit + 1)
         if len(data) > limit:
             raise refuse(f"standard input is larger than {_size(limit)}, the limit for "
                          f"{what}")
         return data
-    with open_input(name, limit=limit, what=what, option=option, error=error) as f:
+    with open_input(name, limit=limit, what=what, key=key, error=error) as f:
         try:
             data = f.read(limit + 1)
         except OSError as err:
@@ -466,11 +466,11 @@ def _size(n: int) -> str:
 
 @contextlib.contextmanager
 def output_stream(path: str | os.PathLike[str], mode: str = "w", *,
-                  option: str | None = None, suffix: str = "", allow_stdout: bool = False,
+                  key: str | None = None, suffix: str = "", allow_stdout: bool = False,
                   **kwargs: Any) -> Iterator[IO[Any]]:
     """``with output_stream(path) as f: ...``: a stream to write by the module's rules,
     committed when the block ends without an exception, discarded otherwise."""
-    with Output(path, option=option, suffix=suffix, allow_stdout=allow_stdout) as out:
+    with Output(path, key=key, suffix=suffix, allow_stdout=allow_stdout) as out:
         f = out.open(mode, **kwargs)
         try:
             yield f

@@ -133,7 +133,7 @@ def conformance(ctx: click.Context, junit_file: Path | None, trace_dir: Path | N
     if not runtime_image.is_file():
         raise InputError(f"{runtime_image}: no such file", key="--runtime-image")
     # the report's target is checked (and its temporary file made) before anything is sent
-    report = fileio.Output(junit_file, option="junit", allow_stdout=True) \
+    report = fileio.Output(junit_file, key="junit", allow_stdout=True) \
         if junit_file is not None else None
 
     def progress(o: Outcome) -> None:
@@ -146,7 +146,7 @@ def conformance(ctx: click.Context, junit_file: Path | None, trace_dir: Path | N
 
     try:
         if trace_dir is not None:
-            fileio.prepare_directory(trace_dir, option="trace_dir")
+            fileio.prepare_directory(trace_dir, key="trace_dir")
         with robot(spec) as r:
             result = run_suite(r, cases, trace_dir=trace_dir, runtime_image=runtime_image,
                                progress=progress, buses=[h.name for h in r.select(bus_name)],

@@ -109,7 +109,7 @@ def _convert(frames: list[can.Message], to: Path, ext: str) -> None:
 
     names = channel_names([f.channel for f in frames])
     check_buses(ext, sorted(set(names.values())), to, "--to")
-    out = Output(to, option="--to", suffix=".mcap" if is_mcap(to) else ext)
+    out = Output(to, key="--to", suffix=".mcap" if is_mcap(to) else ext)
     try:
         writer = FrameWriter(out, ext)
     except InputError:

@@ -86,7 +86,7 @@ def convert(source: str, target: str, to: str | None, addressing: str, force: bo
         raise InputError(f"{target} exists; --force replaces it", key="OUT")
     text = formats.dumps(img, fmt)
     _check_round_trip(img, text, fmt, target)
-    fileio.write_text(target, text, option="OUT", allow_stdout=True)
+    fileio.write_text(target, text, key="OUT", allow_stdout=True)
     where = "standard output" if target == fileio.STDOUT else target
     stderr().print(f"wrote {escape(where)}: {FORMAT_NAMES[fmt]}, {img.size()} words, "
                    f"entry P:{img.entry:04X}, ProgID 0x{img.progid:08X}", highlight=False,

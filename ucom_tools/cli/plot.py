@@ -165,7 +165,7 @@ def draw_png(values: Values, chosen: Sequence[Series], out: str) -> None:
     ax.set_title(os.path.basename(values.file))
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best")
-    with fileio.output_stream(target, "wb", option="-o") as f:
+    with fileio.output_stream(target, "wb", key="-o") as f:
         fig.savefig(f, format="png")
 
 

@@ -212,7 +212,7 @@ def layout(robot: str, output: str, form: str, force: bool) -> None:
     text = layout_json(found, form)
     if output != STDOUT and Path(output).is_file() and not force:
         raise InputError(f"{output} exists; --force replaces it", key="--output")
-    write_text(output, text + "\n", option="--output", allow_stdout=True)
+    write_text(output, text + "\n", key="--output", allow_stdout=True)
     if output != STDOUT:
         stderr().print(f"wrote {escape(output)}: a layout for {escape(form)}, "
                        f"{len(found.joints)} joints of {escape(found.topology.name)}",

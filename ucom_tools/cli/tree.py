@@ -183,7 +183,7 @@ def format_(file: str, out: str | None) -> None:
     if out is None:
         click.echo(attrtree.dumps(text_tree), nl=False)
         return
-    attrtree.save(text_tree, out, option="-o")
+    attrtree.save(text_tree, out, key="-o")
 
 
 # ----------------------------------------------------------------------------- diff

@@ -61,7 +61,7 @@ def write(result: SuiteResult, path: Path | fileio.Output, words: Words = str) -
     tree = to_xml(result, words=words)
     ET.indent(tree)
     out = path if isinstance(path, fileio.Output) else \
-        fileio.Output(path, option="junit", allow_stdout=True)
+        fileio.Output(path, key="junit", allow_stdout=True)
     with out:
         try:
             with out.open("wb") as fh:

@@ -302,7 +302,7 @@ def _write_trace(trace_dir: Path, bus: str, case_id: str, frames: list[can.Messa
         raise WriteError(err.reason.removesuffix("; nothing was written"),
                          path=str(trace_dir / bus), key="trace_dir") from None
     path = directory / f"{case_id}.log"
-    with fileio.Output(path, option="trace_dir", suffix=".log") as out:
+    with fileio.Output(path, key="trace_dir", suffix=".log") as out:
         log = can.Logger(out.write_path)
         try:
             for f in frames:

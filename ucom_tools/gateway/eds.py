@@ -236,8 +236,8 @@ def write(files: Sequence[OutputFile], directory: Path, *, force: bool = False) 
     if differ:
         raise OutputExists(differ, key="directory", detail=" with other content")
     if changed:
-        fileio.prepare_directory(directory, option="directory")
-        with fileio.Batch(option="directory") as batch:
+        fileio.prepare_directory(directory, key="directory")
+        with fileio.Batch(key="directory") as batch:
             for path, data in changed:
                 batch.write_bytes(path, data)
     return Written(tuple(p for p, _ in changed), tuple(same))

@@ -61,7 +61,7 @@ class Journal:
         if not path.exists():
             return cls(directory, robot)
         data = fileio.read_input(path, limit=fileio.TEXT_LIMIT, what="a deploy journal",
-                                 option="journal")
+                                 key="journal")
         try:
             doc = json.loads(data)
             if doc.get("version") != JOURNAL_VERSION or not isinstance(doc.get("boards"), dict):
@@ -89,11 +89,11 @@ class Journal:
         """Write ``journal.json`` (and ``files``, names relative to the directory, e.g.
         ``params/CAN0-1.tree``): all or none."""
         with self._lock:
-            fileio.prepare_directory(self.directory, option="journal")
+            fileio.prepare_directory(self.directory, key="journal")
             if files:
-                fileio.prepare_directory(self.directory / PARAMS_DIR, option="journal")
+                fileio.prepare_directory(self.directory / PARAMS_DIR, key="journal")
             doc = {"version": JOURNAL_VERSION, "robot": self.robot, "boards": self.boards}
-            with fileio.Batch(option="journal") as batch:
+            with fileio.Batch(key="journal") as batch:
                 for name, text in (files or {}).items():
                     batch.write_text(self.directory / name, text)
                 batch.write_text(self.path, json.dumps(doc, indent=1, sort_keys=True) + "\n")

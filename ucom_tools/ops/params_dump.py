@@ -91,8 +91,8 @@ def write_dump(readout: Readout, targets: Sequence[DumpTarget]) -> list[Path]:
             raise UcomError(f"{d.path}: the dumped tree does not read back as written")
         rendered.append((tree, d.path))
     for directory in sorted({p.parent for _, p in rendered}):
-        fileio.prepare_directory(directory, option="output")
-    with fileio.Batch(option="output") as batch:  # every tree or none (ucom(1), FILES)
+        fileio.prepare_directory(directory, key="output")
+    with fileio.Batch(key="output") as batch:  # every tree or none (ucom(1), FILES)
         for tree, path in rendered:
             batch.write_text(path, attrtree.dumps(tree))
     return [p for _, p in rendered]

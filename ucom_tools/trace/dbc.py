@@ -483,7 +483,7 @@ def write(path: str | os.PathLike[str], *, force: bool = False) -> int:
     if target.is_file() and not force:
         raise OutputExists([os.fspath(target)], key="dbc_file")
     text = dumps()
-    fileio.write_text(target, text, encoding="cp1252", newline=None, option="dbc_file",
+    fileio.write_text(target, text, encoding="cp1252", newline=None, key="dbc_file",
                       allow_stdout=True)
     return len(entries())
 

@@ -85,7 +85,7 @@ def log_writer(out: Output) -> MessageWriter:
     if out.target.lower().endswith(MCAP):
         from ucom_tools.trace.mcapfile import McapFile, McapFrameWriter
 
-        mcap = McapFrameWriter(McapFile(out.name, out.option or "log", out))
+        mcap = McapFrameWriter(McapFile(out.name, out.key or "log", out))
         return mcap  # type: ignore[return-value]  # what FrameWriter calls of one
     writer: MessageWriter = can.Logger(out.write_path)
     if isinstance(writer, can.TRCWriter) and out.kind != "stdout":
@@ -341,7 +341,7 @@ class FrameLog:
         self._taps: dict[str, Callable[[can.Message], None]] = {}
         self._lock = threading.Lock()
         self._closed = False
-        self._out = Output(self.path, option="log", suffix=self.extension)
+        self._out = Output(self.path, key="log", suffix=self.extension)
         try:
             self._frames = FrameWriter(self._out, self.extension)
         except Exception as err:

@@ -205,12 +205,12 @@ class McapRecorder:
     (LogError, and no file, when writing failed), :meth:`discard` keeps nothing."""
 
     def __init__(self, path: str, *, rate_hz: float | None = None,
-                 loop_hz: float = 1000.0, option: str = "record") -> None:
+                 loop_hz: float = 1000.0, key: str = "record") -> None:
         self.path = path
         self.rate_hz = float(rate_hz or loop_hz)
         self.loop_hz = loop_hz
-        self.option = option
-        self.file = McapFile(path, option)
+        self.key = key
+        self.file = McapFile(path, key)
         self.frames = 0
         """Frames written so far."""
         self.samples = 0
@@ -472,7 +472,7 @@ class McapRecorder:
         err = self._failure or self.file.failure
         if err is not None:
             raise LogError(f"{self.path}: {reason(err)}; nothing was kept",
-                           path=self.path, key=self.option) from err
+                           path=self.path, key=self.key) from err
 
     def _stop_thread(self) -> None:
         self._stopping.set()
@@ -506,7 +506,7 @@ class McapRecorder:
             if isinstance(err, InputError | LogError):
                 raise
             raise LogError(f"{self.path}: {reason(err)}; nothing was kept",
-                           path=self.path, key=self.option) from err
+                           path=self.path, key=self.key) from err
 
     def discard(self) -> None:
         """End the recording and keep nothing (idempotent)."""

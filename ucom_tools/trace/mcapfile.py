@@ -205,17 +205,17 @@ class McapFile:
     directory missing, a directory, a device or FIFO that cannot seek (the writer goes
     back to complete each chunk's header)."""
 
-    def __init__(self, path: str | os.PathLike[str], option: str,
+    def __init__(self, path: str | os.PathLike[str], key: str,
                  out: Output | None = None) -> None:
         import foxglove
         from foxglove.mcap import MCAPWriteOptions
 
         self.path = Path(path)
-        self.option = option
+        self.key = key
         self._own = out is None
         """Whether :meth:`commit` renames the file into place (else its owner does, after
         :meth:`finish`)."""
-        self._out = out if out is not None else Output(self.path, option=option,
+        self._out = out if out is not None else Output(self.path, key=key,
                                                         suffix=EXTENSION)
         self._lock = threading.Lock()
         try:
@@ -227,11 +227,11 @@ class McapFile:
             self._out.discard()
             raise InputError(f"cannot write {os.fspath(self.path)}: an MCAP file is "
                              "written to a regular file or a device that can seek (its "
-                             "writer goes back to complete each chunk)", key=option) from None
+                             "writer goes back to complete each chunk)", key=key) from None
         except WriteError as err:  # cannot even be opened: bad input, nothing written
             self._out.discard()
             raise InputError(f"cannot write {os.fspath(self.path)}: {reason(err)}",
-                             key=option) from None
+                             key=key) from None
         self._stream = stream
         self._sink = _Sink(stream)
         self._context = foxglove.Context()
@@ -245,7 +245,7 @@ class McapFile:
             stream.close()
             self._out.discard()
             raise InputError(f"cannot write {os.fspath(self.path)}: {reason(err)}",
-                             key=option) from None
+                             key=key) from None
 
     @property
     def failure(self) -> BaseException | None:

@@ -120,7 +120,7 @@ class RunRecorder(can.Listener):
         written whatever it is), its prefix, kind and text."""
         self._closed = False
         self._failure: BaseException | None = None
-        self._batch = Batch(option="record")
+        self._batch = Batch(key="record")
         self._frames: FrameWriter | None = None
         self._values_file: IO[str] | None = None
         try:

@@ -48,9 +48,9 @@ def _board(out: list[str], board: BoardBlock) -> None:
     out.append(f"{i1}}}{board.number}")
 
 
-def save(tree: Tree, path: str | Path, *, option: str | None = None) -> None:
+def save(tree: Tree, path: str | Path, *, key: str | None = None) -> None:
     """Write ``tree`` to ``path`` by the rules of ``ucom(1)``, FILES: a regular file
     atomically (a temporary file in the same directory, synced, renamed over the target,
     which keeps its permissions), a link's target in its place, a device or FIFO written
     through, ``-`` standard output."""
-    fileio.write_text(path, dumps(tree), option=option, allow_stdout=True)
+    fileio.write_text(path, dumps(tree), key=key, allow_stdout=True)

@@ -130,7 +130,7 @@ class NonVolatile:
 
     def _save(self, path: Path, *, flash: bool) -> None:
         try:
-            with fileio.Batch(option="state_dir") as batch:
+            with fileio.Batch(key="state_dir") as batch:
                 if flash:
                     batch.write_bytes(path.with_suffix(".flash"),
                                       self.p.words.tobytes() + self.x.words.tobytes())
