@@ -170,7 +170,8 @@ def test_a_python_caller_is_told_the_parameter_the_command_line_its_option() -> 
      "--topology FILE"),
     (ConnectSpec(interface="socketcand", channels=("CAN0",), port=1),
      "host: the socketcand interface needs a host and a port",
-     "--host: the socketcand interface needs a host and a port: give --host and --port"),
+     "--host: the socketcand interface needs a host and a port: give --host HOST --port "
+     "PORT, the address the socketcand server (ucom fleet serve, socketcand) listens on"),
 ])
 def test_a_missing_input_is_named_and_the_command_line_says_how_to_give_it(
         spec: ConnectSpec, python: str, command_line: str) -> None:

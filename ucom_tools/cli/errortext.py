@@ -30,7 +30,8 @@ MISSING: dict[str, str] = {
     "interface": "use --virtual NAME for the virtual fleet, or -i/--interface (e.g. "
                  "socketcan, pcan, socketcand) with -c/--channel",
     "channels": "use -c/--channel (repeat it for several buses) or --topology FILE",
-    "host": "give --host and --port",
+    "host": "give --host HOST --port PORT, the address the socketcand server (ucom fleet "
+            "serve, socketcand) listens on",
     "topology": "give --topology FILE or --virtual NAME",
 }
 """How to give an input that was missing (:class:`~ucom_tools.errors.MissingInput`)."""
