@@ -48,7 +48,9 @@ SDO timeout is 20 ms); the loop's lateness p99 with the gateway <= 1.2 x without
 joint enabled and at least 99 % of the SYNCs complete; no watchdog stop.  ``--json``
 prints the figures as one JSON object; ``--quick`` measures 3 s at each rate.  On the
 development machine (2 cores) everything above shares two processors: ``cores`` says how
-many this machine has.
+many this machine has.  ``--buses N`` puts only the first N UCoM buses' joints on CANopen
+buses (``canopen_buses``; one master each): what the gateway's path costs where the
+machine is not saturated by four masters beside the served fleet.
 """
 
 from __future__ import annotations
@@ -142,12 +144,13 @@ def run_baseline(port: int, seconds: float, realtime: bool) -> dict[str, Any]:
                          ) from None
 
 
-def bus_plan() -> list[dict[str, Any]]:
-    """Per CANopen bus: its channel, its joints' node IDs, the SO object each one's SDO
-    uploads read besides 0x6064, and their dictionaries (for ``pdo_load``)."""
+def bus_plan(count: int = len(BUSES)) -> list[dict[str, Any]]:
+    """Per CANopen bus (those of the first ``count`` UCoM buses): its channel, its joints'
+    node IDs, the SO object each one's SDO uploads read besides 0x6064, and their
+    dictionaries (for ``pdo_load``)."""
     robot = joints.load("armar3")
     plan = []
-    for n, bus in enumerate(BUSES):
+    for n, bus in enumerate(BUSES[:count]):
         mine = [j for j in robot.joints if j.bus == bus]
         ods = [dictionary.to_canopen(dictionary.build(j)) for j in mine]
         so = [min((i for i in od if 0x4000 <= i < 0x6000), default=0x6064) for od in ods]
@@ -279,7 +282,8 @@ def targets_of(figures: dict[str, Any]) -> dict[str, bool]:
 
 
 def report(figures: dict[str, Any], targets: dict[str, bool]) -> None:
-    print(f"ARMAR-III's {figures['joints']} joints on 4 CANopen buses beside the 1 kHz "
+    print(f"ARMAR-III's {figures['joints']} joints on {figures['canopen_buses']} CANopen "
+          f"bus(es) beside the 1 kHz "
           f"loop over fleet serve, {figures['seconds']:g} s measured at each SYNC rate; "
           f"{figures['cores']} cores; run time {figures['run_time']}:")
     for r in figures["rates"]:
@@ -321,11 +325,14 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="3 s at each rate")
     ap.add_argument("--realtime", action="store_true",
                     help="the loop under SCHED_FIFO (remote run --realtime), both runs")
+    ap.add_argument("--buses", type=int, default=len(BUSES), choices=range(1, len(BUSES) + 1),
+                    help="CANopen buses (and masters): those of the first N UCoM buses' "
+                    "joints (default 4, every joint)")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     seconds = 3.0 if args.quick else args.seconds
     rates = [float(r) for r in args.rates.split(",")]
-    plan = bus_plan()
+    plan = bus_plan(args.buses)
     per_rate = []
     with served() as port:
         for rate in rates:  # each against the baseline run just before it
@@ -341,6 +348,7 @@ def main() -> int:
                 print(f"  ({rate:g} Hz measured)", flush=True)
     figures: dict[str, Any] = {
         "seconds": seconds, "joints": sum(len(b["nodes"]) for b in plan),
+        "canopen_buses": len(plan),
         "cores": os.cpu_count(), "realtime": args.realtime,
         "run_time": compiled.status().reason, "rates": per_rate,
         "load_average": round(os.getloadavg()[0], 2)}

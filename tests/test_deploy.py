@@ -3,8 +3,10 @@ deploys killed (SIGKILL) at points spread over the work, then resumed.
 
 A killed deploy is stopped at a known point without sleeping: its ``--log`` goes to a
 FIFO this test reads, and after the step the deploy names on stderr the test reads a
-given number of frames more and then stops reading: the deploy blocks on its full log
-within a pipe's worth of frames, and is killed there.
+given number of frames more and kills it then (:class:`Killer`).  The deploy does not
+wait for its log (a thread writes the queued frames every 50 ms): the frames are a
+clock, not a brake, so a point that must hold a stage (a bus's boards being programmed)
+kills on the line itself, said after the journal was saved and before the step's work.
 """
 
 from __future__ import annotations
@@ -139,7 +141,7 @@ class Killer:
         while True:
             if self.limit is not None and self.count >= self.limit:
                 self.blocked.set()
-                return  # stop reading: the deploy blocks on its full log
+                return  # the point is reached: the test kills the deploy
             if not f.readline():
                 self.blocked.set()
                 return
