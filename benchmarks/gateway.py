@@ -49,8 +49,9 @@ joint enabled and at least 99 % of the SYNCs complete; no watchdog stop.  ``--js
 prints the figures as one JSON object; ``--quick`` measures 3 s at each rate.  On the
 development machine (2 cores) everything above shares two processors: ``cores`` says how
 many this machine has.  ``--buses N`` puts only the first N UCoM buses' joints on CANopen
-buses (``canopen_buses``; one master each): what the gateway's path costs where the
-machine is not saturated by four masters beside the served fleet.
+buses (``canopen_buses``; one master each; the other joints' nodes on a bus of their
+own that no master drives): what the gateway's path costs where the machine is not
+saturated by four masters beside the served fleet.
 """
 
 from __future__ import annotations
@@ -163,6 +164,8 @@ def run_gateway(port: int, rate: float, seconds: float, plan: list[dict[str, Any
                 realtime: bool) -> dict[str, Any]:
     """The gateway for ``seconds`` + :data:`SETUP_S` with a master per CANopen bus."""
     specs = [f"{b['bus']}=socketcand:{b['channel']}@127.0.0.1:{port}" for b in plan]
+    if len(plan) < len(BUSES):  # the other joints' nodes on a bus no master drives
+        specs.append(f"socketcand:CO{len(plan)}@127.0.0.1:{port}")
     args = [a for s in specs for a in ("--canopen", s)]
     gw = subprocess.Popen(ucom("gateway", "canopen", *connection(port, realtime), *args,
                                "--for", f"{seconds + SETUP_S:g}", "--json"), text=True,
