@@ -20,9 +20,10 @@ Figures, per SYNC rate (``rates``; every bus's pooled):
 - ``sync_tpdo_p50_ms`` / ``_p99_ms`` / ``_max_ms``: from the SYNC's send (the master's
   clock, just before the call) to the end on the bus of the last TPDO of that SYNC (the
   frame's time stamp, as python-can gives it: the served bus stamps each frame with the
-  end of its transmission, on the wall clock); ``sync_tpdo_arrival_p99_ms``: the same to
-  its arrival in the master's receiving thread; ``complete_pct``: SYNCs whose every TPDO
-  (2 a node) came before the next SYNC;
+  end of its transmission, on the wall clock): the 2 a node-th TPDO after it, so that a
+  SYNC whose TPDOs spill past the next one counts its whole time; every SYNC counts;
+  ``sync_tpdo_arrival_p99_ms``: the same to its arrival in the master's receiving
+  thread; ``complete_pct``: SYNCs whose every TPDO (2 a node) came before the next SYNC;
 - ``sdo_p50_ms`` / ``sdo_p99_ms`` / ``sdo_max_ms``: SDO upload round trips (request sent
   to answer received), ``sdo_timeouts`` (none within 50 ms);
 - ``cpu_us_per_joint_sync``: the gateway's CPU on SYNCs (RPDOs applied, its drives run,

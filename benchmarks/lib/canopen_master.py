@@ -223,8 +223,10 @@ class Master:
 
     def sync_figures(self) -> dict[str, Any]:
         """Per SYNC (the last one's TPDOs may come after the window: left out), the time
-        from its send to the last of its TPDOs, by time stamp and by arrival: the TPDOs
-        between it and the next SYNC, where all 2 a node came."""
+        from its send to the last of its TPDOs, by time stamp and by arrival: the 2 a
+        node-th TPDO after it, so that a SYNC whose TPDOs spill past the next SYNC counts
+        its whole time (and one the nodes did not answer, the time until as many TPDOs
+        came); ``complete``: the SYNCs whose every TPDO came before the next SYNC."""
         syncs, expected = self.syncs, 2 * len(self.spec.nodes)
         out: dict[str, Any] = {"syncs": max(0, len(syncs) - 1)}
         for key, column in (("sync_tpdo_s", 1), ("sync_tpdo_arrival_s", 0)):
@@ -233,9 +235,9 @@ class Master:
             complete = 0
             for s0, s1 in itertools.pairwise(syncs):
                 lo, hi = bisect.bisect_right(times, s0), bisect.bisect_right(times, s1)
-                if hi - lo == expected:
-                    complete += 1
-                    latencies.append(times[hi - 1] - s0)
+                complete += hi - lo == expected
+                if lo + expected <= len(times):
+                    latencies.append(times[lo + expected - 1] - s0)
             out[key] = latencies
             if column == 1:
                 out["complete"] = complete
