@@ -32,30 +32,43 @@ CYCLE = 0.001
 SLACK = 0.015
 
 
-class Recorder(can.Listener):
-    """Every frame on the bus with its time stamp, and waits on them."""
+class Recorder:
+    """Every frame on the bus with its time stamp, and waits on them.  It reads its own end
+    of the virtual bus when asked (no reader thread): python-can's virtual bus puts a
+    frame into every other end's queue as it is sent, so what a peer has answered is
+    here when it is asked for, and a :meth:`mark` counts everything sent before it (a
+    reader thread that the machine kept waiting gave marks that were behind: a barrier
+    then took an earlier SDO answer for its own)."""
 
-    def __init__(self) -> None:
+    def __init__(self, bus: can.BusABC) -> None:
+        self.bus = bus
         self.frames: list[can.Message] = []
-        self.cond = threading.Condition()
+        self.lock = threading.Lock()
 
-    def on_message_received(self, msg: can.Message) -> None:
-        with self.cond:
+    def _take(self, timeout: float = 0.0) -> None:
+        msg = self.bus.recv(timeout)
+        while msg is not None:
             self.frames.append(msg)
-            self.cond.notify_all()
+            msg = self.bus.recv(0.0)
 
     def wait_for(self, pred: Callable[[list[can.Message]], Any], timeout: float = WAIT) -> Any:
-        with self.cond:
-            result = self.cond.wait_for(lambda: pred(self.frames), timeout)
-        assert result, "deadline passed"
+        deadline = time.monotonic() + timeout
+        with self.lock:
+            self._take()
+            while not (result := pred(self.frames)):
+                left = deadline - time.monotonic()
+                assert left > 0, "deadline passed"
+                self._take(min(left, 0.05))
         return result
 
     def mark(self) -> int:
-        with self.cond:
+        with self.lock:
+            self._take()
             return len(self.frames)
 
     def since(self, mark: int, cob_id: int | None = None) -> list[can.Message]:
-        with self.cond:
+        with self.lock:
+            self._take()
             return [m for m in self.frames[mark:]
                     if cob_id is None or m.arbitration_id == cob_id]
 
@@ -112,8 +125,7 @@ class Rig:
     def __init__(self, ids: tuple[int, ...] = (5,)) -> None:
         channel = f"gw-node-{uuid.uuid4().hex}"
         self.buses = [can.Bus(interface="virtual", channel=channel) for _ in range(3)]
-        self.recorder = Recorder()
-        self.notifier = can.Notifier(self.buses[0], [self.recorder], 0.05)
+        self.recorder = Recorder(self.buses[0])
         self.net = canopen.Network(self.buses[1])
         self.net.NOTIFIER_CYCLE = 0.05  # (this network's: a prompt disconnect)
         self.net.connect()
@@ -132,7 +144,6 @@ class Rig:
     def close(self) -> None:
         self.runtime.close()
         self.net.disconnect()
-        self.notifier.stop()
         for bus in self.buses:
             bus.shutdown()
 
