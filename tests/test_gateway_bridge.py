@@ -58,6 +58,11 @@ class Rig:
         self.net.add_node(node)
         return node
 
+    def emcys_of(self, emcy: tuple[int, int]) -> int:
+        """How many EMCYs (node, code) the listener has seen so far."""
+        with self.lock:
+            return self.emcys.count(emcy)
+
     def until(self, what: Callable[[], bool], why: str) -> None:
         """Wait (the loop runs on its own thread) until ``what`` holds."""
         end = time.monotonic() + DEADLINE_S
@@ -167,8 +172,8 @@ def test_a_lost_board_puts_its_joints_in_fault_with_its_emcy(rig: Rig) -> None:
     rig.until(lambda: eye.sdo[0x6041].raw & 0x004F == 0x0008, "no FAULT")
     assert other.sdo[0x6041].raw & 0x004F == 0x0008
     assert eye.sdo[0x603F].raw == 0xFF01
-    with rig.lock:
-        assert (RIGHT_EYE, 0xFF01) in rig.emcys and (LEFT_EYE, 0xFF01) in rig.emcys
+    rig.until(lambda: rig.emcys_of((RIGHT_EYE, 0xFF01)) and rig.emcys_of((LEFT_EYE, 0xFF01)),
+              "no EMCY 0xFF01 of both eyes")  # (the listener's thread may lag the SDO)
     with pytest.raises(SdoAbortedError) as err:
         eye.sdo["RightEye P"].raw = 1000
     assert err.value.code == 0x08000022
@@ -258,6 +263,7 @@ def test_a_mode_the_joint_lacks_is_refused_and_a_lost_board_sends_one_emcy(rig: 
         rig.until(cycles_on(20), "the loop stopped")
         rig.net.sync.transmit()
     rig.until(lambda: rig.gateway.runtimes[0].stats().syncs == syncs + 5, "SYNCs not seen")
+    rig.until(lambda: rig.emcys_of((RIGHT_EYE, 0xFF01)) > 0, "no EMCY")  # (the listener)
     with rig.lock:  # the drives ran many times while it stayed lost: one EMCY each
         assert rig.emcys.count((RIGHT_EYE, 0xFF01)) == 1, rig.emcys
 
