@@ -9,7 +9,9 @@ RECORDINGS; the channels and the writer: :mod:`ucom_tools.trace.mcapfile`).
 :class:`RunSource`, the :class:`~ucom_tools.ops.remote.mirror.Mirror`): the sinks it adds
 only queue what comes (the pipe's reader must keep up); a thread of its own encodes and
 writes every :data:`WRITE_EVERY_S`, up to the latest snapshot, so that the faults and
-events a snapshot brings are placed in time among the values before they are written.
+events a snapshot brings are placed in time among the values before they are written;
+it pauses now and then (:class:`~ucom_tools.courtesy.Courtesy`), so that the process's
+other threads (the pipe's reader, the Foxglove feed) are not kept waiting for the GIL.
 
 One time base: every time is the frames' (a frame's stamp, a value's frame, a
 snapshot's ``stamp``, an event's time via ``on_stamps``), mapped once to the wall clock
@@ -37,6 +39,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
 from ucom_tools import __version__
+from ucom_tools.courtesy import Courtesy
 from ucom_tools.errors import InputError, WriteError
 from ucom_tools.fileio import reason
 from ucom_tools.protocol.traffic import ERROR, EXTENDED, REMOTE, SENT
@@ -232,6 +235,7 @@ class McapRecorder:
         self._closed = False
         self._lock = threading.Lock()
         self._stopping = threading.Event()
+        self._courtesy = Courtesy()
         self._thread = threading.Thread(target=self._run, name="ucom-mcap", daemon=True)
 
     # ------------------------------------------------------------------ the source's side
@@ -280,7 +284,9 @@ class McapRecorder:
         for item in batch:  # faults and events first: they are placed by their times
             if item[0] == "s":
                 self._snapshot_events(item[1])
+        courtesy = self._courtesy
         for item in batch:
+            courtesy()
             kind = item[0]
             if kind == "c":
                 self._change(item[1], item[2], item[3])
@@ -360,6 +366,7 @@ class McapRecorder:
         while self._next <= t:
             self._sample(self._next)
             self._next += step
+            self._courtesy()
 
     def _sample(self, t: float) -> None:
         timeline = self._timeline

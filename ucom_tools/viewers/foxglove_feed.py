@@ -9,7 +9,9 @@ batch of frames for a bus some client subscribes to (a dictionary look-up and a 
 to the SDK otherwise), so that what a client asks for never slows the hand-over the
 recording depends on; the thread builds the messages (only of subscribed channels)
 and hands them to the SDK.  A client that cannot keep up loses the oldest frames
-(:data:`FRAME_BACKLOG`, counted), never the run.
+(:data:`FRAME_BACKLOG`, counted), never the run.  Between two batches it pauses now and
+then (:class:`~ucom_tools.courtesy.Courtesy`): the pipe's reader, which brings the
+values, does not wait for the GIL behind the frames.
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from collections import deque
 from concurrent.futures import TimeoutError as FutureTimeout
 from typing import TYPE_CHECKING, Any, Final
 
+from ucom_tools.courtesy import Courtesy
 from ucom_tools.errors import BusError, InputError, UcomError
 from ucom_tools.net.keys import number
 from ucom_tools.ops.edges import EdgeRef
@@ -73,6 +76,7 @@ class RunFoxglove:
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._bell = mirror.subscribe(rate_hz, into=self._queue)
         self._closing = threading.Event()
+        self._courtesy = Courtesy()
         self.server.writer = self._write
         self.server.reader = self._read
         mirror.frame_sinks.append(self._take_frames)
@@ -186,6 +190,7 @@ class RunFoxglove:
             ch = self._frame_channels[bus]
             for entry in entries:
                 s.send(ch, s.clock.ns(entry[2]), fm.frame_json(entry))
+            self._courtesy()
             if not waiting.empty():
                 with contextlib.suppress(queue.Empty):
                     self._take(waiting.get_nowait())
