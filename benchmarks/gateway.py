@@ -61,9 +61,11 @@ import argparse
 import contextlib
 import json
 import os
+import select
 import signal
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from dataclasses import asdict
 from pathlib import Path
@@ -161,6 +163,21 @@ def bus_plan(count: int = len(BUSES)) -> list[dict[str, Any]]:
     return plan
 
 
+def master_line(proc: subprocess.Popen[str], gw: subprocess.Popen[str],
+                deadline: float) -> str:
+    """The line a master prints once measured; '' at once where the gateway ended first
+    (it failed at its start: the master would wait :data:`START_S` for its nodes in
+    vain) or the master ended, or at ``deadline``."""
+    assert proc.stdout is not None
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([proc.stdout], [], [], 0.2)
+        if ready:
+            return proc.stdout.readline()
+        if gw.poll() is not None or proc.poll() is not None:
+            return ""
+    return ""
+
+
 def run_gateway(port: int, rate: float, seconds: float, plan: list[dict[str, Any]],
                 realtime: bool) -> dict[str, Any]:
     """The gateway for ``seconds`` + :data:`SETUP_S` with a master per CANopen bus."""
@@ -183,14 +200,14 @@ def run_gateway(port: int, rate: float, seconds: float, plan: list[dict[str, Any
                 stderr=subprocess.PIPE))  # in this session: Linux shares the processors
             # between sessions first; the masters stand for one other computer
         results = []
+        deadline = time.monotonic() + START_S + seconds + SETUP_S + 60
         for proc in masters:  # each prints its figures once measured, then syncs on
-            assert proc.stdout is not None
-            line = proc.stdout.readline()
+            line = master_line(proc, gw, deadline)
             results.append(json.loads(line) if line.startswith("{") else
                            {"error": line + (proc.stderr.read()[-2000:]
                                              if proc.poll() is not None and proc.stderr
                                              else "")})
-        out, err = gw.communicate(timeout=START_S + seconds + SETUP_S + 60)
+        out, err = gw.communicate(timeout=max(1.0, deadline - time.monotonic()))
     finally:
         for proc in masters:
             with contextlib.suppress(OSError):
