@@ -355,3 +355,28 @@ def test_the_layout_replaces_no_file_and_names_a_wrong_robot(tmp_path: Path) -> 
     assert r.exit_code == 3 and "armar33" in r.stderr and not (tmp_path / "x.json").exists()
     assert ucom("remote", "layout", "armar3", "-o", str(mine), "--force").exit_code == 0
     assert json.loads(mine.read_text())["content"]["type"] == "tabs"
+
+
+@pytest.mark.parametrize("flags", range(16))
+def test_a_handed_over_frame_is_written_as_the_schema_says(flags: int) -> None:
+    """The recorder's and the Foxglove feed's encoder (a table of the flags' fields)
+    against json.dumps of what the schema names, for every combination of flags."""
+    import base64
+
+    from ucom_tools.protocol.traffic import ERROR, EXTENDED, REMOTE, SENT
+    from ucom_tools.trace.mcapfile import FRAME_SCHEMA, entry_json, frame_json
+
+    for ident, data in ((0x1ABCDEF, bytes(range(8))), (0x7FF, b""), (0x123, b"\xff")):
+        entry = (ident, data, 1765161234.123457, flags)
+        got = entry_json(entry)
+        expected = {"time": 1765161234.123457, "id": ident,
+                    "extended": bool(flags & EXTENDED), "remote": bool(flags & REMOTE),
+                    "error": bool(flags & ERROR),
+                    "direction": "tx" if flags & SENT else "rx", "dlc": len(data),
+                    "data": base64.b64encode(data).decode()}
+        assert json.loads(got) == expected and list(json.loads(got)) == list(expected)
+        assert set(expected) == set(FRAME_SCHEMA["properties"])
+        assert got == frame_json(1765161234.123457, ident, data,
+                                 extended=bool(flags & EXTENDED),
+                                 remote=bool(flags & REMOTE), error=bool(flags & ERROR),
+                                 rx=not flags & SENT)

@@ -42,7 +42,6 @@ from ucom_tools import __version__
 from ucom_tools.courtesy import Courtesy
 from ucom_tools.errors import InputError, WriteError
 from ucom_tools.fileio import reason
-from ucom_tools.protocol.traffic import ERROR, EXTENDED, REMOTE, SENT
 from ucom_tools.trace.logs import LogError, not_kept
 from ucom_tools.trace.mcapfile import (
     EVENTS_TOPIC,
@@ -53,7 +52,7 @@ from ucom_tools.trace.mcapfile import (
     LOG_SCHEMA,
     ROBOT_METADATA,
     McapFile,
-    frame_json,
+    entry_json,
     frames_topic,
     stamp_json,
     wall_offset,
@@ -342,12 +341,10 @@ class McapRecorder:
         offset = self._offset
         assert offset is not None
         last = self._last_log.get(topic, 0)
-        for ident, data, stamp, flags in entries:
-            ns = max(round((stamp + offset) * 1e9), last)
+        for entry in entries:
+            ns = max(round((entry[2] + offset) * 1e9), last)
             last = ns
-            ch.log(frame_json(stamp, ident, data, extended=bool(flags & EXTENDED),
-                              remote=bool(flags & REMOTE), error=bool(flags & ERROR),
-                              rx=not flags & SENT), log_time=ns)
+            ch.log(entry_json(entry), log_time=ns)
         self._last_log[topic] = last
         self.frames += len(entries)
 

@@ -38,13 +38,14 @@ import threading
 from collections.abc import Iterator
 from decimal import Decimal
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Final
 
 import can
 
 from ucom_tools import fileio
 from ucom_tools.errors import InputError, WriteError
 from ucom_tools.fileio import Output, reason
+from ucom_tools.protocol.traffic import ERROR, EXTENDED, REMOTE, SENT, SinkEntry
 
 EXTENSION = ".mcap"
 
@@ -124,14 +125,37 @@ def frames_topic(bus: str) -> str:
     return f"/{bus}{FRAMES_SUFFIX}"
 
 
+def _flags_json(flags: int) -> bytes:
+    """The fields between a frame's ``id`` and its ``dlc`` for the hand-over's flags."""
+    def word(on: bool) -> str:
+        return "true" if on else "false"
+    return (f',"extended":{word(bool(flags & EXTENDED))},"remote":{word(bool(flags & REMOTE))},'
+            f'"error":{word(bool(flags & ERROR))},'
+            f'"direction":"{"tx" if flags & SENT else "rx"}","dlc":').encode("ascii")
+
+
+_FLAGS_JSON: Final = tuple(_flags_json(f) for f in range(16))
+_FRAME_JSON: Final = b'{"time":%r,"id":%d%b%d,"data":"%b"}'
+
+
 def frame_json(stamp: float, ident: int, data: bytes, *, extended: bool, remote: bool,
                error: bool, rx: bool, dlc: int | None = None) -> bytes:
     """One frame as :data:`FRAME_SCHEMA` says (formatted by hand: ``json.dumps`` costs
     several times as much)."""
-    return (f'{{"time":{stamp!r},"id":{ident},"extended":{"true" if extended else "false"},'
-            f'"remote":{"true" if remote else "false"},"error":{"true" if error else "false"},'
-            f'"direction":"{"rx" if rx else "tx"}","dlc":{len(data) if dlc is None else dlc},'
-            f'"data":"{base64.b64encode(data).decode("ascii")}"}}').encode("ascii")
+    flags = ((EXTENDED if extended else 0) | (REMOTE if remote else 0)
+             | (ERROR if error else 0) | (0 if rx else SENT))
+    return _FRAME_JSON % (stamp, ident, _FLAGS_JSON[flags],
+                          len(data) if dlc is None else dlc,
+                          binascii.b2a_base64(data, newline=False))
+
+
+def entry_json(entry: SinkEntry) -> bytes:
+    """A frame the loop handed over (identifier, data, stamp, flags) as
+    :func:`frame_json` writes it, in half its time: 25,000 frames a second of ARMAR-III
+    pass here twice with ``--record run.mcap --foxglove``."""
+    ident, data, stamp, flags = entry
+    return _FRAME_JSON % (stamp, ident, _FLAGS_JSON[flags & 15], len(data),
+                          binascii.b2a_base64(data, newline=False))
 
 
 def stamp_json(ns: int) -> str:
@@ -412,5 +436,5 @@ def read_json_messages(path: str | os.PathLike[str], schema_name: str,
 
 __all__ = ["EVENTS_TOPIC", "EXTENSION", "FRAME_SCHEMA", "FRAME_SCHEMA_NAME", "JOINTS_SCHEMA",
            "JOINTS_TOPIC", "LOG_LEVELS", "LOG_SCHEMA", "ROBOT_METADATA", "McapFile",
-           "McapFrameWriter", "frame_json", "frames_topic", "is_mcap", "messages_of",
+           "McapFrameWriter", "entry_json", "frame_json", "frames_topic", "is_mcap", "messages_of",
            "read_frames", "read_json_messages", "stamp_json", "wall_offset"]

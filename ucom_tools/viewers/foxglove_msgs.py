@@ -28,7 +28,7 @@ from ucom_tools.net.encode import Conv, conv_of, write
 from ucom_tools.ops.edges import EdgeRef
 from ucom_tools.ops.remote.image import PartImage
 from ucom_tools.ops.remote.publish import LoopSnapshot
-from ucom_tools.protocol.traffic import ERROR, EXTENDED, REMOTE, SENT, SinkEntry
+from ucom_tools.protocol.traffic import SinkEntry
 from ucom_tools.trace import mcapfile
 from ucom_tools.trace.mcap_record import Board, joints_of, layout, values_schema
 from ucom_tools.trace.mcapfile import (
@@ -107,10 +107,7 @@ def time_json(ns: int) -> str:
 
 def frame_json(entry: SinkEntry) -> bytes:
     """One frame as its ``/<bus>/frames`` message (:data:`FRAME_SCHEMA`)."""
-    ident, data, stamp, flags = entry
-    return mcapfile.frame_json(stamp, ident, data, extended=bool(flags & EXTENDED),
-                               remote=bool(flags & REMOTE), error=bool(flags & ERROR),
-                               rx=not flags & SENT)
+    return mcapfile.entry_json(entry)
 
 
 def log_json(ns: int, level: int, message: str, name: str = "ucom") -> str:
