@@ -92,7 +92,9 @@ def topic_chunk(text: str) -> str:
 
 @dataclass
 class Board:
-    """One board's values as the recorder keeps them."""
+    """One board's values as the recorder keeps them: each edge's last value as text
+    and as its field of the message (``"Key":text``, made when the value changes, not
+    at each of the 1,000 samples a second), and the fields joined once after a change."""
 
     bus: str
     board: int
@@ -104,10 +106,31 @@ class Board:
     texts: list[str | None] = field(default_factory=list)
     valid: bool = True
     channel: Any = None
+    fields: list[str | None] = field(default_factory=list)
+    known: int = 0
+    """How many of its edges have a value."""
+    body: str | None = None
+    """The fields joined (None: to be joined again)."""
+
+    def add(self, key: str, ref: Any) -> None:
+        self.keys.append(key)
+        self.edges.append(ref)
+        self.texts.append(None)
+        self.fields.append(None)
+
+    def set(self, i: int, text: str) -> None:
+        """Edge ``i``'s value is ``text`` now."""
+        if self.texts[i] != text:
+            if self.texts[i] is None:
+                self.known += 1
+            self.texts[i] = text
+            self.fields[i] = f'"{self.keys[i]}":{text}'
+            self.body = None
 
     def message(self, t: float) -> bytes:
-        body = ",".join(f'"{k}":{v}' for k, v in zip(self.keys, self.texts, strict=True)
-                        if v is not None)
+        body = self.body
+        if body is None:
+            body = self.body = ",".join(f for f in self.fields if f is not None)
         return (f'{{"time":{t!r},"valid":{"true" if self.valid else "false"}'
                 + ("," + body if body else "") + "}").encode()
 
@@ -136,9 +159,7 @@ def layout(refs: Iterable[Any]) -> list[Board]:
         while key in b.keys or key in RESERVED:
             n += 1
             key = f"{base}_{n}"
-        b.keys.append(key)
-        b.edges.append(ref)
-        b.texts.append(None)
+        b.add(key, ref)
     prefixes = [b.prefix for b in by_board.values()]
     for b in by_board.values():
         chunk = topic_chunk(b.prefix) if b.prefix and prefixes.count(b.prefix) == 1 \
@@ -353,7 +374,7 @@ class McapRecorder:
         self._advance(t)
         got = self._slots.get(ref)
         if got is not None:
-            got[0].texts[got[1]] = str(value)
+            got[0].set(got[1], str(value))
 
     def _advance(self, t: float) -> None:
         """Write every sample due up to bus time ``t``."""
@@ -373,7 +394,7 @@ class McapRecorder:
                 if (b.bus, b.board) == board:
                     b.valid = valid
         for b in self._boards or ():
-            if any(v is not None for v in b.texts):
+            if b.known:
                 self._log(b.channel, b.topic, t, b.message(t))
                 self.samples += 1
         if self._joint_channel is not None:
@@ -443,7 +464,7 @@ class McapRecorder:
         for ref, (_, value) in image.decode(snap.values).items():
             got = self._slots.get(ref)
             if got is not None:
-                got[0].texts[got[1]] = str(value)
+                got[0].set(got[1], str(value))
         for b in self._boards:
             b.valid = not snap.stale(b.bus, b.board)
         t = max(snap.stamp, self._next if self._next is not None else snap.stamp)
