@@ -5,10 +5,10 @@
 //
 // Connects with the subprotocol foxglove.sdk.v1 (the SDK's server refuses the library's
 // own foxglove.websocket.v1), subscribes to each TOPIC as it is advertised, and once every
-// TOPIC but /events brought a message publishes --set on /set ({"name", "value"}) and sets --param
+// TOPIC but /events and /set brought a message publishes --set on /set ({"name", "value"}) and sets --param
 // as a parameter.  Prints one JSON line per event (advertised channels, messages with
 // their log time as text, status messages, parameter values) and a summary; exits 0
-// after SECONDS, 2 where a TOPIC but /events brought nothing by then, 3 where it could not connect.
+// after SECONDS, 2 where a TOPIC but /events and /set brought nothing by then, 3 where it could not connect.
 "use strict";
 const { FoxgloveClient } = require("@foxglove/ws-protocol");
 const WebSocket = require("ws");
@@ -30,7 +30,8 @@ while (args.length) {
 }
 const out = (doc) => process.stdout.write(JSON.stringify(doc) + "\n");
 const counts = Object.fromEntries(topics.map((t) => [t, 0]));
-const gating = topics.filter((t) => t !== "/events"); // events come when they happen
+// events come when they happen, and /set carries the writes this client is to make
+const gating = topics.filter((t) => t !== "/events" && t !== "/set");
 const bySub = new Map();
 let wrote = false;
 

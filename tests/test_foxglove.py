@@ -135,7 +135,8 @@ def test_a_foxglove_client_plots_the_joints_and_frames_and_sets_the_right_eye(
     try:
         run.wait_listening()
         lines = _client(node_modules, run.url, 5, "/joints", "/CAN0/frames",
-                        "/Eyes/values", "/events", "--set", "Right Eye Target=1000")
+                        "/Eyes/values", "/events", "/set", "--set", "Right Eye Target=1000",
+                        "--set", "Right Eye Joint Sensor=5")
     except BaseException:
         terminate(run.proc)
         raise
@@ -144,6 +145,9 @@ def test_a_foxglove_client_plots_the_joints_and_frames_and_sets_the_right_eye(
     assert ads["/joints"]["schemaName"] == "foxglove.JointStates"
     assert ads["/events"]["schemaName"] == "foxglove.Log"
     assert ads["/CAN0/frames"]["schemaName"] == "ucom.CanFrame"
+    # a schema for the Publish panel's writes (Lichtblick flags a name it does not know)
+    assert ads["/set"]["schemaName"] == "ucom.Set"
+    assert json.loads(ads["/set"]["schema"]) == fm.SET_SCHEMA
     # the schemas and topics of a recording (--record run.mcap): one layout for both
     assert json.loads(ads["/CAN0/frames"]["schema"]) == mcapfile.FRAME_SCHEMA
     assert json.loads(ads["/joints"]["schema"]) == mcapfile.JOINTS_SCHEMA
@@ -183,22 +187,30 @@ def test_a_foxglove_client_plots_the_joints_and_frames_and_sets_the_right_eye(
     assert final["Right Eye Target"] == 1000
     assert abs(final["Right Eye Joint Sensor"] - 1000) <= 2
 
-    # the write went through the loop as a local --set does, and is an event
-    assert [(w["name"], w["value"], w["result"]) for w in doc["writes"]] == \
-        [("Right Eye Target", "1000", "done")]
-    assert doc["writes"][0]["origin"].startswith("foxglove client ")
+    # the writes went through the loop as a local --set does, and each is an event once
+    # (the one the loop refused too: the loop's event, not the server's again)
+    writes = {(w["name"], w["value"]): w for w in doc["writes"]}
+    assert set(writes) == {("Right Eye Target", "1000"), ("Right Eye Joint Sensor", "5")}
+    assert writes[("Right Eye Target", "1000")]["result"] == "done"
+    assert "only CI/PAR edges can be set" in writes[("Right Eye Joint Sensor", "5")]["result"]
+    assert all(w["origin"].startswith("foxglove client ") for w in doc["writes"])
     events = [m["message"]["message"] for m in _messages(lines, "/events")]
-    assert any(e.startswith("set Right Eye Target = 1000 from foxglove client")
-               and e.endswith(": done") for e in events), events
+    done = [e for e in events if e.startswith("set Right Eye Target = 1000 from foxglove")]
+    assert len(done) == 1 and done[0].endswith(": done"), events
+    refused = [e for e in events if "Right Eye Joint Sensor = 5" in e]
+    assert len(refused) == 1 and "only CI/PAR edges can be set" in refused[0], events
+    # the server's /set: the write it applied
+    assert [m["message"] for m in _messages(lines, "/set")] == \
+        [{"name": "Right Eye Target", "value": 1000}]
 
     # only what the client subscribed to was encoded, and its sockets had TCP_NODELAY
     served = doc["foxglove"]
     assert set(served["encoded"]) == {"/joints", "/CAN0/frames", "/Eyes/values",
-                                      "/events"}
+                                      "/events", "/set"}
     assert served["encoded"]["/CAN0/frames"] >= len(frames)
     # handed over while watched: every bus's (the loop does not sort them by bus)
     assert served["frames_received"] >= served["encoded"]["/CAN0/frames"]
-    assert served["writes_applied"] == 1 and served["writes_refused"] == 0
+    assert served["writes_applied"] == 1 and served["writes_refused"] == 1
     assert served["nodelay_sockets"] >= 1
 
 
@@ -218,6 +230,7 @@ def test_without_allow_writes_a_clients_write_is_refused_and_said(
     assert any("Right Eye Target = 1000" in s and "--allow-writes" in s for s in statuses)
     events = [m["message"] for m in _messages(lines, "/events")]
     assert any("refused" in e["message"] and e["level"] == fm.LOG_WARNING for e in events)
+    assert sum("Right Eye Target = 1000" in e["message"] for e in events) == 1
     assert [p for d in lines if "parameterValues" in d for p in d["parameterValues"]] == \
         [{"name": "Left Eye Target", "value": 0}]  # as it is: not set
     values = [m["message"] for m in _messages(lines, "/Eyes/values")]

@@ -312,7 +312,13 @@ def test_the_layout_plots_what_a_recording_holds(run, tmp_path: Path) -> None:
             assert p["config"]["topicPath"] in got["topics"]
     assert "/Eyes/values.Right_Eye_Joint_Sensor" in plotted
     assert "/Eyes/values.Right_Eye_Target" in plotted
-    assert sum(p["panelType"] == "RawMessages" for p in panels) == 4
+    # the events and one bus's frames in tabs of their own: a client subscribes to what
+    # the open tab shows, and every frame of four buses overwhelmed a browser
+    tabs = {t["title"]: list(_panels(t["content"]))
+            for t in json.loads(out.read_text())["content"]["tabs"]}
+    assert [p["panelType"] for p in tabs["events"]] == ["Log"]
+    assert [p["config"]["topicPath"] for p in tabs["frames"]] == ["/CAN0/frames"]
+    assert sum(p["panelType"] == "RawMessages" for p in panels) == 1
 
 
 def test_the_lichtblick_layout_holds_every_panel_once(tmp_path: Path) -> None:
@@ -341,8 +347,17 @@ def test_the_lichtblick_layout_holds_every_panel_once(tmp_path: Path) -> None:
     assert sorted(reached) == sorted(config)
     sdk_panels = list(_panels(json.loads(sdk.read_text())["content"]))
     assert len(config) == len(sdk_panels) + 1  # and the Tab panel
-    titles = {c.get("foxglovePanelTitle") for c in config.values()}
-    assert {p.get("title") for p in sdk_panels} <= titles
+    for key in ("lichtblickPanelTitle", "foxglovePanelTitle"):  # Lichtblick's, Studio's
+        assert {p.get("title") for p in sdk_panels} <= {c.get(key) for c in config.values()}
+    plots = [c for name, c in config.items() if name.startswith("Plot!")]
+    assert plots
+    for c in plots:  # what Lichtblick reads (a following view width empties a recording's)
+        assert "followingViewWidth" not in c and "timeWindowMode" not in c
+        for series in c["paths"]:
+            assert "lineStyle" not in series and series["timestampMethod"] == "receiveTime"
+            assert series["lineSize"] > 0 and series["color"].startswith("#")
+        if len(c["paths"]) == 2:  # the value against its target: the target wider
+            assert c["paths"][1]["lineSize"] > c["paths"][0]["lineSize"]
 
 
 def test_the_layout_replaces_no_file_and_names_a_wrong_robot(tmp_path: Path) -> None:

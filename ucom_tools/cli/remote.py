@@ -188,10 +188,11 @@ ROBOT is a bundled topology (armar3, lauron4, ...) or a topology file whose boar
 their attribute trees.  A tab per board with joints: a plot of each joint's sensor
 against its target and one of its velocity against its velocity target (the values
 topics of 'remote run --foxglove' and of a '--record FILE.mcap', which are the same);
-a last tab with the run's events (/events) and each bus's latest frame (/<bus>/frames).
-Import it in the app (Layouts, Import from file), then open ws://127.0.0.1:8765 or the
-recording.  --for lichtblick writes the format of Foxglove Studio 1.x, which Lichtblick
-reads.  The file is written whole or not at all; an existing one only with --force
+a tab with the run's events (/events); a last one with the latest frame of the first bus
+(/CAN0/frames; the panel's topic field picks another bus: a browser sent every bus's
+frames falls behind).  Import it in the app (Layouts, Import from file), then open
+ws://127.0.0.1:8765 or the recording.  Lichtblick refuses the app's format: give it
+--for lichtblick (the format of Foxglove Studio 1.x, which Lichtblick reads).  The file is written whole or not at all; an existing one only with --force
 (else exit code 3)."""
 
 

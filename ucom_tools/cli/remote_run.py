@@ -346,6 +346,11 @@ class _Run:
         if served:
             stderr().print(f"[dim]foxglove: {escape(served['url'])}, values at "
                            f"{o.publish_hz:g} Hz, writes {writes}[/]", soft_wrap=True)
+            if self.spec.virtual and not self.spec.pace:
+                stderr().print("[yellow]foxglove: the virtual fleet runs on its own "
+                               "clock, faster than the wall clock: a viewer sees the run "
+                               "fast-forwarded; give --pace, or serve the fleet (ucom "
+                               "fleet serve), to watch it as a robot runs[/]", soft_wrap=True)
         net = ready.get("zenoh")
         if net:
             stderr().print(f"[dim]zenoh: robot {escape(net['robot'])} "

@@ -17,10 +17,13 @@ What it costs and what it avoids (``/work``'s measurements, ``man/ucom.1``, FOXG
   late 2025 cannot connect).
 
 Writes: a client's ``/set`` messages (``{"name": NAME, "value": NUMBER}``; the app's
-Publish panel) and its parameter writes (the Parameters panel lists the CI and PAR edges
-by robot-wide name) are taken only with ``allow_writes`` and then checked and applied as
-a local ``--set`` (:attr:`FoxgloveServer.writer`); without it each is refused and said so
-on ``/events`` and in the client's status bar.
+Publish panel, schema ``ucom.Set``) and its parameter writes (the Parameters panel lists
+the CI and PAR edges by robot-wide name) are taken only with ``allow_writes`` and then
+checked and applied as a local ``--set`` (:attr:`FoxgloveServer.writer`); without it
+each is refused and said so on ``/events`` and in the client's status bar.  The
+server's own ``/set`` channel (advertised with the schema ``ucom.Set``, so that the
+Publish panel finds it) carries each write it applied.  A write the loop refused is on
+``/events`` once, as the loop reports it (the feed's events), not again by the server.
 """
 
 from __future__ import annotations
@@ -121,6 +124,7 @@ class FoxgloveServer:
                            f"serve there: {why}") from None
         self.port = self.server.port
         self.events = self.channel(fm.EVENTS_TOPIC, fm.LOG_SCHEMA)
+        self.sets = self.channel(fm.SET_TOPIC, fm.SET_SCHEMA)
         self._log = _ToEvents(self)  # the SDK's own warnings: on /events, not the terminal
         sdk_log = logging.getLogger("foxglove")
         sdk_log.addHandler(self._log)
@@ -160,6 +164,10 @@ class FoxgloveServer:
         """A client's write, refused without ``allow_writes`` (said on ``/events`` and to
         the client), else checked and applied as a local ``--set``."""
         origin = f"foxglove client {client} on {socket.gethostname()}:{self.port}"
+        # is the answer on /events already? (the loop reports every write it was asked,
+        # applied or refused, among its events; a robot shared on the network publishes
+        # them)
+        reported = False
         if not isinstance(name, str) or isinstance(value, bool) \
                 or not isinstance(value, int | float | str):
             applied = Applied("refused", 'not a write: expected {"name": NAME, "value": '
@@ -170,11 +178,18 @@ class FoxgloveServer:
                               "--allow-writes)")
         else:
             applied = self.writer(name, value, origin)
+            reported = applied.event is not None or applied.error == "refused"
         if applied.ok:
             self.applied += 1
+            if self.wants(self.sets):
+                ns = fm.now_ns()
+                self.send(self.sets, ns, json.dumps(
+                    {"name": applied.name or name,
+                     "value": number(applied.value) if applied.value is not None
+                     else value}, separators=(",", ":")))
             return applied
         self.refused += 1
-        if applied.error != "failed" or not self.allow_writes:
+        if not reported:
             self.note(fm.LOG_WARNING, applied.message)
         with contextlib.suppress(Exception):
             from foxglove import StatusLevel
@@ -294,7 +309,9 @@ def _parameters(s: FoxgloveServer, names: list[str] | None,
 
 class _ToEvents(logging.Handler):
     """The SDK's log (a client that went away without closing, ...) as the server's
-    events, at warning and above; never on the terminal a live view owns."""
+    events, at warning and above, and as warnings: what the SDK calls an error is about
+    a client's connection ("Connection reset by peer" where a browser tab closed), never
+    the robot; never on the terminal a live view owns."""
 
     def __init__(self, server: FoxgloveServer) -> None:
         super().__init__(logging.WARNING)
@@ -302,5 +319,4 @@ class _ToEvents(logging.Handler):
 
     def emit(self, record: logging.LogRecord) -> None:
         with contextlib.suppress(Exception):
-            self.server.note(fm.LOG_ERROR if record.levelno >= logging.ERROR
-                             else fm.LOG_WARNING, f"foxglove: {record.getMessage()}")
+            self.server.note(fm.LOG_WARNING, f"foxglove: {record.getMessage()}")

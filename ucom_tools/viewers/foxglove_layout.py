@@ -5,8 +5,18 @@ joints, its events and its buses, for the app or Lichtblick to open beside ``rem
 Built with ``foxglove.layouts`` (foxglove-sdk's own layout classes, which write the JSON
 the app imports) from the robot's topology and trees alone, no running robot: one tab
 per board with joints, a plot per joint of its joint sensor against its target (what
-an engineer tuning a gain watches) and one of its velocity; a last tab with the run's
-events (``/events``, a Log panel) and each bus's latest frame (``/<bus>/frames``).
+an engineer tuning a gain watches) and one of its velocity; a tab with the run's events
+(``/events``, a Log panel); a last tab with the latest frame of the first bus
+(``/CAN0/frames``; the panel's topic field picks another bus).  The frames have tabs of
+their own and one bus at a time: a client subscribes to what the open tab shows, and a
+browser sent every frame of ARMAR-III's four buses (25,000 a second) fell behind by
+seconds and lost the events beside them (Lichtblick in headless Chromium, two cores).
+
+Lichtblick (``--for lichtblick``, the format of Foxglove Studio 1.x) reads fewer of a
+plot's settings than the Foxglove app: its panel titles under ``lichtblickPanelTitle``;
+no line styles (the target is drawn wider, in a colour of its own, so that the joint
+sensor shows on it); and a plot with ``followingViewWidth`` stays empty when it plays a
+recording (Lichtblick 1.28): its plots show the whole time instead.
 """
 
 from __future__ import annotations
@@ -94,11 +104,13 @@ def robot_layout(robot: RobotJoints, buses: Iterable[str]) -> fl.Layout:
     """The layout: a tab per board with joints, and the events and frames of ``buses``."""
     tabs = [fl.TabItem(title=name, content=_row([_column(joint_panels(j)) for j in group]))
             for name, group in _boards(robot.joints)]
-    frames = [fl.RawMessagesPanel(title=f"{bus} frames", config=fl.RawMessagesConfig(
-        topic_path=f"/{topic_chunk(bus)}/frames")) for bus in buses]
-    events = fl.LogPanel(title="events", config=fl.LogConfig(topic_to_render=EVENTS_TOPIC))
-    tabs.append(fl.TabItem(title="events and buses", content=_row(
-        [events, *([_column(list(frames))] if frames else [])])))
+    tabs.append(fl.TabItem(title="events", content=fl.LogPanel(
+        title="events", config=fl.LogConfig(topic_to_render=EVENTS_TOPIC))))
+    first = next(iter(buses), None)
+    if first is not None:
+        tabs.append(fl.TabItem(title="frames", content=fl.RawMessagesPanel(
+            title="frames (its topic picks the bus)", config=fl.RawMessagesConfig(
+                topic_path=f"/{topic_chunk(first)}/frames"))))
     return fl.Layout(content=fl.TabContainer(tabs=tabs))
 
 
@@ -110,6 +122,27 @@ binary split tree in ``layout``)."""
 
 STUDIO_TYPES = {"Log": "RosOut"}
 """Panels Studio 1.x (and Lichtblick) names otherwise than the SDK."""
+STUDIO_TITLE_KEYS = ("lichtblickPanelTitle", "foxglovePanelTitle")
+"""Where a panel's title goes: Lichtblick's key since mid-2025, Studio 1.x's before."""
+STUDIO_SERIES = {"solid": {"color": "#1f77b4", "lineSize": 1.5},
+                 "dashed": {"color": "#ff7f0e", "lineSize": 4}}
+"""A plot's series in Studio 1.x's form, by the SDK's line style (which it does not
+read): a target (dashed) wide and orange, beneath the joint's own value."""
+STUDIO_DROPPED = ("timeWindowMode", "followingViewWidth")
+"""A plot's settings left out (the module docstring: a recording's plots stay empty)."""
+
+
+def studio_plot(cfg: dict[str, Any]) -> dict[str, Any]:
+    """A Plot panel's config of the SDK in Studio 1.x's form."""
+    out = {k: v for k, v in cfg.items() if k not in STUDIO_DROPPED}
+    paths = []
+    for series in cfg.get("paths", []):
+        style = series.get("lineStyle", "solid")
+        kept = {k: v for k, v in series.items()
+                if k not in ("lineStyle", "lineInterpolation")}
+        paths.append({**kept, **STUDIO_SERIES.get(style, STUDIO_SERIES["solid"])})
+    out["paths"] = paths
+    return out
 
 
 def layout_json(robot: RobotJoints, form: str = "foxglove") -> str:
@@ -132,9 +165,13 @@ def studio_layout(sdk: dict[str, Any]) -> dict[str, Any]:
     def node(content: dict[str, Any]) -> Any:
         kind = content["type"]
         if kind == "panel":
-            title = {"foxglovePanelTitle": content["title"]} if content.get("title") else {}
+            title = {k: content["title"] for k in STUDIO_TITLE_KEYS} \
+                if content.get("title") else {}
+            cfg = content.get("config", {})
+            if content["panelType"] == "Plot":
+                cfg = studio_plot(cfg)
             kind = STUDIO_TYPES.get(content["panelType"], content["panelType"])
-            return panel(kind, {**content.get("config", {}), **title})
+            return panel(kind, {**cfg, **title})
         if kind == "tabs":
             return panel("Tab", {"activeTabIdx": content.get("selectedTabIndex", 0),
                                  "tabs": [{"title": t["title"], "layout": node(t["content"])}
@@ -167,4 +204,4 @@ def studio_layout(sdk: dict[str, Any]) -> dict[str, Any]:
 
 
 __all__ = ["EVENTS_TOPIC", "FORMATS", "joint_panels", "layout_json", "robot_layout",
-           "studio_layout", "values_topic"]
+           "studio_layout", "studio_plot", "values_topic"]

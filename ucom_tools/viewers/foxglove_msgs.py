@@ -57,7 +57,9 @@ LOG_INFO, LOG_WARNING, LOG_ERROR = (LOG_LEVELS[k] for k in ("info", "warning", "
 
 SET_SCHEMA: Final[dict[str, Any]] = {
     "title": "ucom.Set", "type": "object",
-    "description": "Set a CI or PAR edge (needs --allow-writes)",
+    "description": "Set a CI or PAR edge by its robot-wide name: publish it on /set "
+                   "(the run needs --allow-writes); the server's /set carries each write "
+                   "it applied",
     "properties": {"name": {"type": "string"}, "value": {"type": "number"}},
     "required": ["name", "value"]}
 
