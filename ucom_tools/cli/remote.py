@@ -192,8 +192,8 @@ a tab with the run's events (/events); a last one with the latest frame of the f
 (/CAN0/frames; the panel's topic field picks another bus: a browser sent every bus's
 frames falls behind).  Import it in the app (Layouts, Import from file), then open
 ws://127.0.0.1:8765 or the recording.  Lichtblick refuses the app's format: give it
---for lichtblick (the format of Foxglove Studio 1.x, which Lichtblick reads).  The file is written whole or not at all; an existing one only with --force
-(else exit code 3)."""
+--for lichtblick (the format of Foxglove Studio 1.x, which Lichtblick reads).  The file
+is written whole or not at all; an existing one only with --force (else exit code 3)."""
 
 
 @remote.command("layout", help=LAYOUT_HELP)
