@@ -199,6 +199,9 @@ def test_a_foxglove_client_plots_the_joints_and_frames_and_sets_the_right_eye(
     assert len(done) == 1 and done[0].endswith(": done"), events
     refused = [e for e in events if "Right Eye Joint Sensor = 5" in e]
     assert len(refused) == 1 and "only CI/PAR edges can be set" in refused[0], events
+    # named as a recording's /events names them
+    assert {m["message"]["name"] for m in _messages(lines, "/events")
+            if " from foxglove client " in m["message"]["message"]} == {"writes"}
     # the server's /set: the write it applied
     assert [m["message"] for m in _messages(lines, "/set")] == \
         [{"name": "Right Eye Target", "value": 1000}]

@@ -128,6 +128,23 @@ def test_values_agree_with_the_runs_last_values(run) -> None:
     assert eyes[0] < 50 and eyes[-1] > 150  # the eye moved towards its target
 
 
+def test_a_value_never_changed_is_in_every_message_from_the_start(run) -> None:
+    """The left eye's target was never written (the right one's was, by --set): its
+    value is in every message from the run's first snapshot on (a tenth of a second),
+    as the boards were configured, so that a plot of it is drawn (Lichtblick showed
+    nothing where a target was never set)."""
+    _, result, got = run
+    final = {e["name"]: e["text"] for b in result["boards"] for e in b["edges"]}
+    messages = [json.loads(m.data) for _, _, m in got["topics"]["/Eyes/values"]]
+    for key, name in (("Left_Eye_Target", "Left Eye Target"),
+                      ("Left_Eye_Target_Vel", "Left Eye Target Vel")):
+        having = [m for m in messages if key in m]
+        assert len(having) > 0.85 * len(messages), key
+        assert having[-1] is messages[-1] and \
+            {str(m[key]) for m in having} == {final[name]}, key
+    assert messages[-1]["Right_Eye_Target"] == 200
+
+
 def test_joints_are_foxglove_joint_states(run) -> None:
     _, result, got = run
     items = got["topics"]["/joints"]

@@ -19,7 +19,9 @@ snapshot's ``stamp``, an event's time via ``on_stamps``), mapped once to the wal
 times; the messages keep the bus time in their ``time`` field.
 
 The values: each board's last value of each edge (from the loop's value changes, every
-SO value with its frame's time) sampled on a grid of ``1 / rate`` seconds of bus time:
+SO value with its frame's time; an edge that no change brought by the first snapshot,
+a target never written, from that snapshot) sampled on a grid of ``1 / rate`` seconds
+of bus time:
 at each sample time every board gets a message ``{"time", "valid", <key>: value ...}``
 (keys: :func:`value_key`; ``valid`` false while its board is lost, its values then the
 last it sent).  A change reported behind a sample time already written (another bus's
@@ -250,6 +252,7 @@ class McapRecorder:
         self._next: float | None = None
         self._timeline: list[tuple[float, BoardKey, bool]] = []
         self._seen = [0, 0, 0]
+        self._seeded = False
         self._last_log: dict[str, int] = {}
         self._failure: BaseException | None = None
         self._closed = False
@@ -313,9 +316,25 @@ class McapRecorder:
             elif kind == "f":
                 self._frames(item[1], item[2])
             else:
+                if not self._seeded:
+                    self._seed(item[1])
                 self._advance(item[1].stamp)
         if self.file.failure is not None:
             raise self.file.failure
+
+    def _seed(self, snap: Any) -> None:
+        """Each edge that no value change has brought yet (a target never written, a
+        PAR as the tree configured it, a sensor that stands still) as the first
+        snapshot has it: in the messages from then on, not from its first change (a
+        plot of a target that was never set stayed empty)."""
+        self._seeded = True
+        image = self._source.image if self._source is not None else None
+        if image is None:
+            return
+        for ref, (_, value) in image.decode(snap.values).items():
+            got = self._slots.get(ref)
+            if got is not None and got[0].texts[got[1]] is None:
+                got[0].set(got[1], str(value))
 
     def _last_snapshot(self) -> int:
         """How many queued items reach to the last snapshot queued."""

@@ -164,9 +164,9 @@ class RunFoxglove:
                    f"{1 / image.period_s:g} Hz", s.clock.ns(snap.stamp))
         lines = self._lines.of(snap)
         if lines and s.wants(s.events):
-            for t, level, text in lines:
+            for t, level, name, text in lines:
                 ns = s.clock.ns(t)
-                s.send(s.events, ns, fm.log_json(ns, level, text))
+                s.send(s.events, ns, fm.log_json(ns, level, text, name))
         sources: list[tuple[Any, Any]] = list(self._boards)
         if self._joints is not None:
             sources.append(self._joints)
@@ -220,9 +220,9 @@ class RunFoxglove:
         final = self.mirror.final()
         s = self.server
         if final is not None and self._image is not None and s.wants(s.events):
-            for t, level, text in self._lines.of(final):
+            for t, level, name, text in self._lines.of(final):
                 ns = s.clock.ns(t)
-                s.send(s.events, ns, fm.log_json(ns, level, text))
+                s.send(s.events, ns, fm.log_json(ns, level, text, name))
             s.note(fm.LOG_INFO, "the loop ended", s.clock.ns(final.stamp))
         s.close()
 
@@ -310,19 +310,23 @@ class BrowseFoxglove:
         t = doc.get("t")  # on the values' time base only for a fault
         ns = s.clock.ns(float(t)) if kind == "fault" and isinstance(t, int | float) \
             else fm.now_ns()
+        name = "ucom"  # as a recording's /events names them: a board's placement, writes
         if kind == "board":
             level, text = fm.LOG_ERROR if doc.get("stopped_motors") else fm.LOG_WARNING, \
                 f"{doc.get('where')}: {doc.get('error')}: {doc.get('text')}"
+            name = str(doc.get("where"))
         elif kind in ("write", "stop"):
             what = "stop" if kind == "stop" else f"set {doc.get('name')} = {doc.get('value')}"
             level = fm.LOG_INFO if doc.get("result") == "done" else fm.LOG_WARNING
             text = f"{what} from {doc.get('origin')}: {doc.get('result')}"
+            name = "writes"
         elif kind == "fault":
-            level = fm.LOG_ERROR if doc.get("event") == "lost" else fm.LOG_INFO
+            level = fm.LOG_WARNING if doc.get("event") == "lost" else fm.LOG_INFO
             text = f"{doc.get('where')} {doc.get('event')}: {doc.get('seen')}"
+            name = str(doc.get("where"))
         else:
             level, text = fm.LOG_INFO, f"robot {self.client.robot}: {doc.get('state', kind)}"
-        s.send(s.events, ns, fm.log_json(ns, level, text))
+        s.send(s.events, ns, fm.log_json(ns, level, text, name))
 
     def _alive(self, up: bool) -> None:
         self.server.note(fm.LOG_INFO if up else fm.LOG_WARNING,

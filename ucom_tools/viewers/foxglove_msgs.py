@@ -213,26 +213,27 @@ def joint_states_of(latest: dict[tuple[BoardKey, str], Any],
 
 # ---------------------------------------------------------------------- events
 class EventLines:
-    """The run's events that came since the last snapshot, as (bus time, level, text):
-    the boards' Errors, the writes and stops from outside, the boards lost and
-    rejoined (in the words and levels of a recording's ``/events``)."""
+    """The run's events that came since the last snapshot, as (bus time, level, name,
+    text): the boards' Errors, the writes and stops from outside, the boards lost and
+    rejoined (in the words, levels and names of a recording's ``/events``: a board's
+    placement, or ``writes``)."""
 
     def __init__(self) -> None:
         self._events = self._writes = self._faults = 0
 
-    def of(self, snap: LoopSnapshot) -> list[tuple[float, int, str]]:
-        out: list[tuple[float, int, str]] = []
+    def of(self, snap: LoopSnapshot) -> list[tuple[float, int, str, str]]:
+        out: list[tuple[float, int, str, str]] = []
         for e in snap.newer(snap.events, snap.events_total, self._events):
             out.append((snap.on_stamps(e.time), LOG_ERROR if e.stopped_motors
-                        else LOG_WARNING, f"{e.where}: {e.code.name}: {e.text}"
+                        else LOG_WARNING, e.where, f"{e.where}: {e.code.name}: {e.text}"
                         + ("; its watchdog stopped its motors" if e.stopped_motors else "")))
         for w in snap.newer(snap.writes, snap.writes_total, self._writes):
             what = "stop" if not w.name else f"set {w.name} = {w.value}"
             out.append((snap.on_stamps(w.time), LOG_INFO if w.done else LOG_WARNING,
-                        f"{what} from {w.origin}: {w.result}"))
+                        "writes", f"{what} from {w.origin}: {w.result}"))
         for f in snap.newer(snap.faults, snap.faults_total, self._faults):
             out.append((snap.on_stamps(f.time), LOG_WARNING if f.event == "lost"
-                        else LOG_INFO, f.describe()))
+                        else LOG_INFO, f.where, f.describe()))
         self._events, self._writes = snap.events_total, snap.writes_total
         self._faults = snap.faults_total
         return sorted(out, key=lambda e: e[0])
