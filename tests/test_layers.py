@@ -18,7 +18,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent / "ucom_tools"
 
 LAYERS: tuple[frozenset[str], ...] = (
-    frozenset({"errors", "native", "compiled", "plugons", "edgelists", "__init__"}),
+    frozenset({"errors", "native", "compiled", "plugons", "edgelists", "courtesy",
+               "__init__"}),
     frozenset({"wire", "fileio", "signals"}),
     frozenset({"memory"}),
     frozenset({"image", "config", "protocol"}),
