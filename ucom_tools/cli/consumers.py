@@ -49,11 +49,15 @@ END_S = 30.0
 NICE = 10
 """This process's niceness: where the machine is short of processor time, the loop and
 the buses get it first (the view renders less often, the recording lags behind and
-catches up).  It runs in a session of its own as well: where Linux shares the processors
-between sessions first (its autogroups), what it uses counts against its own session,
-not the loop's (``benchmarks/consumers.py``, two cores, two busy processes, the served
-fleet: the loop missed 10.4 times the cycles it missed without its consumers while they
-shared its session, 4.5 times in a session of their own)."""
+catches up).  Where Linux shares the processors between sessions first (its autogroups,
+on by default), a niceness counts only among a session's own processes: there what
+puts the loop first is that this process runs in a session of its own, so that what it
+uses counts against its session, not the loop's (``benchmarks/consumers.py``, two
+cores, two busy processes, the served fleet: the loop missed 10.4 times the cycles it
+missed without its consumers while they shared its session, 4.5 times in a session of
+their own).  Giving that session a niceness of its own (``/proc/self/autogroup``) did
+not help the loop measurably (``benchmarks/record.py``, three runs each, 2026-12-08)
+and made the Foxglove delivery later."""
 
 
 # ---------------------------------------------------------------------- the loop's side
