@@ -51,7 +51,7 @@ PURE_TESTS := tests/test_fidelity.py tests/test_compiled.py tests/test_simbus.py
     tests/test_pc_fast_paths.py tests/test_plain_data.py
 
 # lint, then the pure-Python path (it needs no build), beside the build (mypyc type-checks
-# on its own, without mypy's cache); then the compiled suite alone: its fleets run on the
+# on its own, with a cache of its own under build/: tools/compile.py); then the compiled suite alone: its fleets run on the
 # wall clock and a CPU-bound job beside them slows it by more than that job's own length;
 # each one's output together, when it ends
 test: $(STAMP)

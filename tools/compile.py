@@ -123,6 +123,10 @@ def build(modules: tuple[str, ...], group: str) -> None:
     clean()  # never a mixture of an old build and a new one
     os.chdir(ROOT)  # mypycify takes paths relative to the project (and its mypy config)
     BUILD.mkdir(parents=True, exist_ok=True)
+    # mypyc's type check keeps a cache of its own: in .mypy_cache (mypy's SQLite shards)
+    # it met `make lint`'s mypy, which runs beside the build, and mypy failed with an
+    # INTERNAL ERROR (a clean clone's CI, 2026-12-08)
+    os.environ["MYPY_CACHE_DIR"] = str(BUILD / "mypy-cache")
     # one C file per module (multi_file), compiled side by side on every core
     # (_compile_side_by_side), into one shared library: the modules still call each other
     # natively (as one C file did, at the same speed: benchmarks/runtime_fleet.py,
