@@ -9,7 +9,7 @@ each.  Measured in ``benchmarks/record.py`` (ARMAR-III, ``--record run.mcap --fo
 two cores): the values reached the Foxglove feed's thread 11-12 ms (p99) after the loop
 took them while the recorder computed without a pause, 5-6 ms with a pause of
 :data:`PAUSE_S` after each :data:`WORK_S` of its work; delivery to a client p99 15-17 ms
-against 9-10 ms.
+without the pauses, 9-10 ms with them.
 
 A :class:`Courtesy` is called between two pieces of work; once :data:`WORK_S` of work
 went by since its last pause it sleeps :data:`PAUSE_S`, which hands the lock to a thread

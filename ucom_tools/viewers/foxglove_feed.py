@@ -314,7 +314,7 @@ class BrowseFoxglove:
         if kind == "board":
             level, text = fm.LOG_ERROR if doc.get("stopped_motors") else fm.LOG_WARNING, \
                 f"{doc.get('where')}: {doc.get('error')}: {doc.get('text')}"
-            name = str(doc.get("where"))
+            name = str(doc.get("where") or name)
         elif kind in ("write", "stop"):
             what = "stop" if kind == "stop" else f"set {doc.get('name')} = {doc.get('value')}"
             level = fm.LOG_INFO if doc.get("result") == "done" else fm.LOG_WARNING
@@ -323,7 +323,7 @@ class BrowseFoxglove:
         elif kind == "fault":
             level = fm.LOG_WARNING if doc.get("event") == "lost" else fm.LOG_INFO
             text = f"{doc.get('where')} {doc.get('event')}: {doc.get('seen')}"
-            name = str(doc.get("where"))
+            name = str(doc.get("where") or name)
         else:
             level, text = fm.LOG_INFO, f"robot {self.client.robot}: {doc.get('state', kind)}"
         s.send(s.events, ns, fm.log_json(ns, level, text, name))

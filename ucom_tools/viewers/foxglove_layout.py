@@ -7,8 +7,8 @@ the app imports) from the robot's topology and trees alone, no running robot: on
 per board with joints, a plot per joint of its joint sensor against its target (what
 an engineer tuning a gain watches) and one of its velocity; a tab with the run's events
 (``/events``, a Log panel); a last tab with the latest frame of the first bus
-(``/CAN0/frames``; the panel's topic field picks another bus).  The frames have tabs of
-their own and one bus at a time: a client subscribes to what the open tab shows, and a
+(``/CAN0/frames``; the panel's topic field picks another bus).  The frames have a tab of
+their own and show one bus at a time: a client subscribes to what the open tab shows, and a
 browser sent every frame of ARMAR-III's four buses (25,000 a second) fell behind by
 seconds and lost the events beside them (Lichtblick in headless Chromium, two cores).
 
