@@ -11,7 +11,8 @@ What it costs and what it avoids (``/work``'s measurements, ``man/ucom.1``, FOXG
   encoded` counts what was;
 - the SDK's server never sets TCP_NODELAY (Nagle's algorithm held small messages back
   13-24 ms at p99): its sockets are this process's file descriptors, so when a client
-  subscribes, :func:`nodelay` finds the connected sockets of the server's port and sets
+  subscribes, :func:`nodelay` (on a thread of the server's, never the SDK's callback)
+  finds the connected sockets of the server's port and sets
   the option on them (Linux's ``/proc/self/fd``; elsewhere it says it could not);
 - the server speaks only the subprotocol ``foxglove.sdk.v1`` (Lichtblick releases before
   late 2025 cannot connect).
@@ -113,6 +114,8 @@ class FoxgloveServer:
         self.clock = fm.WallClock()
         self._client_topics: dict[tuple[int, int], str] = {}
         self._lock = threading.Lock()
+        self._closing = False
+        self._nodelay_wanted = threading.Event()
         try:
             self.server = foxglove.start_server(
                 name=name, host=host, port=port, context=self.context,
@@ -123,6 +126,8 @@ class FoxgloveServer:
             raise BusError(f"the Foxglove server on {address_text(host, port)}: cannot "
                            f"serve there: {why}") from None
         self.port = self.server.port
+        threading.Thread(target=self._nodelay_run, name="ucom-foxglove-nodelay",
+                         daemon=True).start()
         self.events = self.channel(fm.EVENTS_TOPIC, fm.LOG_SCHEMA)
         self.sets = self.channel(fm.SET_TOPIC, fm.SET_SCHEMA)
         self._log = _ToEvents(self)  # the SDK's own warnings: on /events, not the terminal
@@ -205,12 +210,27 @@ class FoxgloveServer:
             return topic
 
     def on_subscribed(self) -> None:
-        n = nodelay(self.port)
-        with self._lock:
-            self.nodelay_sockets += n
+        """A client subscribed (the SDK's thread): its socket gets TCP_NODELAY on a thread
+        of this server's, not here: the SDK takes the next subscription only when this
+        returns, and a scan of this process's sockets waits for the GIL at every step
+        while the feed's thread computes (a client's later subscriptions came seconds
+        late in a busy CI run)."""
+        self._nodelay_wanted.set()
+
+    def _nodelay_run(self) -> None:
+        while True:
+            self._nodelay_wanted.wait()
+            if self._closing:
+                return
+            self._nodelay_wanted.clear()
+            n = nodelay(self.port)
+            with self._lock:
+                self.nodelay_sockets += n
 
     # ------------------------------------------------------------------ the end
     def close(self) -> None:
+        self._closing = True
+        self._nodelay_wanted.set()
         with contextlib.suppress(Exception):
             self.server.stop()
         logging.getLogger("foxglove").removeHandler(self._log)
