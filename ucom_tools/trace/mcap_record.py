@@ -109,8 +109,6 @@ class Board:
     valid: bool = True
     channel: Any = None
     fields: list[str | None] = field(default_factory=list)
-    known: int = 0
-    """How many of its edges have a value."""
     body: str | None = None
     """The fields joined (None: to be joined again)."""
 
@@ -123,16 +121,19 @@ class Board:
     def set(self, i: int, text: str) -> None:
         """Edge ``i``'s value is ``text`` now."""
         if self.texts[i] != text:
-            if self.texts[i] is None:
-                self.known += 1
             self.texts[i] = text
             self.fields[i] = f'"{self.keys[i]}":{text}'
             self.body = None
 
-    def message(self, t: float) -> bytes:
+    def joined(self) -> str:
+        """Its fields joined ('' while no edge has a value)."""
         body = self.body
         if body is None:
             body = self.body = ",".join(f for f in self.fields if f is not None)
+        return body
+
+    def message(self, t: float) -> bytes:
+        body = self.joined()
         return (f'{{"time":{t!r},"valid":{"true" if self.valid else "false"}'
                 + ("," + body if body else "") + "}").encode()
 
@@ -328,13 +329,19 @@ class McapRecorder:
         snapshot has it: in the messages from then on, not from its first change (a
         plot of a target that was never set stayed empty)."""
         self._seeded = True
+        self._take_values(snap, missing_only=True)
+
+    def _take_values(self, snap: Any, *, missing_only: bool) -> bool:
+        """The snapshot's values into the boards (only where an edge has none yet, with
+        ``missing_only``); False where the run's structure is not known."""
         image = self._source.image if self._source is not None else None
-        if image is None:
-            return
+        if image is None or self._boards is None:
+            return False
         for ref, (_, value) in image.decode(snap.values).items():
             got = self._slots.get(ref)
-            if got is not None and got[0].texts[got[1]] is None:
+            if got is not None and not (missing_only and got[0].texts[got[1]] is not None):
                 got[0].set(got[1], str(value))
+        return True
 
     def _last_snapshot(self) -> int:
         """How many queued items reach to the last snapshot queued."""
@@ -413,7 +420,7 @@ class McapRecorder:
                 if (b.bus, b.board) == board:
                     b.valid = valid
         for b in self._boards or ():
-            if b.known:
+            if b.joined():
                 self._log(b.channel, b.topic, t, b.message(t))
                 self.samples += 1
         if self._joint_channel is not None:
@@ -477,14 +484,9 @@ class McapRecorder:
     def _last_values(self, snap: Any) -> None:
         """The last snapshot's values: one more message per board, what ``--json``
         prints."""
-        image = self._source.image if self._source is not None else None
-        if image is None or self._boards is None:
+        if not self._take_values(snap, missing_only=False):
             return
-        for ref, (_, value) in image.decode(snap.values).items():
-            got = self._slots.get(ref)
-            if got is not None:
-                got[0].set(got[1], str(value))
-        for b in self._boards:
+        for b in self._boards or ():
             b.valid = not snap.stale(b.bus, b.board)
         t = max(snap.stamp, self._next if self._next is not None else snap.stamp)
         self._timeline.clear()

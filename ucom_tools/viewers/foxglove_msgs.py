@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Final
 
@@ -107,9 +107,8 @@ def time_json(ns: int) -> str:
     return mcapfile.stamp_json(ns)
 
 
-def frame_json(entry: SinkEntry) -> bytes:
-    """One frame as its ``/<bus>/frames`` message (:data:`FRAME_SCHEMA`)."""
-    return mcapfile.entry_json(entry)
+frame_json: Callable[[SinkEntry], bytes] = mcapfile.entry_json
+"""One frame as its ``/<bus>/frames`` message (:data:`FRAME_SCHEMA`): a recording's."""
 
 
 def log_json(ns: int, level: int, message: str, name: str = "ucom") -> str:
